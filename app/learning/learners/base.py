@@ -1,0 +1,303 @@
+"""What every tabular learner shares: bookkeeping, the silent-step loop, validation and export.
+
+Subclasses declare their tables (``_tables``), learn from single transitions (``_observe``) or
+from whole episodes once they close (``_close``), and turn a context into a plan
+(``_plan``) and a plan into an action distribution (``_policy``).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from typing import Any, ClassVar, Generic, Self, TypeVar
+
+import numpy as np
+
+from ..config import Params
+from ..mission import Mission
+from ..planning import draw
+from ..space import NegotiationSpace, space_for
+from ..state import FORMAT, FORMAT_VERSION, StateFormatError, decode_array, encode_array
+from ..types import (
+    ChainStep,
+    ContextView,
+    Decision,
+    FloatArray,
+    IntArray,
+    Interaction,
+    Observation,
+    Polarity,
+    Transition,
+)
+
+__all__ = ["TabularLearner", "interaction_class"]
+
+P = TypeVar("P", bound=Params)
+_ONE = np.ones(1, dtype=np.float64)
+_ONE.setflags(write=False)
+
+
+def interaction_class(space: NegotiationSpace, rows: Sequence[Transition]) -> Interaction:
+    """Eq. (1) from an episode's root step: who initiated and how it was taken."""
+    for row in rows:
+        if row.state == space.OBSERVE:
+            accepted = row.next_state != space.END
+            if row.action == space.INITIATE:
+                return Interaction.I2 if accepted else Interaction.I3
+            return Interaction.I1 if accepted else Interaction.NONE
+    return Interaction.NONE
+
+
+class TabularLearner(Generic[P]):
+    """Base of the learners: per-context tables indexed (context, pair).
+
+    Shared state, all exported:
+        visits: (C, P) int64, raw executions n(s, a).
+        last: (C, P) int64, user episode index of the last execution (0 = never).
+        last_ctx: (C, P) int64, the context's episode count at the last execution.
+        ctx_count: (C,) int64, episodes begun per context (root steps seen).
+        episodes: the highest episode index seen; pending: transitions of open episodes.
+    """
+
+    algorithm: ClassVar[str]
+    params_type: ClassVar[type[Params]]
+    _tables: ClassVar[dict[str, tuple[type, str]]] = {}  # name -> (dtype, shape code)
+    MAX_OPEN_EPISODES: ClassVar[int] = 256
+
+    def __init__(self, mission: Mission, params: P | None = None) -> None:
+        self.mission = mission
+        self.space = space_for(mission)
+        if params is None:
+            params = self.params_type()  # type: ignore[assignment]
+        if not isinstance(params, self.params_type):
+            raise ValueError(f"params for {self.algorithm} must be {self.params_type.__name__}.")
+        self._params: P = params  # type: ignore[assignment]
+        C, Pn = self.space.n_contexts, self.space.n_actions
+        self.version = 0
+        self.episodes = 0
+        self.visits: IntArray = np.zeros((C, Pn), dtype=np.int64)
+        self.last: IntArray = np.zeros((C, Pn), dtype=np.int64)
+        self.last_ctx: IntArray = np.zeros((C, Pn), dtype=np.int64)
+        self.ctx_count: IntArray = np.zeros(C, dtype=np.int64)
+        self._pending: dict[int, list[Transition]] = {}
+        self._cache: dict[int, Any] = {}
+        for name, (dtype, code) in self._tables.items():
+            setattr(self, name, np.zeros(self._shape(code), dtype=dtype))
+        self._init_tables()
+
+    # -- subclass hooks ------------------------------------------------------------------------
+    def _init_tables(self) -> None:
+        """Fill tables whose initial value is not zero."""
+
+    def _observe(self, tr: Transition) -> None:
+        """Learn from one transition as it arrives."""
+
+    def _close(self, rows: list[Transition]) -> None:
+        """Learn from a whole episode once its last transition arrived (rows in order)."""
+
+    def _plan(self, context: int, episode: int, rng: np.random.Generator | None) -> Any:
+        raise NotImplementedError
+
+    def _policy(self, plan: Any, context: int, state: int, episode: int) -> FloatArray:
+        raise NotImplementedError
+
+    def _q(self, context: int) -> FloatArray:
+        """Point estimate of Q for one context, (P,)."""
+        raise NotImplementedError
+
+    def _kept_visits(self, context: int) -> FloatArray | None:
+        return None
+
+    def _measure(self, context: int, episode: int) -> FloatArray | None:
+        return None
+
+    # -- the protocol --------------------------------------------------------------------------
+    @property
+    def params(self) -> P:
+        return self._params
+
+    def select_action(self, obs: Observation, rng: np.random.Generator) -> Decision:
+        """Draw the robot's next visible action from ``obs``, following silent steps on the way."""
+        self._check_observation(obs)
+        space = self.space
+        plan = self._plan(obs.context, obs.episode, rng)
+        state = obs.state
+        chain: list[ChainStep] = []
+        while True:
+            actions = space.actions_of(state)
+            if len(actions) == 1:
+                probs = _ONE
+                action = actions.start
+            else:
+                probs = self._policy(plan, obs.context, state, obs.episode)
+                action = actions.start + draw(probs, rng)
+            if not space.silent[action]:
+                return Decision(obs.context, state, action, probs, tuple(chain))
+            nxt = int(space.silent_next[action])
+            chain.append(ChainStep(state, action, probs, nxt, float(space.silent_reward[action])))
+            state = nxt
+
+    def update(self, transitions: Sequence[Transition]) -> None:
+        """Learn from the transitions one report resolved; the version goes up by one."""
+        for tr in transitions:
+            self._check_transition(tr)
+        for tr in transitions:
+            c, a = tr.context, tr.action
+            self.episodes = max(self.episodes, tr.episode)
+            self.visits[c, a] += 1
+            self.last[c, a] = max(int(self.last[c, a]), tr.episode)
+            if tr.state == self.space.OBSERVE:
+                self.ctx_count[c] += 1
+            self.last_ctx[c, a] = self.ctx_count[c]
+            self._observe(tr)
+            rows = self._pending.setdefault(tr.episode, [])
+            rows.append(tr)
+            if tr.next_state == self.space.END:
+                self._close(self._pending.pop(tr.episode))
+            elif len(self._pending) > self.MAX_OPEN_EPISODES:
+                # An episode nobody closed (a robot that vanished): forget its open samples.
+                del self._pending[min(self._pending)]
+        self.version += 1
+
+    def explain(self, context: int, episode: int) -> ContextView:
+        """What the learner believes in ``context`` if asked now, in episode ``episode``."""
+        self._check_observation(Observation(context, 0, episode))
+        plan = self._plan(context, episode, None)
+        probs = np.empty(self.space.n_actions, dtype=np.float64)
+        for s in range(self.space.n_states):
+            actions = self.space.actions_of(s)
+            probs[actions.start : actions.stop] = (
+                _ONE if len(actions) == 1 else self._policy(plan, context, s, episode)
+            )
+        return ContextView(
+            q=self._q(context).copy(),
+            visits=self.visits[context].copy(),
+            kept_visits=self._kept_visits(context),
+            since_last=self.since_last(context, episode),
+            measure=self._measure(context, episode),
+            probabilities=probs,
+        )
+
+    def since_last(self, context: int, episode: int) -> IntArray:
+        """t(s, a): episodes since each pair's last execution (never executed: ``episode``)."""
+        out: IntArray = episode - self.last[context]
+        return out
+
+    # -- validation ----------------------------------------------------------------------------
+    def _check_observation(self, obs: Observation) -> None:
+        space = self.space
+        if not 0 <= obs.context < space.n_contexts:
+            raise ValueError(f"context must be in [0, {space.n_contexts}), got {obs.context}.")
+        if not 0 <= obs.state < space.n_states:
+            raise ValueError(f"state must be in [0, {space.n_states}), got {obs.state}.")
+        if obs.episode < 1:
+            raise ValueError(f"episode must be 1 or more, got {obs.episode}.")
+
+    def _check_transition(self, tr: Transition) -> None:
+        self._check_observation(Observation(tr.context, tr.state, tr.episode))
+        space = self.space
+        if tr.action not in space.actions_of(tr.state):
+            raise ValueError(
+                f"action {tr.action} is not available in {space.state_name(tr.state)}."
+            )
+        space.successor_column(tr.action, tr.next_state)  # raises ValueError
+        if not math.isfinite(tr.reward):
+            raise ValueError(f"reward must be a finite number, got {tr.reward!r}.")
+        Polarity(tr.signal)  # raises ValueError
+
+    # -- export / import -----------------------------------------------------------------------
+    def _shape(self, code: str) -> tuple[int, ...]:
+        dims = {
+            "C": self.space.n_contexts,
+            "P": self.space.n_actions,
+            "M": self.space.max_succ,
+            "3": 3,
+        }
+        return tuple(dims[ch] for ch in code)
+
+    def _exported(self) -> dict[str, tuple[np.ndarray, str]]:
+        out = {
+            "visits": (self.visits, "CP"),
+            "last": (self.last, "CP"),
+            "last_ctx": (self.last_ctx, "CP"),
+            "ctx_count": (self.ctx_count, "C"),
+        }
+        for name, (_, code) in self._tables.items():
+            out[name] = (getattr(self, name), code)
+        return out
+
+    def to_state(self) -> dict[str, Any]:
+        """The learner as a self-describing JSON-ready document (see ``app.learning.state``)."""
+        return {
+            "format": FORMAT,
+            "format_version": FORMAT_VERSION,
+            "algorithm": self.algorithm,
+            "params": self._params.to_dict(),
+            "mission": {"name": self.mission.name, "fingerprint": self.mission.fingerprint},
+            "version": self.version,
+            "episodes": self.episodes,
+            "arrays": {name: encode_array(arr) for name, (arr, _) in self._exported().items()},
+            "pending": [
+                [t.episode, t.context, t.state, t.action, t.reward, t.next_state, int(t.signal)]
+                for rows in self._pending.values()
+                for t in rows
+            ],
+        }
+
+    @classmethod
+    def from_state(cls, doc: Mapping[str, Any], mission: Mission) -> Self:
+        """Rebuild a learner from ``to_state``'s document; :class:`StateFormatError` if it won't fit."""
+        if doc.get("format") != FORMAT:
+            raise StateFormatError(f"format must be {FORMAT!r}, got {doc.get('format')!r}.")
+        if doc.get("format_version") != FORMAT_VERSION:
+            raise StateFormatError(
+                f"format_version {doc.get('format_version')!r} is not supported (this service "
+                f"reads version {FORMAT_VERSION})."
+            )
+        if doc.get("algorithm") != cls.algorithm:
+            raise StateFormatError(
+                f"algorithm must be {cls.algorithm!r}, got {doc.get('algorithm')!r}."
+            )
+        meta = doc.get("mission")
+        if not isinstance(meta, Mapping) or meta.get("fingerprint") != mission.fingerprint:
+            name = meta.get("name") if isinstance(meta, Mapping) else None
+            raise StateFormatError(
+                f"the state was learned for mission {name!r} with other services, situations or "
+                f"rewards than the mission in force ({mission.name!r})."
+            )
+        try:
+            params = cls.params_type.from_dict(doc.get("params"))
+        except (ValueError, TypeError) as exc:
+            raise StateFormatError(f"params: {exc}") from None
+        learner = cls(mission, params)  # type: ignore[arg-type]
+        for field in ("version", "episodes"):
+            value = doc.get(field)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+                raise StateFormatError(f"{field} must be a whole number of 0 or more.")
+            setattr(learner, field, value)
+        arrays = doc.get("arrays")
+        if not isinstance(arrays, Mapping):
+            raise StateFormatError("arrays must be an object.")
+        for name, (current, code) in learner._exported().items():
+            if name not in arrays:
+                raise StateFormatError(f"arrays.{name} is missing.")
+            value = decode_array(
+                arrays[name], name=name, dtype=current.dtype, shape=learner._shape(code)
+            )
+            current[...] = value
+        pending = doc.get("pending", [])
+        if not isinstance(pending, list):
+            raise StateFormatError("pending must be a list.")
+        for i, row in enumerate(pending):
+            try:
+                ep, c, s, a, r, nxt, sig = row
+                tr = Transition(int(ep), int(c), int(s), int(a), float(r), int(nxt), Polarity(sig))
+                learner._check_transition(tr)
+            except (TypeError, ValueError):
+                raise StateFormatError(f"pending[{i}] is not a valid transition.") from None
+            learner._pending.setdefault(tr.episode, []).append(tr)
+        learner._after_import()
+        return learner
+
+    def _after_import(self) -> None:
+        """Re-derive anything not exported."""

@@ -1,0 +1,41 @@
+"""The learner protocol: choose an action, learn from what happened. The loop lives outside."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any, ClassVar, Protocol
+
+import numpy as np
+
+from .space import NegotiationSpace
+from .types import ContextView, Decision, Observation, Transition
+
+__all__ = ["Learner"]
+
+
+class Learner(Protocol):
+    """What every learner offers; ``app.learning.checks.check_learner`` verifies the contract.
+
+    - ``select_action`` is pure: it reads the learner and draws from ``rng`` only. It follows
+      silent steps (respond, infer) itself and returns them as ``Decision.chain``; the caller
+      reports them back through ``update`` with the outcome they led to.
+    - ``update`` takes the transitions one report resolved (silent steps and the answered action,
+      in order). One call is one change of the model: ``version`` goes up by exactly one.
+    - ``to_state`` exports a self-describing document (plain JSON types, no pickle) that
+      ``app.learning.state.learner_from_state`` turns back into an identical learner.
+    """
+
+    algorithm: ClassVar[str]
+    space: NegotiationSpace
+    version: int
+
+    @property
+    def params(self) -> Any: ...
+
+    def select_action(self, obs: Observation, rng: np.random.Generator) -> Decision: ...
+
+    def update(self, transitions: Sequence[Transition]) -> None: ...
+
+    def to_state(self) -> dict[str, Any]: ...
+
+    def explain(self, context: int, episode: int) -> ContextView: ...
