@@ -1,0 +1,140 @@
+"""Run many seeded experiment runs in parallel, with a progress bar, in a deterministic order.
+
+One job is one method on one protocol with one seed (all ``n_users`` users): coarse enough that
+pickling and process start-up stay small next to the simulation itself.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import os
+from collections.abc import Iterable, Sequence
+from concurrent.futures import Future, ProcessPoolExecutor, as_completed
+from dataclasses import dataclass
+
+from rich.console import Console
+from rich.progress import (
+    BarColumn,
+    MofNCompleteColumn,
+    Progress,
+    TaskProgressColumn,
+    TextColumn,
+    TimeElapsedColumn,
+    TimeRemainingColumn,
+)
+
+from app.learning import office_mission
+from app.learning.experiments import Method, Protocol, RunResult, run
+
+__all__ = ["Job", "JobError", "default_workers", "jobs_for", "run_job", "run_jobs"]
+
+
+@dataclass(frozen=True)
+class Job:
+    """One run to do: a method on a protocol with a seed, for ``n_users`` simulated users."""
+
+    method: Method
+    protocol: Protocol
+    seed: int
+    n_users: int = 6
+
+    def describe(self) -> str:
+        """A short human-readable name for messages."""
+        return f"{self.method.label} / {self.protocol.name} / seed {self.seed}"
+
+
+class JobError(RuntimeError):
+    """A job raised; the message names the job, the cause is chained."""
+
+
+def jobs_for(
+    methods: Iterable[Method], protocols: Iterable[Protocol], seeds: int, n_users: int = 6
+) -> list[Job]:
+    """Every method x protocol x seed (seeds 0..seeds-1), ordered protocol, method, seed."""
+    methods, protocols = list(methods), list(protocols)
+    return [
+        Job(method, protocol, seed, n_users)
+        for protocol in protocols
+        for method in methods
+        for seed in range(seeds)
+    ]
+
+
+def run_job(job: Job) -> RunResult:
+    """Do one job; the mission is built here, in the worker, rather than pickled."""
+    return run(job.method, job.protocol, job.seed, office_mission(), n_users=job.n_users)
+
+
+def default_workers() -> int:
+    """The default number of worker processes: one per CPU."""
+    return os.cpu_count() or 1
+
+
+def _progress(console: Console | None, enabled: bool) -> Progress:
+    """A progress bar with description, bar, done/total, percentage, elapsed time and ETA."""
+    return Progress(
+        TextColumn("[progress.description]{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TaskProgressColumn(),
+        TextColumn("elapsed"),
+        TimeElapsedColumn(),
+        TextColumn("ETA"),
+        TimeRemainingColumn(),
+        console=console,
+        disable=not enabled,
+    )
+
+
+def run_jobs(
+    jobs: Sequence[Job],
+    workers: int | None = None,
+    *,
+    description: str = "Running",
+    console: Console | None = None,
+    progress: bool = True,
+) -> list[RunResult]:
+    """Run ``jobs`` on ``workers`` processes (default: one per CPU); results in job order.
+
+    ``workers == 1`` runs in this process, without a pool. Longer protocols are submitted first
+    so that the last jobs to finish are short ones. Workers are started with "spawn", which is
+    safe next to the progress bar's refresh thread and warns about nothing.
+    """
+    workers = default_workers() if workers is None else workers
+    if workers < 1:
+        raise ValueError(f"workers must be at least 1, got {workers}.")
+    results: list[RunResult | None] = [None] * len(jobs)
+    with _progress(console, progress) as bar:
+        task = bar.add_task(description, total=len(jobs))
+        if workers == 1 or len(jobs) <= 1:
+            for i, job in enumerate(jobs):
+                try:
+                    results[i] = run_job(job)
+                except Exception as exc:
+                    raise _failed(job, exc) from exc
+                bar.advance(task)
+        else:
+            order = sorted(range(len(jobs)), key=lambda i: -jobs[i].protocol.n_events)
+            context = multiprocessing.get_context("spawn")
+            with ProcessPoolExecutor(min(workers, len(jobs)), mp_context=context) as pool:
+                futures: dict[Future[RunResult], int] = {}
+                try:
+                    for i in order:
+                        futures[pool.submit(run_job, jobs[i])] = i
+                    for future in as_completed(futures):
+                        i = futures[future]
+                        try:
+                            results[i] = future.result()
+                        except Exception as exc:
+                            raise _failed(jobs[i], exc) from exc
+                        bar.advance(task)
+                except BaseException:
+                    for future in futures:
+                        future.cancel()
+                    raise
+    return [result for result in results if result is not None]
+
+
+def _failed(job: Job, exc: Exception) -> JobError:
+    """The error to raise when ``job`` raised ``exc``."""
+    return JobError(f"Run {job.describe()} failed: {exc!r}")
