@@ -101,8 +101,9 @@ def _written(console: Console, out: Path, files: Sequence[Path], seconds: float)
     "Writes into --out: fig2.png (cumulative reward, events 1-50 of E1/E2), fig3.png (events "
     "51-100, re-zeroed at the needs change), rewards.csv (every event of every run: protocol, "
     "method, seed, user, event, reward, initiated, interaction, success, queries), table2.md "
-    "(Table II beside the paper's targets, and the 200-event PA per 100-event block) and "
-    "summary.json (all the numbers).\n\n"
+    "(Table II beside the paper's targets, and the 200-event PA per 100-event block), "
+    "summary.json (all the numbers) and claims.md (each of the paper's qualitative claims, "
+    "reproduced or not, with the numbers it was decided on).\n\n"
     "Takes about 30 s with the default 20 seeds on 2 CPUs (time grows linearly with --seeds "
     "and --users, and shrinks with more --jobs).",
 )

@@ -185,7 +185,8 @@ class DtsParams(Params):
 
     forgetting: per-pair discount lambda of the counts, n <- lambda * n + 1 (1 = no forgetting).
     prior_count: Dirichlet pseudo-count per possible successor of a human-facing action.
-    reward_prior: prior mean of a pair's reward; reward_prior_count: its weight in samples.
+    reward_prior: prior mean of a pair's reward (a little below 0: an untried service is more
+        likely wrong than right); reward_prior_count: its weight in samples.
     reward_sd: spread of one reward around its mean (the posterior's noise scale).
     samples: posterior models drawn per decision; the action distribution is their argmax share.
     i1_as_acceptance: a human-initiated episode in a context also counts as an accepted
@@ -195,10 +196,10 @@ class DtsParams(Params):
     algorithm: ClassVar[str] = "dts"
     forgetting: float = 0.8
     prior_count: float = 0.25
-    reward_prior: float = 0.0
+    reward_prior: float = -1.0
     reward_prior_count: float = 1.0
-    reward_sd: float = 2.0
-    samples: int = 32
+    reward_sd: float = 1.0
+    samples: int = 16
     i1_as_acceptance: bool = True
     vi_tol: float = 1e-8
     vi_max_sweeps: int = 500

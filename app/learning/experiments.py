@@ -185,7 +185,8 @@ def run(
     for user in range(n_users):
         before, after = user_profiles(mission, seed, user)
         if user_params:
-            before, after = replace(before, **user_params), replace(after, **user_params)
+            before = replace(before, **user_params)  # type: ignore[arg-type]
+            after = replace(after, **user_params)  # type: ignore[arg-type]
         if protocol.change_at is None:
             profiles, points = [before], [0]
         else:

@@ -70,7 +70,8 @@ def _parse_clock(value: object, where: str) -> time:
 
 @dataclass(frozen=True, slots=True)
 class TimeSlot:
-    """A named part of the day, ``[start, end)`` in local time; it wraps midnight when end <= start."""
+    """A named part of the day, ``[start, end)`` in local time; wraps midnight if end <= start
+    (so start == end is the whole day, for a mission with a single slot)."""
 
     name: str
     start: time
@@ -123,6 +124,10 @@ class Rewards:
             raise MissionError(f"rewards.negative: must be below 0, got {self.negative}.")
         if self.query > 0:
             raise MissionError(f"rewards.query: must be 0 or less, got {self.query}.")
+        for name in ("positive", "accepted_service", "negative", "query"):
+            # Floats always: "positive": 1 and 1.0 are one mission (one fingerprint), and the
+            # rewards flow into exported states, which must re-export identically.
+            object.__setattr__(self, name, float(getattr(self, name)))
 
     @property
     def max_step(self) -> float:
@@ -164,7 +169,9 @@ class Mission:
         for i, service in enumerate(self.services):
             _check_name(service.name, f"services[{i}].name")
             if not service.details:
-                raise MissionError(f"services[{i}].details: {service.name} needs at least one detail.")
+                raise MissionError(
+                    f"services[{i}].details: {service.name} needs at least one detail."
+                )
             for j, detail in enumerate(service.details):
                 _check_name(detail, f"services[{i}].details[{j}]")
             _check_unique(service.details, f"services[{i}].details")
@@ -173,6 +180,7 @@ class Mission:
             raise MissionError(f"gamma: {self.gamma!r} is not a number.")
         if not 0.0 <= self.gamma < 1.0:
             raise MissionError(f"gamma: the discount must be in [0, 1), got {self.gamma}.")
+        object.__setattr__(self, "gamma", float(self.gamma))
         for i, situation in enumerate(self.unavailable_situations):
             if situation not in self.situations:
                 raise MissionError(
@@ -185,11 +193,6 @@ class Mission:
     def _check_day_cover(self) -> None:
         owner: list[str | None] = [None] * _MINUTES_PER_DAY
         for i, slot in enumerate(self.time_slots):
-            if slot.start == slot.end:
-                raise MissionError(
-                    f"time_slots[{i}]: {slot.name} starts and ends at the same time; use "
-                    "start < end, or end < start to wrap midnight."
-                )
             spans = slot.minutes()
             for span in spans if isinstance(spans, tuple) else (spans,):
                 for m in span:
@@ -217,7 +220,7 @@ class Mission:
         return len(self.time_slots) * len(self.situations)
 
     def context_index(self, time_slot: str, situation: str) -> int:
-        """Index of the context (time slot, situation); raises ``ValueError`` naming the allowed values."""
+        """Index of the context (time slot, situation); ``ValueError`` names the allowed values."""
         slots = [s.name for s in self.time_slots]
         if time_slot not in slots:
             raise ValueError(f"unknown time slot {time_slot!r}; allowed: {slots}")

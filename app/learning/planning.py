@@ -74,4 +74,5 @@ def draw(probabilities: FloatArray, rng: np.random.Generator) -> int:
         return 0
     cdf = np.cumsum(probabilities)
     u = rng.random() * cdf[-1]
-    return min(int(np.searchsorted(cdf, u, side="right")), probabilities.shape[0] - 1)
+    index = int(np.searchsorted(cdf, u, side="right"))
+    return min(index, int(probabilities.shape[0]) - 1)

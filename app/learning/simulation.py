@@ -133,10 +133,11 @@ def event_stream(
     for e in range(n_events):
         profile = profiles[sum(1 for cp in change_points if cp <= e) - 1]
         need_contexts = [n.context for n in profile.needs]
-        if rng.random() < p_need and need_contexts:
+        others = [c for c in range(mission.n_contexts) if c not in need_contexts]
+        # Same draws as before; a mission whose every context holds a need has no "other" one.
+        if (rng.random() < p_need or not others) and need_contexts:
             out[e] = need_contexts[int(rng.integers(len(need_contexts)))]
         else:
-            others = [c for c in range(mission.n_contexts) if c not in need_contexts]
             out[e] = others[int(rng.integers(len(others)))]
     return out
 
@@ -171,14 +172,15 @@ def respond(
     if profile.p_abort > 0.0 and uniforms[1] < profile.p_abort:
         return Response("terminated", rw.negative, END, Polarity.NEGATIVE)
     u = uniforms[0]
+    available = mission.context_names(context)[1] not in mission.unavailable_situations
     if kind is ActionKind.INITIATE:
-        available = mission.context_names(context)[1] not in mission.unavailable_situations
         p = profile.p_acc if need is not None else profile.p_idle_acc
         if available and u < p:
             return Response("accepted", rw.positive, space.ENGAGED, Polarity.POSITIVE)
         return Response("rejected", rw.negative, END, Polarity.NEGATIVE)
     if kind is ActionKind.PASS:
-        if need is not None and u < profile.p_self:
+        # Section 7: busy (an unavailable situation) => always reject, never initiate.
+        if need is not None and available and u < profile.p_self:
             name = mission.services[need.service].name
             return Response("human_request", 0.0, space.request_state(name), Polarity.POSITIVE)
         return Response("none", 0.0, END, Polarity.NEUTRAL)

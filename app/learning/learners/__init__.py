@@ -35,7 +35,7 @@ ALGORITHMS: dict[str, type[TabularLearner[Any]]] = {
 def make_learner(
     algorithm: str, params: Mapping[str, Any] | None, mission: Mission
 ) -> TabularLearner[Any]:
-    """A fresh learner; ``ValueError`` with a sentence for an unknown algorithm or a bad parameter."""
+    """A fresh learner; ``ValueError`` with a sentence for an unknown algorithm or parameter."""
     cls = ALGORITHMS.get(algorithm)
     if cls is None:
         raise ValueError(

@@ -67,11 +67,10 @@ class TabularLearner(Generic[P]):
     def __init__(self, mission: Mission, params: P | None = None) -> None:
         self.mission = mission
         self.space = space_for(mission)
-        if params is None:
-            params = self.params_type()  # type: ignore[assignment]
-        if not isinstance(params, self.params_type):
+        chosen: Params = self.params_type() if params is None else params
+        if not isinstance(chosen, self.params_type):
             raise ValueError(f"params for {self.algorithm} must be {self.params_type.__name__}.")
-        self._params: P = params  # type: ignore[assignment]
+        self._params: P = chosen  # type: ignore[assignment]
         C, Pn = self.space.n_contexts, self.space.n_actions
         self.version = 0
         self.episodes = 0
@@ -211,6 +210,7 @@ class TabularLearner(Generic[P]):
             "C": self.space.n_contexts,
             "P": self.space.n_actions,
             "M": self.space.max_succ,
+            "2": 2,
             "3": 3,
         }
         return tuple(dims[ch] for ch in code)
@@ -238,7 +238,8 @@ class TabularLearner(Generic[P]):
             "episodes": self.episodes,
             "arrays": {name: encode_array(arr) for name, (arr, _) in self._exported().items()},
             "pending": [
-                [t.episode, t.context, t.state, t.action, t.reward, t.next_state, int(t.signal)]
+                [int(t.episode), int(t.context), int(t.state), int(t.action), float(t.reward),
+                 int(t.next_state), int(t.signal)]
                 for rows in self._pending.values()
                 for t in rows
             ],
@@ -246,7 +247,7 @@ class TabularLearner(Generic[P]):
 
     @classmethod
     def from_state(cls, doc: Mapping[str, Any], mission: Mission) -> Self:
-        """Rebuild a learner from ``to_state``'s document; :class:`StateFormatError` if it won't fit."""
+        """Rebuild a learner from ``to_state``'s document, or raise :class:`StateFormatError`."""
         if doc.get("format") != FORMAT:
             raise StateFormatError(f"format must be {FORMAT!r}, got {doc.get('format')!r}.")
         if doc.get("format_version") != FORMAT_VERSION:

@@ -25,6 +25,7 @@ import numpy as np
 
 from ..config import DtsParams
 from ..planning import value_iteration
+from ..space import ActionKind
 from ..types import FloatArray, Transition
 from .base import TabularLearner
 
@@ -41,10 +42,20 @@ class DtsLearner(TabularLearner[DtsParams]):
         "dn": (np.float64, "CP"),
         "dr": (np.float64, "CP"),
         "dns": (np.float64, "CPM"),
+        "answered": (np.float64, "2"),
     }
     dn: FloatArray
     dr: FloatArray
     dns: FloatArray
+    answered: FloatArray  # (2,): discounted count and reward sum of services performed as asked
+
+    def _init_tables(self) -> None:
+        space = self.space
+        self._query_detail = np.asarray(
+            [a.kind is ActionKind.QUERY_DETAIL for a in space.actions], dtype=bool
+        )
+        self._to_end = np.zeros((space.n_actions, space.max_succ), dtype=np.float64)
+        self._to_end[np.arange(space.n_actions), space.end_column] = 1.0
 
     def _add(self, c: int, a: int, reward: float, column: int) -> None:
         lam = self._params.forgetting
@@ -58,7 +69,17 @@ class DtsLearner(TabularLearner[DtsParams]):
         space = self.space
         if space.silent[tr.action]:
             return
-        self._add(tr.context, tr.action, tr.reward, space.successor_column(tr.action, tr.next_state))
+        if space.actions[tr.action].kind is ActionKind.PERFORM:
+            before = self._pending.get(tr.episode)
+            if before and before[-1].next_state == tr.state and space.is_query[before[-1].action] \
+                    and before[-1].state != space.ENGAGED:
+                # The service the person named when asked: how well "doing as asked" pays.
+                lam = self._params.forgetting
+                self.answered *= lam
+                self.answered += (1.0, tr.reward)
+                self._cache.clear()
+        column = space.successor_column(tr.action, tr.next_state)
+        self._add(tr.context, tr.action, tr.reward, column)
         human_initiated = (
             tr.state == space.OBSERVE and tr.action == space.PASS and tr.next_state != space.END
         )
@@ -84,6 +105,27 @@ class DtsLearner(TabularLearner[DtsParams]):
         known[silent, 0] = 1.0  # a silent pair's first successor is its deterministic target
         return mean, sd, alpha, known
 
+    def _answer_posterior(self) -> tuple[float, float]:
+        """Mean and sd of the reward of performing the service the person named when asked."""
+        prm = self._params
+        n, total = float(self.answered[0]), float(self.answered[1])
+        mean = (total + prm.reward_prior * prm.reward_prior_count) / (n + prm.reward_prior_count)
+        return mean, prm.reward_sd / float(np.sqrt(n + prm.reward_prior_count))
+
+    def _fold_answers(self, reward: FloatArray, trans: FloatArray, v_answer: FloatArray
+                      ) -> tuple[FloatArray, FloatArray]:
+        """Asking for the detail ends, in the model, with the answered service performed:
+        Q(query_detail) = r + gamma * P(answer) * V_answer. This is what makes a question worth
+        its cost before any service of that context was ever liked."""
+        space = self.space
+        qd = self._query_detail
+        rows = np.flatnonzero(qd)
+        p_answer = 1.0 - trans[..., rows, space.end_column[rows]]
+        reward = reward.copy()
+        reward[..., rows] += self.mission.gamma * p_answer * v_answer[..., None]
+        trans = np.where(qd[:, None], self._to_end, trans)
+        return reward, trans
+
     def _q(self, context: int) -> FloatArray:
         """Q of the posterior-mean model."""
         cached = self._cache.get(context)
@@ -92,7 +134,8 @@ class DtsLearner(TabularLearner[DtsParams]):
         mean, _, alpha, known = self._posterior(context)
         silent = self.space.silent[:, None]
         trans = np.where(silent, known, alpha / alpha.sum(axis=1, keepdims=True))
-        q = self._solve(mean, trans)
+        v_answer = np.asarray(self._answer_posterior()[0])
+        q = self._solve(*self._fold_answers(mean, trans, v_answer))
         q.setflags(write=False)
         self._cache[context] = q
         return q
@@ -112,9 +155,12 @@ class DtsLearner(TabularLearner[DtsParams]):
         mean, sd, alpha, known = self._posterior(context)
         g = rng.standard_gamma(np.broadcast_to(alpha, (k, *alpha.shape)))
         total = g.sum(axis=2, keepdims=True)
-        trans = np.where(self.space.silent[None, :, None], known[None], g / np.maximum(total, 1e-300))
+        sampled = g / np.maximum(total, 1e-300)
+        trans = np.where(self.space.silent[None, :, None], known[None], sampled)
         reward = mean + sd * rng.standard_normal((k, mean.shape[0]))
-        return self._solve(reward, trans)
+        a_mean, a_sd = self._answer_posterior()
+        v_answer = a_mean + a_sd * rng.standard_normal(k)
+        return self._solve(*self._fold_answers(reward, trans, v_answer))
 
     def _policy(self, plan: Any, context: int, state: int, episode: int) -> FloatArray:
         actions = self.space.actions_of(state)
@@ -124,4 +170,5 @@ class DtsLearner(TabularLearner[DtsParams]):
         return out
 
     def _kept_visits(self, context: int) -> FloatArray:
-        return self.dn[context].copy()
+        out: FloatArray = self.dn[context].copy()
+        return out

@@ -17,7 +17,7 @@ import numpy as np
 
 from ..config import HriParams
 from ..planning import gibbs, value_iteration
-from ..types import FloatArray, Interaction, Polarity, Transition
+from ..types import FloatArray, IntArray, Interaction, Polarity, Transition
 from .base import TabularLearner, interaction_class
 
 __all__ = ["HriLearner"]
@@ -135,6 +135,15 @@ class HriLearner(TabularLearner[HriParams]):
     def _policy(self, plan: Any, context: int, state: int, episode: int) -> FloatArray:
         qs, m = self._pref_parts(plan, context, state, episode)
         return gibbs(qs + m, self._tau(context))
+
+    def since_last(self, context: int, episode: int) -> IntArray:
+        """t(s, a) as the temporal measure counts it: over all episodes, or over the context's
+        episodes with ``staleness="context"`` (where OBSERVE counts the episode being decided)."""
+        if self._params.staleness == "global":
+            return super().since_last(context, episode)
+        now = self.ctx_count[context] + (self.space.pair_state == self.space.OBSERVE)
+        out: IntArray = now - self.last_ctx[context]
+        return out
 
     def _kept_visits(self, context: int) -> FloatArray:
         return self._filtered(context)[0]

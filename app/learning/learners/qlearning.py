@@ -35,7 +35,8 @@ class QLearner(TabularLearner[QLearningParams]):
         self.q[c, a] += alpha * (target - self.q[c, a])
 
     def _q(self, context: int) -> FloatArray:
-        return self.q[context]
+        out: FloatArray = self.q[context]
+        return out
 
     def _plan(self, context: int, episode: int, rng: np.random.Generator | None) -> Any:
         return self.q[context]

@@ -67,7 +67,9 @@ class RmaxLearner(TabularLearner[RmaxParams]):
 
     def _policy(self, plan: Any, context: int, state: int, episode: int) -> FloatArray:
         actions = self.space.actions_of(state)
-        return greedy(plan[actions.start : actions.stop])
+        values: FloatArray = plan[actions.start : actions.stop]
+        return greedy(values)
 
     def _kept_visits(self, context: int) -> FloatArray:
-        return self.n[context].copy()
+        out: FloatArray = self.n[context].copy()
+        return out
