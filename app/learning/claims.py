@@ -57,6 +57,10 @@ def recovery_event(reward: np.ndarray, change_at: int, *, window: int = 5,
     return None
 
 
+def _event(k: int | None) -> str:
+    return "never" if k is None else str(k)
+
+
 def _fmt(values: dict[str, float], digits: int = 1) -> str:
     return ", ".join(f"{m} {v:.{digits}f}" for m, v in values.items())
 
@@ -105,7 +109,7 @@ def check_claims(results: Sequence[RunResult], *, change_at: int = 50) -> list[C
     add("E2-recover", "E2: R-MAX and both HRIs recover within about 10-12 events of the change.",
         all(recover[m] is not None and recover[m] <= 15 for m in fast),  # type: ignore[operator]
         "first event after the change whose 5-event mean reaches 90% of the pre-change level: "
-        + ", ".join(f"{m} {recover[m] if recover[m] is not None else 'never'}" for m in paper))
+        + ", ".join(f"{m} {_event(recover[m])}" for m in paper))
     add("E2-Q-slow", "E2: Q-learning fails to learn a new policy and collects reward slowly.",
         all(phase2[QL] < phase2[m] for m in paper if m != QL),
         f"reward over events {change_at + 1}-100: {_fmt({m: phase2[m] for m in paper})}")
@@ -130,7 +134,7 @@ def check_claims(results: Sequence[RunResult], *, change_at: int = 50) -> list[C
         ),
         f"reward over events {change_at + 1}-{change_at + 20}: "
         f"{_fmt({m: window20[m] for m in (*HRIS, QL)})}; recovery event: "
-        f"{', '.join(f'{m} {recover[m]}' for m in (*HRIS, QL))}")
+        f"{', '.join(f'{m} {_event(recover[m])}' for m in (*HRIS, QL))}")
 
     table = summarize([r for r in results if r.protocol == "e3"])
     if all(m in table for m in (RMAX, *HRIS)):
