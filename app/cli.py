@@ -134,7 +134,7 @@ def paper(
     "Writes into --out: ablation.md (the metrics on E3 and per 100-event PA block), "
     "summary.json (all the numbers), pa_cumulative.png (cumulative reward over the PA run) and "
     "rewards.csv (every event of every run).\n\n"
-    "Takes about 50 s with the default 20 seeds on 2 CPUs (time grows linearly with --seeds "
+    "Takes about 25 s with the default 20 seeds on 2 CPUs (time grows linearly with --seeds "
     "and --users, and shrinks with more --jobs).",
 )
 def ablation(

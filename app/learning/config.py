@@ -24,9 +24,13 @@ __all__ = [
 def _number(name: str, value: object) -> float:
     if isinstance(value, bool) or not isinstance(value, int | float):
         raise ValueError(f"{name} must be a number, got {value!r}.")
-    if not math.isfinite(value):
+    try:
+        number = float(value)
+    except OverflowError:
+        number = math.inf
+    if not math.isfinite(number):
         raise ValueError(f"{name} must be a finite number, got {value!r}.")
-    return float(value)
+    return number
 
 
 def _in_range(name: str, value: object, low: float, high: float, *, low_open: bool = False,
@@ -68,6 +72,8 @@ class Params:
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any] | None) -> Self:
+        if data is not None and not isinstance(data, Mapping):
+            raise ValueError(f"params of {cls.algorithm} must be an object of parameter values.")
         data = dict(data or {})
         names = [f.name for f in dataclasses.fields(cls)]
         unknown = sorted(set(data) - set(names))
@@ -77,9 +83,10 @@ class Params:
             )
         for f in dataclasses.fields(cls):
             # JSON has one number type: accept 2 for a float parameter, keep ints as ints.
-            if f.name in data and f.type in ("float", float) and isinstance(data[f.name], int) \
-                    and not isinstance(data[f.name], bool):
-                data[f.name] = float(data[f.name])
+            value = data.get(f.name)
+            if f.type in ("float", float) and isinstance(value, int) \
+                    and not isinstance(value, bool) and abs(value) < 2**53:
+                data[f.name] = float(value)
         return cls(**data)
 
     def to_dict(self) -> dict[str, Any]:

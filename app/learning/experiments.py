@@ -14,6 +14,7 @@ from __future__ import annotations
 import zlib
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
+from types import MappingProxyType
 from typing import Any
 
 import numpy as np
@@ -48,6 +49,13 @@ class Method:
     label: str
     algorithm: str
     params: Mapping[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        # Read-only: the method tables below are shared by every run.
+        object.__setattr__(self, "params", MappingProxyType(dict(self.params)))
+
+    def __reduce__(self) -> tuple[type[Method], tuple[str, str, dict[str, Any]]]:
+        return (Method, (self.label, self.algorithm, dict(self.params)))
 
     @property
     def key(self) -> int:
@@ -141,6 +149,8 @@ def run_user(
         state, step, total = space.OBSERVE, 0, 0.0
         rows: list[Transition] = []
         while state != space.END:
+            # Visible steps happen in OBSERVE, ENGAGED, TYPE_KNOWN and DETAIL_KNOWN at most.
+            assert 2 * step + 2 <= uniforms.shape[1], "an episode longer than a negotiation"
             decision = learner.select_action(Observation(context, state, episode), rng)
             batch = decision.chain_transitions(episode)
             reaction = respond(

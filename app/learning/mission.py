@@ -11,7 +11,6 @@ from __future__ import annotations
 import functools
 import hashlib
 import json
-import math
 import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -112,8 +111,10 @@ class Rewards:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int | float):
                 raise MissionError(f"rewards.{name}: {value!r} is not a number.")
-            if not math.isfinite(value):
-                raise MissionError(f"rewards.{name}: {value!r} is not a finite number.")
+            if not -1e6 <= value <= 1e6:  # also refuses NaN and infinities
+                raise MissionError(
+                    f"rewards.{name}: {value!r} is not a number between -1e6 and 1e6."
+                )
         if self.positive <= 0:
             raise MissionError(f"rewards.positive: must be above 0, got {self.positive}.")
         if self.accepted_service < 0:
@@ -152,6 +153,15 @@ class Mission:
     unavailable_situations: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
+        for name in ("time_slots", "situations", "services", "unavailable_situations"):
+            value = getattr(self, name)
+            if not isinstance(value, tuple | list):
+                raise MissionError(f"{name}: expected a list, got {type(value).__name__}.")
+            object.__setattr__(self, name, tuple(value))  # hashable, whatever the caller passed
+        for i, service in enumerate(self.services):
+            if not isinstance(service, Service):
+                raise MissionError(f"services[{i}]: expected a Service.")
+            object.__setattr__(service, "details", tuple(service.details))
         _check_name(self.name, "name")
         if not self.time_slots:
             raise MissionError("time_slots: a mission needs at least one time slot.")
@@ -365,12 +375,16 @@ def load_mission(path: str | Path) -> Mission:
         text = path.read_text(encoding="utf-8")
     except OSError as exc:
         raise MissionError(f"{path}: cannot be read ({exc.strerror or exc}).") from None
+    except UnicodeDecodeError:
+        raise MissionError(f"{path}: is not UTF-8 text.") from None
     try:
         data = json.loads(text)
     except json.JSONDecodeError as exc:
         raise MissionError(
             f"{path}: not valid JSON at line {exc.lineno}, column {exc.colno}: {exc.msg}."
         ) from None
+    except RecursionError:
+        raise MissionError(f"{path}: the JSON is nested too deeply to be a mission.") from None
     return Mission.from_dict(data, source=str(path))
 
 

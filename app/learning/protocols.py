@@ -20,9 +20,11 @@ class Learner(Protocol):
       silent steps (respond, infer) itself and returns them as ``Decision.chain``; the caller
       reports them back through ``update`` with the outcome they led to.
     - ``update`` takes the transitions one report resolved (silent steps and the answered action,
-      in order). One call is one change of the model: ``version`` goes up by exactly one.
+      in order). One call is one change of the model: ``version`` goes up by exactly one (an
+      empty list changes nothing). Every transition is checked first; a ``ValueError`` leaves
+      the learner unchanged.
     - ``to_state`` exports a self-describing document (plain JSON types, no pickle) that
-      ``app.learning.state.learner_from_state`` turns back into an identical learner.
+      ``app.learning.learner_from_state`` turns back into an identical learner.
     """
 
     algorithm: ClassVar[str]

@@ -29,7 +29,7 @@ __all__ = [
     "respond",
 ]
 
-STEP_COLUMNS = 8  # uniforms per event: more than the longest episode needs
+STEP_COLUMNS = 8  # uniforms per event: two per visible step, and an episode has at most four
 
 
 @dataclass(frozen=True, slots=True)
@@ -129,6 +129,10 @@ def event_stream(
     With ``p_need`` the event falls in one of the user's current need contexts (uniformly),
     otherwise in a uniform context without a need (unavailable situations included).
     """
+    if not change_points or change_points[0] != 0 or list(change_points) != sorted(change_points):
+        raise ValueError("change_points must start at 0 and increase (one per profile).")
+    if len(change_points) != len(profiles):
+        raise ValueError("give one change point per profile.")
     out = np.empty(n_events, dtype=np.int64)
     for e in range(n_events):
         profile = profiles[sum(1 for cp in change_points if cp <= e) - 1]
@@ -169,7 +173,8 @@ def respond(
     need = profile.need_at(context)
     kind = space.actions[action].kind
     END = space.END
-    if profile.p_abort > 0.0 and uniforms[1] < profile.p_abort:
+    # The person may end the dialog at any step; a robot that stays passive starts no dialog.
+    if kind is not ActionKind.PASS and profile.p_abort > 0.0 and uniforms[1] < profile.p_abort:
         return Response("terminated", rw.negative, END, Polarity.NEGATIVE)
     u = uniforms[0]
     available = mission.context_names(context)[1] not in mission.unavailable_situations

@@ -12,6 +12,10 @@ and ``END = L`` is the absorbing terminal. The (state, action) *pairs* of a cont
 ``0 .. P-1``, grouped by state in state order, so the actions of state ``s`` are the contiguous
 range ``actions_of(s)``. Each pair has a fixed list of possible successors (``succ``, padded to
 ``M`` columns, END always among them); learners keep their counts per successor column.
+
+Beyond algorithm.md section 1, ``pass`` may also lead to ENGAGED: a person who addresses the robot
+without naming a service yet (an I1 episode whose type is still unknown). The simulated users
+never do; the service's API allows it.
 """
 
 from __future__ import annotations

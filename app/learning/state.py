@@ -65,7 +65,7 @@ def decode_array(
     want = np.dtype(dtype).newbyteorder("<").str
     if doc.get("dtype") != want:
         raise StateFormatError(f"{where}.dtype must be {want!r}, got {doc.get('dtype')!r}.")
-    if list(doc.get("shape", [])) != list(shape):
+    if not isinstance(doc.get("shape"), list) or doc["shape"] != list(shape):
         raise StateFormatError(
             f"{where}.shape must be {list(shape)} for this mission, got {doc.get('shape')!r}."
         )
@@ -74,11 +74,14 @@ def decode_array(
     data = doc.get("data")
     if not isinstance(data, str):
         raise StateFormatError(f"{where}.data must be a base64 string.")
+    expected = int(np.prod(shape, dtype=np.int64)) * np.dtype(want).itemsize
     try:
-        raw = zlib.decompress(base64.b64decode(data.encode("ascii"), validate=True))
+        inflater = zlib.decompressobj()
+        # Never inflate more than the array can hold (a small document must not become gigabytes).
+        raw = inflater.decompress(base64.b64decode(data.encode("ascii"), validate=True),
+                                  expected + 1)
     except (binascii.Error, zlib.error, UnicodeEncodeError, ValueError):
         raise StateFormatError(f"{where}.data is not valid zlib+base64.") from None
-    expected = int(np.prod(shape, dtype=np.int64)) * np.dtype(want).itemsize
     if len(raw) != expected:
         raise StateFormatError(f"{where}.data holds {len(raw)} bytes, expected {expected}.")
     array = np.frombuffer(raw, dtype=want).reshape(shape).astype(dtype, copy=True)

@@ -36,7 +36,7 @@ def make_learner(
     algorithm: str, params: Mapping[str, Any] | None, mission: Mission
 ) -> TabularLearner[Any]:
     """A fresh learner; ``ValueError`` with a sentence for an unknown algorithm or parameter."""
-    cls = ALGORITHMS.get(algorithm)
+    cls = ALGORITHMS.get(algorithm) if isinstance(algorithm, str) else None
     if cls is None:
         raise ValueError(
             f"algorithm must be one of {', '.join(sorted(ALGORITHMS))}; got {algorithm!r}."
@@ -48,7 +48,8 @@ def learner_from_state(doc: Mapping[str, Any], mission: Mission) -> TabularLearn
     """Import an exported state document (``TabularLearner.to_state``)."""
     if not isinstance(doc, Mapping):
         raise StateFormatError("a learner state must be a JSON object.")
-    cls = ALGORITHMS.get(str(doc.get("algorithm")))
+    algorithm = doc.get("algorithm")
+    cls = ALGORITHMS.get(algorithm) if isinstance(algorithm, str) else None
     if cls is None:
         raise StateFormatError(
             f"algorithm must be one of {', '.join(sorted(ALGORITHMS))}; got "

@@ -55,14 +55,15 @@ class TabularLearner(Generic[P]):
         visits: (C, P) int64, raw executions n(s, a).
         last: (C, P) int64, user episode index of the last execution (0 = never).
         last_ctx: (C, P) int64, the context's episode count at the last execution.
-        ctx_count: (C,) int64, episodes begun per context (root steps seen).
         episodes: the highest episode index seen; pending: transitions of open episodes.
+    The episodes begun per context (``ctx_count``) are the visits of the root pairs.
     """
 
     algorithm: ClassVar[str]
     params_type: ClassVar[type[Params]]
     _tables: ClassVar[dict[str, tuple[type, str]]] = {}  # name -> (dtype, shape code)
     MAX_OPEN_EPISODES: ClassVar[int] = 256
+    MAX_EPISODE: ClassVar[int] = 2**62  # keeps every episode arithmetic inside int64
 
     def __init__(self, mission: Mission, params: P | None = None) -> None:
         self.mission = mission
@@ -77,7 +78,6 @@ class TabularLearner(Generic[P]):
         self.visits: IntArray = np.zeros((C, Pn), dtype=np.int64)
         self.last: IntArray = np.zeros((C, Pn), dtype=np.int64)
         self.last_ctx: IntArray = np.zeros((C, Pn), dtype=np.int64)
-        self.ctx_count: IntArray = np.zeros(C, dtype=np.int64)
         self._pending: dict[int, list[Transition]] = {}
         self._cache: dict[int, Any] = {}
         for name, (dtype, code) in self._tables.items():
@@ -95,14 +95,27 @@ class TabularLearner(Generic[P]):
         """Learn from a whole episode once its last transition arrived (rows in order)."""
 
     def _plan(self, context: int, episode: int, rng: np.random.Generator | None) -> Any:
-        raise NotImplementedError
+        """What ``_policy`` needs for one decision in ``context`` (by default: Q)."""
+        return self._q(context)
 
     def _policy(self, plan: Any, context: int, state: int, episode: int) -> FloatArray:
         raise NotImplementedError
 
-    def _q(self, context: int) -> FloatArray:
-        """Point estimate of Q for one context, (P,)."""
+    def _compute_q(self, context: int) -> FloatArray:
+        """Point estimate of Q for one context, (P,), from the tables."""
         raise NotImplementedError
+
+    def _q(self, context: int) -> FloatArray:
+        """``_compute_q``, cached per context until a hook drops the entry (``_cache.pop``)."""
+        cached = self._cache.get(context)
+        if cached is None:
+            cached = self._compute_q(context)
+            cached.setflags(write=False)
+            self._cache[context] = cached
+        return cached
+
+    def _check_tables(self) -> None:
+        """Raise ``StateFormatError`` if imported tables hold values no learner could produce."""
 
     def _kept_visits(self, context: int) -> FloatArray | None:
         return None
@@ -136,18 +149,29 @@ class TabularLearner(Generic[P]):
             chain.append(ChainStep(state, action, probs, nxt, float(space.silent_reward[action])))
             state = nxt
 
+    @property
+    def ctx_count(self) -> IntArray:
+        """(C,) episodes begun per context: the visits of its root pairs."""
+        out: IntArray = self.visits[:, list(self.space.root_actions)].sum(axis=1)
+        return out
+
     def update(self, transitions: Sequence[Transition]) -> None:
-        """Learn from the transitions one report resolved; the version goes up by one."""
+        """Learn from the transitions one report resolved; the version goes up by one.
+
+        Every transition is checked before anything changes: a ``ValueError`` leaves the learner
+        as it was. An empty list changes nothing.
+        """
         for tr in transitions:
             self._check_transition(tr)
+        if not transitions:
+            return
+        root = list(self.space.root_actions)
         for tr in transitions:
             c, a = tr.context, tr.action
             self.episodes = max(self.episodes, tr.episode)
             self.visits[c, a] += 1
             self.last[c, a] = max(int(self.last[c, a]), tr.episode)
-            if tr.state == self.space.OBSERVE:
-                self.ctx_count[c] += 1
-            self.last_ctx[c, a] = self.ctx_count[c]
+            self.last_ctx[c, a] = self.visits[c, root].sum()
             self._observe(tr)
             rows = self._pending.setdefault(tr.episode, [])
             rows.append(tr)
@@ -185,24 +209,27 @@ class TabularLearner(Generic[P]):
     # -- validation ----------------------------------------------------------------------------
     def _check_observation(self, obs: Observation) -> None:
         space = self.space
-        if not 0 <= obs.context < space.n_contexts:
-            raise ValueError(f"context must be in [0, {space.n_contexts}), got {obs.context}.")
-        if not 0 <= obs.state < space.n_states:
-            raise ValueError(f"state must be in [0, {space.n_states}), got {obs.state}.")
-        if obs.episode < 1:
-            raise ValueError(f"episode must be 1 or more, got {obs.episode}.")
+        _check_index("context", obs.context, 0, space.n_contexts)
+        _check_index("state", obs.state, 0, space.n_states)
+        _check_index("episode", obs.episode, 1, self.MAX_EPISODE)
 
     def _check_transition(self, tr: Transition) -> None:
         self._check_observation(Observation(tr.context, tr.state, tr.episode))
         space = self.space
+        _check_index("action", tr.action, 0, space.n_actions)
         if tr.action not in space.actions_of(tr.state):
             raise ValueError(
                 f"action {tr.action} is not available in {space.state_name(tr.state)}."
             )
+        _check_index("next_state", tr.next_state, 0, space.END + 1)
         space.successor_column(tr.action, tr.next_state)  # raises ValueError
-        if not math.isfinite(tr.reward):
-            raise ValueError(f"reward must be a finite number, got {tr.reward!r}.")
-        Polarity(tr.signal)  # raises ValueError
+        reward = tr.reward
+        if isinstance(reward, bool) or not isinstance(reward, int | float | np.floating):
+            raise ValueError(f"reward must be a number, got {reward!r}.")
+        if not math.isfinite(float(reward)):
+            raise ValueError(f"reward must be a finite number, got {reward!r}.")
+        if tr.signal not in (0, 1, 2) or isinstance(tr.signal, bool):
+            raise ValueError(f"signal must be a Polarity (0, 1 or 2), got {tr.signal!r}.")
 
     # -- export / import -----------------------------------------------------------------------
     def _shape(self, code: str) -> tuple[int, ...]:
@@ -220,7 +247,6 @@ class TabularLearner(Generic[P]):
             "visits": (self.visits, "CP"),
             "last": (self.last, "CP"),
             "last_ctx": (self.last_ctx, "CP"),
-            "ctx_count": (self.ctx_count, "C"),
         }
         for name, (_, code) in self._tables.items():
             out[name] = (getattr(self, name), code)
@@ -266,15 +292,18 @@ class TabularLearner(Generic[P]):
                 f"the state was learned for mission {name!r} with other services, situations or "
                 f"rewards than the mission in force ({mission.name!r})."
             )
+        if not isinstance(doc.get("params"), Mapping):
+            raise StateFormatError("params must be an object naming the learner's parameters.")
         try:
-            params = cls.params_type.from_dict(doc.get("params"))
-        except (ValueError, TypeError) as exc:
+            params = cls.params_type.from_dict(doc["params"])
+        except (ValueError, TypeError, OverflowError) as exc:
             raise StateFormatError(f"params: {exc}") from None
         learner = cls(mission, params)  # type: ignore[arg-type]
         for field in ("version", "episodes"):
             value = doc.get(field)
-            if isinstance(value, bool) or not isinstance(value, int) or value < 0:
-                raise StateFormatError(f"{field} must be a whole number of 0 or more.")
+            if isinstance(value, bool) or not isinstance(value, int) \
+                    or not 0 <= value < cls.MAX_EPISODE:
+                raise StateFormatError(f"{field} must be a whole number in [0, 2**62).")
             setattr(learner, field, value)
         arrays = doc.get("arrays")
         if not isinstance(arrays, Mapping):
@@ -294,11 +323,34 @@ class TabularLearner(Generic[P]):
                 ep, c, s, a, r, nxt, sig = row
                 tr = Transition(int(ep), int(c), int(s), int(a), float(r), int(nxt), Polarity(sig))
                 learner._check_transition(tr)
-            except (TypeError, ValueError):
+            except (TypeError, ValueError, OverflowError):
                 raise StateFormatError(f"pending[{i}] is not a valid transition.") from None
             learner._pending.setdefault(tr.episode, []).append(tr)
-        learner._after_import()
+        learner._check_shared_tables()
+        learner._check_tables()
         return learner
 
-    def _after_import(self) -> None:
-        """Re-derive anything not exported."""
+    def _check_shared_tables(self) -> None:
+        if np.any(self.visits < 0):
+            raise StateFormatError("arrays.visits must not be negative.")
+        if np.any(self.last < 0) or np.any(self.last > self.episodes):
+            raise StateFormatError("arrays.last must be between 0 and the episodes seen.")
+        if np.any(self.last_ctx < 0) or np.any(self.last_ctx > self.ctx_count[:, None]):
+            raise StateFormatError(
+                "arrays.last_ctx must be between 0 and the context's episodes begun."
+            )
+
+
+def _check_index(name: str, value: object, low: int, high: int) -> None:
+    """A whole number in [low, high), or a ValueError naming ``name``."""
+    if isinstance(value, bool) or not isinstance(value, int | np.integer):
+        raise ValueError(f"{name} must be a whole number, got {value!r}.")
+    if not low <= value < high:
+        raise ValueError(f"{name} must be in [{low}, {high}), got {value}.")
+
+
+def check_nonnegative(**tables: np.ndarray) -> None:
+    """``StateFormatError`` naming the first table with a negative entry."""
+    for name, table in tables.items():
+        if np.any(table < 0):
+            raise StateFormatError(f"arrays.{name} must not be negative.")

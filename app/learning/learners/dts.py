@@ -27,7 +27,7 @@ from ..config import DtsParams
 from ..planning import value_iteration
 from ..space import ActionKind
 from ..types import FloatArray, Transition
-from .base import TabularLearner
+from .base import TabularLearner, check_nonnegative
 
 __all__ = ["DtsLearner"]
 
@@ -126,19 +126,16 @@ class DtsLearner(TabularLearner[DtsParams]):
         trans = np.where(qd[:, None], self._to_end, trans)
         return reward, trans
 
-    def _q(self, context: int) -> FloatArray:
+    def _compute_q(self, context: int) -> FloatArray:
         """Q of the posterior-mean model."""
-        cached = self._cache.get(context)
-        if cached is not None:
-            return cached  # type: ignore[no-any-return]
         mean, _, alpha, known = self._posterior(context)
         silent = self.space.silent[:, None]
         trans = np.where(silent, known, alpha / alpha.sum(axis=1, keepdims=True))
         v_answer = np.asarray(self._answer_posterior()[0])
-        q = self._solve(*self._fold_answers(mean, trans, v_answer))
-        q.setflags(write=False)
-        self._cache[context] = q
-        return q
+        return self._solve(*self._fold_answers(mean, trans, v_answer))
+
+    def _check_tables(self) -> None:
+        check_nonnegative(dn=self.dn, dns=self.dns, answered=self.answered[:1])
 
     def _solve(self, reward: FloatArray, trans: FloatArray) -> FloatArray:
         v_max = self.mission.v_max

@@ -17,8 +17,9 @@ import numpy as np
 
 from ..config import HriParams
 from ..planning import gibbs, value_iteration
+from ..state import StateFormatError
 from ..types import FloatArray, IntArray, Interaction, Polarity, Transition
-from .base import TabularLearner, interaction_class
+from .base import TabularLearner, check_nonnegative, interaction_class
 
 __all__ = ["HriLearner"]
 
@@ -29,7 +30,9 @@ class HriLearner(TabularLearner[HriParams]):
     """HRI-based model learning with the temporal-measure Gibbs policy.
 
     Tables: ns (C, P, 3, M) weighted successor counts per polarity; rs (C, P, 3) weighted reward
-    sums per polarity; rho (C, P) int8 reference polarity (0 = none).
+    sums per polarity; rho (C, P) int8 reference polarity (0 = none); rho_episode (C, P) int64,
+    the episode whose response set rho (episodes of a fleet may close out of order: the most
+    recent episode, not the last to close, is "the last interaction").
     """
 
     algorithm: ClassVar[str] = "hri"
@@ -38,13 +41,26 @@ class HriLearner(TabularLearner[HriParams]):
         "ns": (np.float64, "CP3M"),
         "rs": (np.float64, "CP3"),
         "rho": (np.int8, "CP"),
+        "rho_episode": (np.int64, "CP"),
     }
     ns: FloatArray
     rs: FloatArray
     rho: np.ndarray
+    rho_episode: IntArray
+
+    def _observe(self, tr: Transition) -> None:
+        if self._params.unknown == "vmax_if_never_tried":
+            self._cache.pop(tr.context, None)  # which pairs are pinned depends on the visits
+
+    def _set_rho(self, c: int, actions: list[int], polarity: Polarity, episode: int) -> None:
+        newer = [a for a in actions if episode >= self.rho_episode[c, a]]
+        self.rho[c, newer] = polarity
+        self.rho_episode[c, newer] = episode
 
     def _close(self, rows: list[Transition]) -> None:
         space, prm = self.space, self._params
+        if not any(tr.state == space.OBSERVE for tr in rows):
+            return  # the start of this episode was forgotten (never closed in time): no labels
         iota = interaction_class(space, rows)
         root_pol = {
             Interaction.I1: Polarity.POSITIVE,
@@ -54,7 +70,7 @@ class HriLearner(TabularLearner[HriParams]):
         }[iota]
         omega = Polarity(rows[-1].signal) if iota is not Interaction.NONE else Polarity.NEUTRAL
         w = prm.w_i1 if iota is Interaction.I1 else 1.0
-        contexts = set()
+        episode, contexts = rows[-1].episode, set()
         for tr in rows:
             c, a = tr.context, tr.action
             pol = root_pol if tr.state == space.OBSERVE else omega
@@ -62,12 +78,19 @@ class HriLearner(TabularLearner[HriParams]):
             self.rs[c, a, pol] += w * tr.reward
             contexts.add(c)
             if prm.exclusion == "per_pair" and tr.state != space.OBSERVE:
-                self.rho[c, a] = omega
+                self._set_rho(c, [a], omega, episode)
         if prm.exclusion != "none" and iota is not Interaction.NONE:
             for c in contexts:
-                self.rho[c, list(space.root_actions)] = root_pol
+                self._set_rho(c, list(space.root_actions), root_pol, episode)
         for c in contexts:
             self._cache.pop(c, None)
+
+    def _check_tables(self) -> None:
+        check_nonnegative(ns=self.ns, rho_episode=self.rho_episode)
+        if not np.isin(self.rho, (0, 1, 2)).all():
+            raise StateFormatError("arrays.rho must hold polarities 0, 1 or 2.")
+        if np.any(self.rho_episode > self.episodes):
+            raise StateFormatError("arrays.rho_episode must not exceed the episodes seen.")
 
     def _filtered(self, context: int) -> tuple[FloatArray, FloatArray, FloatArray]:
         """n'(s,a), r'(s,a), n'(s,a,s') of one context: (P,), (P,), (P, M)."""
@@ -78,10 +101,7 @@ class HriLearner(TabularLearner[HriParams]):
         rs = np.einsum("pk,pk->p", self.rs[context], keep)
         return ns.sum(axis=1), rs, ns
 
-    def _q(self, context: int) -> FloatArray:
-        cached = self._cache.get(context)
-        if cached is not None:
-            return cached  # type: ignore[no-any-return]
+    def _compute_q(self, context: int) -> FloatArray:
         space, prm, mission = self.space, self._params, self.mission
         n, r, ns = self._filtered(context)
         known = n >= prm.m_h
@@ -97,13 +117,8 @@ class HriLearner(TabularLearner[HriParams]):
             space, reward, trans, gamma=mission.gamma, tol=prm.vi_tol,
             max_sweeps=prm.vi_max_sweeps, fixed=fixed, fixed_value=mission.v_max,
         )
-        q = np.clip(q, -mission.v_max, mission.v_max)
-        q.setflags(write=False)
-        self._cache[context] = q
-        return q
-
-    def _plan(self, context: int, episode: int, rng: np.random.Generator | None) -> Any:
-        return self._q(context)
+        out: FloatArray = np.clip(q, -mission.v_max, mission.v_max)
+        return out
 
     def _tau(self, context: int) -> float:
         prm = self._params
@@ -111,14 +126,6 @@ class HriLearner(TabularLearner[HriParams]):
             return prm.tau
         unvisited = float(np.mean(self.visits[context] == 0))
         return prm.tau * (1.0 + prm.kappa * unvisited)
-
-    def _staleness(self, context: int, actions: slice, state: int, episode: int) -> np.ndarray:
-        if self._params.staleness == "global":
-            t = episode - self.last[context, actions]
-        else:
-            now = self.ctx_count[context] + (1 if state == self.space.OBSERVE else 0)
-            t = now - self.last_ctx[context, actions]
-        return np.maximum(t, 1)
 
     def _pref_parts(self, q: FloatArray, context: int, state: int, episode: int
                     ) -> tuple[FloatArray, FloatArray]:
@@ -129,7 +136,8 @@ class HriLearner(TabularLearner[HriParams]):
         if not self._params.measure:
             return qs, np.zeros_like(qs)
         dq = qs - qs.mean()
-        log_t = np.log(self._staleness(context, sl, state, episode).astype(np.float64))
+        t_eff = np.maximum(self.since_last(context, episode)[sl], 1)
+        log_t = np.log(t_eff.astype(np.float64))
         return qs, np.exp(np.clip(dq * log_t, -30.0, _LOG_CAP))
 
     def _policy(self, plan: Any, context: int, state: int, episode: int) -> FloatArray:
@@ -141,8 +149,9 @@ class HriLearner(TabularLearner[HriParams]):
         episodes with ``staleness="context"`` (where OBSERVE counts the episode being decided)."""
         if self._params.staleness == "global":
             return super().since_last(context, episode)
-        now = self.ctx_count[context] + (self.space.pair_state == self.space.OBSERVE)
-        out: IntArray = now - self.last_ctx[context]
+        space = self.space
+        begun = self.visits[context, list(space.root_actions)].sum()
+        out: IntArray = begun + (space.pair_state == space.OBSERVE) - self.last_ctx[context]
         return out
 
     def _kept_visits(self, context: int) -> FloatArray:

@@ -35,11 +35,8 @@ class QLearner(TabularLearner[QLearningParams]):
         self.q[c, a] += alpha * (target - self.q[c, a])
 
     def _q(self, context: int) -> FloatArray:
-        out: FloatArray = self.q[context]
+        out: FloatArray = self.q[context]  # the table itself: nothing to plan or cache
         return out
-
-    def _plan(self, context: int, episode: int, rng: np.random.Generator | None) -> Any:
-        return self.q[context]
 
     def epsilon(self, episode: int) -> float:
         prm = self._params

@@ -13,42 +13,40 @@ import numpy as np
 from ..config import RmaxParams
 from ..planning import greedy, value_iteration
 from ..types import FloatArray, Transition
-from .base import TabularLearner
+from .base import TabularLearner, check_nonnegative
 
 __all__ = ["RmaxLearner"]
 
 
 class RmaxLearner(TabularLearner[RmaxParams]):
-    """Tables: n (C, P) model counts, r (C, P) reward sums, ns (C, P, M) successor counts."""
+    """Tables: r (C, P) reward sums, ns (C, P, M) successor counts; the model count of a pair is
+    its successor counts' sum (with ``freeze_known`` it stops at m, unlike the raw visits)."""
 
     algorithm: ClassVar[str] = "rmax"
     params_type = RmaxParams
     _tables: ClassVar[dict[str, tuple[type, str]]] = {
-        "n": (np.float64, "CP"),
         "r": (np.float64, "CP"),
         "ns": (np.float64, "CPM"),
     }
-    n: FloatArray
     r: FloatArray
     ns: FloatArray
 
     def _observe(self, tr: Transition) -> None:
         c, a = tr.context, tr.action
-        if self._params.freeze_known and self.n[c, a] >= self._params.m:
+        if self._params.freeze_known and self.ns[c, a].sum() >= self._params.m:
             return
-        self.n[c, a] += 1.0
         self.r[c, a] += tr.reward
         self.ns[c, a, self.space.successor_column(a, tr.next_state)] += 1.0
         self._cache.pop(c, None)
 
-    def _q(self, context: int) -> FloatArray:
-        cached = self._cache.get(context)
-        if cached is not None:
-            return cached  # type: ignore[no-any-return]
-        n = self.n[context]
+    def _check_tables(self) -> None:
+        check_nonnegative(ns=self.ns)
+
+    def _compute_q(self, context: int) -> FloatArray:
+        n = self.ns[context].sum(axis=1)
         unknown = n < self._params.m
         safe = np.where(unknown, 1.0, n)
-        q = value_iteration(
+        return value_iteration(
             self.space,
             np.where(unknown, 0.0, self.r[context] / safe),
             self.ns[context] / safe[:, None],
@@ -58,12 +56,6 @@ class RmaxLearner(TabularLearner[RmaxParams]):
             fixed=unknown,
             fixed_value=self.mission.v_max,
         )
-        q.setflags(write=False)
-        self._cache[context] = q
-        return q
-
-    def _plan(self, context: int, episode: int, rng: np.random.Generator | None) -> Any:
-        return self._q(context)
 
     def _policy(self, plan: Any, context: int, state: int, episode: int) -> FloatArray:
         actions = self.space.actions_of(state)
@@ -71,5 +63,5 @@ class RmaxLearner(TabularLearner[RmaxParams]):
         return greedy(values)
 
     def _kept_visits(self, context: int) -> FloatArray:
-        out: FloatArray = self.n[context].copy()
+        out: FloatArray = self.ns[context].sum(axis=1)
         return out

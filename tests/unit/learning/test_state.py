@@ -107,7 +107,7 @@ class TestRoundTrip:
         assert d["algorithm"] == algorithm
         assert d["mission"] == {"name": "office", "fingerprint": MISSION.fingerprint}
         assert d["params"] == make_learner(algorithm, None, MISSION).params.to_dict()
-        for name in ("visits", "last", "last_ctx", "ctx_count"):
+        for name in ("visits", "last", "last_ctx"):
             assert name in d["arrays"]
         for enc in d["arrays"].values():
             assert set(enc) == {"dtype", "shape", "encoding", "data"}
