@@ -7,6 +7,7 @@ same way: a ``typer.Typer`` per area and ``app.add_typer(area, name=...)``.
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -17,6 +18,7 @@ from rich.console import Console
 
 from app.experiments.runner import default_workers, jobs_for, run_jobs
 from app.learning.experiments import ABLATION_METHODS, E1E2, E3, PA, PAPER_METHODS, Method, Protocol
+from app.learning.simulation import UserProfile
 
 __all__ = ["app", "experiment", "main"]
 
@@ -48,6 +50,13 @@ JobsOption = Annotated[
                  "1 runs everything in this process."),
 ]
 UsersOption = Annotated[int, typer.Option("--users", min=1, help="Simulated users per run.")]
+UserOption = Annotated[
+    list[str] | None,
+    typer.Option("--user", metavar="NAME=VALUE", show_default=False,
+                 help="Override a response parameter of every simulated user, e.g. "
+                 "--user p_self=0.2 --user eps_fb=0 (p_acc, p_self, eps_fb, p_abort, p_idle_acc; "
+                 "each in [0, 1]). Repeatable."),
+]
 ProgressOption = Annotated[
     bool, typer.Option("--progress/--no-progress", help="Show a progress bar.")
 ]
@@ -62,10 +71,12 @@ def _run(
     jobs: int | None,
     progress: bool,
     what: str,
+    user: Sequence[str] | None = None,
 ) -> tuple[list[Any], dict[str, Any]]:
     """Run methods x protocols x seeds, report how many runs and how long; returns the results
     and the run information for the summary."""
-    todo = jobs_for(methods, protocols, seeds, users)
+    user_params = _user_params(user or ())
+    todo = jobs_for(methods, protocols, seeds, users, user_params)
     workers = min(jobs or default_workers(), len(todo))
     console.print(
         f"{what}: {len(todo)} runs ({len(methods)} methods × {len(protocols)} protocols × "
@@ -82,9 +93,32 @@ def _run(
         "protocols": [p.name for p in protocols],
         "runs": len(results),
         "workers": workers,
+        "user_params": user_params,
         "seconds": round(seconds, 2),
     }
     return results, info
+
+
+def _user_params(pairs: Sequence[str]) -> dict[str, float]:
+    """Parse ``--user NAME=VALUE`` options, refusing unknown names and values outside [0, 1]."""
+    allowed = [f.name for f in dataclasses.fields(UserProfile) if f.name != "needs"]
+    out: dict[str, float] = {}
+    for pair in pairs:
+        name, sep, raw = pair.partition("=")
+        if not sep or name not in allowed:
+            raise typer.BadParameter(
+                f"{pair!r}: expected NAME=VALUE with NAME one of {', '.join(allowed)}.",
+                param_hint="--user",
+            )
+        try:
+            value = float(raw)
+        except ValueError:
+            value = float("nan")
+        if not 0.0 <= value <= 1.0:
+            raise typer.BadParameter(f"{pair!r}: the value must be a number in [0, 1].",
+                                     param_hint="--user")
+        out[name] = value
+    return out
 
 
 def _written(console: Console, out: Path, files: Sequence[Path], seconds: float) -> None:
@@ -113,6 +147,7 @@ def paper(
                                       file_okay=False)] = Path("results/paper"),
     jobs: JobsOption = None,
     users: UsersOption = 6,
+    user: UserOption = None,
     progress: ProgressOption = True,
 ) -> None:
     """Run E1/E2, E3 and PA for the paper's methods and write the reports."""
@@ -120,7 +155,7 @@ def paper(
 
     console = Console()
     results, info = _run(console, PAPER_METHODS, (E1E2, E3, PA), seeds, users, jobs, progress,
-                         "Paper experiments")
+                         "Paper experiments", user)
     start = time.perf_counter()
     summary, files = write_paper_report(results, out, info)
     print_table2(summary, console)
@@ -143,6 +178,7 @@ def ablation(
                                       file_okay=False)] = Path("results/ablation"),
     jobs: JobsOption = None,
     users: UsersOption = 6,
+    user: UserOption = None,
     progress: ProgressOption = True,
 ) -> None:
     """Run the HRI ablations on E3 and PA and write the reports."""
@@ -150,7 +186,7 @@ def ablation(
 
     console = Console()
     results, info = _run(console, ABLATION_METHODS, (E3, PA), seeds, users, jobs, progress,
-                         "Ablations")
+                         "Ablations", user)
     start = time.perf_counter()
     summary, files = write_ablation_report(results, out, info)
     blocks = summary["protocols"][E3.name]["blocks"]

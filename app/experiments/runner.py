@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import multiprocessing
 import os
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from concurrent.futures import Future, ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
 
@@ -37,6 +37,7 @@ class Job:
     protocol: Protocol
     seed: int
     n_users: int = 6
+    user_params: tuple[tuple[str, float], ...] = ()  # overrides of the simulated users
 
     def describe(self) -> str:
         """A short human-readable name for messages."""
@@ -48,12 +49,17 @@ class JobError(RuntimeError):
 
 
 def jobs_for(
-    methods: Iterable[Method], protocols: Iterable[Protocol], seeds: int, n_users: int = 6
+    methods: Iterable[Method],
+    protocols: Iterable[Protocol],
+    seeds: int,
+    n_users: int = 6,
+    user_params: Mapping[str, float] | None = None,
 ) -> list[Job]:
     """Every method x protocol x seed (seeds 0..seeds-1), ordered protocol, method, seed."""
     methods, protocols = list(methods), list(protocols)
+    overrides = tuple(sorted((user_params or {}).items()))
     return [
-        Job(method, protocol, seed, n_users)
+        Job(method, protocol, seed, n_users, overrides)
         for protocol in protocols
         for method in methods
         for seed in range(seeds)
@@ -62,7 +68,8 @@ def jobs_for(
 
 def run_job(job: Job) -> RunResult:
     """Do one job; the mission is built here, in the worker, rather than pickled."""
-    return run(job.method, job.protocol, job.seed, office_mission(), n_users=job.n_users)
+    return run(job.method, job.protocol, job.seed, office_mission(), n_users=job.n_users,
+               user_params=dict(job.user_params))
 
 
 def default_workers() -> int:

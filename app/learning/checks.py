@@ -36,7 +36,7 @@ import dataclasses
 import json
 import math
 import zlib
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any, NoReturn
 
 import numpy as np
@@ -237,29 +237,24 @@ class _Suite:
         before = _canonical(self.export(learner))
         version = learner.version
         for why, tr in bad.items():
-            try:
-                learner.update([ok, tr])
-            except ValueError:
-                pass
-            except Exception as exc:  # noqa: BLE001 - any other exception is the finding
-                self.fail(f"a report with {why} raised {type(exc).__name__}, not ValueError: "
-                          f"{exc}")
-            else:
-                self.fail(f"a report with {why} was accepted; it must raise ValueError.")
+            self.expect_value_error(f"a report with {why}", learner.update, [ok, tr])
             if learner.version != version or _canonical(self.export(learner)) != before:
                 self.fail(f"a refused report with {why} changed the learner (validate first).")
         for obs, why in ((Observation(space.n_contexts, 0, 1), "a context out of range"),
                          (Observation(0, space.END, 1), "the END state"),
                          (Observation(0, 0, 0), "episode 0")):
-            try:
-                learner.select_action(obs, self.rng(6))
-            except ValueError:
-                pass
-            except Exception as exc:  # noqa: BLE001 - any other exception is the finding
-                self.fail(f"select_action with {why} raised {type(exc).__name__}, not "
-                          f"ValueError: {exc}")
-            else:
-                self.fail(f"select_action accepted {why}.")
+            self.expect_value_error(f"select_action with {why}", learner.select_action, obs,
+                                    self.rng(6))
+
+    def expect_value_error(self, what: str, call: Callable[..., object], *args: Any) -> None:
+        """``call(*args)`` must raise ValueError: another exception or none is a finding."""
+        try:
+            call(*args)
+        except ValueError:
+            return
+        except Exception as exc:  # noqa: BLE001 - any other exception is the finding
+            self.fail(f"{what} raised {type(exc).__name__}, not ValueError: {exc}")
+        self.fail(f"{what} was accepted; it must raise ValueError.")
 
     def root_rejections(self, learner: Learner, episode: int, calls: int) -> int:
         sp, r = self.space, self.mission.rewards

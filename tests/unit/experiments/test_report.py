@@ -167,3 +167,29 @@ def test_cumulative_curve_re_zeroes_at_the_block_start() -> None:
     mean, half = cumulative_curve(results, "m", 1, 3)
     np.testing.assert_allclose(mean, [2.0, 5.0])
     np.testing.assert_allclose(half, 1.96 * np.asarray([np.sqrt(2), 2 * np.sqrt(2)]) / np.sqrt(2))
+
+
+def test_user_overrides_reach_the_simulated_users(tmp_path: Path) -> None:
+    base = ["experiment", "ablation", "--seeds", "1", "--users", "1", "--jobs", "1",
+            "--no-progress"]
+    shy = CliRunner().invoke(app, [*base, "--out", str(tmp_path / "shy"), "--user", "p_self=0"])
+    assert shy.exit_code == 0, shy.output
+    summary = json.loads((tmp_path / "shy" / "summary.json").read_text("utf-8"))
+    assert summary["run"]["user_params"] == {"p_self": 0.0}
+    with (tmp_path / "shy" / "rewards.csv").open(encoding="utf-8") as f:
+        classes = {row["interaction"] for row in csv.DictReader(f)}
+    assert "I1" not in classes  # a person who never speaks first makes no I1 episode
+
+
+@pytest.mark.parametrize(
+    ("value", "words"),
+    [("p_self", "expected NAME=VALUE"), ("mood=0.5", "p_acc, p_self"), ("p_acc=2", "[0, 1]"),
+     ("eps_fb=x", "[0, 1]")],
+)
+def test_bad_user_overrides_are_refused(tmp_path: Path, value: str, words: str) -> None:
+    result = CliRunner().invoke(app, [
+        "experiment", "paper", "--seeds", "1", "--out", str(tmp_path), "--user", value,
+    ])
+    assert result.exit_code == 2
+    assert words in " ".join(result.output.split())
+    assert not any(tmp_path.iterdir())
