@@ -1,8 +1,8 @@
 """The ``attune`` command line.
 
-One Typer app with a sub-app per area; ``attune experiment ...`` reproduces the paper's
-experiments. Later areas (``attune serve``, ``attune db ...``, ``attune keys ...``) are added the
-same way: a ``typer.Typer`` per area and ``app.add_typer(area, name=...)``.
+One Typer app with a sub-app per area: ``attune experiment ...`` reproduces the paper's
+experiments; ``attune serve``, ``attune db ...``, ``attune keys ...`` and ``attune models ...``
+run and administer the service (``app.commands.service``).
 """
 
 from __future__ import annotations
@@ -16,6 +16,7 @@ from typing import Annotated, Any
 import typer
 from rich.console import Console
 
+from app.commands import service as service_commands
 from app.experiments.runner import default_workers, jobs_for, run_jobs
 from app.learning.experiments import ABLATION_METHODS, E1E2, E3, PA, PAPER_METHODS, Method, Protocol
 from app.learning.simulation import UserProfile
@@ -37,6 +38,10 @@ experiment = typer.Typer(
     no_args_is_help=True,
 )
 app.add_typer(experiment, name="experiment")
+app.command("serve")(service_commands.serve)
+app.add_typer(service_commands.db, name="db")
+app.add_typer(service_commands.keys, name="keys")
+app.add_typer(service_commands.models, name="models")
 
 SeedsOption = Annotated[
     int,

@@ -23,6 +23,9 @@ class Learner(Protocol):
       in order). One call is one change of the model: ``version`` goes up by exactly one (an
       empty list changes nothing). Every transition is checked first; a ``ValueError`` leaves
       the learner unchanged.
+    - ``feedback`` adds an explicit feedback reward (a smile, a complaint) to the sample of an
+      executed pair in a seen episode, open or closed; ``version`` goes up by exactly one, and a
+      ``ValueError`` (checked first) leaves the learner unchanged.
     - ``to_state`` exports a self-describing document (plain JSON types, no pickle) that
       ``app.learning.learner_from_state`` turns back into an identical learner.
     """
@@ -37,6 +40,16 @@ class Learner(Protocol):
     def select_action(self, obs: Observation, rng: np.random.Generator) -> Decision: ...
 
     def update(self, transitions: Sequence[Transition]) -> None: ...
+
+    def feedback(self, episode: int, context: int, action: int, reward: float) -> None:
+        """Add ``reward`` to the reward of the sample of ``action`` in ``context`` and ``episode``.
+
+        While the episode is open, the pending sample itself carries it (learners that learn at
+        close see it); once closed, the learner adds it to its tables. Refused with a
+        ``ValueError``: a pair never executed, an episode not seen yet, a reward that is not a
+        finite real number. The version goes up by one.
+        """
+        ...
 
     def to_state(self) -> dict[str, Any]: ...
 

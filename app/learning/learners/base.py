@@ -1,12 +1,14 @@
 """What every tabular learner shares: bookkeeping, the silent-step loop, validation and export.
 
 Subclasses declare their tables (``_tables``), learn from single transitions (``_observe``) or
-from whole episodes once they close (``_close``), and turn a context into a plan
-(``_plan``) and a plan into an action distribution (``_policy``).
+from whole episodes once they close (``_close``), take delayed explicit feedback on an executed
+pair (``_reinforce``), and turn a context into a plan (``_plan``) and a plan into an action
+distribution (``_policy``).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Mapping, Sequence
 from typing import Any, ClassVar, Generic, Self, TypeVar
@@ -93,6 +95,15 @@ class TabularLearner(Generic[P]):
 
     def _close(self, rows: list[Transition]) -> None:
         """Learn from a whole episode once its last transition arrived (rows in order)."""
+
+    def _reinforce(self, context: int, action: int, episode: int, reward: float, *,
+                   pending: bool) -> None:
+        """Add ``reward`` to what was learned from the sample of (context, action) in ``episode``.
+
+        ``pending``: the episode is still open and its last row of that pair already carries the
+        extra reward (learners that learn at close need nothing more); otherwise the sample was
+        learned already (or its open rows were forgotten) and only the tables can take it.
+        """
 
     def _plan(self, context: int, episode: int, rng: np.random.Generator | None) -> Any:
         """What ``_policy`` needs for one decision in ``context`` (by default: Q)."""
@@ -182,6 +193,38 @@ class TabularLearner(Generic[P]):
                 del self._pending[min(self._pending)]
         self.version += 1
 
+    def feedback(self, episode: int, context: int, action: int, reward: float) -> None:
+        """Add an explicit feedback reward (a smile, a complaint) to the sample of ``action`` in
+        ``episode``: its reward grows by ``reward``. The version goes up by one.
+
+        The pair must have been executed and the episode seen; everything is checked first, and a
+        ``ValueError`` leaves the learner as it was. While the episode is open, the last pending
+        row of the pair in it carries the extra reward, so learners that learn at close see it as
+        part of the sample; once closed, the learner adds it to its tables.
+        """
+        space = self.space
+        _check_index("action", action, 0, space.n_actions)
+        self._check_observation(Observation(context, int(space.pair_state[action]), episode))
+        _check_reward(reward)
+        if self.visits[context, action] == 0:
+            raise ValueError(
+                f"{space.action_name(action)} was never executed in context {context}: there "
+                "is no sample to give feedback on."
+            )
+        if episode > self.episodes:
+            raise ValueError(
+                f"episode {episode} has not been seen yet (the last seen is {self.episodes})."
+            )
+        amount = float(reward)
+        rows = self._pending.get(episode, [])
+        hits = [i for i, row in enumerate(rows) if row.context == context and row.action == action]
+        if hits:
+            row = rows[hits[-1]]
+            rows[hits[-1]] = dataclasses.replace(row, reward=row.reward + amount)
+        self._reinforce(context, action, episode, amount, pending=bool(hits))
+        self._cache.pop(context, None)
+        self.version += 1
+
     def explain(self, context: int, episode: int) -> ContextView:
         """What the learner believes in ``context`` if asked now, in episode ``episode``."""
         self._check_observation(Observation(context, 0, episode))
@@ -223,11 +266,7 @@ class TabularLearner(Generic[P]):
             )
         _check_index("next_state", tr.next_state, 0, space.END + 1)
         space.successor_column(tr.action, tr.next_state)  # raises ValueError
-        reward = tr.reward
-        if isinstance(reward, bool) or not isinstance(reward, int | float | np.floating):
-            raise ValueError(f"reward must be a number, got {reward!r}.")
-        if not math.isfinite(float(reward)):
-            raise ValueError(f"reward must be a finite number, got {reward!r}.")
+        _check_reward(tr.reward)
         if tr.signal not in (0, 1, 2) or isinstance(tr.signal, bool):
             raise ValueError(f"signal must be a Polarity (0, 1 or 2), got {tr.signal!r}.")
 
@@ -347,6 +386,18 @@ def _check_index(name: str, value: object, low: int, high: int) -> None:
         raise ValueError(f"{name} must be a whole number, got {value!r}.")
     if not low <= value < high:
         raise ValueError(f"{name} must be in [{low}, {high}), got {value}.")
+
+
+def _check_reward(reward: object) -> None:
+    """A finite real number (not a bool), or a ValueError."""
+    if isinstance(reward, bool) or not isinstance(reward, int | float | np.floating):
+        raise ValueError(f"reward must be a number, got {reward!r}.")
+    try:
+        finite = math.isfinite(float(reward))
+    except OverflowError:  # an int too large for a float
+        finite = False
+    if not finite:
+        raise ValueError(f"reward must be a finite number, got {reward!r}.")
 
 
 def check_nonnegative(**tables: np.ndarray) -> None:

@@ -87,6 +87,14 @@ class DtsLearner(TabularLearner[DtsParams]):
             accept = space.successor_column(space.INITIATE, space.ENGAGED)
             self._add(tr.context, space.INITIATE, self.mission.rewards.positive, accept)
 
+    def _reinforce(self, context: int, action: int, episode: int, reward: float, *,
+                   pending: bool) -> None:
+        c, a = context, action
+        if self.space.silent[action] or self.dn[c, a] <= 0:
+            return  # silent pairs are not learned (their reward is known)
+        self.dr[c, a] += reward  # as if the latest sample (weight 1 in the sums) earned more
+        self._cache.pop(c, None)
+
     # -- the posterior -------------------------------------------------------------------------
     def _posterior(self, context: int) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
         """Mean reward (P,), its standard deviation (P,), Dirichlet parameters (P, M), and the

@@ -85,6 +85,25 @@ class HriLearner(TabularLearner[HriParams]):
         for c in contexts:
             self._cache.pop(c, None)
 
+    def _reinforce(self, context: int, action: int, episode: int, reward: float, *,
+                   pending: bool) -> None:
+        if pending:
+            return  # the open row carries the feedback: it is learned with the episode at close
+        c, a = context, action
+        # The episode's sample sits under rho while that episode still sets the pair's reference;
+        # otherwise add to the neutral samples, which every rho keeps, so the feedback counts.
+        pol = int(self.rho[c, a]) if self.rho_episode[c, a] == episode else int(Polarity.NEUTRAL)
+        counts = self.ns[c, a].sum(axis=1)  # (3,) the weighted sample count per polarity
+        if counts.sum() <= 0:
+            return  # no sample of this pair was learned (its episode was forgotten while open)
+        if counts[pol] <= 0:
+            # Never leave a reward sum in a bucket with no samples under it: R^ = r'/n' would
+            # charge it to the samples of other buckets, and with few of them kept (n' just
+            # above m_h, which may be tiny) R^ could blow up. Put it where the samples are.
+            pol = int(np.argmax(counts))
+        self.rs[c, a, pol] += reward
+        self._cache.pop(c, None)
+
     def _check_tables(self) -> None:
         check_nonnegative(ns=self.ns, rho_episode=self.rho_episode)
         if not np.isin(self.rho, (0, 1, 2)).all():

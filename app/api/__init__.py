@@ -1,0 +1,1 @@
+"""HTTP edge: routes, dependencies, error handlers, middleware. Only ``app.main`` imports it."""

@@ -1,0 +1,27 @@
+from __future__ import annotations
+
+from typing import Annotated
+
+from fastapi import Path, Response
+from fastapi.responses import JSONResponse
+
+from app.schemas.common import CLIENT_ID_PATTERN
+from app.services.episodes import Written
+
+UserId = Annotated[str, Path(pattern=CLIENT_ID_PATTERN, description="Client-chosen user id.",
+                             examples=["lin"])]
+EpisodeId = Annotated[str, Path(max_length=128, description="Server-chosen episode id.",
+                                examples=["ep_0123456789abcdef0123456789abcdef"])]
+REPLAY_HEADER = {
+    "Idempotent-Replay": {"description": "true when this repeats an earlier identical write.",
+                          "schema": {"type": "string", "enum": ["true"]}},
+}
+
+
+def written(result: Written) -> JSONResponse:
+    headers = {"Idempotent-Replay": "true"} if result.replay else None
+    return JSONResponse(result.body, status_code=result.status, headers=headers)
+
+
+def no_content() -> Response:
+    return Response(status_code=204)

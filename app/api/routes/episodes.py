@@ -1,0 +1,93 @@
+from __future__ import annotations
+
+from typing import Annotated
+
+from fastapi import APIRouter, Query, Request
+from fastapi.responses import JSONResponse
+
+from app.api.deps import ContextDep, CurrentPrincipal, SessionDep
+from app.api.errors import responses
+from app.api.metrics import Metrics
+from app.schemas.episodes import (
+    EpisodeCreated,
+    EpisodeIn,
+    EpisodeList,
+    EpisodeTrace,
+    FeedbackIn,
+    FeedbackOut,
+    OutcomeIn,
+    OutcomeOut,
+)
+from app.services import episodes as service
+
+from ._common import REPLAY_HEADER, EpisodeId, UserId, written
+
+router = APIRouter(tags=["episodes"])
+
+
+def _count(request: Request, body: dict[str, object] | None, replay: bool) -> None:
+    if replay or not body:
+        return
+    metrics: Metrics = request.app.state.metrics
+    decision = body.get("decision")
+    if isinstance(decision, dict):
+        metrics.decisions.labels(decision["action"]["kind"]).inc()
+
+
+@router.post(
+    "/v1/users/{user_id}/episodes", status_code=201, response_model=EpisodeCreated,
+    responses={200: {"model": EpisodeCreated, "description": "Idempotent replay of an earlier "
+                     "event_id.", "headers": REPLAY_HEADER}, **responses(404, 409)},
+)
+def start_episode(user_id: UserId, body: EpisodeIn, request: Request, session: SessionDep,
+                  ctx: ContextDep, principal: CurrentPrincipal) -> JSONResponse:
+    """An event happened near this user: open an episode and get the robot's first action."""
+    result = service.start_episode(session, ctx, principal, user_id, body)
+    _count(request, result.body, result.replay)
+    return written(result)
+
+
+@router.post(
+    "/v1/episodes/{episode_id}/outcomes", response_model=OutcomeOut,
+    responses={200: {"headers": REPLAY_HEADER, "description": "The reward, the episode, and "
+                     "the next decision (null when the episode ended)."},
+               **responses(404, 409)},
+)
+def report_outcome(episode_id: EpisodeId, body: OutcomeIn, request: Request,
+                   session: SessionDep, ctx: ContextDep,
+                   principal: CurrentPrincipal) -> JSONResponse:
+    """What the person did after the robot's action; answers with the next decision."""
+    result = service.report_outcome(session, ctx, principal, episode_id, body)
+    if not result.replay and result.kind is not None:
+        metrics: Metrics = request.app.state.metrics
+        metrics.outcomes.labels(result.kind, body.response).inc()
+    _count(request, result.body, result.replay)
+    return written(result)
+
+
+@router.post(
+    "/v1/episodes/{episode_id}/feedback", response_model=FeedbackOut,
+    responses={200: {"headers": REPLAY_HEADER}, **responses(404, 409)},
+)
+def add_feedback(episode_id: EpisodeId, body: FeedbackIn, session: SessionDep,
+                 ctx: ContextDep, principal: CurrentPrincipal) -> JSONResponse:
+    """Explicit feedback on an episode, during or after it (idempotent on feedback_id)."""
+    return written(service.add_feedback(session, ctx, principal, episode_id, body))
+
+
+@router.get("/v1/episodes/{episode_id}", response_model=EpisodeTrace, responses=responses(404))
+def get_episode(episode_id: EpisodeId, session: SessionDep, ctx: ContextDep,
+                principal: CurrentPrincipal) -> EpisodeTrace:
+    """The whole trace of an episode: every decision, response, reward and feedback."""
+    return service.get_trace(session, ctx, principal, episode_id)
+
+
+@router.get("/v1/users/{user_id}/episodes", response_model=EpisodeList,
+            responses=responses(404))
+def list_episodes(
+    user_id: UserId, session: SessionDep, ctx: ContextDep, principal: CurrentPrincipal,
+    limit: Annotated[int, Query(ge=1, le=500)] = 50,
+    cursor: Annotated[str | None, Query(max_length=32)] = None,
+) -> EpisodeList:
+    """A user's episodes, newest first, without traces."""
+    return service.list_episodes(session, ctx, principal, user_id, limit=limit, cursor=cursor)

@@ -1,0 +1,54 @@
+from __future__ import annotations
+
+import logging
+
+from fastapi import APIRouter, Request, Response
+from fastapi.responses import JSONResponse
+from prometheus_client import CONTENT_TYPE_LATEST
+
+from app.api.deps import ContextDep, CurrentPrincipal
+from app.api.errors import responses
+from app.db import migrate
+from app.db.session import Database
+from app.schemas.models import MissionOut
+
+router = APIRouter(tags=["service"])
+log = logging.getLogger("attune.api")
+
+
+@router.get("/v1/mission", response_model=MissionOut, responses=responses())
+def get_mission(ctx: ContextDep, _: CurrentPrincipal) -> MissionOut:
+    """The mission in force: situations, time slots, services and rewards."""
+    return MissionOut.model_validate(ctx.mission.to_dict())
+
+
+@router.get("/healthz", responses={200: {"content": {"application/json": {
+    "example": {"status": "ok"}}}}})
+def healthz() -> dict[str, str]:
+    """200 while the process runs."""
+    return {"status": "ok"}
+
+
+@router.get("/readyz", responses={503: {"description": "Database down or schema behind."}})
+def readyz(request: Request) -> JSONResponse:
+    """200 when the database answers and the schema is at the latest migration, else 503."""
+    db: Database = request.app.state.db
+    try:
+        current = migrate.current_revision(db.engine)
+    except Exception as exc:  # any failure to reach the database means "not ready"
+        log.warning("readiness: database unreachable: %s", exc)
+        return JSONResponse({"error": "ServiceUnavailable",
+                             "detail": "The database does not answer."}, status_code=503)
+    head = migrate.head_revision()
+    if current != head:
+        return JSONResponse({"error": "ServiceUnavailable",
+                             "detail": f"The schema is at {current}, not {head}; run "
+                             "`attune db upgrade`."}, status_code=503)
+    return JSONResponse({"status": "ready", "schema": current})
+
+
+@router.get("/metrics", response_class=Response, responses={200: {"content": {
+    CONTENT_TYPE_LATEST: {}}, "description": "Prometheus text format."}})
+def metrics(request: Request) -> Response:
+    """Request counts and latencies per route; decisions and outcomes per action kind."""
+    return Response(request.app.state.metrics.render(), media_type=CONTENT_TYPE_LATEST)

@@ -1,0 +1,60 @@
+from __future__ import annotations
+
+from typing import Annotated, Any
+
+from fastapi import APIRouter, Body, Query, Response
+
+from app.api.deps import ContextDep, CurrentPrincipal, SessionDep
+from app.api.errors import responses
+from app.schemas.models import ModelOut, StatsOut
+from app.services import models as service
+
+from ._common import UserId, no_content
+
+router = APIRouter(prefix="/v1/users/{user_id}", tags=["models"])
+
+
+@router.get("/model", response_model=ModelOut, responses=responses(404))
+def get_model(
+    user_id: UserId, session: SessionDep, ctx: ContextDep, principal: CurrentPrincipal,
+    time_slot: Annotated[str | None, Query(max_length=64)] = None,
+    situation: Annotated[str | None, Query(max_length=64)] = None,
+) -> ModelOut:
+    """What the learner believes now, per context, state and action."""
+    return service.model_view(session, ctx, principal, user_id, time_slot=time_slot,
+                              situation=situation)
+
+
+@router.get("/stats", response_model=StatsOut, responses=responses(404))
+def get_stats(
+    user_id: UserId, session: SessionDep, principal: CurrentPrincipal,
+    last: Annotated[int | None, Query(ge=1, description="Only the last N episodes.")] = None,
+) -> StatsOut:
+    """The paper's metrics over the user's last N episodes (all by default)."""
+    return service.stats(session, principal, user_id, last=last)
+
+
+@router.delete("/model", status_code=204, response_class=Response,
+               responses=responses(403, 404))
+def reset_model(user_id: UserId, session: SessionDep, ctx: ContextDep,
+                principal: CurrentPrincipal) -> Response:
+    """Forget what was learned, keep the history (admin)."""
+    service.reset_model(session, ctx, principal, user_id)
+    return no_content()
+
+
+@router.get("/model/export", responses=responses(403, 404))
+def export_model(user_id: UserId, session: SessionDep, ctx: ContextDep,
+                 principal: CurrentPrincipal) -> dict[str, Any]:
+    """The model as a self-describing document that PUT /model accepts back (admin)."""
+    return service.export_model(session, ctx, principal, user_id)
+
+
+@router.put("/model", response_model=ModelOut, responses=responses(403, 404))
+def import_model(
+    user_id: UserId, session: SessionDep, ctx: ContextDep, principal: CurrentPrincipal,
+    doc: Annotated[dict[str, Any], Body(description="A document from GET /model/export.")],
+) -> ModelOut:
+    """Replace the model with an exported document (admin); 422 for another format or
+    mission."""
+    return service.import_model(session, ctx, principal, user_id, doc)

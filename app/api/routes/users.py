@@ -1,0 +1,56 @@
+from __future__ import annotations
+
+from typing import Annotated
+
+from fastapi import APIRouter, Query, Response
+from fastapi.responses import JSONResponse
+
+from app.api.deps import ContextDep, CurrentPrincipal, SessionDep
+from app.api.errors import responses
+from app.schemas.users import UserIn, UserList, UserOut
+from app.services import users as service
+
+from ._common import UserId, no_content
+
+router = APIRouter(prefix="/v1/users", tags=["users"])
+
+
+@router.put(
+    "/{user_id}", response_model=UserOut, status_code=200, responses={
+        201: {"model": UserOut, "description": "Created."}, **responses(404, 409)},
+)
+def put_user(
+    user_id: UserId, session: SessionDep, ctx: ContextDep, principal: CurrentPrincipal,
+    body: UserIn | None = None,
+    reset_model: Annotated[bool, Query(description="Allow changing the learner of a user with "
+                                       "history (forgets what was learned).")] = False,
+) -> JSONResponse:
+    """Create or update a user (idempotent): 201 when created, 200 when updated."""
+    out, created = service.put_user(session, ctx, principal, user_id, body or UserIn(),
+                                    reset_model=reset_model)
+    return JSONResponse(out.model_dump(mode="json"), status_code=201 if created else 200)
+
+
+@router.get("/{user_id}", response_model=UserOut, responses=responses(404))
+def get_user(user_id: UserId, session: SessionDep, principal: CurrentPrincipal) -> UserOut:
+    """One user."""
+    return service.get_user(session, principal, user_id)
+
+
+@router.get("", response_model=UserList, responses=responses())
+def list_users(
+    session: SessionDep, principal: CurrentPrincipal,
+    limit: Annotated[int, Query(ge=1, le=500)] = 50,
+    cursor: Annotated[str | None, Query(max_length=200)] = None,
+) -> UserList:
+    """Users of your fleet (admins: of every fleet), by user id, a page at a time."""
+    return service.list_users(session, principal, limit=limit, cursor=cursor)
+
+
+@router.delete("/{user_id}", status_code=204, response_class=Response,
+               responses=responses(403, 404))
+def delete_user(user_id: UserId, session: SessionDep, ctx: ContextDep,
+                principal: CurrentPrincipal) -> Response:
+    """Remove a user with its history and model (admin)."""
+    service.delete_user(session, ctx, principal, user_id)
+    return no_content()

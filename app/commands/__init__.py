@@ -1,0 +1,1 @@
+"""Service commands of the ``attune`` CLI: serve, db, keys, models."""

@@ -1,0 +1,185 @@
+"""``attune serve``, ``attune db upgrade``, ``attune keys ...`` and ``attune models rebuild``."""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import tempfile
+from typing import Annotated
+
+import typer
+from rich.console import Console
+from rich.table import Table
+
+from app.db import migrate
+from app.db.session import Database
+from app.errors import AppError
+from app.settings import Settings
+
+__all__ = ["db", "keys", "models", "serve"]
+
+err = Console(stderr=True)
+log = logging.getLogger("attune")
+
+db = typer.Typer(help="The database: ATTUNE_DATABASE_URL (default sqlite:///./attune.db).",
+                 no_args_is_help=True)
+keys = typer.Typer(help="API keys: made here, shown once, stored hashed.", no_args_is_help=True)
+models = typer.Typer(help="Users' learned models.", no_args_is_help=True)
+
+
+def _settings() -> Settings:
+    try:
+        return Settings()
+    except Exception as exc:  # pydantic's ValidationError: say which variable is wrong
+        err.print(f"[red]Bad ATTUNE_* setting:[/red] {exc}")
+        raise typer.Exit(2) from None
+
+
+def _upgrade(settings: Settings) -> None:
+    safe = Database(settings)
+    url = safe.engine.url.render_as_string(hide_password=True)
+    before = migrate.current_revision(safe.engine)
+    safe.dispose()
+    migrate.upgrade(settings.database_url)
+    after = migrate.head_revision()
+    if before == after:
+        err.print(f"Database {url} is up to date (schema {after}).")
+    else:
+        err.print(f"Database {url} upgraded: schema {before or 'empty'} -> {after}.")
+
+
+def _database(settings: Settings) -> Database:
+    """The database, its schema brought up to date first (a fresh machine has none yet)."""
+    database = Database(settings)
+    if not migrate.is_current(database.engine):
+        _upgrade(settings)
+    return database
+
+
+def serve(
+    host: Annotated[str, typer.Option(help="Interface to listen on.")] = "127.0.0.1",
+    port: Annotated[int, typer.Option(min=1, max=65535, help="TCP port.")] = 8000,
+    workers: Annotated[int, typer.Option(min=1, help="Worker processes (each with its own "
+                                         "connection pool and learner cache).")] = 1,
+) -> None:
+    """Apply pending migrations, then serve the v1 API (docs at /docs)."""
+    import uvicorn
+
+    settings = _settings()
+    logging.basicConfig(level=settings.log_level.upper(),
+                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    _upgrade(settings)
+    if workers > 1 and not os.environ.get("PROMETHEUS_MULTIPROC_DIR"):
+        # Every worker writes its metrics here and /metrics adds them up.
+        os.environ["PROMETHEUS_MULTIPROC_DIR"] = tempfile.mkdtemp(prefix="attune-metrics-")
+    err.print(f"Attune on http://{host}:{port} (docs: http://{host}:{port}/docs), "
+              f"{workers} worker(s).")
+    uvicorn.run("app.main:app", factory=True, host=host, port=port, workers=workers,
+                log_level=settings.log_level, proxy_headers=False)
+
+
+@db.command("upgrade")
+def db_upgrade() -> None:
+    """Apply pending migrations to ATTUNE_DATABASE_URL and exit."""
+    _upgrade(_settings())
+
+
+@db.command("current")
+def db_current() -> None:
+    """Print the schema revision of the database and of this code."""
+    database = Database(_settings())
+    current = migrate.current_revision(database.engine)
+    typer.echo(f"database: {current or 'empty'}\ncode:     {migrate.head_revision()}")
+
+
+@keys.command("create")
+def keys_create(
+    role: Annotated[str, typer.Option(help="robot or admin.")],
+    fleet: Annotated[str, typer.Option(help="The fleet the key (and the users it creates) "
+                                       "belongs to.")] = "default",
+    name: Annotated[str | None, typer.Option(help="A label for people, e.g. 'robot7'.")] = None,
+) -> None:
+    """Make a key; the secret is printed once, alone on the last line."""
+    from app.services.auth import create_key
+
+    database = _database(_settings())
+    try:
+        with database.transaction() as session:
+            key, secret = create_key(session, role=role, fleet=fleet, name=name)
+    except AppError as exc:
+        err.print(f"[red]{exc.detail}[/red]")
+        raise typer.Exit(2) from None
+    err.print(f"Created {key.role} key {key.id} for fleet {key.fleet!r}. Store the secret now: "
+              "it cannot be shown again.")
+    typer.echo(secret)
+
+
+@keys.command("list")
+def keys_list() -> None:
+    """List keys (ids, roles, fleets; never the secrets)."""
+    from app.services.auth import list_keys
+
+    database = _database(_settings())
+    with database.transaction(write=False) as session:
+        rows = list_keys(session)
+        table = Table("id", "role", "fleet", "name", "prefix", "created", "revoked")
+        for k in rows:
+            table.add_row(k.id, k.role, k.fleet, k.name or "", k.prefix + "…",
+                          k.created_at.isoformat(timespec="seconds"),
+                          k.revoked_at.isoformat(timespec="seconds") if k.revoked_at else "")
+    Console().print(table)
+
+
+@keys.command("revoke")
+def keys_revoke(key_id: Annotated[str, typer.Argument(help="The key's id (keys list).")]) -> None:
+    """Revoke a key: its requests get 401 from now on."""
+    from app.services.auth import revoke_key
+
+    database = _database(_settings())
+    try:
+        with database.transaction() as session:
+            revoke_key(session, key_id)
+    except AppError as exc:
+        err.print(f"[red]{exc.detail}[/red]")
+        raise typer.Exit(1) from None
+    err.print(f"Revoked {key_id}.")
+
+
+@models.command("rebuild")
+def models_rebuild(
+    user_id: Annotated[str, typer.Argument(help="The user whose model to rebuild.")],
+    save: Annotated[bool, typer.Option(help="Store the rebuilt model when it differs.")] = False,
+) -> None:
+    """Replay USER_ID's history into a fresh learner, redrawing every decision from the same seed
+    stream, and compare with the stored model. Exit 0 when identical, 1 when not."""
+    from app.db.repositories.users import get_model
+    from app.services.context import Principal, ServiceContext
+    from app.services.models import rebuild_model
+
+    settings = _settings()
+    database = _database(settings)
+    ctx = ServiceContext.from_settings(settings)
+    admin = Principal("cli", "admin", "default")
+    try:
+        with database.transaction() as session:
+            report = rebuild_model(session, ctx, admin, user_id)
+            if save and not report.identical:
+                model = get_model(session, user_id)
+                assert model is not None
+                model.state = report.rebuilt
+                model.version += 1
+    except AppError as exc:
+        err.print(f"[red]{exc.detail}[/red]")
+        raise typer.Exit(2) from None
+    summary = {
+        "user_id": user_id, "version": report.version, "writes_replayed": report.writes,
+        "samples_replayed": report.samples, "decisions_redrawn": report.decisions,
+        "mismatched_decisions": report.mismatched_decisions, "identical": report.identical,
+    }
+    typer.echo(json.dumps(summary))
+    if not report.identical:
+        err.print("[red]The rebuilt model differs from the stored one.[/red]"
+                  + (" Stored the rebuilt model." if save else ""))
+        raise typer.Exit(1)
+    err.print(f"Rebuilt {user_id}: identical to the stored model (version {report.version}).")

@@ -1,0 +1,180 @@
+"""The tables. History (episodes, decisions, feedback, samples) is the source of truth; each
+user's learner state sits beside it and changes in the same transaction as the rows that fed it.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+from typing import Any
+
+from sqlalchemy import (
+    JSON,
+    Boolean,
+    Float,
+    ForeignKey,
+    Index,
+    Integer,
+    String,
+    UniqueConstraint,
+)
+from sqlalchemy.orm import Mapped, mapped_column
+
+from .base import Base
+from .types import LearnerStateType, UTCDateTime, utcnow
+
+__all__ = ["ApiKey", "Decision", "Episode", "Feedback", "LearnerModel", "Sample", "User"]
+
+ID = 40  # server-chosen ids: a prefix and 32 hex digits
+CLIENT_ID = 128  # client-chosen ids: ^[A-Za-z0-9._:-]{1,128}$
+
+
+class ApiKey(Base):
+    """An API key; only the SHA-256 of its secret is stored."""
+
+    __tablename__ = "api_keys"
+
+    id: Mapped[str] = mapped_column(String(ID), primary_key=True)
+    prefix: Mapped[str] = mapped_column(String(16))
+    secret_hash: Mapped[str] = mapped_column(String(64), unique=True)
+    role: Mapped[str] = mapped_column(String(16))
+    fleet: Mapped[str] = mapped_column(String(CLIENT_ID))
+    name: Mapped[str | None] = mapped_column(String(200))
+    created_at: Mapped[dt.datetime] = mapped_column(UTCDateTime(), default=utcnow)
+    revoked_at: Mapped[dt.datetime | None] = mapped_column(UTCDateTime())
+
+
+class User(Base):
+    """A person the fleet serves. The row is the per-user lock of every model update."""
+
+    __tablename__ = "users"
+
+    user_id: Mapped[str] = mapped_column(String(CLIENT_ID), primary_key=True)
+    fleet: Mapped[str] = mapped_column(String(CLIENT_ID), index=True)
+    display_name: Mapped[str | None] = mapped_column(String(200))
+    algorithm: Mapped[str] = mapped_column(String(32))
+    params: Mapped[dict[str, Any]] = mapped_column(JSON)
+    created_at: Mapped[dt.datetime] = mapped_column(UTCDateTime(), default=utcnow)
+    episode_count: Mapped[int] = mapped_column(Integer, default=0)
+    draws: Mapped[int] = mapped_column(Integer, default=0)  # decisions drawn: the seed stream
+
+
+class LearnerModel(Base):
+    """A user's learner state (the learning core's document) and where it started from.
+
+    ``version`` goes up by one with every change and never goes back (a reset or an import is a
+    change too). ``base_state`` is the imported document the current model grew from (``None``:
+    a fresh learner), ``base_version`` the version it had then: replaying the samples written
+    after ``base_version`` onto the base rebuilds ``state``.
+    """
+
+    __tablename__ = "learner_models"
+
+    user_id: Mapped[str] = mapped_column(
+        ForeignKey("users.user_id", ondelete="CASCADE"), primary_key=True
+    )
+    version: Mapped[int] = mapped_column(Integer, default=0)
+    state: Mapped[dict[str, Any]] = mapped_column(LearnerStateType())
+    base_state: Mapped[dict[str, Any] | None] = mapped_column(LearnerStateType())
+    base_version: Mapped[int] = mapped_column(Integer, default=0)
+    updated_at: Mapped[dt.datetime] = mapped_column(UTCDateTime(), default=utcnow)
+
+
+class Episode(Base):
+    """One event near a user: a service negotiation, open until its last outcome."""
+
+    __tablename__ = "episodes"
+    __table_args__ = (
+        UniqueConstraint("user_id", "event_id"),
+        UniqueConstraint("user_id", "seq"),
+    )
+
+    id: Mapped[str] = mapped_column(String(ID), primary_key=True)
+    user_id: Mapped[str] = mapped_column(ForeignKey("users.user_id", ondelete="CASCADE"))
+    seq: Mapped[int] = mapped_column(Integer)  # the user's 1-based episode index
+    event_id: Mapped[str] = mapped_column(String(CLIENT_ID))
+    robot_id: Mapped[str | None] = mapped_column(String(CLIENT_ID))
+    occurred_at: Mapped[dt.datetime] = mapped_column(UTCDateTime())
+    time_slot: Mapped[str] = mapped_column(String(64))
+    situation: Mapped[str] = mapped_column(String(64))
+    context: Mapped[int] = mapped_column(Integer)
+    initiator: Mapped[str] = mapped_column(String(16))
+    request_service: Mapped[str | None] = mapped_column(String(64))
+    request_detail: Mapped[str | None] = mapped_column(String(64))
+    status: Mapped[str] = mapped_column(String(16), default="open")
+    state: Mapped[int] = mapped_column(Integer)
+    total_reward: Mapped[float] = mapped_column(Float, default=0.0)
+    interaction_class: Mapped[str] = mapped_column(String(8), default="none")
+    initiated: Mapped[bool] = mapped_column(Boolean, default=False)
+    success: Mapped[bool] = mapped_column(Boolean, default=False)
+    queries: Mapped[int] = mapped_column(Integer, default=0)
+    request_hash: Mapped[str] = mapped_column(String(64))
+    response: Mapped[dict[str, Any]] = mapped_column(JSON)
+    created_at: Mapped[dt.datetime] = mapped_column(UTCDateTime(), default=utcnow)
+    closed_at: Mapped[dt.datetime | None] = mapped_column(UTCDateTime())
+
+
+class Decision(Base):
+    """What the robot was told to do at one step, and what the person did."""
+
+    __tablename__ = "decisions"
+    __table_args__ = (UniqueConstraint("episode_id", "position"),)
+
+    id: Mapped[str] = mapped_column(String(ID), primary_key=True)
+    episode_id: Mapped[str] = mapped_column(ForeignKey("episodes.id", ondelete="CASCADE"))
+    position: Mapped[int] = mapped_column(Integer)
+    state: Mapped[int] = mapped_column(Integer)
+    action: Mapped[int] = mapped_column(Integer)
+    probabilities: Mapped[list[float]] = mapped_column(JSON)
+    chain: Mapped[list[dict[str, Any]]] = mapped_column(JSON)
+    draw: Mapped[int | None] = mapped_column(Integer)  # position in the user's seed stream
+    forced: Mapped[bool] = mapped_column(Boolean, default=False)  # the person chose the action
+    model_version: Mapped[int] = mapped_column(Integer)  # the model it was drawn from
+    decided_at: Mapped[dt.datetime] = mapped_column(UTCDateTime(), default=utcnow)
+    response: Mapped[str | None] = mapped_column(String(32))
+    service: Mapped[str | None] = mapped_column(String(64))
+    detail: Mapped[str | None] = mapped_column(String(64))
+    feedback: Mapped[str | None] = mapped_column(String(16))
+    reward: Mapped[float | None] = mapped_column(Float)
+    next_state: Mapped[int | None] = mapped_column(Integer)
+    answered_at: Mapped[dt.datetime | None] = mapped_column(UTCDateTime())
+    outcome_hash: Mapped[str | None] = mapped_column(String(64))
+    outcome_response: Mapped[dict[str, Any] | None] = mapped_column(JSON)
+
+
+class Feedback(Base):
+    """Explicit feedback on an episode, during or after it."""
+
+    __tablename__ = "feedback"
+    __table_args__ = (UniqueConstraint("episode_id", "feedback_id"),)
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)
+    episode_id: Mapped[str] = mapped_column(ForeignKey("episodes.id", ondelete="CASCADE"))
+    feedback_id: Mapped[str] = mapped_column(String(CLIENT_ID))
+    feedback: Mapped[str] = mapped_column(String(16))
+    reward: Mapped[float] = mapped_column(Float)
+    received_at: Mapped[dt.datetime] = mapped_column(UTCDateTime(), default=utcnow)
+    request_hash: Mapped[str] = mapped_column(String(64))
+    response: Mapped[dict[str, Any]] = mapped_column(JSON)
+
+
+class Sample(Base):
+    """The model's journal: every transition and feedback handed to the learner, in order.
+
+    ``version`` is the model version the write produced; the samples of one version were one
+    ``update`` call (``kind`` "transition") or one ``feedback`` call.
+    """
+
+    __tablename__ = "samples"
+    __table_args__ = (Index("ix_samples_user_version", "user_id", "version"),)
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)
+    user_id: Mapped[str] = mapped_column(ForeignKey("users.user_id", ondelete="CASCADE"))
+    version: Mapped[int] = mapped_column(Integer)
+    kind: Mapped[str] = mapped_column(String(16))
+    episode: Mapped[int] = mapped_column(Integer)
+    context: Mapped[int] = mapped_column(Integer)
+    state: Mapped[int] = mapped_column(Integer)
+    action: Mapped[int] = mapped_column(Integer)
+    reward: Mapped[float] = mapped_column(Float)
+    next_state: Mapped[int | None] = mapped_column(Integer)
+    signal: Mapped[int] = mapped_column(Integer, default=0)

@@ -1,0 +1,79 @@
+"""Engines and sessions for SQLite (embedded, WAL) and PostgreSQL (psycopg 3).
+
+Writes are serialized per user: PostgreSQL through a row lock on the user (``FOR UPDATE``),
+SQLite, which has one writer per file, through ``BEGIN IMMEDIATE`` so that a write transaction
+takes the write lock up front instead of failing on upgrade. Reads use a plain ``BEGIN`` (WAL lets
+them run beside a writer).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from contextlib import contextmanager
+from typing import Any
+
+from sqlalchemy import Engine, create_engine, event
+from sqlalchemy.engine import Connection
+from sqlalchemy.orm import Session
+
+from app.settings import Settings
+
+__all__ = ["Database"]
+
+_WRITE = "attune_write"
+
+
+class Database:
+    """One engine per process, and sessions that know whether they will write."""
+
+    def __init__(self, settings: Settings) -> None:
+        self.url = settings.database_url
+        self.is_sqlite = settings.is_sqlite
+        kwargs: dict[str, Any] = {"pool_pre_ping": True}
+        if self.is_sqlite:
+            kwargs["connect_args"] = {
+                "timeout": settings.sqlite_busy_timeout_s,
+                "check_same_thread": False,
+            }
+        else:
+            kwargs["pool_size"] = settings.db_pool_size
+            kwargs["max_overflow"] = settings.db_pool_size
+        self.engine: Engine = create_engine(self.url, **kwargs)
+        if self.is_sqlite:
+            _configure_sqlite(self.engine, settings.sqlite_busy_timeout_s)
+        self._write_engine = self.engine.execution_options(**{_WRITE: True})
+
+    def session(self, *, write: bool) -> Session:
+        return Session(bind=self._write_engine if write else self.engine, expire_on_commit=False)
+
+    @contextmanager
+    def transaction(self, *, write: bool = True) -> Iterator[Session]:
+        """A session whose transaction commits at the end of the block, or rolls back."""
+        with self.session(write=write) as session:
+            try:
+                yield session
+                session.commit()
+            except BaseException:
+                session.rollback()
+                raise
+
+    def dispose(self) -> None:
+        self.engine.dispose()
+
+
+def _configure_sqlite(engine: Engine, busy_timeout_s: float) -> None:
+    @event.listens_for(engine, "connect")
+    def _connect(dbapi_connection: Any, _record: Any) -> None:
+        # Let SQLAlchemy's begin event, not the driver, decide how each transaction starts.
+        dbapi_connection.isolation_level = None
+        cursor = dbapi_connection.cursor()
+        cursor.execute("PRAGMA journal_mode=WAL")
+        cursor.execute("PRAGMA synchronous=NORMAL")
+        cursor.execute("PRAGMA foreign_keys=ON")
+        cursor.execute(f"PRAGMA busy_timeout={int(busy_timeout_s * 1000)}")
+        cursor.close()
+
+    @event.listens_for(engine, "begin")
+    def _begin(conn: Connection) -> None:
+        write = conn.get_execution_options().get(_WRITE, False)
+        conn.exec_driver_sql("BEGIN IMMEDIATE" if write else "BEGIN")

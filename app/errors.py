@@ -1,0 +1,79 @@
+"""Domain errors: each carries its HTTP status and its wire name; one handler renders them all.
+
+The body is always ``{"error": <name>, "detail": <sentence>}`` (plus ``fields`` for validation).
+Nothing here imports FastAPI: services raise these, ``app.api.errors`` turns them into responses.
+"""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar
+
+__all__ = [
+    "AppError",
+    "BadRequest",
+    "Conflict",
+    "Forbidden",
+    "NotFound",
+    "PayloadTooLarge",
+    "ServiceUnavailable",
+    "Unauthorized",
+    "ValidationFailed",
+]
+
+
+class AppError(Exception):
+    """Base of the errors a client can act on."""
+
+    status_code: ClassVar[int] = 500
+    error: ClassVar[str] = "InternalError"
+
+    def __init__(self, detail: str, *, fields: list[dict[str, Any]] | None = None) -> None:
+        super().__init__(detail)
+        self.detail = detail
+        self.fields = fields
+
+    def body(self) -> dict[str, Any]:
+        out: dict[str, Any] = {"error": self.error, "detail": self.detail}
+        if self.fields is not None:
+            out["fields"] = self.fields
+        return out
+
+
+class BadRequest(AppError):
+    status_code = 400
+    error = "BadRequest"
+
+
+class Unauthorized(AppError):
+    status_code = 401
+    error = "Unauthorized"
+
+
+class Forbidden(AppError):
+    status_code = 403
+    error = "Forbidden"
+
+
+class NotFound(AppError):
+    status_code = 404
+    error = "NotFound"
+
+
+class Conflict(AppError):
+    status_code = 409
+    error = "Conflict"
+
+
+class PayloadTooLarge(AppError):
+    status_code = 413
+    error = "PayloadTooLarge"
+
+
+class ValidationFailed(AppError):
+    status_code = 422
+    error = "ValidationError"
+
+
+class ServiceUnavailable(AppError):
+    status_code = 503
+    error = "ServiceUnavailable"

@@ -1,0 +1,68 @@
+"""The ASGI application: ``create_app(settings)`` wires the database, routes and handlers."""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
+
+from fastapi import FastAPI
+from fastapi.routing import APIRoute
+
+from app.api.errors import install_error_handlers
+from app.api.metrics import Metrics
+from app.api.middleware import BodyLimitMiddleware, MetricsMiddleware
+from app.api.routes import episodes, meta, models, users
+from app.db.session import Database
+from app.services.context import ServiceContext
+from app.settings import Settings, get_settings
+
+__all__ = ["app", "create_app"]
+
+DESCRIPTION = """
+Attune learns what each person a robot fleet serves wants, and when, from their feedback, and
+tells any robot what to do next for that person.
+
+A robot reports an **event** near a person (`POST /v1/users/{user_id}/episodes`) and gets a
+**decision**; it carries the action out and reports what the person did
+(`POST /v1/episodes/{episode_id}/outcomes`), getting the next decision, until the episode ends.
+Writes are idempotent: repeat them with the same ids after a network failure.
+
+Every request but `/healthz`, `/readyz` and `/metrics` needs `Authorization: Bearer <api key>`;
+keys are made with `attune keys create`. Errors are `{"error": "...", "detail": "..."}`.
+"""
+
+
+def _operation_id(route: APIRoute) -> str:
+    """Stable client method names: the route function's name (``start_episode``)."""
+    return route.name
+
+
+def create_app(settings: Settings | None = None) -> FastAPI:
+    settings = settings or get_settings()
+    db = Database(settings)
+
+    @asynccontextmanager
+    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        logging.getLogger("attune").info("serving with database %s", db.engine.url
+                                         .render_as_string(hide_password=True))
+        yield
+        db.dispose()
+
+    app = FastAPI(title="Attune", version="1.0.0", description=DESCRIPTION, lifespan=lifespan,
+                  generate_unique_id_function=_operation_id)
+    app.state.settings = settings
+    app.state.db = db
+    app.state.ctx = ServiceContext.from_settings(settings)
+    app.state.metrics = Metrics()
+    install_error_handlers(app)
+    for module in (users, episodes, models, meta):
+        app.include_router(module.router)
+    app.add_middleware(BodyLimitMiddleware, limit=settings.max_body_bytes)
+    app.add_middleware(MetricsMiddleware, metrics=app.state.metrics)
+    return app
+
+
+def app() -> FastAPI:
+    """Factory for ``uvicorn --factory app.main:app``: settings from the environment."""
+    return create_app()

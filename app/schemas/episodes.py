@@ -1,0 +1,175 @@
+from __future__ import annotations
+
+import datetime as dt
+from typing import Literal
+
+from pydantic import AwareDatetime, BaseModel, ConfigDict, Field
+
+from .common import ActionOut, ClientId, Page, ProbabilityOut
+
+__all__ = [
+    "ContextOut",
+    "DecisionOut",
+    "EpisodeBrief",
+    "EpisodeCreated",
+    "EpisodeIn",
+    "EpisodeList",
+    "EpisodeSummary",
+    "EpisodeTrace",
+    "FeedbackIn",
+    "FeedbackOut",
+    "FeedbackTrace",
+    "OutcomeIn",
+    "OutcomeOut",
+    "RequestIn",
+    "TraceDecision",
+]
+
+Response = Literal["accepted", "rejected", "terminated", "human_request", "none", "answered"]
+FeedbackWord = Literal["positive", "negative"]
+
+
+class RequestIn(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+    service: str = Field(examples=["ProvideDrink"])
+    detail: str | None = Field(default=None, examples=["tea"])
+
+
+class EpisodeIn(BaseModel):
+    model_config = ConfigDict(
+        extra="forbid",
+        json_schema_extra={"examples": [{
+            "event_id": "robot7-000123", "occurred_at": "2026-11-22T15:10:00+08:00",
+            "situation": "stretching", "initiator": "robot", "request": None,
+            "robot_id": "robot7"}]},
+    )
+
+    event_id: ClientId = Field(description="The robot's id of the event; repeating it replays.")
+    occurred_at: AwareDatetime = Field(
+        description="RFC 3339 with an offset; the local time of that offset picks the time slot."
+    )
+    situation: str
+    initiator: Literal["robot", "human"] = "robot"
+    request: RequestIn | None = Field(
+        default=None, description="With initiator human: what the person asked for."
+    )
+    robot_id: ClientId | None = None
+
+
+class ContextOut(BaseModel):
+    time_slot: str
+    situation: str
+
+
+class DecisionOut(BaseModel):
+    decision_id: str
+    action: ActionOut
+    expects: list[str] = Field(description="The responses allowed for this action.")
+    probabilities: list[ProbabilityOut] = Field(
+        description="The distribution the action was drawn from (sums to 1)."
+    )
+    chain: list[ProbabilityOut] = Field(
+        description="Silent steps the service took first (respond, infer), in order."
+    )
+
+
+class EpisodeCreated(BaseModel):
+    episode_id: str
+    user_id: str
+    status: Literal["open", "closed"]
+    context: ContextOut
+    state: str
+    total_reward: float
+    decision: DecisionOut | None
+
+
+class OutcomeIn(BaseModel):
+    model_config = ConfigDict(
+        extra="forbid",
+        json_schema_extra={"examples": [{"decision_id": "dec_0123456789abcdef0123456789abcdef",
+                                         "response": "answered", "service": "ProvideDrink",
+                                         "detail": None, "feedback": "positive"}]},
+    )
+
+    decision_id: str = Field(max_length=64)
+    response: Response
+    service: str | None = None
+    detail: str | None = None
+    feedback: FeedbackWord | None = Field(
+        default=None, description="Extra explicit feedback (a smile, a touch)."
+    )
+
+
+class EpisodeBrief(BaseModel):
+    episode_id: str
+    status: Literal["open", "closed"]
+    state: str
+    total_reward: float
+
+
+class OutcomeOut(BaseModel):
+    reward: float
+    episode: EpisodeBrief
+    decision: DecisionOut | None
+
+
+class FeedbackIn(BaseModel):
+    model_config = ConfigDict(
+        extra="forbid",
+        json_schema_extra={"examples": [{"feedback_id": "robot7-fb-42", "feedback": "positive"}]},
+    )
+
+    feedback_id: ClientId
+    feedback: FeedbackWord
+
+
+class FeedbackOut(BaseModel):
+    reward: float
+    episode: EpisodeBrief
+
+
+class TraceDecision(BaseModel):
+    decision_id: str
+    state: str
+    action: ActionOut
+    probabilities: list[ProbabilityOut]
+    chain: list[ProbabilityOut]
+    response: str | None
+    service: str | None
+    detail: str | None
+    feedback: str | None
+    reward: float | None
+    decided_at: dt.datetime
+    answered_at: dt.datetime | None
+
+
+class FeedbackTrace(BaseModel):
+    feedback_id: str
+    feedback: str
+    reward: float
+    received_at: dt.datetime
+
+
+class EpisodeSummary(BaseModel):
+    episode_id: str
+    user_id: str
+    event_id: str
+    robot_id: str | None
+    status: Literal["open", "closed"]
+    context: ContextOut
+    initiator: Literal["robot", "human"]
+    interaction_class: Literal["I1", "I2", "I3", "none"]
+    total_reward: float
+    state: str
+    occurred_at: dt.datetime
+    index: int = Field(description="1-based position of the episode in the user's history.")
+
+
+class EpisodeTrace(EpisodeSummary):
+    decisions: list[TraceDecision]
+    feedback: list[FeedbackTrace]
+
+
+class EpisodeList(Page):
+    items: list[EpisodeSummary]

@@ -1,0 +1,45 @@
+from __future__ import annotations
+
+import datetime as dt
+from typing import Any
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from .common import Page
+
+__all__ = ["LearnerSpec", "UserIn", "UserList", "UserOut"]
+
+
+class LearnerSpec(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+    algorithm: str = Field(default="hri", description="hri, rmax, qlearning or dts.",
+                           examples=["hri"])
+    params: dict[str, Any] = Field(default_factory=dict, examples=[{"tau": 0.01}],
+                                   description="The algorithm's parameters; omitted ones keep "
+                                   "their defaults.")
+
+
+class UserIn(BaseModel):
+    model_config = ConfigDict(
+        extra="forbid",
+        json_schema_extra={"examples": [{"display_name": "Mrs. Lin",
+                                         "learner": {"algorithm": "hri",
+                                                     "params": {"tau": 0.01}}}]},
+    )
+
+    display_name: str | None = Field(default=None, max_length=200)
+    learner: LearnerSpec | None = None
+
+
+class UserOut(BaseModel):
+    user_id: str
+    fleet: str
+    display_name: str | None
+    learner: LearnerSpec
+    created_at: dt.datetime
+    episodes: int
+
+
+class UserList(Page):
+    items: list[UserOut]

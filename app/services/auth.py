@@ -1,0 +1,76 @@
+"""API keys: random secrets shown once, stored as SHA-256, with a role and a fleet."""
+
+from __future__ import annotations
+
+import hashlib
+import re
+import secrets
+from collections.abc import Sequence
+
+from sqlalchemy.orm import Session
+
+from app.db.models import ApiKey
+from app.db.repositories import keys as repo
+from app.db.types import utcnow
+from app.errors import Forbidden, NotFound, Unauthorized, ValidationFailed
+
+from .context import Principal
+
+__all__ = ["ROLES", "authenticate", "create_key", "hash_secret", "list_keys", "require_admin",
+           "revoke_key"]
+
+ROLES = ("robot", "admin")
+_FLEET = re.compile(r"^[A-Za-z0-9._:-]{1,128}$")
+SECRET_PREFIX = "att_"
+
+
+def hash_secret(secret: str) -> str:
+    # The secrets carry 256 random bits, so a plain SHA-256 is enough (no password stretching).
+    return hashlib.sha256(secret.encode("utf-8")).hexdigest()
+
+
+def create_key(
+    session: Session, *, role: str, fleet: str = "default", name: str | None = None
+) -> tuple[ApiKey, str]:
+    """A new key and its secret; the secret is not stored and cannot be shown again."""
+    if role not in ROLES:
+        raise ValidationFailed(f"role must be one of {', '.join(ROLES)}; got {role!r}.")
+    if not _FLEET.match(fleet):
+        raise ValidationFailed("fleet must match ^[A-Za-z0-9._:-]{1,128}$.")
+    secret = SECRET_PREFIX + secrets.token_urlsafe(32)
+    key = ApiKey(
+        id="key_" + secrets.token_hex(8), prefix=secret[:12], secret_hash=hash_secret(secret),
+        role=role, fleet=fleet, name=name, created_at=utcnow(), revoked_at=None,
+    )
+    return repo.add_key(session, key), secret
+
+
+def list_keys(session: Session) -> Sequence[ApiKey]:
+    return repo.list_keys(session)
+
+
+def revoke_key(session: Session, key_id: str) -> ApiKey:
+    key = repo.get_key(session, key_id)
+    if key is None:
+        raise NotFound(f"No key {key_id!r}; `attune keys list` shows the ids.")
+    if key.revoked_at is None:
+        key.revoked_at = utcnow()
+    return key
+
+
+def authenticate(session: Session, authorization: str | None) -> Principal:
+    """The caller of a request from its ``Authorization: Bearer <key>`` header."""
+    if not authorization:
+        raise Unauthorized("Send your API key as 'Authorization: Bearer <key>'.")
+    scheme, _, secret = authorization.partition(" ")
+    if scheme.lower() != "bearer" or not secret.strip():
+        raise Unauthorized("Send your API key as 'Authorization: Bearer <key>'.")
+    key = repo.get_key_by_hash(session, hash_secret(secret.strip()))
+    if key is None or key.revoked_at is not None:
+        raise Unauthorized("Unknown or revoked API key.")
+    return Principal(key.id, key.role, key.fleet)
+
+
+def require_admin(principal: Principal) -> None:
+    if not principal.is_admin:
+        raise Forbidden("This needs an admin key.")

@@ -1,0 +1,111 @@
+"""What every use case needs besides the session: settings, the mission, and the learner cache."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import threading
+from collections import OrderedDict
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from pydantic import BaseModel
+from sqlalchemy.orm import Session
+
+from app.learning import Mission, NegotiationSpace, load_mission, office_mission, space_for
+from app.learning.learners import TabularLearner
+from app.settings import Settings
+
+__all__ = ["LearnerCache", "Principal", "ServiceContext", "after_commit", "body_hash", "rng_for"]
+
+
+@dataclass(frozen=True, slots=True)
+class Principal:
+    """Who is calling: the key's id, role and fleet."""
+
+    key_id: str
+    role: str
+    fleet: str
+
+    @property
+    def is_admin(self) -> bool:
+        return self.role == "admin"
+
+
+class LearnerCache:
+    """Decoded learners by user, tagged with the model version they hold (an LRU).
+
+    A writer *takes* the entry (so no one else sees it while it changes) and puts the updated
+    learner back only after its transaction commits; a rollback simply leaves the entry out, and
+    the next request decodes the stored document. With several workers each process has its own
+    cache, and the version tag keeps it honest.
+    """
+
+    def __init__(self, size: int) -> None:
+        self.size = size
+        self._items: OrderedDict[str, tuple[int, TabularLearner[Any]]] = OrderedDict()
+        self._lock = threading.Lock()
+        self.hits = 0
+        self.misses = 0
+
+    def take(self, user_id: str, version: int) -> TabularLearner[Any] | None:
+        with self._lock:
+            item = self._items.pop(user_id, None)
+            if item is not None and item[0] == version:
+                self.hits += 1
+                return item[1]
+            self.misses += 1
+            return None
+
+    def put(self, user_id: str, version: int, learner: TabularLearner[Any]) -> None:
+        if self.size <= 0:
+            return
+        with self._lock:
+            self._items[user_id] = (version, learner)
+            self._items.move_to_end(user_id)
+            while len(self._items) > self.size:
+                self._items.popitem(last=False)
+
+    def drop(self, user_id: str) -> None:
+        with self._lock:
+            self._items.pop(user_id, None)
+
+
+@dataclass
+class ServiceContext:
+    settings: Settings
+    mission: Mission
+    space: NegotiationSpace
+    cache: LearnerCache
+    counters: dict[str, int] = field(default_factory=dict)
+
+    @classmethod
+    def from_settings(cls, settings: Settings) -> ServiceContext:
+        mission = (
+            load_mission(settings.mission_path) if settings.mission_path else office_mission()
+        )
+        return cls(settings, mission, space_for(mission), LearnerCache(settings.model_cache_size))
+
+
+def rng_for(seed: int, user_id: str, draw: int) -> np.random.Generator:
+    """The generator of a user's ``draw``-th decision: deployment seed, user id, position.
+
+    Deriving it per decision (instead of carrying a generator's state) lets any worker draw the
+    next decision and lets ``attune models rebuild`` redraw every past one.
+    """
+    digest = hashlib.sha256(user_id.encode("utf-8")).digest()
+    words = [int.from_bytes(digest[i : i + 4], "little") for i in range(0, 16, 4)]
+    return np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(*words, draw)))
+
+
+def body_hash(model: BaseModel) -> str:
+    """A fingerprint of a request body as validated (so key order and spacing don't matter)."""
+    doc = model.model_dump(mode="json")
+    return hashlib.sha256(json.dumps(doc, sort_keys=True).encode()).hexdigest()
+
+
+def after_commit(session: Session, callback: Callable[[], None]) -> None:
+    """Run ``callback`` once the session's transaction has committed (never on rollback)."""
+    session.info.setdefault("after_commit", []).append(callback)

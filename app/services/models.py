@@ -1,0 +1,186 @@
+"""What a user's learner believes, the paper's metrics, and model administration."""
+
+from __future__ import annotations
+
+import math
+from collections import defaultdict
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from sqlalchemy.orm import Session
+
+from app.db.repositories import episodes as episodes_repo
+from app.db.repositories import users as users_repo
+from app.errors import ValidationFailed
+from app.learning import Observation, StateFormatError, Transition, learner_from_state
+from app.learning.experiments import episode_metrics
+from app.schemas.models import ActionBelief, ContextModel, ModelOut, StateModel, StatsOut
+
+from .auth import require_admin
+from .context import Principal, ServiceContext, rng_for
+from .episodes import _action_out
+from .learners import fresh_learner, learner_for_read, replace_learner
+from .users import visible_user
+
+__all__ = ["RebuildReport", "export_model", "import_model", "model_view", "rebuild_model",
+           "reset_model", "stats"]
+
+_CLASS = {"none": 0, "I1": 1, "I2": 2, "I3": 3}
+
+
+def _num(x: float) -> float | None:
+    return None if math.isnan(x) else x
+
+
+def model_view(
+    session: Session, ctx: ServiceContext, principal: Principal, user_id: str, *,
+    time_slot: str | None, situation: str | None,
+) -> ModelOut:
+    user = visible_user(session, principal, user_id)
+    mission, space = ctx.mission, ctx.space
+    if time_slot is not None and time_slot not in [t.name for t in mission.time_slots]:
+        raise ValidationFailed(f"time_slot must be one of "
+                               f"{', '.join(t.name for t in mission.time_slots)}.")
+    if situation is not None and situation not in mission.situations:
+        raise ValidationFailed(f"situation must be one of {', '.join(mission.situations)}.")
+    model, learner = learner_for_read(session, ctx, user)
+    now = user.episode_count + 1  # "if asked now": the next episode
+    contexts = []
+    for c in range(mission.n_contexts):
+        slot, sit = mission.context_names(c)
+        if (time_slot and slot != time_slot) or (situation and sit != situation):
+            continue
+        view = learner.explain(c, now)
+        states = []
+        for s in range(space.n_states):
+            info = space.state_info(s)
+            actions = [
+                ActionBelief(
+                    action=_action_out(ctx, a), q=float(view.q[a]), visits=int(view.visits[a]),
+                    kept_visits=None if view.kept_visits is None else float(view.kept_visits[a]),
+                    since_last=int(view.since_last[a]),
+                    measure=None if view.measure is None else float(view.measure[a]),
+                    p=float(view.probabilities[a]),
+                )
+                for a in space.actions_of(s)
+            ]
+            states.append(StateModel(state=info.kind.value, service=info.service,
+                                     detail=info.detail, actions=actions))
+        contexts.append(ContextModel(time_slot=slot, situation=sit, states=states))
+    return ModelOut(user_id=user.user_id, algorithm=user.algorithm, params=dict(user.params),
+                    version=model.version, episodes=user.episode_count, contexts=contexts)
+
+
+def stats(session: Session, principal: Principal, user_id: str, *, last: int | None
+          ) -> StatsOut:
+    visible_user(session, principal, user_id)
+    rows = episodes_repo.metric_rows(session, user_id, last=last)
+    initiated = np.asarray([r.initiated for r in rows], dtype=bool)
+    interaction = np.asarray([_CLASS[r.interaction_class] for r in rows], dtype=np.int64)
+    success = np.asarray([r.success for r in rows], dtype=bool)
+    queries = np.asarray([r.queries for r in rows], dtype=np.int64)
+    reward = np.asarray([r.total_reward for r in rows], dtype=np.float64)
+    m = episode_metrics(initiated, interaction, success, queries, reward)
+    return StatsOut(
+        episodes=len(rows), missions=int(m["missions"]),
+        interaction_rate=_num(m["interaction_rate"]), success_rate=_num(m["success_rate"]),
+        queries_per_mission=_num(m["queries_per_mission"]), total_reward=float(reward.sum()),
+        cumulative_reward=[0.0, *np.cumsum(reward).tolist()],
+    )
+
+
+def reset_model(session: Session, ctx: ServiceContext, principal: Principal, user_id: str
+                ) -> None:
+    require_admin(principal)
+    user = visible_user(session, principal, user_id, for_update=True)
+    replace_learner(session, ctx, user, fresh_learner(ctx, user.algorithm, dict(user.params)),
+                    imported=False)
+
+
+def export_model(session: Session, ctx: ServiceContext, principal: Principal, user_id: str
+                 ) -> dict[str, Any]:
+    require_admin(principal)
+    user = visible_user(session, principal, user_id)
+    model, _ = learner_for_read(session, ctx, user)
+    return dict(model.state)
+
+
+def import_model(session: Session, ctx: ServiceContext, principal: Principal, user_id: str,
+                 doc: Any) -> ModelOut:
+    require_admin(principal)
+    user = visible_user(session, principal, user_id, for_update=True)
+    try:
+        learner = learner_from_state(doc, ctx.mission)
+    except (StateFormatError, ValueError) as exc:
+        raise ValidationFailed(f"Not a learner state this deployment can load: {exc}") from None
+    user.algorithm, user.params = learner.algorithm, learner.params.to_dict()
+    replace_learner(session, ctx, user, learner, imported=True)
+    session.flush()
+    return model_view(session, ctx, principal, user_id, time_slot=None, situation=None)
+
+
+@dataclass
+class RebuildReport:
+    """What ``attune models rebuild`` found: replayed writes, redrawn decisions, differences."""
+
+    user_id: str
+    version: int
+    writes: int = 0
+    samples: int = 0
+    decisions: int = 0
+    mismatched_decisions: list[str] = field(default_factory=list)
+    identical: bool = False
+    rebuilt: dict[str, Any] = field(default_factory=dict)
+
+
+def rebuild_model(session: Session, ctx: ServiceContext, principal: Principal, user_id: str
+                  ) -> RebuildReport:
+    """Replay the user's history onto a fresh learner (or the imported base) and redraw every
+    decision from the same seed stream; the result must equal the stored model."""
+    user = visible_user(session, principal, user_id, for_update=True)
+    model = users_repo.get_model(session, user_id)
+    assert model is not None
+    learner = (learner_from_state(model.base_state, ctx.mission) if model.base_state
+               else fresh_learner(ctx, user.algorithm, dict(user.params)))
+    groups: dict[int, list[Any]] = defaultdict(list)
+    for s in episodes_repo.samples_since(session, user_id, model.base_version):
+        groups[s.version].append(s)
+    versions = sorted(groups)
+    report = RebuildReport(user_id, model.version)
+    applied = 0
+
+    def apply_through(version: int) -> None:
+        nonlocal applied
+        while applied < len(versions) and versions[applied] <= version:
+            rows = groups[versions[applied]]
+            if rows[0].kind == "feedback":
+                r = rows[0]
+                learner.feedback(r.episode, r.context, r.action, r.reward)
+            else:
+                learner.update([
+                    Transition(r.episode, r.context, r.state, r.action, r.reward,
+                               int(r.next_state), r.signal)
+                    for r in rows
+                ])
+            report.writes += 1
+            report.samples += len(rows)
+            applied += 1
+
+    for decision, context, seq in episodes_repo.decisions_for_rebuild(
+            session, user_id, model.base_version):
+        apply_through(decision.model_version)
+        drawn_steps = [s for s in decision.chain if not s.get("forced")]
+        start = drawn_steps[0]["state"] if drawn_steps else decision.state
+        assert decision.draw is not None
+        again = learner.select_action(Observation(context, start, seq),
+                                      rng_for(ctx.settings.seed, user_id, decision.draw))
+        same = np.allclose(again.probabilities, decision.probabilities, rtol=0, atol=1e-12) \
+            and (decision.forced or again.action == decision.action)
+        report.decisions += 1
+        if not same:
+            report.mismatched_decisions.append(decision.id)
+    apply_through(model.version)
+    report.rebuilt = learner.to_state()
+    report.identical = report.rebuilt == model.state and not report.mismatched_decisions
+    return report

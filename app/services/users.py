@@ -1,0 +1,114 @@
+"""Users: create or update, read, list, delete; and who may see whom."""
+
+from __future__ import annotations
+
+import base64
+import binascii
+from collections.abc import Sequence
+
+from sqlalchemy.orm import Session
+
+from app.db.models import User
+from app.db.repositories import users as repo
+from app.errors import Conflict, NotFound, ValidationFailed
+from app.schemas.users import LearnerSpec, UserIn, UserList, UserOut
+
+from .auth import require_admin
+from .context import Principal, ServiceContext
+from .learners import fresh_learner, replace_learner
+
+__all__ = ["delete_user", "get_user", "list_users", "put_user", "user_out", "visible_user"]
+
+
+def visible_user(
+    session: Session, principal: Principal, user_id: str, *, for_update: bool = False
+) -> User:
+    """The user, if the caller may see it; another fleet's user is reported as absent (404)."""
+    user = repo.get_user(session, user_id, for_update=for_update)
+    if user is None or (not principal.is_admin and user.fleet != principal.fleet):
+        raise NotFound(f"No user {user_id!r} in your fleet.")
+    return user
+
+
+def user_out(user: User) -> UserOut:
+    return UserOut(
+        user_id=user.user_id, fleet=user.fleet, display_name=user.display_name,
+        learner=LearnerSpec(algorithm=user.algorithm, params=dict(user.params)),
+        created_at=user.created_at, episodes=user.episode_count,
+    )
+
+
+def ensure_user(
+    session: Session, ctx: ServiceContext, principal: Principal, user_id: str, *,
+    spec: LearnerSpec | None = None, display_name: str | None = None,
+) -> tuple[User, bool]:
+    """Lock the user (creating it in the caller's fleet if absent); (user, created)."""
+    spec = spec or LearnerSpec()
+    learner = fresh_learner(ctx, spec.algorithm, spec.params)
+    created = repo.insert_user_if_absent(
+        session, user_id=user_id, fleet=principal.fleet, algorithm=spec.algorithm,
+        params=learner.params.to_dict(), display_name=display_name, state=learner.to_state(),
+    )
+    return visible_user(session, principal, user_id, for_update=True), created
+
+
+def put_user(
+    session: Session, ctx: ServiceContext, principal: Principal, user_id: str, body: UserIn,
+    *, reset_model: bool,
+) -> tuple[UserOut, bool]:
+    """Create or update a user; (user, created)."""
+    user, created = ensure_user(session, ctx, principal, user_id, spec=body.learner,
+                                display_name=body.display_name)
+    if created:
+        return user_out(user), True
+    if body.display_name is not None:
+        user.display_name = body.display_name
+    if body.learner is not None:
+        learner = fresh_learner(ctx, body.learner.algorithm, body.learner.params)
+        params = learner.params.to_dict()
+        if (body.learner.algorithm, params) != (user.algorithm, dict(user.params)):
+            if user.episode_count > 0 and not reset_model:
+                raise Conflict(
+                    f"User {user_id!r} has {user.episode_count} episodes; changing the learner "
+                    "forgets what was learned. Repeat with ?reset_model=true to do so."
+                )
+            user.algorithm, user.params = body.learner.algorithm, params
+            replace_learner(session, ctx, user, learner, imported=False)
+    session.flush()
+    return user_out(user), False
+
+
+def get_user(session: Session, principal: Principal, user_id: str) -> UserOut:
+    return user_out(visible_user(session, principal, user_id))
+
+
+def _cursor(user_id: str) -> str:
+    return base64.urlsafe_b64encode(user_id.encode()).decode().rstrip("=")
+
+
+def _after(cursor: str | None) -> str | None:
+    if cursor is None:
+        return None
+    try:
+        return base64.urlsafe_b64decode(cursor + "=" * (-len(cursor) % 4)).decode()
+    except (binascii.Error, UnicodeDecodeError, ValueError):
+        raise ValidationFailed("cursor is not one this API returned.") from None
+
+
+def list_users(
+    session: Session, principal: Principal, *, limit: int, cursor: str | None
+) -> UserList:
+    fleet = None if principal.is_admin else principal.fleet
+    rows: Sequence[User] = repo.list_users(session, fleet=fleet, after=_after(cursor),
+                                           limit=limit + 1)
+    items = [user_out(u) for u in rows[:limit]]
+    more = len(rows) > limit
+    return UserList(items=items, next_cursor=_cursor(rows[limit - 1].user_id) if more else None)
+
+
+def delete_user(session: Session, ctx: ServiceContext, principal: Principal, user_id: str
+                ) -> None:
+    require_admin(principal)
+    visible_user(session, principal, user_id, for_update=True)
+    repo.delete_user(session, user_id)
+    ctx.cache.drop(user_id)

@@ -1,0 +1,74 @@
+"""Service settings: one ``Settings`` read from ``ATTUNE_*`` environment variables (or ``.env``)."""
+
+from __future__ import annotations
+
+import functools
+from pathlib import Path
+
+from pydantic import Field, field_validator
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+__all__ = ["Settings", "get_settings"]
+
+
+class Settings(BaseSettings):
+    """Everything the service reads from its environment, with the defaults of a fresh machine."""
+
+    model_config = SettingsConfigDict(
+        env_prefix="ATTUNE_", env_file=".env", env_file_encoding="utf-8", extra="ignore"
+    )
+
+    database_url: str = Field(
+        default="sqlite:///./attune.db",
+        description="SQLAlchemy URL: sqlite:///PATH (embedded default) or "
+        "postgresql+psycopg://USER@HOST:PORT/DB (production).",
+    )
+    seed: int = Field(
+        default=0, ge=0, lt=2**63,
+        description="Deployment seed: each user's decisions are drawn from a generator seeded "
+        "by this seed, the user id and the decision's position in the user's history.",
+    )
+    mission_path: Path | None = Field(
+        default=None, description="A mission JSON file; the built-in office mission if unset."
+    )
+    max_body_bytes: int = Field(
+        default=64 * 1024, ge=1024, description="Largest request body accepted (413 above)."
+    )
+    sqlite_busy_timeout_s: float = Field(
+        default=30.0, gt=0, description="How long a SQLite writer waits for the write lock."
+    )
+    db_pool_size: int = Field(default=10, ge=1, description="Connections per worker process.")
+    model_cache_size: int = Field(
+        default=1024, ge=0, description="Decoded learners kept in memory per worker (0: none)."
+    )
+    log_level: str = Field(default="info", description="debug, info, warning or error.")
+
+    @field_validator("database_url")
+    @classmethod
+    def _known_engine(cls, value: str) -> str:
+        if value.startswith("postgresql://") or value.startswith("postgres://"):
+            # psycopg 3 is the driver we ship; a bare postgresql:// URL would ask for psycopg2.
+            value = "postgresql+psycopg://" + value.split("://", 1)[1]
+        if not (value.startswith("sqlite") or value.startswith("postgresql+psycopg")):
+            raise ValueError(
+                "database_url must be sqlite:///PATH or postgresql+psycopg://USER@HOST/DB."
+            )
+        return value
+
+    @field_validator("log_level")
+    @classmethod
+    def _known_level(cls, value: str) -> str:
+        value = value.lower()
+        if value not in {"debug", "info", "warning", "error"}:
+            raise ValueError("log_level must be debug, info, warning or error.")
+        return value
+
+    @property
+    def is_sqlite(self) -> bool:
+        return self.database_url.startswith("sqlite")
+
+
+@functools.lru_cache
+def get_settings() -> Settings:
+    """The process's settings, read once (tests pass their own ``Settings`` to ``create_app``)."""
+    return Settings()
