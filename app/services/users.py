@@ -90,9 +90,14 @@ def _after(cursor: str | None) -> str | None:
     if cursor is None:
         return None
     try:
-        return base64.urlsafe_b64decode(cursor + "=" * (-len(cursor) % 4)).decode()
+        # validate=True: characters outside the alphabet are refused, not silently dropped
+        after = base64.b64decode(cursor + "=" * (-len(cursor) % 4), altchars=b"-_",
+                                 validate=True).decode()
     except (binascii.Error, UnicodeDecodeError, ValueError):
-        raise ValidationFailed("cursor is not one this API returned.") from None
+        after = ""
+    if not after:
+        raise ValidationFailed("cursor is not one this API returned.")
+    return after
 
 
 def list_users(

@@ -37,10 +37,11 @@ def insert_user_if_absent(
     }
     dialect = session.get_bind().dialect.name
     insert = postgresql.insert if dialect == "postgresql" else sqlite.insert
-    result = session.execute(
+    stmt = (
         insert(User).values(**values).on_conflict_do_nothing(index_elements=["user_id"])
+        .returning(User.user_id)
     )
-    inserted = bool(result.rowcount)  # type: ignore[attr-defined]
+    inserted = session.execute(stmt).first() is not None
     if inserted:
         session.add(LearnerModel(user_id=user_id, version=0, state=state, base_state=None,
                                  base_version=0, updated_at=utcnow()))
