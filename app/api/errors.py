@@ -8,11 +8,13 @@ from typing import Any
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
-from sqlalchemy.exc import IntegrityError, OperationalError
+from sqlalchemy.exc import DataError, IntegrityError, OperationalError
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from app.errors import AppError, BadRequest, Conflict, ServiceUnavailable, ValidationFailed
 from app.schemas.common import ErrorOut
+
+from .middleware import BodyTooLarge
 
 __all__ = ["ERROR_RESPONSES", "install_error_handlers", "responses"]
 
@@ -73,7 +75,11 @@ def install_error_handlers(app: FastAPI) -> None:
 
     @app.exception_handler(StarletteHTTPException)
     async def http_error(_: Request, exc: StarletteHTTPException) -> JSONResponse:
-        names = {404: "NotFound", 405: "MethodNotAllowed", 413: "PayloadTooLarge"}
+        if isinstance(exc.__cause__, BodyTooLarge):  # a streamed body went over the limit
+            return JSONResponse({"error": "PayloadTooLarge", "detail": str(exc.__cause__)},
+                                status_code=413)
+        names = {400: "BadRequest", 404: "NotFound", 405: "MethodNotAllowed",
+                 413: "PayloadTooLarge"}
         name = names.get(exc.status_code, "HTTPError")
         detail = str(exc.detail)
         if exc.status_code == 404:
@@ -85,6 +91,14 @@ def install_error_handlers(app: FastAPI) -> None:
     async def integrity_error(_: Request, exc: IntegrityError) -> JSONResponse:
         log.warning("integrity error: %s", exc.orig)
         return _render(Conflict("A concurrent write changed the same record; retry."))
+
+    @app.exception_handler(DataError)
+    async def data_error(_: Request, exc: DataError) -> JSONResponse:
+        # A value the database cannot hold (PostgreSQL: a NUL character in a text) is the
+        # client's to fix, not a server failure.
+        log.info("data error: %s", exc.orig)
+        return _render(ValidationFailed("A value in the request cannot be stored (a NUL "
+                                        "character, say); remove it and retry."))
 
     @app.exception_handler(OperationalError)
     async def operational_error(_: Request, exc: OperationalError) -> JSONResponse:

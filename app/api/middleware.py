@@ -10,11 +10,16 @@ from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from .metrics import Metrics
 
-__all__ = ["BodyLimitMiddleware", "MetricsMiddleware"]
+__all__ = ["BodyLimitMiddleware", "BodyTooLarge", "MetricsMiddleware"]
 
 
-class _TooLarge(Exception):
-    pass
+class BodyTooLarge(Exception):
+    """Raised while a streamed body goes over the limit (FastAPI wraps it in a 400, which the
+    error handler turns back into this 413)."""
+
+    def __init__(self, limit: int) -> None:
+        super().__init__(f"The request body is over the {limit}-byte limit.")
+        self.limit = limit
 
 
 async def _send_413(send: Send, limit: int) -> None:
@@ -54,7 +59,7 @@ class BodyLimitMiddleware:
             if message["type"] == "http.request":
                 seen += len(message.get("body", b""))
                 if seen > self.limit:
-                    raise _TooLarge
+                    raise BodyTooLarge(self.limit)
             return message
 
         async def tracking_send(message: Message) -> None:
@@ -65,7 +70,7 @@ class BodyLimitMiddleware:
 
         try:
             await self.app(scope, limited_receive, tracking_send)
-        except _TooLarge:
+        except BodyTooLarge:
             if not started:
                 await _send_413(send, self.limit)
 

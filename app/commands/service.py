@@ -6,6 +6,8 @@ import json
 import logging
 import os
 import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager
 from typing import Annotated
 
 import typer
@@ -38,9 +40,11 @@ def _settings() -> Settings:
 
 def _upgrade(settings: Settings) -> None:
     safe = Database(settings)
-    url = safe.engine.url.render_as_string(hide_password=True)
-    before = migrate.current_revision(safe.engine)
-    safe.dispose()
+    try:
+        url = safe.engine.url.render_as_string(hide_password=True)
+        before = migrate.current_revision(safe.engine)
+    finally:
+        safe.dispose()
     migrate.upgrade(settings.database_url)
     after = migrate.head_revision()
     if before == after:
@@ -49,12 +53,16 @@ def _upgrade(settings: Settings) -> None:
         err.print(f"Database {url} upgraded: schema {before or 'empty'} -> {after}.")
 
 
-def _database(settings: Settings) -> Database:
+@contextmanager
+def _database(settings: Settings) -> Iterator[Database]:
     """The database, its schema brought up to date first (a fresh machine has none yet)."""
     database = Database(settings)
-    if not migrate.is_current(database.engine):
-        _upgrade(settings)
-    return database
+    try:
+        if not migrate.is_current(database.engine):
+            _upgrade(settings)
+        yield database
+    finally:
+        database.dispose()
 
 
 def serve(
@@ -89,7 +97,10 @@ def db_upgrade() -> None:
 def db_current() -> None:
     """Print the schema revision of the database and of this code."""
     database = Database(_settings())
-    current = migrate.current_revision(database.engine)
+    try:
+        current = migrate.current_revision(database.engine)
+    finally:
+        database.dispose()
     typer.echo(f"database: {current or 'empty'}\ncode:     {migrate.head_revision()}")
 
 
@@ -103,9 +114,8 @@ def keys_create(
     """Make a key; the secret is printed once, alone on the last line."""
     from app.services.auth import create_key
 
-    database = _database(_settings())
     try:
-        with database.transaction() as session:
+        with _database(_settings()) as database, database.transaction() as session:
             key, secret = create_key(session, role=role, fleet=fleet, name=name)
     except AppError as exc:
         err.print(f"[red]{exc.detail}[/red]")
@@ -120,8 +130,7 @@ def keys_list() -> None:
     """List keys (ids, roles, fleets; never the secrets)."""
     from app.services.auth import list_keys
 
-    database = _database(_settings())
-    with database.transaction(write=False) as session:
+    with _database(_settings()) as database, database.transaction(write=False) as session:
         rows = list_keys(session)
         table = Table("id", "role", "fleet", "name", "prefix", "created", "revoked")
         for k in rows:
@@ -136,9 +145,8 @@ def keys_revoke(key_id: Annotated[str, typer.Argument(help="The key's id (keys l
     """Revoke a key: its requests get 401 from now on."""
     from app.services.auth import revoke_key
 
-    database = _database(_settings())
     try:
-        with database.transaction() as session:
+        with _database(_settings()) as database, database.transaction() as session:
             revoke_key(session, key_id)
     except AppError as exc:
         err.print(f"[red]{exc.detail}[/red]")
@@ -158,11 +166,10 @@ def models_rebuild(
     from app.services.models import rebuild_model
 
     settings = _settings()
-    database = _database(settings)
     ctx = ServiceContext.from_settings(settings)
     admin = Principal("cli", "admin", "default")
     try:
-        with database.transaction() as session:
+        with _database(settings) as database, database.transaction() as session:
             report = rebuild_model(session, ctx, admin, user_id)
             if save and not report.identical:
                 model = get_model(session, user_id)

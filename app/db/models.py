@@ -76,6 +76,9 @@ class LearnerModel(Base):
     state: Mapped[dict[str, Any]] = mapped_column(LearnerStateType())
     base_state: Mapped[dict[str, Any] | None] = mapped_column(LearnerStateType())
     base_version: Mapped[int] = mapped_column(Integer, default=0)
+    # Added to a user's episode index to give the learner's: an imported model may have seen
+    # more episodes than this user has, and its clock must never run backwards.
+    episode_offset: Mapped[int] = mapped_column(Integer, default=0)
     updated_at: Mapped[dt.datetime] = mapped_column(UTCDateTime(), default=utcnow)
 
 
@@ -91,6 +94,7 @@ class Episode(Base):
     id: Mapped[str] = mapped_column(String(ID), primary_key=True)
     user_id: Mapped[str] = mapped_column(ForeignKey("users.user_id", ondelete="CASCADE"))
     seq: Mapped[int] = mapped_column(Integer)  # the user's 1-based episode index
+    learner_episode: Mapped[int] = mapped_column(Integer)  # seq + the model's episode offset
     event_id: Mapped[str] = mapped_column(String(CLIENT_ID))
     robot_id: Mapped[str | None] = mapped_column(String(CLIENT_ID))
     occurred_at: Mapped[dt.datetime] = mapped_column(UTCDateTime())
@@ -165,7 +169,10 @@ class Sample(Base):
     """
 
     __tablename__ = "samples"
-    __table_args__ = (Index("ix_samples_user_version", "user_id", "version"),)
+    __table_args__ = (
+        Index("ix_samples_user_version", "user_id", "version"),
+        Index("ix_samples_user_episode", "user_id", "episode"),
+    )
 
     id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)
     user_id: Mapped[str] = mapped_column(ForeignKey("users.user_id", ondelete="CASCADE"))

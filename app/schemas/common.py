@@ -2,8 +2,7 @@ from __future__ import annotations
 
 from typing import Annotated, Any
 
-from pydantic import BaseModel, ConfigDict, Field, StringConstraints, model_serializer
-from pydantic_core.core_schema import SerializerFunctionWrapHandler
+from pydantic import BaseModel, ConfigDict, Field, StringConstraints
 
 __all__ = ["CLIENT_ID_PATTERN", "ActionOut", "ClientId", "ErrorOut", "Page", "ProbabilityOut"]
 
@@ -16,16 +15,11 @@ class ErrorOut(BaseModel):
 
     error: str = Field(examples=["NotFound"])
     detail: str = Field(examples=["No user 'lin' in your fleet."])
+    # exclude_if rather than a wrap serializer: the OpenAPI schema keeps the fields
     fields: list[dict[str, Any]] | None = Field(
         default=None, description="Validation errors only: where and what.",
+        exclude_if=lambda v: v is None,
     )
-
-    @model_serializer(mode="wrap")
-    def _drop_empty_fields(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
-        out: dict[str, Any] = handler(self)
-        if out.get("fields") is None:
-            out.pop("fields", None)
-        return out
 
 
 class ActionOut(BaseModel):
@@ -37,13 +31,8 @@ class ActionOut(BaseModel):
                                                                "detail": "tea"}]})
 
     kind: str
-    service: str | None = None
-    detail: str | None = None
-
-    @model_serializer(mode="wrap")
-    def _omit_absent(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
-        out: dict[str, Any] = handler(self)
-        return {k: v for k, v in out.items() if v is not None}
+    service: str | None = Field(default=None, exclude_if=lambda v: v is None)
+    detail: str | None = Field(default=None, exclude_if=lambda v: v is None)
 
 
 class ProbabilityOut(BaseModel):

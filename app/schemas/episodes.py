@@ -3,7 +3,7 @@ from __future__ import annotations
 import datetime as dt
 from typing import Literal
 
-from pydantic import AwareDatetime, BaseModel, ConfigDict, Field
+from pydantic import AwareDatetime, BaseModel, ConfigDict, Field, field_validator
 
 from .common import ActionOut, ClientId, Page, ProbabilityOut
 
@@ -55,6 +55,24 @@ class EpisodeIn(BaseModel):
         default=None, description="With initiator human: what the person asked for."
     )
     robot_id: ClientId | None = None
+
+    @field_validator("occurred_at", mode="before")
+    @classmethod
+    def _rfc3339_text(cls, value: object) -> object:
+        # pydantic would take a number as Unix seconds; the contract is RFC 3339 with an offset
+        if isinstance(value, int | float):
+            raise ValueError("occurred_at must be an RFC 3339 time with an offset, as text")
+        return value
+
+    @field_validator("occurred_at")
+    @classmethod
+    def _in_utc_range(cls, value: dt.datetime) -> dt.datetime:
+        # 0001-01-01T00:00+14:00 is a valid RFC 3339 time that has no UTC equivalent here.
+        try:
+            value.astimezone(dt.UTC)
+        except OverflowError:
+            raise ValueError("occurred_at is out of the representable range") from None
+        return value
 
 
 class ContextOut(BaseModel):

@@ -146,7 +146,7 @@ class _Step:
         draw = self.user.draws
         rng = rng_for(self.ctx.settings.seed, self.user.user_id, draw)
         self.user.draws = draw + 1
-        obs = Observation(self.episode.context, state, self.episode.seq)
+        obs = Observation(self.episode.context, state, self.episode.learner_episode)
         return self.learner.select_action(obs, rng), draw
 
     def _row(self, drawn: Drawn, draw: int, chain: list[dict[str, Any]], *, forced: bool,
@@ -168,7 +168,8 @@ class _Step:
 
     def teach(self, state: int, action: int, reward: float, next_state: int,
               signal: Polarity) -> None:
-        self.transitions.append(Transition(self.episode.seq, self.episode.context, state,
+        self.transitions.append(Transition(self.episode.learner_episode, self.episode.context,
+                                           state,
                                            action, float(reward), next_state, signal))
 
     def decide(self, state: int, *, forced_path: list[int] | None = None) -> Decision:
@@ -265,7 +266,8 @@ def start_episode(
     model, learner = learner_for_update(session, ctx, user)
     user.episode_count += 1
     episode = Episode(
-        id=_new_id("ep_"), user_id=user_id, seq=user.episode_count, event_id=body.event_id,
+        id=_new_id("ep_"), user_id=user_id, seq=user.episode_count,
+        learner_episode=user.episode_count + model.episode_offset, event_id=body.event_id,
         robot_id=body.robot_id, occurred_at=body.occurred_at.astimezone(dt.UTC),
         time_slot=slot, situation=body.situation, context=context, initiator=body.initiator,
         request_service=body.request.service if body.request else None,
@@ -432,7 +434,7 @@ def add_feedback(
     rw = ctx.mission.rewards
     reward = rw.positive if body.feedback == "positive" else rw.negative
     model, learner = learner_for_update(session, ctx, user)
-    save_feedback(session, ctx, user, model, learner, episode=episode.seq,
+    save_feedback(session, ctx, user, model, learner, episode=episode.learner_episode,
                   context=episode.context, state=target.state, action=target.action,
                   reward=reward)
     episode.total_reward += reward
@@ -481,7 +483,7 @@ def list_episodes(session: Session, ctx: ServiceContext, principal: Principal, u
     visible_user(session, principal, user_id)
     before: int | None = None
     if cursor is not None:
-        if not cursor.isdigit() or len(cursor) > 18:
+        if not (cursor.isascii() and cursor.isdigit()) or len(cursor) > 18:
             raise ValidationFailed("cursor is not one this API returned.")
         before = int(cursor)
     rows = repo.list_episodes(session, user_id, before_seq=before, limit=limit + 1)

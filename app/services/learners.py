@@ -90,7 +90,11 @@ def save_feedback(
 ) -> bool:
     """Add explicit feedback to a sample of the model; False when the model no longer has that
     sample (it was reset or replaced after the episode), in which case only history records it."""
+    taught = episodes_repo.has_transition(session, user.user_id, episode=episode, action=action,
+                                          after_version=model.base_version)
     try:
+        if not taught:  # the sample predates a reset or an import: history keeps the feedback
+            raise ValueError("the current model never learned this sample")
         learner.feedback(episode, context, action, reward)
     except ValueError:
         _commit_hook(session, ctx, user.user_id, model, learner)

@@ -45,7 +45,9 @@ def model_view(
     if situation is not None and situation not in mission.situations:
         raise ValidationFailed(f"situation must be one of {', '.join(mission.situations)}.")
     model, learner = learner_for_read(session, ctx, user)
-    now = user.episode_count + 1  # "if asked now": the next episode
+    # "if asked now": the next episode; an imported model may have seen more episodes than
+    # this user has (learned elsewhere), and its clock must not run backwards
+    now = user.episode_count + model.episode_offset + 1
     contexts = []
     for c in range(mission.n_contexts):
         slot, sit = mission.context_names(c)
@@ -115,7 +117,8 @@ def import_model(session: Session, ctx: ServiceContext, principal: Principal, us
     except (StateFormatError, ValueError) as exc:
         raise ValidationFailed(f"Not a learner state this deployment can load: {exc}") from None
     user.algorithm, user.params = learner.algorithm, learner.params.to_dict()
-    replace_learner(session, ctx, user, learner, imported=True)
+    model = replace_learner(session, ctx, user, learner, imported=True)
+    model.episode_offset = max(model.episode_offset, learner.episodes - user.episode_count)
     session.flush()
     return model_view(session, ctx, principal, user_id, time_slot=None, situation=None)
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import base64
 import binascii
+import re
 from collections.abc import Sequence
 
 from sqlalchemy.orm import Session
@@ -11,6 +12,7 @@ from sqlalchemy.orm import Session
 from app.db.models import User
 from app.db.repositories import users as repo
 from app.errors import Conflict, NotFound, ValidationFailed
+from app.schemas.common import CLIENT_ID_PATTERN
 from app.schemas.users import LearnerSpec, UserIn, UserList, UserOut
 
 from .auth import require_admin
@@ -95,7 +97,7 @@ def _after(cursor: str | None) -> str | None:
                                  validate=True).decode()
     except (binascii.Error, UnicodeDecodeError, ValueError):
         after = ""
-    if not after:
+    if not re.fullmatch(CLIENT_ID_PATTERN, after):
         raise ValidationFailed("cursor is not one this API returned.")
     return after
 

@@ -56,6 +56,7 @@ def upgrade() -> None:
         sa.Column("id", sa.String(length=40), nullable=False),
         sa.Column("user_id", sa.String(length=128), nullable=False),
         sa.Column("seq", sa.Integer(), nullable=False),
+        sa.Column("learner_episode", sa.Integer(), nullable=False),
         sa.Column("event_id", sa.String(length=128), nullable=False),
         sa.Column("robot_id", sa.String(length=128), nullable=True),
         sa.Column("occurred_at", app.db.types.UTCDateTime(timezone=True), nullable=False),
@@ -93,6 +94,7 @@ def upgrade() -> None:
         sa.Column("state", app.db.types.LearnerStateType(), nullable=False),
         sa.Column("base_state", app.db.types.LearnerStateType(), nullable=True),
         sa.Column("base_version", sa.Integer(), nullable=False),
+        sa.Column("episode_offset", sa.Integer(), nullable=False),
         sa.Column("updated_at", app.db.types.UTCDateTime(timezone=True), nullable=False),
         sa.ForeignKeyConstraint(
             ["user_id"],
@@ -124,6 +126,7 @@ def upgrade() -> None:
         sa.PrimaryKeyConstraint("id", name=op.f("pk_samples")),
     )
     with op.batch_alter_table("samples", schema=None) as batch_op:
+        batch_op.create_index("ix_samples_user_episode", ["user_id", "episode"], unique=False)
         batch_op.create_index("ix_samples_user_version", ["user_id", "version"], unique=False)
 
     op.create_table(
@@ -189,6 +192,7 @@ def downgrade() -> None:
     op.drop_table("decisions")
     with op.batch_alter_table("samples", schema=None) as batch_op:
         batch_op.drop_index("ix_samples_user_version")
+        batch_op.drop_index("ix_samples_user_episode")
 
     op.drop_table("samples")
     op.drop_table("learner_models")

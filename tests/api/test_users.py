@@ -14,7 +14,8 @@ def assert_error(r: Any, status: int, name: str) -> dict[str, Any]:
     assert r.status_code == status, r.text
     body: dict[str, Any] = r.json()
     assert body["error"] == name
-    assert isinstance(body["detail"], str) and body["detail"]
+    assert isinstance(body["detail"], str)
+    assert body["detail"]
     assert set(body) <= {"error", "detail", "fields"}
     return body
 
@@ -30,7 +31,8 @@ class TestPutUser:
         assert body["fleet"] == "default"
         assert body["display_name"] == "Mrs. Lin"
         assert body["episodes"] == 0
-        assert isinstance(body["created_at"], str) and body["created_at"]
+        assert isinstance(body["created_at"], str)
+        assert body["created_at"]
 
     def test_default_learner_is_hri_with_tau_001(self, robot: TestClient) -> None:
         r = robot.put("/v1/users/lin")

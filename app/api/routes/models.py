@@ -53,7 +53,16 @@ def export_model(user_id: UserId, session: SessionDep, ctx: ContextDep,
 @router.put("/model", response_model=ModelOut, responses=responses(403, 404))
 def import_model(
     user_id: UserId, session: SessionDep, ctx: ContextDep, principal: CurrentPrincipal,
-    doc: Annotated[dict[str, Any], Body(description="A document from GET /model/export.")],
+    doc: Annotated[dict[str, Any], Body(
+        description="A document from GET /model/export.",
+        examples=[{"format": "attune.learner-state", "format_version": 1, "algorithm": "hri",
+                   "params": {"tau": 0.01},
+                   "mission": {"name": "office", "fingerprint": "sha256:..."},
+                   "version": 412, "episodes": 87,
+                   "arrays": {"visits": {"dtype": "<i8", "shape": [16, 30],
+                                         "encoding": "zlib+base64", "data": "..."}},
+                   "pending": []}],
+    )],
 ) -> ModelOut:
     """Replace the model with an exported document (admin); 422 for another format or
     mission."""

@@ -17,6 +17,7 @@ __all__ = [
     "get_episode",
     "get_episode_by_event",
     "get_feedback",
+    "has_transition",
     "list_decisions",
     "list_episodes",
     "list_feedback",
@@ -106,6 +107,16 @@ def samples_since(session: Session, user_id: str, version: int) -> Sequence[Samp
     return session.scalars(stmt).all()
 
 
+def has_transition(session: Session, user_id: str, *, episode: int, action: int,
+                   after_version: int) -> bool:
+    """Whether the model taught after ``after_version`` holds ``action``'s sample of ``episode``."""
+    stmt = select(Sample.id).where(
+        Sample.user_id == user_id, Sample.episode == episode, Sample.action == action,
+        Sample.kind == "transition", Sample.version > after_version,
+    ).limit(1)
+    return session.execute(stmt).first() is not None
+
+
 def delete_samples(session: Session, user_id: str) -> None:
     session.execute(delete(Sample).where(Sample.user_id == user_id))
 
@@ -113,9 +124,10 @@ def delete_samples(session: Session, user_id: str) -> None:
 def decisions_for_rebuild(
     session: Session, user_id: str, version: int
 ) -> Sequence[Row[Decision, int, int]]:
-    """Drawn decisions of the user from model ``version`` on: (decision, context, episode seq)."""
+    """Drawn decisions of the user from model ``version`` on: (decision, context, learner's
+    episode index)."""
     stmt = (
-        select(Decision, Episode.context, Episode.seq)
+        select(Decision, Episode.context, Episode.learner_episode)
         .join(Episode, Episode.id == Decision.episode_id)
         .where(Episode.user_id == user_id, Decision.draw.is_not(None),
                Decision.model_version >= version)

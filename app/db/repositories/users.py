@@ -44,7 +44,7 @@ def insert_user_if_absent(
     inserted = session.execute(stmt).first() is not None
     if inserted:
         session.add(LearnerModel(user_id=user_id, version=0, state=state, base_state=None,
-                                 base_version=0, updated_at=utcnow()))
+                                 base_version=0, episode_offset=0, updated_at=utcnow()))
         session.flush()
     return inserted
 

@@ -1,0 +1,303 @@
+"""Acceptance: many robots at once, over a real HTTP server, retrying and conflicting.
+
+Eight threads drive 60 episodes of two users (30 each, shuffled so that several threads act for
+the same user at the same time) through uvicorn on a free local port. Every 5th write is sent
+twice (a robot's retry), and one write in ten is followed by a conflicting body under the same
+client id. Afterwards every acknowledged write must be stored exactly once, every retry must
+have been an identical replay, every conflict a 409, nothing a 5xx, and each user's model must
+equal what its history teaches (visit counts, and ``attune models rebuild``).
+"""
+
+from __future__ import annotations
+
+import gc
+import json
+import random
+import socket
+import threading
+import time
+import warnings
+from collections.abc import Iterator
+from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from typing import Any
+
+import httpx2
+import uvicorn
+from fastapi import FastAPI
+from sqlalchemy import func, select
+from typer.testing import CliRunner
+
+from app import cli
+from app.db.models import Decision, Episode
+from app.db.session import Database
+from app.learning import office_mission
+from app.settings import Settings
+
+from .conftest import MakeKey
+
+MISSION = office_mission()
+USERS = ("conc-a", "conc-b")
+PER_USER = 30
+THREADS = 8
+DEADLINE_S = 150.0  # the whole run; each request may also wait out the SQLite busy timeout
+SLOT_TIMES = {"morning": "09:30", "noon": "12:15", "afternoon": "15:10", "evening": "20:45"}
+SITUATIONS = MISSION.situations
+OTHER_RESPONSE = {"accepted": "rejected", "rejected": "accepted", "terminated": "accepted",
+                  "answered": "terminated", "none": "human_request", "human_request": "none"}
+
+
+@contextmanager
+def serving(app: FastAPI) -> Iterator[str]:
+    """``app`` under uvicorn in a background thread on a free port of 127.0.0.1."""
+    sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    sock.bind(("127.0.0.1", 0))
+    port = sock.getsockname()[1]
+    server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port,
+                                           log_level="warning"))
+    thread = threading.Thread(target=server.run, kwargs={"sockets": [sock]}, daemon=True)
+    thread.start()
+    try:
+        deadline = time.monotonic() + 15
+        while not server.started:
+            assert thread.is_alive(), "uvicorn stopped while starting"
+            assert time.monotonic() < deadline, "uvicorn did not start within 15 s"
+            time.sleep(0.02)
+        yield f"http://127.0.0.1:{port}"
+    finally:
+        server.should_exit = True
+        thread.join(timeout=15)
+        sock.close()
+        assert not thread.is_alive(), "uvicorn did not stop"
+
+
+@dataclass
+class Record:
+    """What one robot (thread) saw."""
+
+    writes: int = 0
+    statuses: list[tuple[str, int, str]] = field(default_factory=list)  # (url, status, body)
+    replays: list[tuple[dict[str, Any], int, str | None, Any]] = field(default_factory=list)
+    conflicts: list[tuple[int, Any]] = field(default_factory=list)
+    episodes: dict[str, list[str]] = field(default_factory=dict)  # user -> episode ids
+    decisions: dict[str, list[str]] = field(default_factory=dict)  # user -> decision ids seen
+    answered: dict[str, dict[str, str]] = field(default_factory=dict)  # decision id -> response
+
+
+class Robot:
+    def __init__(self, base_url: str, key: str, seed: int, deadline: float) -> None:
+        self.http = httpx2.Client(base_url=base_url, timeout=60.0,
+                                  headers={"Authorization": f"Bearer {key}"})
+        self.rng = random.Random(seed)
+        self.deadline = deadline
+        self.rec = Record()
+
+    def post(self, url: str, body: dict[str, Any]) -> httpx2.Response:
+        assert time.monotonic() < self.deadline, "past the deadline"
+        r = self.http.post(url, json=body)
+        self.rec.statuses.append((url, r.status_code, r.text if r.status_code >= 500 else ""))
+        return r
+
+    def write(self, url: str, body: dict[str, Any], conflicting: dict[str, Any],
+              status: int) -> dict[str, Any]:
+        """One acknowledged write; every 5th sent twice, one in ten followed by a conflict."""
+        self.rec.writes += 1
+        n = self.rec.writes
+        r = self.post(url, body)
+        assert r.status_code == status, (url, body, r.status_code, r.text)
+        assert "Idempotent-Replay" not in r.headers
+        first: dict[str, Any] = r.json()
+        if n % 5 == 0:
+            again = self.post(url, body)
+            self.rec.replays.append((first, again.status_code,
+                                     again.headers.get("Idempotent-Replay"), again.json()))
+        if n % 10 == 3:
+            clash = self.post(url, conflicting)
+            self.rec.conflicts.append((clash.status_code, clash.json()))
+        return first
+
+    def respond(self, decision: dict[str, Any]) -> dict[str, Any]:
+        """Seeded answers that always run the episode to its end."""
+        action = decision["action"]
+        kind = action["kind"]
+        body: dict[str, Any] = {"decision_id": decision["decision_id"]}
+        if kind == "initiate":
+            body["response"] = "accepted"
+        elif kind == "pass":
+            if self.rng.random() < 0.5:
+                body.update(response="human_request", service="ProvideDrink")
+                if self.rng.random() < 0.5:
+                    body["detail"] = "tea"
+            else:
+                body["response"] = "none"
+        elif kind == "query_type":
+            body.update(response="answered", service="BriefInformation")
+        elif kind == "query_detail":
+            body.update(response="answered",
+                        detail=MISSION.service(action["service"]).details[0])
+        else:  # perform
+            body["response"] = "accepted" if self.rng.random() < 0.8 else "rejected"
+        return body
+
+    def episode(self, user_id: str, k: int) -> None:
+        slot = list(SLOT_TIMES)[k % len(SLOT_TIMES)]
+        situation = SITUATIONS[k % len(SITUATIONS)]
+        body = {"event_id": f"{user_id}-{k:03d}",
+                "occurred_at": f"2026-11-{1 + k % 28:02d}T{SLOT_TIMES[slot]}:00+08:00",
+                "situation": situation, "initiator": "robot", "request": None,
+                "robot_id": f"robot-{threading.get_ident()}"}
+        other = {**body, "situation": SITUATIONS[(k + 1) % len(SITUATIONS)]}
+        ep = self.write(f"/v1/users/{user_id}/episodes", body, other, 201)
+        assert ep["context"] == {"time_slot": slot, "situation": situation}
+        episode_id = ep["episode_id"]
+        self.rec.episodes.setdefault(user_id, []).append(episode_id)
+        seen = self.rec.decisions.setdefault(user_id, [])
+        answered = self.rec.answered.setdefault(user_id, {})
+        decision = ep["decision"]
+        for _ in range(6):  # an episode has at most four visible steps
+            if decision is None:
+                return
+            seen.append(decision["decision_id"])
+            sent = self.respond(decision)
+            clash = {**sent, "response": OTHER_RESPONSE[sent["response"]]}
+            clash.pop("service", None)
+            clash.pop("detail", None)
+            out = self.write(f"/v1/episodes/{episode_id}/outcomes", sent, clash, 200)
+            answered[decision["decision_id"]] = sent["response"]
+            decision = out["decision"]
+            if decision is None:
+                assert out["episode"]["status"] == "closed"
+        raise AssertionError(f"episode {episode_id} did not end within 6 steps")
+
+
+def run_robot(base_url: str, key: str, seed: int, jobs: list[tuple[str, int]],
+              deadline: float) -> Record:
+    robot = Robot(base_url, key, seed, deadline)
+    try:
+        for user_id, k in jobs:
+            robot.episode(user_id, k)
+    finally:
+        robot.http.close()
+    return robot.rec
+
+
+def rebuild(settings: Settings, user_id: str) -> tuple[int, dict[str, Any]]:
+    """``attune models rebuild USER_ID``: (exit code, its JSON summary line)."""
+    result = CliRunner().invoke(
+        cli.app, ["models", "rebuild", user_id],
+        env={"ATTUNE_DATABASE_URL": settings.database_url, "ATTUNE_SEED": "0"},
+    )
+    with warnings.catch_warnings():  # the command leaves its connections to the collector
+        warnings.simplefilter("ignore", ResourceWarning)
+        gc.collect()
+    lines = [ln for ln in result.stdout.splitlines() if ln.startswith("{")]
+    assert lines, (result.exit_code, result.output, result.exception)
+    summary: dict[str, Any] = json.loads(lines[-1])
+    return result.exit_code, summary
+
+
+def test_concurrent_robots_with_retries_and_conflicts(
+        app: FastAPI, db: Database, make_key: MakeKey, settings: Settings,
+        engine_name: str) -> None:
+    jobs = [(user, k) for user in USERS for k in range(PER_USER)]
+    random.Random(2026).shuffle(jobs)
+    per_thread = [jobs[t::THREADS] for t in range(THREADS)]
+    # Several threads act for each user at the same time.
+    assert all({u for u, _ in chunk} == set(USERS) for chunk in per_thread)
+    keys = [make_key("robot") for _ in range(THREADS)]
+    began = time.monotonic()
+    deadline = began + DEADLINE_S
+    with serving(app) as base_url:
+        initial = {}
+        with httpx2.Client(base_url=base_url, timeout=60.0,
+                           headers={"Authorization": f"Bearer {keys[0]}"}) as http:
+            for user_id in USERS:
+                assert http.put(f"/v1/users/{user_id}", json={}).status_code == 201
+                initial[user_id] = http.get(f"/v1/users/{user_id}/model").json()["version"]
+        with ThreadPoolExecutor(max_workers=THREADS) as pool:
+            futures = [pool.submit(run_robot, base_url, keys[t], t, per_thread[t], deadline)
+                       for t in range(THREADS)]
+            records = [f.result(timeout=max(1.0, deadline - time.monotonic()))
+                       for f in futures]
+        driven = time.monotonic() - began
+        with httpx2.Client(base_url=base_url, timeout=60.0,
+                           headers={"Authorization": f"Bearer {keys[0]}"}) as http:
+            views = {}
+            for user_id in USERS:
+                traces = []
+                for rec in records:
+                    for episode_id in rec.episodes.get(user_id, []):
+                        r = http.get(f"/v1/episodes/{episode_id}")
+                        assert r.status_code == 200, r.text
+                        traces.append(r.json())
+                user = http.get(f"/v1/users/{user_id}")
+                model = http.get(f"/v1/users/{user_id}/model")
+                stats = http.get(f"/v1/users/{user_id}/stats")
+                assert user.status_code == model.status_code == stats.status_code == 200
+                views[user_id] = (traces, user.json(), model.json(), stats.json())
+    print(f"\n{engine_name}: {sum(r.writes for r in records)} acknowledged writes, "
+          f"{sum(len(r.statuses) for r in records)} requests by {THREADS} threads in "
+          f"{driven:.1f} s")
+
+    # No server errors (on SQLite, a 503 would mean a writer waited out the busy timeout).
+    errors = [s for rec in records for s in rec.statuses if s[1] >= 500]
+    assert errors == []
+
+    # Every retry was an identical replay, every conflict a 409.
+    replays = [x for rec in records for x in rec.replays]
+    conflicts = [x for rec in records for x in rec.conflicts]
+    assert len(replays) >= 20
+    assert len(conflicts) >= 10
+    for first, status, header, body in replays:
+        assert (status, header) == (200, "true")
+        assert body == first
+    for status, body in conflicts:
+        assert status == 409, body
+        assert body["error"] == "Conflict"
+        assert body["detail"]
+
+    for user_id in USERS:
+        episode_ids = [e for rec in records for e in rec.episodes.get(user_id, [])]
+        decision_ids = [d for rec in records for d in rec.decisions.get(user_id, [])]
+        answered = {d: resp for rec in records
+                    for d, resp in rec.answered.get(user_id, {}).items()}
+        assert len(episode_ids) == len(set(episode_ids)) == PER_USER
+        assert len(decision_ids) == len(set(decision_ids)) == len(answered)
+        with db.transaction(write=False) as s:
+            stored_eps = s.scalars(select(Episode).where(Episode.user_id == user_id)).all()
+            stored = s.scalars(select(Decision).join(Episode, Episode.id == Decision.episode_id)
+                               .where(Episode.user_id == user_id)).all()
+            count = s.scalar(select(func.count()).select_from(Episode)
+                             .where(Episode.user_id == user_id))
+            # Stored exactly once, and what was stored is the acknowledged body, not a conflict.
+            assert count == PER_USER
+            assert sorted(e.id for e in stored_eps) == sorted(episode_ids)
+            assert sorted(e.seq for e in stored_eps) == list(range(1, PER_USER + 1))
+            assert all(e.status == "closed" for e in stored_eps)
+            assert sorted(d.id for d in stored) == sorted(decision_ids)
+            assert {d.id: d.response for d in stored} == answered
+            draws = sorted(d.draw if d.draw is not None else -1 for d in stored)
+            assert draws == list(range(len(stored)))  # one draw each, none lost or doubled
+            silent = sum(len(d.chain) for d in stored)
+
+        traces, user, model, stats = views[user_id]
+        assert user["episodes"] == PER_USER
+        assert model["episodes"] == PER_USER
+        assert stats["episodes"] == PER_USER
+        assert all(t["status"] == "closed" for t in traces)
+        trace_answered = sum(d["response"] is not None for t in traces for d in t["decisions"])
+        trace_silent = sum(len(d["chain"]) for t in traces for d in t["decisions"])
+        assert (trace_answered, trace_silent) == (len(answered), silent)
+        visits = sum(a["visits"] for c in model["contexts"] for st in c["states"]
+                     for a in st["actions"])
+        assert visits == trace_answered + trace_silent
+        # One model change per acknowledged outcome (an episode's start from OBSERVE teaches
+        # nothing: its first decision has no silent steps); replays and conflicts change nothing.
+        assert model["version"] == initial[user_id] + len(answered)
+
+        code, summary = rebuild(settings, user_id)
+        assert summary["identical"] is True, summary
+        assert code == 0, summary
+        assert summary["decisions_redrawn"] == len(decision_ids)
