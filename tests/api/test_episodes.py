@@ -11,7 +11,7 @@ from typing import Any
 import pytest
 from fastapi.testclient import TestClient
 
-from .helpers import answer, event, start
+from .helpers import answer, assert_error, event, start
 
 EXPECTS = {
     "initiate": ["accepted", "rejected", "terminated"],
@@ -22,16 +22,6 @@ EXPECTS = {
 }
 TEA = {"service": "ProvideDrink", "detail": "tea"}
 DECISION_KEYS = {"decision_id", "action", "expects", "probabilities", "chain"}
-
-
-def assert_error(r: Any, status: int, name: str) -> dict[str, Any]:
-    assert r.status_code == status, r.text
-    body: dict[str, Any] = r.json()
-    assert body["error"] == name
-    assert isinstance(body["detail"], str)
-    assert body["detail"]
-    assert set(body) <= {"error", "detail", "fields"}
-    return body
 
 
 def check_decision(decision: dict[str, Any]) -> None:

@@ -8,20 +8,10 @@ from typing import Any
 import pytest
 from fastapi.testclient import TestClient
 
-from .helpers import answer, start
+from .helpers import answer, assert_error, start
 
 TEA = {"service": "ProvideDrink", "detail": "tea"}
 ACTION_KEYS = {"action", "q", "visits", "kept_visits", "since_last", "measure", "p"}
-
-
-def assert_error(r: Any, status: int, name: str) -> dict[str, Any]:
-    assert r.status_code == status, r.text
-    body: dict[str, Any] = r.json()
-    assert body["error"] == name
-    assert isinstance(body["detail"], str)
-    assert body["detail"]
-    assert set(body) <= {"error", "detail", "fields"}
-    return body
 
 
 def model(client: TestClient, user_id: str, **params: str) -> dict[str, Any]:

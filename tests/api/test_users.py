@@ -7,17 +7,7 @@ from typing import Any
 import pytest
 from fastapi.testclient import TestClient
 
-from .helpers import answer, start
-
-
-def assert_error(r: Any, status: int, name: str) -> dict[str, Any]:
-    assert r.status_code == status, r.text
-    body: dict[str, Any] = r.json()
-    assert body["error"] == name
-    assert isinstance(body["detail"], str)
-    assert body["detail"]
-    assert set(body) <= {"error", "detail", "fields"}
-    return body
+from .helpers import answer, assert_error, start
 
 
 class TestPutUser:
