@@ -26,15 +26,8 @@ def get_session(request: Request) -> Iterator[Session]:
     stored; the learner cache is refreshed only after the commit.
     """
     db: Database = request.app.state.db
-    with db.session(write=request.method in _WRITES) as session:
-        try:
-            yield session
-            session.commit()
-        except BaseException:
-            session.rollback()
-            raise
-        for callback in session.info.pop("after_commit", []):
-            callback()
+    with db.transaction(write=request.method in _WRITES) as session:
+        yield session
 
 
 SessionDep = Annotated[Session, Depends(get_session, scope="function")]

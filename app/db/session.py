@@ -48,7 +48,8 @@ class Database:
 
     @contextmanager
     def transaction(self, *, write: bool = True) -> Iterator[Session]:
-        """A session whose transaction commits at the end of the block, or rolls back."""
+        """A session whose transaction commits at the end of the block, or rolls back; then the
+        callbacks registered for after the commit run (``app.services.context.after_commit``)."""
         with self.session(write=write) as session:
             try:
                 yield session
@@ -56,6 +57,8 @@ class Database:
             except BaseException:
                 session.rollback()
                 raise
+            for callback in session.info.pop("after_commit", []):
+                callback()
 
     def dispose(self) -> None:
         self.engine.dispose()

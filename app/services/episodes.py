@@ -19,7 +19,7 @@ from app.db.models import Decision, Episode, Feedback, User
 from app.db.repositories import episodes as repo
 from app.db.types import utcnow
 from app.errors import Conflict, NotFound, ValidationFailed
-from app.learning import Action, ActionKind, Observation, Polarity, StateKind, Transition
+from app.learning import Action, ActionKind, Observation, Polarity, Transition
 from app.learning import Decision as Drawn
 from app.learning.learners import TabularLearner
 from app.schemas.common import ActionOut, ProbabilityOut
@@ -45,7 +45,7 @@ from .learners import learner_for_update, save_feedback, save_update
 from .users import ensure_user, visible_user
 
 __all__ = ["EXPECTS", "add_feedback", "get_trace", "list_episodes", "report_outcome",
-           "start_episode"]
+           "start_episode", "Written"]
 
 EXPECTS: dict[ActionKind, tuple[str, ...]] = {
     ActionKind.INITIATE: ("accepted", "rejected", "terminated"),
@@ -136,11 +136,11 @@ class _Step:
     """Draws decisions for one write and collects the transitions to teach the learner."""
 
     def __init__(self, session: Session, ctx: ServiceContext, user: User, episode: Episode,
-                 learner: TabularLearner[Any], model_version: int) -> None:
+                 learner: TabularLearner[Any], model_version: int, *, position: int) -> None:
         self.session, self.ctx, self.user, self.episode = session, ctx, user, episode
         self.learner, self.model_version = learner, model_version
         self.transitions: list[Transition] = []
-        self._position = 0
+        self._position = position  # of the next decision row in the episode
 
     def _draw(self, state: int) -> tuple[Drawn, int]:
         draw = self.user.draws
@@ -200,11 +200,11 @@ class _Step:
         drawn, draw = self._draw(space.OBSERVE)
         row = self._row(drawn, draw, [], forced=True, action=space.PASS)
         nxt = space.request_state(service) if service is not None else space.ENGAGED
-        self._answer(row, "human_request", service, detail, None, 0.0, nxt)
+        self.answer(row, "human_request", service, detail, None, 0.0, nxt)
         self.teach(space.OBSERVE, space.PASS, 0.0, nxt, Polarity.POSITIVE)
         return row
 
-    def _answer(self, row: Decision, response: str, service: str | None, detail: str | None,
+    def answer(self, row: Decision, response: str, service: str | None, detail: str | None,
                 feedback: str | None, reward: float, next_state: int) -> None:
         row.response, row.service, row.detail, row.feedback = response, service, detail, feedback
         row.reward, row.next_state, row.answered_at = reward, next_state, utcnow()
@@ -232,13 +232,6 @@ class _Step:
         if detail is not None:
             path.append(space.action_index(Action(ActionKind.INFER_DETAIL, service, detail)))
         return self.decide(state, forced_path=path)
-
-
-def _start_step(session: Session, ctx: ServiceContext, user: User, episode: Episode,
-                learner: TabularLearner[Any], version: int, position: int) -> _Step:
-    step = _Step(session, ctx, user, episode, learner, version)
-    step._position = position
-    return step
 
 
 # -- use cases ---------------------------------------------------------------------------------
@@ -278,7 +271,7 @@ def start_episode(
     )
     session.add(episode)
     session.flush()  # decisions reference it (no ORM relationship orders the inserts)
-    step = _start_step(session, ctx, user, episode, learner, model.version, 0)
+    step = _Step(session, ctx, user, episode, learner, model.version, position=0)
     if body.initiator == "human":
         service = body.request.service if body.request else None
         detail = body.request.detail if body.request else None
@@ -392,10 +385,11 @@ def report_outcome(
     if body.feedback is not None:
         reward += rw.positive if body.feedback == "positive" else rw.negative
     model, learner = learner_for_update(session, ctx, user)
-    step = _start_step(session, ctx, user, episode, learner, model.version, len(decisions))
+    step = _Step(session, ctx, user, episode, learner, model.version,
+                 position=len(decisions))
     service = body.service if body.response in ("human_request", "answered") else row.service
     detail = body.detail if body.response in ("human_request", "answered") else row.detail
-    step._answer(row, body.response, service, detail, body.feedback, reward, next_state)
+    step.answer(row, body.response, service, detail, body.feedback, reward, next_state)
     step.teach(row.state, row.action, reward, next_state, signal)
     decision: Decision | None = None
     if next_state != ctx.space.END:
@@ -492,4 +486,3 @@ def list_episodes(session: Session, ctx: ServiceContext, principal: Principal, u
     return EpisodeList(items=items, next_cursor=str(rows[limit - 1].seq) if more else None)
 
 
-__all__ += ["StateKind", "Written"]
