@@ -391,6 +391,9 @@ def report_outcome(
     detail = body.detail if body.response in ("human_request", "answered") else row.detail
     step.answer(row, body.response, service, detail, body.feedback, reward, next_state)
     step.teach(row.state, row.action, reward, next_state, signal)
+    # The next decision is drawn before the learner is taught this outcome, so that the write
+    # makes one ``update`` call (one version). In a context the negotiation is a DAG: learning
+    # about the step just answered cannot change the values of the states after it.
     decision: Decision | None = None
     if next_state != ctx.space.END:
         if body.response == "human_request":
