@@ -103,8 +103,9 @@ def reset_model(session: Session, ctx: ServiceContext, principal: Principal, use
 def export_model(session: Session, ctx: ServiceContext, principal: Principal, user_id: str
                  ) -> dict[str, Any]:
     require_admin(principal)
-    user = visible_user(session, principal, user_id)
-    model, _ = learner_for_read(session, ctx, user)
+    visible_user(session, principal, user_id)
+    model = users_repo.get_model(session, user_id)
+    assert model is not None  # every user is created with its model
     return dict(model.state)
 
 

@@ -26,7 +26,10 @@ def visible_user(
     session: Session, principal: Principal, user_id: str, *, for_update: bool = False
 ) -> User:
     """The user, if the caller may see it; another fleet's user is reported as absent (404)."""
-    user = repo.get_user(session, user_id, for_update=for_update)
+    return _visible(principal, user_id, repo.get_user(session, user_id, for_update=for_update))
+
+
+def _visible(principal: Principal, user_id: str, user: User | None) -> User:
     if user is None or (not principal.is_admin and user.fleet != principal.fleet):
         raise NotFound(f"No user {user_id!r} in your fleet.")
     return user
@@ -44,7 +47,14 @@ def ensure_user(
     session: Session, ctx: ServiceContext, principal: Principal, user_id: str, *,
     spec: LearnerSpec | None = None, display_name: str | None = None,
 ) -> tuple[User, bool]:
-    """Lock the user (creating it in the caller's fleet if absent); (user, created)."""
+    """Lock the user (creating it in the caller's fleet if absent); (user, created).
+
+    An existing user is only locked: the fresh learner (and its encoded state) is built only
+    when the user has to be created, so the robots' hot path does not pay for it.
+    """
+    existing = repo.get_user(session, user_id, for_update=True)
+    if existing is not None:
+        return _visible(principal, user_id, existing), False
     spec = spec or LearnerSpec()
     learner = fresh_learner(ctx, spec.algorithm, spec.params)
     created = repo.insert_user_if_absent(
