@@ -1,0 +1,1 @@
+"""Typed client for the Attune v1 API."""
