@@ -1,0 +1,154 @@
+"""A real ``attune serve`` process on 127.0.0.1, for tests that need the whole service.
+
+``LiveService`` runs the command line exactly as an operator would (migrations applied at start,
+uvicorn with N workers), on a free port, with its own database. It can be stopped gently, killed
+with SIGKILL, and started again on the same port and database. ``fresh_database(engine)`` gives a
+new SQLite file or a new PostgreSQL database (dropped afterwards), so live runs never collide.
+"""
+
+from __future__ import annotations
+
+import os
+import secrets
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from types import TracebackType
+
+import httpx2
+import psycopg
+import pytest
+
+PG_SERVER = os.environ.get("ATTUNE_TEST_POSTGRES_URL", "postgresql://postgres@127.0.0.1:5432")
+ATTUNE = str(Path(sys.executable).with_name("attune"))
+
+
+def free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
+        sock.bind(("127.0.0.1", 0))
+        port: int = sock.getsockname()[1]
+        return port
+
+
+@contextmanager
+def fresh_database(engine: str, folder: Path | None = None) -> Iterator[str]:
+    """A URL of an empty database of ``engine`` (``sqlite`` or ``postgresql``), removed after."""
+    if engine == "sqlite":
+        with tempfile.TemporaryDirectory(dir=folder) as tmp:
+            yield f"sqlite:///{Path(tmp) / 'attune.db'}"
+        return
+    name = f"attune_live_{os.getpid()}_{secrets.token_hex(4)}"
+    server = PG_SERVER.rstrip("/")
+    try:
+        admin = psycopg.connect(f"{server}/postgres", autocommit=True, connect_timeout=5)
+    except psycopg.OperationalError as exc:
+        pytest.fail(f"PostgreSQL at {PG_SERVER} does not answer ({exc}).", pytrace=False)
+    with admin:
+        admin.execute(f'CREATE DATABASE "{name}"')
+    try:
+        yield f"{server}/{name}"
+    finally:
+        with psycopg.connect(f"{server}/postgres", autocommit=True) as admin:
+            admin.execute(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)')
+
+
+class LiveService:
+    """``attune serve --host 127.0.0.1 --port P --workers N`` as a child process.
+
+    Use as a context manager (started on entry, stopped on exit). ``url`` stays the same across
+    ``kill()`` / ``stop()`` and ``start()``, so clients can reconnect to the restarted service.
+    The process's output goes to ``log_path``; ``log()`` returns it (for assertion messages).
+    """
+
+    def __init__(self, database_url: str, *, workers: int = 1, log_path: Path | None = None,
+                 env: dict[str, str] | None = None, seed: int = 0) -> None:
+        self.database_url = database_url
+        self.workers = workers
+        self.port = free_port()
+        self.url = f"http://127.0.0.1:{self.port}"
+        self.log_path = log_path or Path(tempfile.mkstemp(prefix="attune-serve-",
+                                                          suffix=".log")[1])
+        self.env = {**os.environ, "ATTUNE_DATABASE_URL": database_url,
+                    "ATTUNE_SEED": str(seed), "ATTUNE_LOG_LEVEL": "warning", **(env or {})}
+        self.process: subprocess.Popen[bytes] | None = None
+
+    # -- the command line ---------------------------------------------------------------------
+    def attune(self, *args: str, timeout: float = 120) -> subprocess.CompletedProcess[str]:
+        """Run another ``attune`` command against the same database."""
+        return subprocess.run([ATTUNE, *args], env=self.env, capture_output=True, text=True,
+                              timeout=timeout, check=False)
+
+    def create_key(self, role: str = "robot", fleet: str = "default",
+                   name: str | None = None) -> str:
+        """``attune keys create``: the secret (the last line it prints)."""
+        args = ["keys", "create", "--role", role, "--fleet", fleet]
+        if name:
+            args += ["--name", name]
+        done = self.attune(*args)
+        assert done.returncode == 0, done.stderr
+        return done.stdout.strip().splitlines()[-1]
+
+    # -- the process --------------------------------------------------------------------------
+    def start(self, timeout: float = 60) -> None:
+        assert self.process is None or self.process.poll() is not None, "already running"
+        with open(self.log_path, "ab") as log:
+            self.process = subprocess.Popen(
+                [ATTUNE, "serve", "--host", "127.0.0.1", "--port", str(self.port),
+                 "--workers", str(self.workers)],
+                env=self.env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
+        deadline = time.monotonic() + timeout
+        while True:
+            if self.process.poll() is not None:
+                raise AssertionError(f"attune serve exited with {self.process.returncode}:\n"
+                                     f"{self.log()}")
+            try:
+                if httpx2.get(f"{self.url}/readyz", timeout=2).status_code == 200:
+                    return
+            except httpx2.TransportError:
+                pass
+            if time.monotonic() > deadline:
+                self.kill()
+                raise AssertionError(f"attune serve not ready within {timeout} s:\n{self.log()}")
+            time.sleep(0.1)
+
+    def _signal(self, sig: signal.Signals, timeout: float) -> None:
+        if self.process is None or self.process.poll() is not None:
+            return
+        os.killpg(self.process.pid, sig)  # the whole group: uvicorn's workers too
+        try:
+            self.process.wait(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            os.killpg(self.process.pid, signal.SIGKILL)
+            self.process.wait(timeout=10)
+
+    def stop(self, timeout: float = 20) -> None:
+        """SIGTERM (uvicorn finishes the requests in flight), then SIGKILL if it hangs."""
+        self._signal(signal.SIGTERM, timeout)
+
+    def kill(self) -> None:
+        """SIGKILL to the server and its workers: no chance to finish anything."""
+        self._signal(signal.SIGKILL, 10)
+
+    @property
+    def running(self) -> bool:
+        return self.process is not None and self.process.poll() is None
+
+    def log(self) -> str:
+        try:
+            return self.log_path.read_text(errors="replace")[-4000:]
+        except OSError:
+            return ""
+
+    def __enter__(self) -> LiveService:
+        self.start()
+        return self
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        self.stop()
