@@ -2,7 +2,8 @@
 
 One Typer app with a sub-app per area: ``attune experiment ...`` reproduces the paper's
 experiments; ``attune serve``, ``attune db ...``, ``attune keys ...`` and ``attune models ...``
-run and administer the service (``app.commands.service``).
+run and administer the service (``app.commands.service``); ``attune fleet simulate`` plays
+simulated robots and people against a running service (``app.commands.fleet``).
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from typing import Annotated, Any
 import typer
 from rich.console import Console
 
+from app.commands import fleet as fleet_commands
 from app.commands import service as service_commands
 from app.experiments.runner import default_workers, jobs_for, run_jobs
 from app.learning.experiments import ABLATION_METHODS, E1E2, E3, PA, PAPER_METHODS, Method, Protocol
@@ -42,6 +44,7 @@ app.command("serve")(service_commands.serve)
 app.add_typer(service_commands.db, name="db")
 app.add_typer(service_commands.keys, name="keys")
 app.add_typer(service_commands.models, name="models")
+app.add_typer(fleet_commands.fleet, name="fleet")
 
 SeedsOption = Annotated[
     int,

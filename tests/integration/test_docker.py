@@ -98,7 +98,9 @@ def test_image_shape() -> None:
     copies = final.all("COPY")
     assert copies == ["--from=build /opt/venv /opt/venv", "--from=build /srv/attune /srv/attune"]
     user = final.all("USER")[-1]
-    assert user.split(":")[0].isdigit() and int(user.split(":")[0]) >= 1000, user
+    uid = user.split(":")[0]
+    assert uid.isdigit(), user
+    assert int(uid) >= 1000, user
     (health,) = final.all("HEALTHCHECK")
     assert "/healthz" in health
     assert exec_form(final.all("CMD")[-1])[:2] == ["attune", "serve"]
@@ -113,7 +115,8 @@ def test_compose_wiring() -> None:
     assert (COMPOSE.parent / attune["build"]["context"] / attune["build"]["dockerfile"]).samefile(
         DOCKERFILE)
     url = attune["environment"]["ATTUNE_DATABASE_URL"]
-    assert url.startswith("postgresql://attune:") and url.endswith("@db:5432/attune")
+    assert url.startswith("postgresql://attune:")
+    assert url.endswith("@db:5432/attune")
     assert "/readyz" in " ".join(attune["healthcheck"]["test"])
     assert attune["command"][:2] == ["attune", "serve"]
     assert "--workers" in attune["command"]

@@ -1,0 +1,233 @@
+"""``attune fleet simulate``: simulated robots serving simulated people through a live service."""
+
+from __future__ import annotations
+
+import json
+import math
+import secrets
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+from rich.console import Console
+from rich.progress import (
+    BarColumn,
+    MofNCompleteColumn,
+    Progress,
+    TextColumn,
+    TimeElapsedColumn,
+    TimeRemainingColumn,
+)
+from rich.table import Table
+
+from app.fleet.simulate import (
+    METRICS,
+    FleetError,
+    FleetRun,
+    PlayedEpisode,
+    local_stats,
+    make_people,
+    overall_stats,
+    run_fleet,
+)
+from app.learning import Mission, MissionError, space_for
+
+__all__ = ["fleet"]
+
+fleet = typer.Typer(help="Simulated fleets: robots and people played against a live service.",
+                    no_args_is_help=True)
+out = Console(highlight=False)
+err = Console(stderr=True, highlight=False)
+
+TOLERANCE = 1e-9  # the robots' tally and the service's stats are the same sums
+
+
+def _fmt(name: str, value: float | None) -> str:
+    if value is None:
+        return "-"
+    if name in ("episodes", "missions"):
+        return str(int(value))
+    if name == "total_reward":
+        return f"{value:.1f}"
+    return f"{value:.3f}"
+
+
+def _table(title: str, rows: dict[str, dict[str, Any]]) -> Table:
+    table = Table(title=title, title_justify="left")
+    table.add_column("user")
+    heads = {"episodes": "episodes", "missions": "missions", "interaction_rate": "interaction",
+             "success_rate": "success", "queries_per_mission": "queries/mission",
+             "total_reward": "cum. reward"}
+    for name in METRICS:
+        table.add_column(heads[name], justify="right")
+    for i, (user, stats) in enumerate(rows.items()):
+        if i == len(rows) - 1:
+            table.add_section()
+        table.add_row(user, *(_fmt(k, stats.get(k)) for k in METRICS))
+    return table
+
+
+def _differences(service: dict[str, Any], local: dict[str, float | None]) -> list[str]:
+    found = []
+    for k in METRICS:
+        a, b = service.get(k), local.get(k)
+        same = (a is None and b is None) or (
+            a is not None and b is not None and math.isclose(a, b, rel_tol=0, abs_tol=TOLERANCE))
+        if not same:
+            found.append(f"{k}: service {a}, robots {b}")
+    return found
+
+
+def _plot(path: Path, stats: dict[str, dict[str, Any]], change_at: int | None, title: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(8, 4.5), dpi=120)
+    for user, s in stats.items():
+        curve = s["cumulative_reward"]
+        ax.plot(range(len(curve)), curve, label=user, linewidth=1.4)
+    if change_at is not None:
+        ax.axvline(change_at, color="grey", linestyle="--", linewidth=1)
+        ax.annotate("needs change", (change_at, ax.get_ylim()[1]), textcoords="offset points",
+                    xytext=(4, -12), fontsize=8, color="grey")
+    ax.set_xlabel("episode")
+    ax.set_ylabel("cumulative reward")
+    ax.set_title(title)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8, ncols=2)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path)
+    plt.close(fig)
+
+
+@fleet.command("simulate")
+def simulate(
+    key: Annotated[str, typer.Option(envvar="ATTUNE_KEY", show_default=False,
+                                     help="A robot (or admin) API key [env: ATTUNE_KEY].")],
+    url: Annotated[str, typer.Option(envvar="ATTUNE_URL", help="The service [env: ATTUNE_URL].")
+                   ] = "http://127.0.0.1:8000",
+    robots: Annotated[int, typer.Option(min=1, max=64, help="Concurrent robots.")] = 4,
+    users: Annotated[int, typer.Option(min=1, max=1000, help="Simulated people.")] = 6,
+    events: Annotated[int, typer.Option(min=1, help="Events per person.")] = 200,
+    change_at: Annotated[int | None, typer.Option(
+        show_default=False, help="Event at which every person's needs change (about half of "
+        "their rules move), as in the paper's second experiment. Default: no change.")] = None,
+    seed: Annotated[int, typer.Option(help="Seeds the people, their events and reactions.")] = 0,
+    learner: Annotated[str, typer.Option(help="The learner the people are created with: hri, "
+                                         "dts, rmax or qlearning.")] = "hri",
+    prefix: Annotated[str | None, typer.Option(
+        show_default=False, help="User ids are PREFIX-u1, PREFIX-u2, ... Default: fleet-SEED-"
+        "<random>, so that runs never reuse each other's users.")] = None,
+    plot: Annotated[Path | None, typer.Option(
+        show_default=False, help="Write a PNG of each person's cumulative reward here.")] = None,
+    json_path: Annotated[Path | None, typer.Option(
+        "--json", show_default=False,
+        help="Write the metrics (per user and overall, as the service reports them) here.")] = None,
+    progress: Annotated[bool, typer.Option("--progress/--no-progress",
+                                           help="Show a progress bar.")] = True,
+    timeout: Annotated[float, typer.Option(min=0.1, help="Seconds per request.")] = 30.0,
+    deadline: Annotated[float, typer.Option(min=1, help="Give up after this many seconds.")
+                        ] = 3600.0,
+) -> None:
+    """Simulated robots serve simulated people through the service at --url.
+
+    Each robot is a thread with its own client; a person's events are played in order by
+    whichever robot is free. At the end the paper's metrics (interaction rate, success rate,
+    queries per mission, cumulative reward) are read back from the service's stats endpoint,
+    per user and overall, and checked against the robots' own tally. Exit code 1 if they differ
+    or the run failed, 2 if the service cannot be used.
+    """
+    from attune_client import APIConnectionError, APIStatusError, Client
+
+    prefix = prefix or f"fleet-{seed}-{secrets.token_hex(3)}"
+
+    def client(robot_id: str | None = None) -> Client:
+        return Client(url, key, timeout=timeout, headers={"User-Agent": f"attune-fleet/{robot_id}"}
+                      if robot_id else None)
+
+    try:
+        with client() as setup:
+            mission = Mission.from_dict(setup.mission().model_dump(), source=f"{url}/v1/mission")
+            space = space_for(mission)
+            people = make_people(mission, users=users, events=events, change_at=change_at,
+                                 seed=seed, prefix=prefix)
+            for person in people:
+                setup.put_user(person.user_id, display_name=f"Simulated person {person.user_id}",
+                               learner={"algorithm": learner})
+    except APIConnectionError as exc:
+        err.print(f"[red]No service answers at {url}:[/red] {exc}")
+        raise typer.Exit(2) from None
+    except APIStatusError as exc:
+        err.print(f"[red]The service refused ({exc.status_code} {exc.error}):[/red] {exc.detail}")
+        raise typer.Exit(2) from None
+    except (MissionError, ValueError) as exc:
+        err.print(f"[red]Cannot simulate:[/red] {exc}")
+        raise typer.Exit(2) from None
+
+    total = users * events
+    err.print(f"{robots} robots, {users} people ({prefix}-u1..u{users}), {events} events each"
+              + (f", needs change at event {change_at}" if change_at is not None else "")
+              + f", learner {learner}, seed {seed}, against {url}")
+    bar = Progress(TextColumn("[progress.description]{task.description}"), BarColumn(),
+                   MofNCompleteColumn(), TimeElapsedColumn(), TimeRemainingColumn(),
+                   console=err, disable=not progress)
+    try:
+        with bar:
+            task = bar.add_task("episodes", total=total)
+
+            def advance(_: PlayedEpisode) -> None:
+                bar.advance(task)
+
+            run = run_fleet(client, space, people, robots=robots, on_episode=advance,
+                            deadline_s=deadline)
+    except FleetError as exc:
+        err.print(f"[red]The fleet stopped:[/red] {exc}")
+        raise typer.Exit(1) from None
+    err.print(f"{run.played} episodes, {run.requests} requests in {run.elapsed_s:.1f} s "
+              f"({run.requests / max(run.elapsed_s, 1e-9):.0f} requests/s).")
+
+    with client() as reader:
+        stats = {p.user_id: reader.get_stats(p.user_id).model_dump() for p in people}
+        late = None
+        if change_at is not None:
+            late = {p.user_id: reader.get_stats(p.user_id, last=events - change_at).model_dump()
+                    for p in people}
+    _report(run, stats, late, change_at, events, plot, json_path, learner)
+
+
+def _report(run: FleetRun, stats: dict[str, dict[str, Any]],
+            late: dict[str, dict[str, Any]] | None, change_at: int | None, events: int,
+            plot: Path | None, json_path: Path | None, learner: str) -> None:
+    rows: dict[str, dict[str, Any]] = {**stats, "all": overall_stats(list(stats.values()))}
+    out.print(_table("Metrics from the service's stats endpoint (algorithm.md section 6)", rows))
+    document: dict[str, Any] = {"users": stats, "overall": rows["all"]}
+    if late is not None and change_at is not None:
+        late_rows: dict[str, dict[str, Any]] = {**late,
+                                                "all": overall_stats(list(late.values()))}
+        out.print(_table(f"Since the change: the last {events - change_at} episodes of each "
+                         "person", late_rows))
+        document["since_change"] = {"users": late, "overall": late_rows["all"]}
+
+    mismatches = []
+    for user_id, played in run.episodes.items():
+        for line in _differences(stats[user_id], local_stats(played)):
+            mismatches.append(f"{user_id} {line}")
+    if mismatches:
+        err.print("[red]The service's stats differ from what the robots saw:[/red]")
+        for line in mismatches:
+            err.print(f"  {line}")
+    else:
+        err.print("The service's stats equal the robots' own tally for every user.")
+    if json_path is not None:
+        json_path.parent.mkdir(parents=True, exist_ok=True)
+        json_path.write_text(json.dumps(document, indent=2) + "\n")
+        err.print(f"Metrics written to {json_path}")
+    if plot is not None:
+        _plot(plot, stats, change_at, f"Cumulative reward per person ({learner}, "
+              f"{run.robots} robots)")
+        err.print(f"Plot written to {plot}")
+    if mismatches:
+        raise typer.Exit(1)
