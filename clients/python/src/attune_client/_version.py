@@ -1,0 +1,2 @@
+__title__ = "attune-client"
+__version__ = "0.1.0"

@@ -1,0 +1,319 @@
+"""Each method sends the request of the contract and reads the answer into its model."""
+
+from __future__ import annotations
+
+import datetime as dt
+import json
+from typing import Any
+
+import attune_client as a
+import httpx
+import pydantic
+import pytest
+from attune_client_fakes import KEY, MakeAsyncClient, MakeClient, decision
+
+USER = {"user_id": "lin", "fleet": "default", "display_name": "Mrs. Lin",
+        "learner": {"algorithm": "hri", "params": {"tau": 0.01}},
+        "created_at": "2026-11-22T03:50:31.603058Z", "episodes": 2}
+STARTED = {"episode_id": "ep_1", "user_id": "lin", "status": "open",
+           "context": {"time_slot": "afternoon", "situation": "stretching"},
+           "state": "OBSERVE", "total_reward": 0.0, "decision": decision("dec_1")}
+SUMMARY = {"episode_id": "ep_1", "user_id": "lin", "event_id": "e1", "robot_id": None,
+           "status": "closed", "context": {"time_slot": "afternoon", "situation": "stretching"},
+           "initiator": "robot", "interaction_class": "I2", "total_reward": 6.0,
+           "state": "END", "occurred_at": "2026-11-22T07:10:00Z", "index": 1}
+TRACE = {**SUMMARY, "decisions": [{
+    "decision_id": "dec_1", "state": "OBSERVE", "action": {"kind": "initiate"},
+    "probabilities": [{"action": {"kind": "initiate"}, "p": 0.5},
+                      {"action": {"kind": "pass"}, "p": 0.5}],
+    "chain": [], "response": "accepted", "service": None, "detail": None, "feedback": None,
+    "reward": 1.0, "decided_at": "2026-11-22T03:50:31.634953Z",
+    "answered_at": "2026-11-22T03:50:32.1Z"}],
+    "feedback": [{"feedback_id": "fb1", "feedback": "positive", "reward": 1.0,
+                  "received_at": "2026-11-22T03:50:33Z"}]}
+MODEL = {"user_id": "lin", "algorithm": "qlearning", "params": {"alpha": 0.1}, "version": 3,
+         "episodes": 1, "contexts": [{"time_slot": "afternoon", "situation": "stretching",
+                                      "states": [{"state": "OBSERVE", "service": None,
+                                                  "detail": None, "actions": [{
+                                                      "action": {"kind": "initiate"}, "q": 3.1,
+                                                      "visits": 12, "kept_visits": None,
+                                                      "since_last": 2, "measure": None,
+                                                      "p": 0.83}]}]}]}
+STATS = {"episodes": 0, "missions": 0, "interaction_rate": None, "success_rate": None,
+         "queries_per_mission": None, "total_reward": 0.0, "cumulative_reward": [0.0]}
+MISSION = {"name": "office", "situations": ["arriving", "working", "stretching", "busy"],
+           "time_slots": [{"name": "morning", "start": "06:00", "end": "11:00"}],
+           "services": [{"name": "ProvideDrink", "details": ["tea", "coffee", "water"]}],
+           "rewards": {"positive": 1.0, "accepted_service": 5.0, "negative": -2.0,
+                       "query": -0.5}, "unavailable_situations": ["busy"], "gamma": 0.9}
+
+
+class Recorder:
+    """Answers ``(status, body, headers)`` for every request and keeps the requests."""
+
+    def __init__(self, status: int = 200, body: Any = None,
+                 headers: dict[str, str] | None = None) -> None:
+        self.status, self.body, self.headers = status, body, headers or {}
+        self.requests: list[httpx.Request] = []
+
+    def __call__(self, request: httpx.Request) -> httpx.Response:
+        self.requests.append(request)
+        if self.body is None:
+            return httpx.Response(self.status, headers=self.headers)
+        return httpx.Response(self.status, json=self.body, headers=self.headers)
+
+    @property
+    def last(self) -> httpx.Request:
+        return self.requests[-1]
+
+    def sent(self) -> Any:
+        return json.loads(self.last.content)
+
+
+class TestRequests:
+    def test_every_call_sends_the_key(self, make_client: MakeClient) -> None:
+        rec = Recorder(body=USER)
+        make_client(rec).get_user("lin")
+        assert rec.last.headers["Authorization"] == f"Bearer {KEY}"
+        assert rec.last.headers["User-Agent"].startswith("attune-client/")
+
+    def test_no_key_no_authorization_header(self) -> None:
+        rec = Recorder(body={"status": "ok"})
+        with a.Client("http://attune.test", "", transport=httpx.MockTransport(rec)) as client:
+            assert client.health()
+        assert "Authorization" not in rec.last.headers
+
+    def test_probes_never_send_the_key(self, make_client: MakeClient) -> None:
+        rec = Recorder(body={"status": "ok"})
+        make_client(rec).health()
+        assert "Authorization" not in rec.last.headers
+
+    def test_extra_headers(self, make_client: MakeClient) -> None:
+        rec = Recorder(body=USER)
+        make_client(rec, headers={"X-Robot": "robot7"}).get_user("lin")
+        assert rec.last.headers["X-Robot"] == "robot7"
+
+    def test_put_user(self, make_client: MakeClient) -> None:
+        rec = Recorder(201, USER)
+        user = make_client(rec).put_user("lin", display_name="Mrs. Lin",
+                                         learner={"algorithm": "hri", "params": {"tau": 0.01}},
+                                         reset_model=True)
+        assert rec.last.method == "PUT"
+        assert rec.last.url.path == "/v1/users/lin"
+        assert rec.last.url.params["reset_model"] == "true"
+        assert rec.sent() == {"display_name": "Mrs. Lin",
+                              "learner": {"algorithm": "hri", "params": {"tau": 0.01}}}
+        assert user.learner == a.LearnerSpec(algorithm="hri", params={"tau": 0.01})
+        assert user.created_at == dt.datetime(2026, 11, 22, 3, 50, 31, 603058, tzinfo=dt.UTC)
+
+    def test_put_user_with_nothing_to_change(self, make_client: MakeClient) -> None:
+        rec = Recorder(200, USER)
+        make_client(rec).put_user("lin", learner=a.LearnerSpec(algorithm="rmax"))
+        assert "reset_model" not in rec.last.url.params
+        assert rec.sent() == {"learner": {"algorithm": "rmax", "params": {}}}
+
+    def test_ids_are_escaped_in_paths(self, make_client: MakeClient) -> None:
+        rec = Recorder(200, USER)
+        client = make_client(rec)
+        client.get_user("a/b c")
+        assert rec.last.url.raw_path == b"/v1/users/a%2Fb%20c"
+        client.get_user("..")
+        assert rec.last.url.raw_path == b"/v1/users/%2E%2E"
+
+    def test_list_and_iterate_users(self, make_client: MakeClient) -> None:
+        pages = {None: {"items": [USER], "next_cursor": "lin"},
+                 "lin": {"items": [{**USER, "user_id": "mo"}], "next_cursor": None}}
+        seen: list[httpx.Request] = []
+
+        def handler(request: httpx.Request) -> httpx.Response:
+            seen.append(request)
+            return httpx.Response(200, json=pages[request.url.params.get("cursor")])
+
+        client = make_client(handler)
+        page = client.list_users(limit=1)
+        assert page.next_cursor == "lin"
+        assert seen[0].url.params["limit"] == "1"
+        assert [u.user_id for u in client.iter_users(page_size=1)] == ["lin", "mo"]
+        assert seen[-1].url.params["cursor"] == "lin"
+
+    def test_start_episode(self, make_client: MakeClient) -> None:
+        rec = Recorder(201, STARTED)
+        when = dt.datetime(2026, 11, 22, 15, 10, tzinfo=dt.timezone(dt.timedelta(hours=8)))
+        started = make_client(rec).start_episode(
+            "lin", event_id="robot7-000123", occurred_at=when, situation="stretching",
+            initiator="human", request=a.ServiceRequest(service="ProvideDrink", detail="tea"),
+            robot_id="robot7")
+        assert rec.last.method == "POST"
+        assert rec.last.url.path == "/v1/users/lin/episodes"
+        assert rec.last.headers["Content-Type"] == "application/json"
+        assert rec.sent() == {"event_id": "robot7-000123",
+                              "occurred_at": "2026-11-22T15:10:00+08:00",
+                              "situation": "stretching", "initiator": "human",
+                              "request": {"service": "ProvideDrink", "detail": "tea"},
+                              "robot_id": "robot7"}
+        assert not started.replayed
+        assert started.decision is not None
+        assert started.decision.action.kind == "initiate"
+        assert started.context.time_slot == "afternoon"
+
+    def test_start_episode_takes_text_times_and_mapping_requests(
+            self, make_client: MakeClient) -> None:
+        rec = Recorder(201, STARTED)
+        make_client(rec).start_episode("lin", event_id="e", situation="busy",
+                                       occurred_at="2026-11-22T15:10:00+08:00",
+                                       request={"service": "ProvideDrink"})
+        sent = rec.sent()
+        assert sent["occurred_at"] == "2026-11-22T15:10:00+08:00"
+        assert sent["request"] == {"service": "ProvideDrink", "detail": None}
+        assert sent["initiator"] == "robot"
+        assert sent["robot_id"] is None
+
+    def test_a_naive_time_is_refused_before_sending(self, make_client: MakeClient) -> None:
+        rec = Recorder(201, STARTED)
+        with pytest.raises(ValueError, match="time zone"):
+            make_client(rec).start_episode("lin", event_id="e", situation="busy",
+                                           occurred_at=dt.datetime(2026, 11, 22, 15, 10))
+        assert rec.requests == []
+
+    def test_a_replay_says_so(self, make_client: MakeClient) -> None:
+        rec = Recorder(200, STARTED, {"Idempotent-Replay": "true"})
+        started = make_client(rec).start_episode("lin", event_id="e", situation="busy",
+                                                 occurred_at="2026-11-22T15:10:00+08:00")
+        assert started.replayed
+
+    def test_report_outcome(self, make_client: MakeClient) -> None:
+        answer = {"reward": -0.5, "episode": {"episode_id": "ep_1", "status": "closed",
+                                              "state": "END", "total_reward": 0.5},
+                  "decision": None}
+        rec = Recorder(200, answer)
+        result = make_client(rec).report_outcome("ep_1", decision_id="dec_1",
+                                                 response="answered", service="ProvideDrink")
+        assert rec.last.url.path == "/v1/episodes/ep_1/outcomes"
+        assert rec.sent() == {"decision_id": "dec_1", "response": "answered",
+                              "service": "ProvideDrink"}
+        assert isinstance(result, a.OutcomeResult)
+        assert result.decision is None
+        assert result.episode.status == "closed"
+        assert not result.replayed
+
+    def test_send_feedback(self, make_client: MakeClient) -> None:
+        answer = {"reward": 1.0, "episode": {"episode_id": "ep_1", "status": "closed",
+                                             "state": "END", "total_reward": 7.0}}
+        rec = Recorder(200, answer, {"Idempotent-Replay": "true"})
+        result = make_client(rec).send_feedback("ep_1", feedback_id="fb1", feedback="positive")
+        assert rec.last.url.path == "/v1/episodes/ep_1/feedback"
+        assert rec.sent() == {"feedback_id": "fb1", "feedback": "positive"}
+        assert isinstance(result, a.FeedbackResult)
+        assert result.replayed
+
+    def test_get_episode(self, make_client: MakeClient) -> None:
+        rec = Recorder(200, TRACE)
+        trace = make_client(rec).get_episode("ep_1")
+        assert rec.last.url.path == "/v1/episodes/ep_1"
+        assert trace.decisions[0].answered_at is not None
+        assert trace.feedback[0].feedback_id == "fb1"
+        assert trace.interaction_class == "I2"
+
+    def test_list_and_iterate_episodes(self, make_client: MakeClient) -> None:
+        rec = Recorder(200, {"items": [SUMMARY], "next_cursor": None})
+        client = make_client(rec)
+        page = client.list_episodes("lin", limit=5, cursor="9")
+        assert rec.last.url.path == "/v1/users/lin/episodes"
+        assert dict(rec.last.url.params) == {"limit": "5", "cursor": "9"}
+        assert page.items[0].index == 1
+        assert [e.episode_id for e in client.iter_episodes("lin")] == ["ep_1"]
+
+    def test_get_model(self, make_client: MakeClient) -> None:
+        rec = Recorder(200, MODEL)
+        model = make_client(rec).get_model("lin", situation="stretching")
+        assert rec.last.url.path == "/v1/users/lin/model"
+        assert dict(rec.last.url.params) == {"situation": "stretching"}
+        belief = model.contexts[0].states[0].actions[0]
+        assert belief.measure is None
+        assert belief.kept_visits is None
+        assert belief.q == 3.1
+
+    def test_get_stats(self, make_client: MakeClient) -> None:
+        rec = Recorder(200, STATS)
+        stats = make_client(rec).get_stats("lin", last=100)
+        assert dict(rec.last.url.params) == {"last": "100"}
+        assert stats.success_rate is None
+
+    def test_admin_calls(self, make_client: MakeClient) -> None:
+        rec = Recorder(204)
+        client = make_client(rec)
+        client.reset_model("lin")
+        assert (rec.last.method, rec.last.url.path) == ("DELETE", "/v1/users/lin/model")
+        client.delete_user("lin")
+        assert (rec.last.method, rec.last.url.path) == ("DELETE", "/v1/users/lin")
+        rec.status, rec.body = 200, {"format": "attune.learner-state", "arrays": {}}
+        document = client.export_model("lin")
+        assert rec.last.url.path == "/v1/users/lin/model/export"
+        rec.body = MODEL
+        model = client.import_model("lin", document)
+        assert (rec.last.method, rec.last.url.path) == ("PUT", "/v1/users/lin/model")
+        assert rec.sent() == document
+        assert model.version == 3
+
+    def test_mission(self, make_client: MakeClient) -> None:
+        mission = make_client(Recorder(200, MISSION)).mission()
+        assert mission.services[0].details == ["tea", "coffee", "water"]
+        assert mission.unavailable_situations == ["busy"]
+
+    def test_health_and_ready(self, make_client: MakeClient) -> None:
+        rec = Recorder(200, {"status": "ok"})
+        client = make_client(rec)
+        assert client.health()
+        assert rec.last.url.path == "/healthz"
+        assert client.ready()
+        rec.status = 503
+        assert not client.ready()
+        assert len(rec.requests) == 3  # no retries for probes
+
+    def test_health_is_false_when_nothing_answers(self, make_client: MakeClient,
+                                                  sleeps: list[float]) -> None:
+        def handler(request: httpx.Request) -> httpx.Response:
+            raise httpx.ConnectError("refused", request=request)
+
+        client = make_client(handler)
+        assert not client.health()
+        assert not client.ready()
+        assert sleeps == []
+
+
+class TestModels:
+    def test_unknown_fields_are_kept(self) -> None:
+        started = a.EpisodeStarted.model_validate({**STARTED, "mood": "sunny"})
+        assert started.model_extra == {"mood": "sunny"}
+        assert started.mood == "sunny"  # type: ignore[attr-defined]
+
+    def test_unknown_action_kinds_and_states_are_fine(self) -> None:
+        odd = decision("dec_9", kind="dance")
+        got = a.Decision.model_validate({**odd, "expects": ["applause"]})
+        assert got.action.kind == "dance"
+
+    def test_models_are_values(self) -> None:
+        first = a.Action(kind="perform", service="ProvideDrink", detail="tea")
+        assert first == a.Action.model_validate(first.model_dump())
+        with pytest.raises(pydantic.ValidationError, match="frozen"):
+            first.kind = "pass"
+
+
+class TestAsyncCalls:
+    @pytest.mark.anyio
+    async def test_the_same_requests(self, make_async_client: MakeAsyncClient) -> None:
+        rec = Recorder(201, STARTED)
+        client = make_async_client(rec)
+        started = await client.start_episode("lin", event_id="e1", situation="stretching",
+                                             occurred_at="2026-11-22T15:10:00+08:00")
+        assert started.episode_id == "ep_1"
+        assert rec.last.url.path == "/v1/users/lin/episodes"
+        rec.body = {"items": [SUMMARY], "next_cursor": None}
+        assert [e.episode_id async for e in client.iter_episodes("lin")] == ["ep_1"]
+        rec.body = {"items": [USER], "next_cursor": None}
+        assert [u.user_id async for u in client.iter_users()] == ["lin"]
+        rec.body = STATS
+        assert (await client.get_stats("lin")).episodes == 0
+        rec.status, rec.body = 200, {"status": "ok"}
+        assert await client.health()
+        assert await client.ready()
