@@ -16,6 +16,7 @@ __all__ = [
     "NotFound",
     "PayloadTooLarge",
     "ServiceUnavailable",
+    "TooManyRequests",
     "Unauthorized",
     "ValidationFailed",
 ]
@@ -31,6 +32,10 @@ class AppError(Exception):
         super().__init__(detail)
         self.detail = detail
         self.fields = fields
+
+    def headers(self) -> dict[str, str]:
+        """Response headers the error adds (``Retry-After`` for 429 and 503)."""
+        return {}
 
     def body(self) -> dict[str, Any]:
         out: dict[str, Any] = {"error": self.error, "detail": self.detail}
@@ -69,6 +74,20 @@ class PayloadTooLarge(AppError):
     error = "PayloadTooLarge"
 
 
+class TooManyRequests(AppError):
+    """The caller's key is over its rate limit; retry after ``retry_after`` seconds."""
+
+    status_code = 429
+    error = "TooManyRequests"
+
+    def __init__(self, detail: str, *, retry_after: int) -> None:
+        super().__init__(detail)
+        self.retry_after = retry_after
+
+    def headers(self) -> dict[str, str]:
+        return {"Retry-After": str(self.retry_after)}
+
+
 class ValidationFailed(AppError):
     status_code = 422
     error = "ValidationError"
@@ -77,3 +96,10 @@ class ValidationFailed(AppError):
 class ServiceUnavailable(AppError):
     status_code = 503
     error = "ServiceUnavailable"
+
+    def __init__(self, detail: str, *, retry_after: int = 1) -> None:
+        super().__init__(detail)
+        self.retry_after = retry_after
+
+    def headers(self) -> dict[str, str]:
+        return {"Retry-After": str(self.retry_after)}

@@ -42,6 +42,23 @@ class Settings(BaseSettings):
         default=1024, ge=0, description="Decoded learners kept in memory per worker (0: none)."
     )
     log_level: str = Field(default="info", description="debug, info, warning or error.")
+    rate_limit_per_s: float = Field(
+        default=100.0, ge=0,
+        description="Requests per second each API key may make, per worker process (a token "
+        "bucket refilled at this rate; 0 turns the limit off). With --workers N a key may make "
+        "up to N times this in all. Over it: 429 with Retry-After.",
+    )
+    rate_limit_burst: int = Field(
+        default=2000, ge=1,
+        description="Requests a key may make at once after being idle (the bucket's size): "
+        "large enough for a robot that reconnects and replays what it buffered while offline.",
+    )
+    max_in_flight: int = Field(
+        default=64, ge=1,
+        description="Requests one worker process handles at once; more get 503 with "
+        "Retry-After at once instead of waiting in an unbounded queue (/healthz, /readyz and "
+        "/metrics are exempt).",
+    )
 
     @field_validator("database_url")
     @classmethod

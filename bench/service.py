@@ -1,163 +1,727 @@
-"""Benchmark of the service's hot path: does a request cost more for a user with a long history,
-or in a deployment with many users? (Issue "the service": a request's cost must not grow with the
-user's history length or the number of users.)
+"""The service under load, against what this machine's HTTP layer can do at all.
 
-    python bench/service.py                      # SQLite and PostgreSQL (127.0.0.1:5432)
-    python bench/service.py --engine sqlite      # one engine
-    python bench/service.py --history 2000       # a longer history for the "long" user
+    python bench/service.py                  # the full table, SQLite and PostgreSQL (~10 min)
+    python bench/service.py --quick          # short runs at 8 clients, small seeded data
+    python bench/service.py --engine sqlite --clients 8,32 --duration 3 --no-large
 
-For each engine, in one run: one user's history is grown to 10 and then to --history episodes,
-and the deployment to --users users; at each point the median latency of the robot's write path
-(POST an episode, then POST its outcomes until it ends) is measured over --samples episodes,
-through the ASGI app in-process (no network). The reference is the first point (10 episodes, or
---samples if more; one user) of the same run; the script prints each point's ratio to it.
+Loopback only. In one run, on one machine, this starts ``attune serve`` (SQLite with 1 worker,
+PostgreSQL at 127.0.0.1:5432 with 2 workers, each on a fresh database) and, beside it with the
+same worker count and uvicorn options, a bare FastAPI app with one ``async def`` POST endpoint
+that parses a small pydantic body: the *reference*, what the HTTP stack alone achieves here.
+wrk (Debian's ``wrk``; ``apt-get install -y wrk``) drives both with one connection per thread,
+through a Lua script that plays the robot:
+
+- **robot loop**: start an episode, report outcomes until it closes, again (each client its
+  own user); requests/s and per-request p50/p99, plus whole loops/s and loop p50;
+- **outcome**: only outcome requests, on episodes opened beforehand (in-process);
+- **model read**: ``GET /v1/users/{id}/model``;
+
+at 1, 8 and 32 concurrent clients. Every figure is also given as a ratio to the reference at the
+same concurrency (throughput: service / reference; latency: service / reference). Then the
+database gets 100,000 users (bulk SQL) and one user with 10,000 episodes (through the service's
+use cases, in-process), and the same three are measured with 8 clients on users among the
+100,000, and with 1 client on the user with 10,000 episodes, each against the same figure on
+the empty database. The targets of the issue are checked at the end (met / missed).
+
+Each run is bounded: ``--duration`` seconds of wrk (the first ``--warmup`` seconds are not
+counted), a request timeout of 10 s, and every seeding loop bounded in count.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import math
 import os
+import platform
+import re
 import secrets
-import statistics
+import shutil
+import signal
+import socket
+import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from fastapi import FastAPI
+from pydantic import BaseModel
 
-import psycopg  # noqa: E402
-from fastapi.testclient import TestClient  # noqa: E402
-from rich.console import Console  # noqa: E402
-from rich.progress import track  # noqa: E402
-from rich.table import Table  # noqa: E402
-
-from app.db import migrate  # noqa: E402
-from app.main import create_app  # noqa: E402
-from app.services.auth import create_key  # noqa: E402
-from app.settings import Settings  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
 
 PG_SERVER = os.environ.get("ATTUNE_TEST_POSTGRES_URL", "postgresql://postgres@127.0.0.1:5432")
+ATTUNE = str(Path(sys.executable).with_name("attune"))
 SITUATIONS = ("arriving", "working", "stretching")
+DETAIL = {"ProvideDrink": "tea", "BriefInformation": "news", "ArrangeSchedule": "today_agenda"}
 
 
-class Robot:
-    """A scripted robot: accepts initiations, answers queries, accepts what is performed."""
+# -- the reference: a bare FastAPI app ---------------------------------------------------------
+class Ping(BaseModel):
+    """The reference's small body."""
 
-    def __init__(self, client: TestClient) -> None:
-        self.client = client
-        self.n = 0
-
-    def episode(self, user: str) -> list[float]:
-        """Run one episode; the latency (s) of each write."""
-        self.n += 1
-        times = []
-        t = time.perf_counter()
-        r = self.client.post(f"/v1/users/{user}/episodes", json={
-            "event_id": f"e{self.n}", "occurred_at": "2026-11-22T15:10:00+08:00",
-            "situation": SITUATIONS[self.n % 3], "initiator": "robot"})
-        times.append(time.perf_counter() - t)
-        body: dict[str, Any] = r.json()
-        assert r.status_code == 201, r.text
-        ep, decision = body["episode_id"], body["decision"]
-        while decision is not None:
-            kind = decision["action"]["kind"]
-            payload: dict[str, Any] = {"decision_id": decision["decision_id"]}
-            if kind == "pass":
-                payload["response"] = "none"
-            elif kind == "query_type":
-                payload.update(response="answered", service="ProvideDrink")
-            elif kind == "query_detail":
-                detail = {"ProvideDrink": "tea", "BriefInformation": "news",
-                          "ArrangeSchedule": "today_agenda"}[decision["action"]["service"]]
-                payload.update(response="answered", detail=detail)
-            else:
-                payload["response"] = "accepted"
-            t = time.perf_counter()
-            r = self.client.post(f"/v1/episodes/{ep}/outcomes", json=payload)
-            times.append(time.perf_counter() - t)
-            assert r.status_code == 200, r.text
-            decision = r.json()["decision"]
-        return times
+    event_id: str
+    situation: str
+    n: int
 
 
-def _database(engine: str, tmp: Path) -> tuple[str, Any]:
+def reference_app() -> FastAPI:
+    """``uvicorn --factory service:reference_app``: one async POST that parses a small body."""
+    app = FastAPI()
+
+    @app.post("/echo")
+    async def echo(body: Ping) -> dict[str, Any]:
+        return {"event_id": body.event_id, "n": body.n + 1}
+
+    return app
+
+
+# -- the load generator: wrk with a robot in Lua -----------------------------------------------
+LUA = r"""
+-- One connection per thread: each thread is one robot (or reader) with its own key and user.
+-- Every response is written to rec-<tid>.txt: kind status latency_us end_us (CLOCK_MONOTONIC).
+local ffi = require("ffi")
+ffi.cdef[[
+typedef struct { long tv_sec; long tv_nsec; } bench_timespec;
+int clock_gettime(int clk_id, bench_timespec *tp);
+]]
+local ts = ffi.new("bench_timespec")
+local function now_us()
+  ffi.C.clock_gettime(1, ts)
+  return tonumber(ts.tv_sec) * 1000000 + math.floor(tonumber(ts.tv_nsec) / 1000)
+end
+
+local counter = 0
+function setup(thread)
+  counter = counter + 1
+  thread:set("tid", counter)
+end
+
+local DETAIL = {ProvideDrink = "tea", BriefInformation = "news", ArrangeSchedule = "today_agenda"}
+local SIT = {"arriving", "working", "stretching"}
+local opts, headers, user, out = {}, {}, nil, nil
+local pending, current = {}, nil
+local sent_at, sent_kind, loop_start = 0, "none", 0
+local n = 0
+
+local function lines(path)
+  local t = {}
+  local f = io.open(path, "r")
+  if f then
+    for l in f:lines() do t[#t + 1] = l end
+    f:close()
+  end
+  return t
+end
+
+function init(args)
+  for _, a in pairs(args) do
+    local k, v = tostring(a):match("^(%w+)=(.*)$")
+    if k then opts[k] = v end
+  end
+  local dir = opts.dir
+  headers = {["Content-Type"] = "application/json",
+             Authorization = "Bearer " .. (lines(dir .. "/keys.txt")[tid] or "none")}
+  user = lines(dir .. "/users.txt")[tid]
+  out = io.open(dir .. "/rec-" .. tid .. ".txt", "w")
+  if opts.mode == "outcome" then
+    for _, l in ipairs(lines(dir .. "/episodes-" .. tid .. ".txt")) do
+      local e, d, k, s = l:match("(%S+) (%S+) (%S+) (%S+)")
+      pending[#pending + 1] = {episode = e, decision = d, kind = k, service = s}
+    end
+  end
+end
+
+local function outcome_body(c)
+  local r
+  if c.kind == "pass" then r = '"response":"none"'
+  elseif c.kind == "query_type" then r = '"response":"answered","service":"ProvideDrink"'
+  elseif c.kind == "query_detail" then
+    r = '"response":"answered","detail":"' .. (DETAIL[c.service] or "tea") .. '"'
+  else r = '"response":"accepted"' end
+  return '{"decision_id":"' .. c.decision .. '",' .. r .. '}'
+end
+
+function request()
+  local path, body
+  if opts.mode == "ref" then
+    n = n + 1
+    sent_kind = "ref"
+    path = "/echo"
+    body = '{"event_id":"robot7-' .. n .. '","situation":"stretching","n":' .. n .. '}'
+  elseif opts.mode == "model" then
+    sent_kind = "model"
+    sent_at = now_us()
+    return wrk.format("GET", "/v1/users/" .. user .. "/model", headers)
+  else
+    if current == nil and #pending > 0 then current = table.remove(pending) end
+    if current == nil then
+      n = n + 1
+      sent_kind = (opts.mode == "outcome") and "spare" or "episode"
+      path = "/v1/users/" .. user .. "/episodes"
+      body = '{"event_id":"' .. opts.tag .. '-' .. tid .. '-' .. n ..
+             '","occurred_at":"2026-11-22T15:10:00+08:00","situation":"' .. SIT[n % 3 + 1] ..
+             '","initiator":"robot","robot_id":"bench-' .. tid .. '"}'
+      loop_start = now_us()
+    else
+      sent_kind = "outcome"
+      path = "/v1/episodes/" .. current.episode .. "/outcomes"
+      body = outcome_body(current)
+    end
+  end
+  sent_at = now_us()
+  return wrk.format("POST", path, headers, body)
+end
+
+function response(status, hdrs, body)
+  local t = now_us()
+  out:write(sent_kind, " ", status, " ", t - sent_at, " ", t, "\n")
+  if status >= 300 or opts.mode == "ref" or opts.mode == "model" then return end
+  if sent_kind ~= "outcome" then
+    current = {episode = body:match('"episode_id":"([^"]+)"')}
+  end
+  local d = body:match('"decision":(%b{})')
+  if d == nil then
+    if opts.mode == "loop" then out:write("loop 200 ", t - loop_start, " ", t, "\n") end
+    current = nil
+  else
+    local a = d:match('"action":(%b{})')
+    current.decision = d:match('"decision_id":"([^"]+)"')
+    current.kind = a:match('"kind":"([^"]+)"')
+    current.service = a:match('"service":"([^"]+)"') or "-"
+  end
+end
+"""
+
+
+def require_wrk() -> str:
+    path = shutil.which("wrk")
+    if path is None:
+        sys.exit("bench/service.py needs wrk, the HTTP load generator: "
+                 "apt-get install -y wrk (Debian/Ubuntu), then run again.")
+    return path
+
+
+@dataclass
+class Figures:
+    """One measured run: throughput and latency of the counted requests."""
+
+    rps: float
+    p50_ms: float
+    p99_ms: float
+    count: int
+    errors: int
+    loops_per_s: float | None = None
+    loop_p50_ms: float | None = None
+    notes: list[str] = field(default_factory=list)
+
+
+def _pct(values: list[float], q: float) -> float:
+    values = sorted(values)
+    if not values:
+        return math.nan
+    return values[min(len(values) - 1, max(0, math.ceil(q * len(values)) - 1))]
+
+
+def run_wrk(wrk: str, url: str, mode: str, clients: int, workdir: Path, duration: float,
+            warmup: float, tag: str) -> Figures:
+    """Drive ``url`` with ``clients`` wrk connections for ``duration`` s in ``mode``."""
+    for old in workdir.glob("rec-*.txt"):
+        old.unlink()
+    script = workdir / "robot.lua"
+    script.write_text(LUA)
+    cmd = [wrk, "-t", str(clients), "-c", str(clients), "-d", f"{duration:g}s",
+           "--timeout", "10s", "-s", str(script), url, "--",
+           f"mode={mode}", f"dir={workdir}", f"tag={tag}"]
+    done = subprocess.run(cmd, capture_output=True, text=True, timeout=duration + 60,
+                          check=False)
+    if done.returncode != 0:
+        raise RuntimeError(f"wrk failed: {done.stderr or done.stdout}")
+    records: list[tuple[str, int, float, float]] = []
+    for path in workdir.glob("rec-*.txt"):
+        for line in path.read_text().splitlines():
+            kind, status, latency, end = line.split()
+            records.append((kind, int(status), int(latency) / 1000.0, int(end) / 1e6))
+    if not records:
+        raise RuntimeError(f"wrk recorded nothing: {done.stdout}\n{done.stderr}")
+    first = min(r[3] for r in records)
+    last = max(r[3] for r in records)
+    start = first + warmup
+    window = max(1e-9, last - start)
+    counted = {"ref": ("ref",), "model": ("model",), "outcome": ("outcome",),
+               "loop": ("episode", "outcome")}[mode]
+    mine = [r for r in records if r[3] >= start and r[0] in counted]
+    ok = [r[2] for r in mine if r[1] < 300]
+    fig = Figures(rps=len(ok) / window, p50_ms=_pct(ok, 0.50), p99_ms=_pct(ok, 0.99),
+                  count=len(ok), errors=len(mine) - len(ok))
+    if mode == "loop":
+        loops = [r[2] for r in records if r[3] >= start and r[0] == "loop"]
+        fig.loops_per_s = len(loops) / window
+        fig.loop_p50_ms = _pct(loops, 0.50)
+    spare = sum(1 for r in records if r[0] == "spare")
+    if spare:
+        fig.notes.append(f"{spare} extra episodes started after the prepared ones ran out")
+    statuses = sorted({r[1] for r in mine if r[1] >= 300})
+    if statuses:
+        fig.notes.append(f"non-2xx statuses: {statuses}")
+    return fig
+
+
+# -- processes and databases -------------------------------------------------------------------
+def free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        port: int = sock.getsockname()[1]
+        return port
+
+
+def wait_ready(url: str, proc: subprocess.Popen[bytes], log: Path, timeout: float = 60) -> None:
+    import httpx
+
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if proc.poll() is not None:
+            raise RuntimeError(f"server exited with {proc.returncode}:\n{log.read_text()[-3000:]}")
+        try:
+            httpx.get(url, timeout=2)
+            return
+        except httpx.TransportError:
+            time.sleep(0.1)
+    raise RuntimeError(f"server not ready within {timeout} s:\n{log.read_text()[-3000:]}")
+
+
+@contextmanager
+def server(kind: str, workers: int, workdir: Path, database_url: str = "") -> Iterator[str]:
+    """``attune serve`` (kind "service") or the reference app, on a free port; its base URL."""
+    port = free_port()
+    log = workdir / f"{kind}-{port}.log"
+    env = {**os.environ, "ATTUNE_DATABASE_URL": database_url, "ATTUNE_LOG_LEVEL": "warning",
+           # The limiter stays on (its cost is part of the figures) but far above the load.
+           "ATTUNE_RATE_LIMIT_PER_S": "1000000", "ATTUNE_RATE_LIMIT_BURST": "1000000"}
+    if kind == "service":
+        cmd = [ATTUNE, "serve", "--host", "127.0.0.1", "--port", str(port),
+               "--workers", str(workers)]
+        probe = f"http://127.0.0.1:{port}/readyz"
+    else:
+        cmd = [sys.executable, __file__, "--serve-reference", str(port), str(workers)]
+        probe = f"http://127.0.0.1:{port}/docs"
+    with open(log, "wb") as out:
+        proc = subprocess.Popen(cmd, env=env, stdout=out, stderr=subprocess.STDOUT,
+                                start_new_session=True, cwd=ROOT)
+    try:
+        wait_ready(probe, proc, log)
+        yield f"http://127.0.0.1:{port}"
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGTERM)
+            try:
+                proc.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                os.killpg(proc.pid, signal.SIGKILL)
+                proc.wait(timeout=10)
+
+
+@contextmanager
+def fresh_database(engine: str, workdir: Path) -> Iterator[str]:
     if engine == "sqlite":
-        return f"sqlite:///{tmp / 'bench.db'}", None
-    name = f"attune_bench_{secrets.token_hex(4)}"
-    with psycopg.connect(f"{PG_SERVER}/postgres", autocommit=True) as conn:
-        conn.execute(f'CREATE DATABASE "{name}"')
+        yield f"sqlite:///{workdir / 'bench.db'}"
+        return
+    import psycopg
 
-    def drop() -> None:
-        with psycopg.connect(f"{PG_SERVER}/postgres", autocommit=True) as conn:
+    name = f"attune_bench_{secrets.token_hex(4)}"
+    server_url = PG_SERVER.rstrip("/")
+    with psycopg.connect(f"{server_url}/postgres", autocommit=True, connect_timeout=5) as conn:
+        conn.execute(f'CREATE DATABASE "{name}"')
+    try:
+        yield f"postgresql+psycopg://{server_url.split('://', 1)[1]}/{name}"
+    finally:
+        with psycopg.connect(f"{server_url}/postgres", autocommit=True) as conn:
             conn.execute(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)')
 
-    return f"postgresql+psycopg://{PG_SERVER.split('://', 1)[1]}/{name}", drop
+
+# -- data: keys, prepared episodes, 100,000 users, 10,000 episodes -----------------------------
+class Data:
+    """In-process access to the benchmark's database through the service's own use cases."""
+
+    def __init__(self, database_url: str) -> None:
+        from app.db import migrate
+        from app.db.session import Database
+        from app.services.context import Principal, ServiceContext
+        from app.settings import Settings
+
+        migrate.upgrade(database_url)
+        self.settings = Settings(database_url=database_url, _env_file=None)  # type: ignore[call-arg]
+        self.db = Database(self.settings)
+        self.ctx = ServiceContext.from_settings(self.settings)
+        self.robot = Principal("bench", "robot", "default")
+
+    def keys(self, n: int) -> list[str]:
+        from app.services.auth import create_key
+
+        with self.db.transaction() as session:
+            return [create_key(session, role="robot", name=f"bench-{i}")[1] for i in range(n)]
+
+    def start(self, session: Any, user: str, event_id: str, k: int) -> dict[str, Any]:
+        from app.schemas.episodes import EpisodeIn
+        from app.services.episodes import start_episode
+
+        body = EpisodeIn.model_validate({
+            "event_id": event_id, "occurred_at": "2026-11-22T15:10:00+08:00",
+            "situation": SITUATIONS[k % 3], "initiator": "robot", "robot_id": "bench"})
+        return start_episode(session, self.ctx, self.robot, user, body).body
+
+    def open_episodes(self, user: str, n: int, tag: str) -> list[str]:
+        """``n`` episodes of ``user`` left open at their first decision: lines for the Lua."""
+        out = []
+        for i in range(n):
+            with self.db.transaction() as session:
+                ep = self.start(session, user, f"{tag}-open-{i}", i)
+            d = ep["decision"]
+            out.append(f"{ep['episode_id']} {d['decision_id']} {d['action']['kind']} "
+                       f"{d['action'].get('service') or '-'}")
+        return out
+
+    def history(self, user: str, n: int, progress: Any = None) -> None:
+        """``n`` whole episodes of ``user`` through the use cases (as a robot would)."""
+        from app.schemas.episodes import OutcomeIn
+        from app.services.episodes import report_outcome
+
+        for i in range(n):
+            with self.db.transaction() as session:
+                ep = self.start(session, user, f"history-{i}", i)
+            decision = ep["decision"]
+            for _ in range(8):  # an episode has at most four visible steps
+                if decision is None:
+                    break
+                kind = decision["action"]["kind"]
+                body: dict[str, Any] = {"decision_id": decision["decision_id"]}
+                if kind == "pass":
+                    body["response"] = "none"
+                elif kind == "query_type":
+                    body.update(response="answered", service="ProvideDrink")
+                elif kind == "query_detail":
+                    body.update(response="answered",
+                                detail=DETAIL[decision["action"]["service"]])
+                else:
+                    body["response"] = "accepted"
+                with self.db.transaction() as session:
+                    decision = report_outcome(session, self.ctx, self.robot, ep["episode_id"],
+                                              OutcomeIn.model_validate(body)).body["decision"]
+            if progress is not None:
+                progress()
+
+    def users(self, n: int, prefix: str) -> None:
+        """``n`` users with fresh models, by bulk inserts."""
+        from sqlalchemy import insert
+
+        from app.db.models import LearnerModel, User
+        from app.db.types import utcnow
+        from app.services.learners import fresh_learner
+
+        learner = fresh_learner(self.ctx, "hri", None)
+        params, state, now = learner.params.to_dict(), learner.to_state(), utcnow()
+        chunk = 5000
+        for lo in range(0, n, chunk):
+            ids = [f"{prefix}{i:06d}" for i in range(lo, min(n, lo + chunk))]
+            with self.db.transaction() as session:
+                session.execute(insert(User), [
+                    {"user_id": u, "fleet": "default", "display_name": None, "algorithm": "hri",
+                     "params": params, "created_at": now, "episode_count": 0, "draws": 0}
+                    for u in ids])
+                session.execute(insert(LearnerModel), [
+                    {"user_id": u, "version": 0, "state": state, "base_state": None,
+                     "base_version": 0, "episode_offset": 0, "updated_at": now}
+                    for u in ids])
+
+    def close(self) -> None:
+        self.db.dispose()
 
 
-def _median_ms(robot: Robot, user: str, samples: int) -> float:
-    times: list[float] = []
-    for _ in range(samples):
-        times += robot.episode(user)
-    return statistics.median(times) * 1000
+# -- the runs ----------------------------------------------------------------------------------
+@dataclass
+class Row:
+    engine: str
+    workers: int
+    scenario: str  # loop, outcome, model, reference
+    clients: int
+    data: str  # "empty", "100k users", "10k episodes"
+    fig: Figures
+    ref: Figures | None = None
+    base: Figures | None = None  # the same figure on the empty database
 
 
-def run_engine(engine: str, history: int, users: int, samples: int, console: Console
-               ) -> list[tuple[str, float]]:
-    with tempfile.TemporaryDirectory() as tmp:
-        url, drop = _database(engine, Path(tmp))
-        try:
-            migrate.upgrade(url)
-            app = create_app(Settings(database_url=url, _env_file=None))  # type: ignore[call-arg]
-            with app.state.db.transaction() as session:
-                _, key = create_key(session, role="robot")
-            with TestClient(app, headers={"Authorization": f"Bearer {key}"}) as client:
-                robot = Robot(client)
-                base = max(10, samples)
-                for _ in range(base - samples):
-                    robot.episode("long")
-                points = [(f"{base} episodes, 1 user", _median_ms(robot, "long", samples))]
-                grown = base + samples
-                for _ in track(range(history - grown), description=f"{engine}: history",
-                               console=console, transient=True):
-                    robot.episode("long")
-                points.append((f"{history} episodes, 1 user",
-                               _median_ms(robot, "long", samples)))
-                for i in track(range(users - 1), description=f"{engine}: users",
-                               console=console, transient=True):
-                    robot.episode(f"u{i}")
-                points.append((f"{history} episodes, {users} users",
-                               _median_ms(robot, "long", samples)))
-                points.append((f"new user among {users} users",
-                               _median_ms(robot, "fresh", min(samples, 10))))
-            app.state.db.dispose()
-        finally:
-            if drop is not None:
-                drop()
-    return points
+SCENARIOS = ("loop", "outcome", "model")
+
+
+class Bench:
+    def __init__(self, args: argparse.Namespace, console: Any) -> None:
+        self.args, self.console = args, console
+        self.wrk = require_wrk()
+        self.rows: list[Row] = []
+        self.run_tag = secrets.token_hex(3)
+
+    def say(self, text: str) -> None:
+        self.console.print(f"[dim]{time.strftime('%H:%M:%S')}[/dim] {text}")
+
+    def measure(self, url: str, mode: str, clients: int, workdir: Path, label: str) -> Figures:
+        fig = run_wrk(self.wrk, url, mode, clients, workdir, self.args.duration + self.args.warmup,
+                      self.args.warmup, re.sub(r"[^A-Za-z0-9.-]", "-",
+                                               f"{self.run_tag}-{label}"))
+        extra = f", {fig.loops_per_s:.1f} loops/s" if fig.loops_per_s is not None else ""
+        self.say(f"  {label}: {fig.rps:.0f} req/s, p50 {fig.p50_ms:.1f} ms, "
+                 f"p99 {fig.p99_ms:.1f} ms{extra}"
+                 + (f", {fig.errors} errors" if fig.errors else "")
+                 + (f" ({'; '.join(fig.notes)})" if fig.notes else ""))
+        return fig
+
+    def scenario_files(self, workdir: Path, keys: list[str], users: list[str]) -> None:
+        (workdir / "keys.txt").write_text("\n".join(keys) + "\n")
+        (workdir / "users.txt").write_text("\n".join(users) + "\n")
+
+    def prepare_outcomes(self, data: Data, workdir: Path, users: list[str], loop: Figures,
+                         label: str) -> None:
+        """Open enough episodes per client for the outcome run (estimated from the loop run)."""
+        per_loop = max(1.0, (loop.rps / loop.loops_per_s - 1) if loop.loops_per_s else 2.0)
+        # Outcomes alone go faster than whole loops (an episode's start costs more), up to
+        # about twice as fast here: open enough for three times, and a margin per client.
+        needed = 3.0 * loop.rps * (self.args.duration + self.args.warmup) / per_loop
+        per_client = min(self.args.max_open, math.ceil(needed / len(users)) + 5)
+        self.say(f"  opening {per_client * len(users)} episodes for the outcome run")
+        for i, user in enumerate(users, start=1):
+            lines = data.open_episodes(user, per_client, f"{self.run_tag}-{label}-{i}")
+            (workdir / f"episodes-{i}.txt").write_text("\n".join(lines) + "\n")
+
+    def run_service(self, url: str, data: Data, workdir: Path, keys: list[str],
+                    users: list[str], engine: str, workers: int, data_label: str) -> None:
+        clients = len(users)
+        self.scenario_files(workdir, keys[:clients], users)
+        label = f"{engine}-{data_label.replace(' ', '')}-c{clients}"
+        loop = self.measure(url, "loop", clients, workdir, f"{label} loop")
+        self.rows.append(Row(engine, workers, "loop", clients, data_label, loop))
+        self.prepare_outcomes(data, workdir, users, loop, label)
+        fig = self.measure(url, "outcome", clients, workdir, f"{label} outcome")
+        self.rows.append(Row(engine, workers, "outcome", clients, data_label, fig))
+        fig = self.measure(url, "model", clients, workdir, f"{label} model")
+        self.rows.append(Row(engine, workers, "model", clients, data_label, fig))
+
+    def engine(self, engine: str, workers: int) -> None:
+        args = self.args
+        with tempfile.TemporaryDirectory(prefix="attune-bench-") as tmp:
+            workdir = Path(tmp)
+            self.say(f"[bold]{engine}[/bold], {workers} worker(s): reference app")
+            refs: dict[int, Figures] = {}
+            with server("reference", workers, workdir) as url:
+                self.scenario_files(workdir, ["-"] * max(args.clients), ["-"] * max(args.clients))
+                for c in args.clients:
+                    refs[c] = self.measure(url, "ref", c, workdir, f"reference c{c}")
+                    self.rows.append(Row(engine, workers, "reference", c, "-", refs[c]))
+            with fresh_database(engine, workdir) as db_url:
+                data = Data(db_url)
+                try:
+                    keys = data.keys(max(args.clients))
+                    self.say(f"[bold]{engine}[/bold], {workers} worker(s): attune serve")
+                    with server("service", workers, workdir, db_url) as url:
+                        for c in args.clients:
+                            users = [f"c{c}-robot{i}" for i in range(1, c + 1)]
+                            self.run_service(url, data, workdir, keys, users, engine, workers,
+                                             "empty")
+                    if args.large:
+                        self.large(engine, workers, data, workdir, keys, db_url)
+                finally:
+                    data.close()
+            for row in self.rows:
+                if row.engine == engine and row.scenario != "reference":
+                    row.ref = refs.get(row.clients)
+
+    def large(self, engine: str, workers: int, data: Data, workdir: Path, keys: list[str],
+              db_url: str) -> None:
+        args = self.args
+        self.say(f"seeding {args.users:,} users (bulk inserts)")
+        t = time.perf_counter()
+        data.users(args.users, "pop")
+        self.say(f"  done in {time.perf_counter() - t:.1f} s")
+        self.say(f"seeding one user with {args.episodes:,} episodes (the service's use cases)")
+        t = time.perf_counter()
+        step = max(1, args.episodes // 10)
+        count = [0]
+
+        def tick() -> None:
+            count[0] += 1
+            if count[0] % step == 0:
+                self.say(f"  {count[0]:,} episodes, {time.perf_counter() - t:.0f} s")
+
+        data.history("big", args.episodes, tick)
+        self.say(f"  done in {time.perf_counter() - t:.1f} s")
+        with server("service", workers, workdir, db_url) as url:
+            wide = 8 if 8 in args.clients else max(args.clients)
+            spread = max(1, args.users // wide)
+            users = [f"pop{i * spread + spread // 2:06d}" for i in range(wide)]
+            self.run_service(url, data, workdir, keys, users, engine, workers,
+                             f"{args.users // 1000}k users")
+            self.run_service(url, data, workdir, keys, ["big"], engine, workers,
+                             f"{args.episodes // 1000}k episodes")
+        for row in self.rows:
+            if row.engine == engine and row.data not in ("empty", "-"):
+                row.base = next((r.fig for r in self.rows if r.engine == engine
+                                 and r.data == "empty" and r.scenario == row.scenario
+                                 and r.clients == row.clients), None)
+
+
+# -- the report --------------------------------------------------------------------------------
+def machine() -> dict[str, Any]:
+    cpu = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return {"cpus": os.cpu_count(), "cpu": cpu, "python": platform.python_version(),
+            "load": os.getloadavg(), "system": f"{platform.system()} {platform.release()}"}
+
+
+def _ratio(a: float | None, b: float | None) -> str:
+    if a is None or b is None or not b or math.isnan(a) or math.isnan(b):
+        return ""
+    return f"{a / b:.2f}"
+
+
+def report(bench: Bench, console: Any, before: dict[str, Any], seconds: float) -> list[str]:
+    from rich.table import Table
+
+    names = {"loop": "robot loop", "outcome": "outcome", "model": "model read",
+             "reference": "reference"}
+    table = Table("engine", "scenario", "clients", "data", "req/s", "×ref", "p50 ms", "×ref",
+                  "p99 ms", "×ref", "loops/s", "loop p50 ms",
+                  title="attune serve under wrk; ×ref: divided by the reference at the same "
+                  "concurrency (×empty for the seeded data)")
+    for r in bench.rows:
+        f = r.fig
+        other = r.base if r.base is not None else r.ref
+        table.add_row(
+            f"{r.engine}/{r.workers}w", names[r.scenario], str(r.clients), r.data,
+            f"{f.rps:.0f}", _ratio(f.rps, other.rps if other else None),
+            f"{f.p50_ms:.1f}", _ratio(f.p50_ms, other.p50_ms if other else None),
+            f"{f.p99_ms:.1f}", _ratio(f.p99_ms, other.p99_ms if other else None),
+            f"{f.loops_per_s:.1f}" if f.loops_per_s is not None else "",
+            f"{f.loop_p50_ms:.1f}" if f.loop_p50_ms is not None else "")
+    console.print(table)
+    after = machine()
+    console.print(f"Machine: {before['cpus']} CPUs ({before['cpu']}), {before['system']}, "
+                  f"Python {before['python']}; load average {before['load'][0]:.2f} before, "
+                  f"{after['load'][0]:.2f} after ({seconds / 60:.1f} min)."
+                  + (" The machine was busy with other work before the run."
+                     if before["load"][0] > 0.5 else ""))
+    return targets(bench, console)
+
+
+def targets(bench: Bench, console: Any) -> list[str]:
+    lines: list[str] = []
+
+    def find(engine: str, scenario: str, clients: int, data: str = "empty") -> Row | None:
+        return next((r for r in bench.rows if (r.engine, r.scenario, r.clients, r.data)
+                     == (engine, scenario, clients, data)), None)
+
+    def verdict(ok: bool) -> str:
+        return "[green]met[/green]" if ok else "[red]missed[/red]"
+
+    for engine in ("sqlite", "postgresql"):
+        r = find(engine, "outcome", 8)
+        if r is not None and r.ref is not None:
+            ratio = r.fig.rps / r.ref.rps
+            lines.append(f"{engine}: outcome at 8 clients reaches {ratio:.2f} of the "
+                         f"reference's throughput (target ≥ 0.25): {verdict(ratio >= 0.25)}")
+        r = find(engine, "outcome", 32)
+        limit = 50.0 if engine == "sqlite" else 100.0
+        if r is not None:
+            lines.append(f"{engine}: outcome p99 at 32 clients {r.fig.p99_ms:.1f} ms "
+                         f"(target < {limit:g} ms): {verdict(r.fig.p99_ms < limit)}")
+        for r in bench.rows:
+            if r.engine == engine and r.base is not None:
+                slower = max(r.base.rps / r.fig.rps, r.fig.p50_ms / r.base.p50_ms)
+                lines.append(f"{engine}: {r.scenario} with {r.data} ({r.clients} clients): "
+                             f"{slower:.2f}× the empty database's figure (throughput and p50; "
+                             f"target ≤ 1.2×): {verdict(slower <= 1.2)}")
+    console.print("[bold]Targets[/bold]")
+    for line in lines:
+        console.print("  " + line)
+    return lines
+
+
+def serve_reference(port: int, workers: int) -> None:
+    """The reference app, served exactly as ``attune serve`` serves the service (same uvicorn
+    options, same listening socket with TCP_NODELAY when there are several workers)."""
+    import uvicorn
+
+    options: dict[str, Any] = {"factory": True, "host": "127.0.0.1", "port": port,
+                               "workers": workers, "log_level": "warning",
+                               "proxy_headers": False}
+    if workers == 1:
+        uvicorn.run("service:reference_app", **options)
+        return
+    from uvicorn.supervisors import Multiprocess
+
+    config = uvicorn.Config("service:reference_app", **options)
+    sock = config.bind_socket()
+    sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+    Multiprocess(config, sockets=[sock]).run()
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    if sys.argv[1:2] == ["--serve-reference"]:
+        serve_reference(int(sys.argv[2]), int(sys.argv[3]))
+        return
+    parser = argparse.ArgumentParser(
+        description="Throughput and latency of attune serve under wrk, against a bare FastAPI "
+        "app on the same machine (loopback only). Needs wrk (apt-get install -y wrk) and, for "
+        "PostgreSQL, a server at 127.0.0.1:5432 (ATTUNE_TEST_POSTGRES_URL).")
     parser.add_argument("--engine", choices=["sqlite", "postgresql", "both"], default="both")
-    parser.add_argument("--history", type=int, default=1000, help="long user's episodes")
-    parser.add_argument("--users", type=int, default=300, help="users in the deployment")
-    parser.add_argument("--samples", type=int, default=5,
-                        help="episodes timed per point (each has 2-4 writes)")
+    parser.add_argument("--clients", default="1,8,32",
+                        help="concurrent clients, comma-separated (default 1,8,32)")
+    parser.add_argument("--duration", type=float, default=5.0,
+                        help="seconds measured per run (default 5)")
+    parser.add_argument("--warmup", type=float, default=1.0,
+                        help="seconds run before measuring (default 1)")
+    parser.add_argument("--users", type=int, default=100_000,
+                        help="users seeded for the large-data runs (default 100000)")
+    parser.add_argument("--episodes", type=int, default=10_000,
+                        help="episodes of the one long-history user (default 10000)")
+    parser.add_argument("--no-large", dest="large", action="store_false",
+                        help="skip the large-data runs")
+    parser.add_argument("--max-open", type=int, default=3000,
+                        help="cap on episodes opened per client for the outcome run")
+    parser.add_argument("--quick", action="store_true",
+                        help="a short check: 8 clients, 2 s runs, 2,000 users, 200 episodes")
+    parser.add_argument("--json", type=Path, help="also write the figures here")
     args = parser.parse_args()
-    console = Console()
-    engines = ["sqlite", "postgresql"] if args.engine == "both" else [args.engine]
-    table = Table("engine", "point", "median write (ms)", "× reference",
-                  title="Robot write latency (POST episode / outcome), in-process ASGI")
-    for engine in engines:
-        points = run_engine(engine, args.history, args.users, args.samples, console)
-        ref = points[0][1]
-        for label, ms in points:
-            table.add_row(engine, label, f"{ms:.2f}", f"{ms / ref:.2f}")
-    console.print(table)
-    console.print("Reference: the first point (short history, one user) of the same engine "
-                  "and run.")
+    if args.quick:
+        args.clients, args.duration, args.users, args.episodes = "8", 2.0, 2000, 200
+    args.clients = sorted({int(c) for c in str(args.clients).split(",")})
+    from rich.console import Console
+
+    console = Console(width=None if sys.stdout.isatty() else 150)
+    before = machine()
+    began = time.monotonic()
+    bench = Bench(args, console)
+    plan = {"sqlite": [("sqlite", 1)], "postgresql": [("postgresql", 2)],
+            "both": [("sqlite", 1), ("postgresql", 2)]}[args.engine]
+    for engine, workers in plan:
+        bench.engine(engine, workers)
+    lines = report(bench, console, before, time.monotonic() - began)
+    if args.json:
+        args.json.write_text(json.dumps({
+            "machine": before, "command": " ".join(sys.argv), "targets": lines,
+            "rows": [{"engine": r.engine, "workers": r.workers, "scenario": r.scenario,
+                      "clients": r.clients, "data": r.data, **r.fig.__dict__,
+                      "ref_rps": r.ref.rps if r.ref else None,
+                      "base_rps": r.base.rps if r.base else None} for r in bench.rows],
+        }, indent=1, default=str))
 
 
 if __name__ == "__main__":

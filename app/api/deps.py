@@ -10,12 +10,17 @@ from fastapi import Depends, Header, Request
 from sqlalchemy.orm import Session
 
 from app.db.session import Database
+from app.errors import TooManyRequests
 from app.services.auth import authenticate
 from app.services.context import Principal, ServiceContext
+
+from .middleware import KeyRateLimiter
 
 __all__ = ["ContextDep", "CurrentPrincipal", "SessionDep"]
 
 _WRITES = {"POST", "PUT", "PATCH", "DELETE"}
+# GET routes that write nonetheless: an export is an admin action and leaves an audit entry.
+_AUDITED_READS = {"export_model"}
 
 
 def get_session(request: Request) -> Iterator[Session]:
@@ -26,7 +31,9 @@ def get_session(request: Request) -> Iterator[Session]:
     stored; the learner cache is refreshed only after the commit.
     """
     db: Database = request.app.state.db
-    with db.transaction(write=request.method in _WRITES) as session:
+    route = request.scope.get("route")
+    write = request.method in _WRITES or getattr(route, "name", None) in _AUDITED_READS
+    with db.transaction(write=write) as session:
         yield session
 
 
@@ -42,10 +49,18 @@ ContextDep = Annotated[ServiceContext, Depends(get_context)]
 
 
 def current_principal(
+    request: Request,
     session: SessionDep,
     authorization: Annotated[str | None, Header(include_in_schema=False)] = None,
 ) -> Principal:
-    return authenticate(session, authorization)
+    """The caller, once its key is known and within its rate limit (else 401 / 429)."""
+    principal = authenticate(session, authorization)
+    limiter: KeyRateLimiter = request.app.state.limiter
+    wait = limiter.acquire(principal.key_id)
+    if wait:
+        raise TooManyRequests(f"This API key is over its rate limit ({limiter.rate:g} requests "
+                              f"a second); retry in {wait} s.", retry_after=wait)
+    return principal
 
 
 CurrentPrincipal = Annotated[Principal, Depends(current_principal)]

@@ -28,22 +28,28 @@ _DESCRIPTIONS = {
     409: "Conflict: an ID reused with another body, or a state that does not allow this.",
     413: "Request body over the size limit (64 KiB by default).",
     422: "Validation failed: the detail names the field and the allowed values.",
+    429: "The API key is over its rate limit; retry after the Retry-After seconds.",
     500: "Server error (no stack trace is sent; the log has it).",
-    503: "The database is busy or unreachable; retry.",
+    503: "The service is at capacity, or the database is busy or unreachable; retry after the "
+         "Retry-After seconds.",
 }
+_RETRY_AFTER = {"Retry-After": {"description": "Whole seconds to wait before retrying.",
+                                "schema": {"type": "string", "pattern": "^[0-9]+$"}}}
 ERROR_RESPONSES: dict[int | str, dict[str, Any]] = {
-    code: {"model": ErrorOut, "description": text} for code, text in _DESCRIPTIONS.items()
+    code: {"model": ErrorOut, "description": text,
+           **({"headers": _RETRY_AFTER} if code in (429, 503) else {})}
+    for code, text in _DESCRIPTIONS.items()
 }
 
 
 def responses(*codes: int) -> dict[int | str, dict[str, Any]]:
     """OpenAPI ``responses=`` for the given error codes (plus the ones every route has)."""
-    every = (400, 401, 413, 422, 500, 503)
+    every = (400, 401, 413, 422, 429, 500, 503)
     return {c: ERROR_RESPONSES[c] for c in sorted({*codes, *every})}
 
 
 def _render(exc: AppError) -> JSONResponse:
-    return JSONResponse(exc.body(), status_code=exc.status_code)
+    return JSONResponse(exc.body(), status_code=exc.status_code, headers=exc.headers() or None)
 
 
 def _loc(loc: tuple[Any, ...]) -> str:
@@ -103,9 +109,7 @@ def install_error_handlers(app: FastAPI) -> None:
     @app.exception_handler(OperationalError)
     async def operational_error(_: Request, exc: OperationalError) -> JSONResponse:
         log.warning("database error: %s", exc.orig)
-        response = _render(ServiceUnavailable("The database is busy or unreachable; retry."))
-        response.headers["Retry-After"] = "1"
-        return response
+        return _render(ServiceUnavailable("The database is busy or unreachable; retry."))
 
     @app.exception_handler(Exception)
     async def server_error(request: Request, exc: Exception) -> JSONResponse:

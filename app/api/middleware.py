@@ -1,16 +1,25 @@
-"""ASGI middleware: the request body limit (413) and Prometheus request metrics."""
+"""ASGI middleware and limits: the request body limit (413), overload shedding (503), the
+per-key rate limit (429) and Prometheus request metrics."""
 
 from __future__ import annotations
 
 import json
+import math
+import threading
 import time
+from collections.abc import Callable
 from typing import Any
 
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from .metrics import Metrics
 
-__all__ = ["BodyLimitMiddleware", "BodyTooLarge", "MetricsMiddleware"]
+__all__ = ["BodyLimitMiddleware", "BodyTooLarge", "InFlightLimitMiddleware", "KeyRateLimiter",
+           "MetricsMiddleware"]
+
+# Probes and scrapes must answer while the service sheds load: they are what tells an operator
+# (or an orchestrator) that it is alive but busy.
+EXEMPT_PATHS = frozenset({"/healthz", "/readyz", "/metrics"})
 
 
 class BodyTooLarge(Exception):
@@ -100,3 +109,84 @@ class MetricsMiddleware:
             path = getattr(route, "path", None) or "unmatched"
             self.metrics.observe_request(scope.get("method", "?"), path, status["code"],
                                          time.perf_counter() - start)
+
+
+class InFlightLimitMiddleware:
+    """Shed load: past ``limit`` requests in progress in this worker, answer 503 at once.
+
+    The sync routes run in a bounded thread pool; without a cap, requests beyond it wait in
+    an unbounded queue and every robot times out together. Refusing early with ``Retry-After``
+    keeps the latency of the admitted requests bounded and tells clients when to come back.
+    The counter lives on the event loop's thread (ASGI calls run there), so it needs no lock.
+    """
+
+    def __init__(self, app: ASGIApp, limit: int, retry_after: int = 1) -> None:
+        self.app, self.limit, self.retry_after = app, limit, retry_after
+        self.in_flight = 0
+        self.shed = 0
+        body = json.dumps({"error": "ServiceUnavailable",
+                           "detail": f"The service is at capacity; retry in {retry_after} s."})
+        self._body = body.encode()
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http" or scope.get("path") in EXEMPT_PATHS:
+            await self.app(scope, receive, send)
+            return
+        if self.in_flight >= self.limit:
+            self.shed += 1
+            await send({"type": "http.response.start", "status": 503,
+                        "headers": [(b"content-type", b"application/json"),
+                                    (b"content-length", str(len(self._body)).encode()),
+                                    (b"retry-after", str(self.retry_after).encode())]})
+            await send({"type": "http.response.body", "body": self._body})
+            return
+        self.in_flight += 1
+        try:
+            await self.app(scope, receive, send)
+        finally:
+            self.in_flight -= 1
+
+
+class KeyRateLimiter:
+    """A token bucket per API key id: ``rate`` tokens a second, at most ``burst`` saved up.
+
+    One limiter per worker process (``attune serve --workers N`` lets a key make N times the
+    rate in all). Buckets of keys idle long enough to be full again are dropped, so memory is
+    bounded by the keys active in the last ``burst / rate`` seconds. Thread-safe: it is called
+    from the route thread pool.
+    """
+
+    def __init__(self, rate: float, burst: int,
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        self.rate, self.burst, self.clock = rate, float(burst), clock
+        self._buckets: dict[str, tuple[float, float]] = {}  # key id -> (tokens, at)
+        self._lock = threading.Lock()
+        self._swept = 0.0
+
+    @property
+    def enabled(self) -> bool:
+        return self.rate > 0
+
+    def acquire(self, key_id: str) -> int:
+        """Take one token; 0 when granted, else the whole seconds to wait before retrying."""
+        if not self.enabled:
+            return 0
+        now = self.clock()
+        with self._lock:
+            tokens, at = self._buckets.get(key_id, (self.burst, now))
+            tokens = min(self.burst, tokens + (now - at) * self.rate)
+            if tokens >= 1.0:
+                self._buckets[key_id] = (tokens - 1.0, now)
+                self._sweep(now)
+                return 0
+            self._buckets[key_id] = (tokens, now)
+            return max(1, math.ceil((1.0 - tokens) / self.rate))
+
+    def _sweep(self, now: float) -> None:
+        full_after = self.burst / self.rate
+        if now - self._swept < full_after:
+            return
+        self._swept = now
+        for key_id, (tokens, at) in list(self._buckets.items()):
+            if tokens + (now - at) * self.rate >= self.burst:
+                del self._buckets[key_id]

@@ -22,7 +22,8 @@ from sqlalchemy.orm import Mapped, mapped_column
 from .base import Base
 from .types import LearnerStateType, UTCDateTime, utcnow
 
-__all__ = ["ApiKey", "Decision", "Episode", "Feedback", "LearnerModel", "Sample", "User"]
+__all__ = ["ApiKey", "AuditEntry", "Decision", "Episode", "Feedback", "LearnerModel", "Sample",
+           "User"]
 
 ID = 40  # server-chosen ids: a prefix and 32 hex digits
 CLIENT_ID = 128  # client-chosen ids: ^[A-Za-z0-9._:-]{1,128}$
@@ -185,3 +186,24 @@ class Sample(Base):
     reward: Mapped[float] = mapped_column(Float)
     next_state: Mapped[int | None] = mapped_column(Integer)
     signal: Mapped[int] = mapped_column(Integer, default=0)
+
+
+class AuditEntry(Base):
+    """One admin action: who (the key, its role and fleet), what (action, target), when.
+
+    Append only: rows are added and read, never changed or removed (the ORM refuses both, see
+    ``app.db.repositories.audit``), and they outlive their target (no foreign key: the entry of
+    a deleted user stays).
+    """
+
+    __tablename__ = "audit_log"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)
+    at: Mapped[dt.datetime] = mapped_column(UTCDateTime(), default=utcnow)
+    actor_key_id: Mapped[str] = mapped_column(String(ID))  # "cli": the command line
+    actor_role: Mapped[str] = mapped_column(String(16))
+    actor_fleet: Mapped[str] = mapped_column(String(CLIENT_ID))
+    action: Mapped[str] = mapped_column(String(32))  # "user.delete", "model.reset", ...
+    target: Mapped[str] = mapped_column(String(CLIENT_ID))  # a user id or a key id
+    fleet: Mapped[str | None] = mapped_column(String(CLIENT_ID))  # the target's fleet
+    detail: Mapped[dict[str, Any] | None] = mapped_column(JSON)

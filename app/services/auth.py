@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import hashlib
+import hmac
 import re
 import secrets
 from collections.abc import Sequence
@@ -14,6 +15,7 @@ from app.db.repositories import keys as repo
 from app.db.types import utcnow
 from app.errors import Forbidden, NotFound, Unauthorized, ValidationFailed
 
+from . import audit
 from .context import Principal
 
 __all__ = ["ROLES", "authenticate", "create_key", "hash_secret", "list_keys", "require_admin",
@@ -30,9 +32,16 @@ def hash_secret(secret: str) -> str:
 
 
 def create_key(
-    session: Session, *, role: str, fleet: str = "default", name: str | None = None
+    session: Session, *, role: str, fleet: str = "default", name: str | None = None,
+    actor: Principal | None = None,
 ) -> tuple[ApiKey, str]:
-    """A new key and its secret; the secret is not stored and cannot be shown again."""
+    """A new key and its secret; the secret is not stored and cannot be shown again.
+
+    ``actor`` is the admin making it (``None``: an operator on the command line); the audit log
+    records who made which key.
+    """
+    actor = actor or audit.CLI
+    require_admin(actor)
     if role not in ROLES:
         raise ValidationFailed(f"role must be one of {', '.join(ROLES)}; got {role!r}.")
     if not _FLEET.match(fleet):
@@ -42,19 +51,26 @@ def create_key(
         id="key_" + secrets.token_hex(8), prefix=secret[:12], secret_hash=hash_secret(secret),
         role=role, fleet=fleet, name=name, created_at=utcnow(), revoked_at=None,
     )
-    return repo.add_key(session, key), secret
+    repo.add_key(session, key)
+    audit.record(session, actor, "key.create", target=key.id, fleet=fleet,
+                 detail={"role": role, "name": name})
+    return key, secret
 
 
 def list_keys(session: Session) -> Sequence[ApiKey]:
     return repo.list_keys(session)
 
 
-def revoke_key(session: Session, key_id: str) -> ApiKey:
+def revoke_key(session: Session, key_id: str, *, actor: Principal | None = None) -> ApiKey:
+    """Revoke a key (its requests get 401 from now on); ``actor`` as for ``create_key``."""
+    actor = actor or audit.CLI
+    require_admin(actor)
     key = repo.get_key(session, key_id)
     if key is None:
         raise NotFound(f"No key {key_id!r}; `attune keys list` shows the ids.")
     if key.revoked_at is None:
         key.revoked_at = utcnow()
+        audit.record(session, actor, "key.revoke", target=key.id, fleet=key.fleet)
     return key
 
 
@@ -65,8 +81,15 @@ def authenticate(session: Session, authorization: str | None) -> Principal:
     scheme, _, secret = authorization.partition(" ")
     if scheme.lower() != "bearer" or not secret.strip():
         raise Unauthorized("Send your API key as 'Authorization: Bearer <key>'.")
-    key = repo.get_key_by_hash(session, hash_secret(secret.strip()))
-    if key is None or key.revoked_at is not None:
+    digest = hash_secret(secret.strip())
+    key = repo.get_key_by_hash(session, digest)
+    # The lookup goes through the unique index on the SHA-256 of the secret, so what the
+    # database compares (and what its timing could reveal) is the digest, never the secret: a
+    # prefix of a digest says nothing about the secret that makes it. The final equality is
+    # checked with compare_digest, whose time does not depend on where two values differ, so
+    # no step of the check compares the secret itself byte by byte with an early exit.
+    if key is None or not hmac.compare_digest(key.secret_hash, digest) \
+            or key.revoked_at is not None:
         raise Unauthorized("Unknown or revoked API key.")
     return Principal(key.id, key.role, key.fleet)
 

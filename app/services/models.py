@@ -17,6 +17,7 @@ from app.learning import Observation, StateFormatError, Transition, learner_from
 from app.learning.experiments import episode_metrics
 from app.schemas.models import ActionBelief, ContextModel, ModelOut, StateModel, StatsOut
 
+from . import audit
 from .auth import require_admin
 from .context import Principal, ServiceContext, rng_for
 from .episodes import _action_out
@@ -96,16 +97,21 @@ def reset_model(session: Session, ctx: ServiceContext, principal: Principal, use
                 ) -> None:
     require_admin(principal)
     user = visible_user(session, principal, user_id, for_update=True)
-    replace_learner(session, ctx, user, fresh_learner(ctx, user.algorithm, dict(user.params)),
-                    imported=False)
+    model = replace_learner(session, ctx, user,
+                            fresh_learner(ctx, user.algorithm, dict(user.params)),
+                            imported=False)
+    audit.record(session, principal, "model.reset", target=user_id, fleet=user.fleet,
+                 detail={"version": model.version})
 
 
 def export_model(session: Session, ctx: ServiceContext, principal: Principal, user_id: str
                  ) -> dict[str, Any]:
     require_admin(principal)
-    visible_user(session, principal, user_id)
+    user = visible_user(session, principal, user_id)
     model = users_repo.get_model(session, user_id)
     assert model is not None  # every user is created with its model
+    audit.record(session, principal, "model.export", target=user_id, fleet=user.fleet,
+                 detail={"version": model.version})
     return dict(model.state)
 
 
@@ -120,6 +126,8 @@ def import_model(session: Session, ctx: ServiceContext, principal: Principal, us
     user.algorithm, user.params = learner.algorithm, learner.params.to_dict()
     model = replace_learner(session, ctx, user, learner, imported=True)
     model.episode_offset = max(model.episode_offset, learner.episodes - user.episode_count)
+    audit.record(session, principal, "model.import", target=user_id, fleet=user.fleet,
+                 detail={"algorithm": learner.algorithm, "version": model.version})
     session.flush()
     return model_view(session, ctx, principal, user_id, time_slot=None, situation=None)
 

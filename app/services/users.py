@@ -15,6 +15,7 @@ from app.errors import Conflict, NotFound, ValidationFailed
 from app.schemas.common import CLIENT_ID_PATTERN
 from app.schemas.users import LearnerSpec, UserIn, UserList, UserOut
 
+from . import audit
 from .auth import require_admin
 from .context import Principal, ServiceContext
 from .learners import fresh_learner, replace_learner
@@ -126,6 +127,8 @@ def list_users(
 def delete_user(session: Session, ctx: ServiceContext, principal: Principal, user_id: str
                 ) -> None:
     require_admin(principal)
-    visible_user(session, principal, user_id, for_update=True)
+    user = visible_user(session, principal, user_id, for_update=True)
+    audit.record(session, principal, "user.delete", target=user_id, fleet=user.fleet,
+                 detail={"episodes": user.episode_count})
     repo.delete_user(session, user_id)
     ctx.cache.drop(user_id)

@@ -7,6 +7,7 @@ from fastapi.responses import JSONResponse
 
 from app.api.deps import ContextDep, CurrentPrincipal, SessionDep
 from app.api.errors import responses
+from app.api.links import EPISODE_LINKS, OUTCOME_LINKS
 from app.api.metrics import Metrics
 from app.schemas.episodes import (
     EpisodeCreated,
@@ -37,7 +38,8 @@ def _count(request: Request, body: dict[str, object] | None, replay: bool) -> No
 @router.post(
     "/v1/users/{user_id}/episodes", status_code=201, response_model=EpisodeCreated,
     responses={200: {"model": EpisodeCreated, "description": "Idempotent replay of an earlier "
-                     "event_id.", "headers": REPLAY_HEADER}, **responses(404, 409)},
+                     "event_id.", "headers": REPLAY_HEADER, "links": EPISODE_LINKS},
+               201: {"links": EPISODE_LINKS}, **responses(404, 409)},
 )
 def start_episode(user_id: UserId, body: EpisodeIn, request: Request, session: SessionDep,
                   ctx: ContextDep, principal: CurrentPrincipal) -> JSONResponse:
@@ -50,7 +52,8 @@ def start_episode(user_id: UserId, body: EpisodeIn, request: Request, session: S
 @router.post(
     "/v1/episodes/{episode_id}/outcomes", response_model=OutcomeOut,
     responses={200: {"headers": REPLAY_HEADER, "description": "The reward, the episode, and "
-                     "the next decision (null when the episode ended)."},
+                     "the next decision (null when the episode ended).",
+                     "links": OUTCOME_LINKS},
                **responses(404, 409)},
 )
 def report_outcome(episode_id: EpisodeId, body: OutcomeIn, request: Request,

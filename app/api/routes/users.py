@@ -7,6 +7,7 @@ from fastapi.responses import JSONResponse
 
 from app.api.deps import ContextDep, CurrentPrincipal, SessionDep
 from app.api.errors import responses
+from app.api.links import USER_LINKS
 from app.schemas.users import UserIn, UserList, UserOut
 from app.services import users as service
 
@@ -17,7 +18,9 @@ router = APIRouter(prefix="/v1/users", tags=["users"])
 
 @router.put(
     "/{user_id}", response_model=UserOut, status_code=200, responses={
-        201: {"model": UserOut, "description": "Created."}, **responses(404, 409)},
+        200: {"links": USER_LINKS},
+        201: {"model": UserOut, "description": "Created.", "links": USER_LINKS},
+        **responses(404, 409)},
 )
 def put_user(
     user_id: UserId, session: SessionDep, ctx: ContextDep, principal: CurrentPrincipal,

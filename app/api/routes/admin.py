@@ -1,0 +1,24 @@
+from __future__ import annotations
+
+from typing import Annotated
+
+from fastapi import APIRouter, Query
+
+from app.api.deps import CurrentPrincipal, SessionDep
+from app.api.errors import responses
+from app.schemas.audit import AuditList
+from app.services import audit as service
+
+router = APIRouter(prefix="/v1/admin", tags=["admin"])
+
+
+@router.get("/audit", response_model=AuditList, responses=responses(403))
+def list_audit(
+    session: SessionDep, principal: CurrentPrincipal,
+    limit: Annotated[int, Query(ge=1, le=500)] = 50,
+    cursor: Annotated[str | None, Query(max_length=32)] = None,
+) -> AuditList:
+    """The audit log of admin actions of every fleet, newest first (admin): who (the key),
+    what (user.delete, model.reset, model.export, model.import, model.rebuild, key.create,
+    key.revoke), when."""
+    return service.list_audit(session, principal, limit=limit, cursor=cursor)

@@ -1,0 +1,62 @@
+"""The audit log of admin actions: who did what, to what, when.
+
+The use cases record their own entries (``record``) in the transaction that does the action, so
+an action and its entry are stored together or not at all, whoever calls the use case: the HTTP
+API, the command line or the admin console.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from sqlalchemy.orm import Session
+
+from app.db.models import AuditEntry
+from app.db.repositories import audit as repo
+from app.db.types import utcnow
+from app.errors import Forbidden, ValidationFailed
+from app.schemas.audit import AuditActor, AuditEntryOut, AuditList
+
+from .context import Principal
+
+__all__ = ["ACTIONS", "CLI", "list_audit", "record"]
+
+ACTIONS = ("user.delete", "model.reset", "model.export", "model.import", "model.rebuild",
+           "key.create", "key.revoke")
+CLI = Principal("cli", "admin", "default")  # an operator at the machine (``attune keys ...``)
+
+
+def record(session: Session, actor: Principal, action: str, *, target: str,
+           fleet: str | None, detail: dict[str, Any] | None = None) -> None:
+    """Add the entry of an admin action to the current transaction."""
+    if action not in ACTIONS:
+        raise ValueError(f"unknown audit action {action!r}")
+    repo.add_entry(session, AuditEntry(
+        at=utcnow(), actor_key_id=actor.key_id, actor_role=actor.role,
+        actor_fleet=actor.fleet, action=action, target=target, fleet=fleet, detail=detail,
+    ))
+
+
+def _out(entry: AuditEntry) -> AuditEntryOut:
+    return AuditEntryOut(
+        id=str(entry.id), at=entry.at,
+        actor=AuditActor(key_id=entry.actor_key_id, role=entry.actor_role,
+                         fleet=entry.actor_fleet),
+        action=entry.action, target=entry.target, fleet=entry.fleet, detail=entry.detail,
+    )
+
+
+def list_audit(session: Session, principal: Principal, *, limit: int, cursor: str | None
+               ) -> AuditList:
+    """Admin actions of every fleet, newest first, a page at a time (admin)."""
+    if not principal.is_admin:
+        raise Forbidden("This needs an admin key.")
+    before: int | None = None
+    if cursor is not None:
+        if not (cursor.isascii() and cursor.isdigit()) or len(cursor) > 18:
+            raise ValidationFailed("cursor is not one this API returned.")
+        before = int(cursor)
+    rows = repo.list_entries(session, before_id=before, limit=limit + 1)
+    more = len(rows) > limit
+    return AuditList(items=[_out(e) for e in rows[:limit]],
+                     next_cursor=str(rows[limit - 1].id) if more else None)
