@@ -1,0 +1,362 @@
+"""The console's pages, under ``/admin``, rendered on the server.
+
+Every page reads the services behind the v1 API (``app.services.*``) in the request's own
+transaction (``SessionDep``), exactly as the API's routes do, so the console adds no second source
+of truth: what a page shows for a user is what ``GET /v1/users/{id}/model``, ``/stats`` and
+``GET /v1/episodes/{id}`` return; the users list adds each user's recent success rate and last
+activity (``app.services.console``, with the same definitions as ``/stats``).
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Callable, Coroutine
+from pathlib import Path
+from typing import Annotated, Any
+from urllib.parse import quote
+
+from fastapi import APIRouter, Query, Request, Response
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import HTMLResponse, JSONResponse, RedirectResponse
+from fastapi.routing import APIRoute
+from fastapi.templating import Jinja2Templates
+
+from app.api.deps import ContextDep, SessionDep
+from app.errors import AppError
+from app.schemas.common import CLIENT_ID_PATTERN
+from app.services import console as console_service
+from app.services import episodes as episodes_service
+from app.services import models as models_service
+from app.services import users as users_service
+
+from . import views
+from .auth import (
+    COOKIE,
+    COOKIE_PATH,
+    Admin,
+    AdminDep,
+    FormDep,
+    LoginRequired,
+    PageError,
+    check_post,
+    csrf_token,
+    safe_next,
+    same_origin,
+    sign_in,
+)
+
+__all__ = ["router", "templates"]
+
+HERE = Path(__file__).parent
+templates = Jinja2Templates(directory=str(HERE / "templates"))
+templates.env.globals["v"] = views
+templates.env.globals["recent_episodes"] = console_service.RECENT_EPISODES
+
+_HEADERS = {
+    # The pages load nothing but their own files: no inline script or style, no framing (the
+    # reset and delete buttons must not be clickjacked), nothing cached (people's data).
+    "Content-Security-Policy": "default-src 'self'; script-src 'self'; style-src 'self'; "
+                               "img-src 'self' data:; object-src 'none'; base-uri 'none'; "
+                               "form-action 'self'; frame-ancestors 'none'",
+    "X-Frame-Options": "DENY",
+    "X-Content-Type-Options": "nosniff",
+    "Referrer-Policy": "same-origin",
+    "Cache-Control": "no-store",
+}
+_USER_ID = re.compile(CLIENT_ID_PATTERN)
+_TITLES = {400: "Bad request", 401: "Sign in again", 403: "Not allowed", 404: "Not found",
+           409: "Conflict", 422: "Not valid", 503: "Busy, retry"}
+
+
+def _error_page(request: Request, status: int, title: str, detail: str) -> HTMLResponse:
+    return templates.TemplateResponse(request, "error.html", {
+        "title": title, "detail": detail, "status": status, "admin": None,
+    }, status_code=status)
+
+
+class ConsoleRoute(APIRoute):
+    """Turns the console's refusals and the services' errors into pages (the v1 API's handlers
+    answer JSON), and adds the pages' security headers."""
+
+    def get_route_handler(self) -> Callable[[Request], Coroutine[Any, Any, Response]]:
+        handler = super().get_route_handler()
+
+        async def route(request: Request) -> Response:
+            response: Response
+            try:
+                response = await handler(request)
+            except LoginRequired as exc:
+                response = RedirectResponse(f"{COOKIE_PATH}/login?next={_quote(exc.next_path)}",
+                                            status_code=303)
+            except PageError as exc:
+                response = _error_page(request, exc.status, exc.title, exc.detail)
+                if exc.sign_out:
+                    _forget(response)
+            except AppError as exc:
+                response = _error_page(request, exc.status_code, _TITLES.get(
+                    exc.status_code, "Error"), exc.detail)
+            except RequestValidationError as exc:
+                first = exc.errors()[0] if exc.errors() else {}
+                where = ".".join(str(p) for p in first.get("loc", ()))
+                response = _error_page(request, 422, "Bad address",
+                                       f"{where}: {first.get('msg', 'invalid')}.")
+            response.headers.update(_HEADERS)
+            return response
+
+        return route
+
+
+def _quote(path: str) -> str:
+    return quote(path, safe="/")
+
+
+def _forget(response: Response) -> None:
+    response.delete_cookie(COOKIE, path=COOKIE_PATH, httponly=True, samesite="strict")
+
+
+def _page(request: Request, name: str, admin: Admin | None, status: int = 200,
+          **context: Any) -> HTMLResponse:
+    return templates.TemplateResponse(request, name, {"admin": admin, **context},
+                                      status_code=status)
+
+
+def _redirect(url: str) -> RedirectResponse:
+    return RedirectResponse(url, status_code=303)
+
+
+def _user_path(user_id: str, tail: str = "") -> str:
+    return f"{COOKIE_PATH}/users/{user_id}{tail}"
+
+
+router = APIRouter(prefix=COOKIE_PATH, route_class=ConsoleRoute, include_in_schema=False)
+
+
+def _check_user_id(user_id: str) -> None:
+    if not _USER_ID.match(user_id):
+        raise PageError(404, "Not found", f"No user {user_id!r}: user ids use letters, digits "
+                        "and . _ : - only.")
+
+
+# -- signing in and out --------------------------------------------------------------------------
+@router.get("")
+def home() -> RedirectResponse:
+    """The console's front page is the users list."""
+    return _redirect(f"{COOKIE_PATH}/users")
+
+
+@router.get("/login")
+def login_form(request: Request, next: Annotated[str | None, Query(max_length=2000)] = None,
+               signed_out: bool = False) -> HTMLResponse:
+    """The sign-in form: an admin key."""
+    return _page(request, "login.html", None, next=safe_next(next), error=None,
+                 signed_out=signed_out)
+
+
+@router.post("/login")
+def login(request: Request, session: SessionDep, form: FormDep) -> Response:
+    """Check the key; keep it in a browser-session cookie; go where the person was heading."""
+    target = safe_next(form.get("next"))
+    if not same_origin(request):
+        raise PageError(403, "Request refused", "Sign in from the console's own login page.")
+    secret = form.get("key", "").strip()
+    try:
+        if not secret:
+            raise PageError(401, "Key needed", "Paste an admin key to sign in.")
+        sign_in(session, secret)
+    except PageError as exc:
+        return _page(request, "login.html", None, exc.status, next=target, error=exc,
+                     signed_out=False)
+    response = _redirect(target)
+    # No Max-Age or Expires: a session cookie, gone when the browser closes.
+    response.set_cookie(COOKIE, secret, path=COOKIE_PATH, httponly=True, samesite="strict",
+                        secure=request.url.scheme == "https")
+    return response
+
+
+@router.post("/logout")
+def logout(request: Request, form: FormDep) -> Response:
+    """Forget the key in this browser."""
+    secret = request.cookies.get(COOKIE)
+    if secret and (not same_origin(request) or form.get("csrf") != csrf_token(secret)):
+        raise PageError(403, "Request refused", "Sign out from a console page.")
+    response = _redirect(f"{COOKIE_PATH}/login?signed_out=true")
+    _forget(response)
+    return response
+
+
+# -- users -----------------------------------------------------------------------------------
+@router.get("/users")
+def users_page(
+    request: Request, session: SessionDep, admin: AdminDep,
+    q: Annotated[str | None, Query(max_length=200)] = None,
+    page: Annotated[int, Query(ge=1, le=1_000_000)] = 1,
+    per_page: Annotated[int, Query(ge=5, le=200)] = 25,
+    deleted: Annotated[str | None, Query(max_length=128)] = None,
+) -> HTMLResponse:
+    """Users, searchable, a page at a time, with learner, episodes, recent success, activity."""
+    found = console_service.find_users(session, admin.principal, text=q, page=page,
+                                       per_page=per_page)
+    shown = deleted if deleted and _USER_ID.match(deleted) else None  # only ids: no free text
+    return _page(request, "users.html", admin, found=found, q=q or "", deleted=shown)
+
+
+@router.get("/users/{user_id}")
+def user_page(
+    request: Request, user_id: str, session: SessionDep, ctx: ContextDep, admin: AdminDep,
+    last: Annotated[int, Query(ge=1, le=1_000_000)] = console_service.RECENT_EPISODES,
+    done: Annotated[str | None, Query(max_length=32)] = None,
+) -> HTMLResponse:
+    """A user's model at a glance: the heatmap, the paper's metrics, the reward curve."""
+    _check_user_id(user_id)
+    principal = admin.principal
+    user = users_service.get_user(session, principal, user_id)
+    model = models_service.model_view(session, ctx, principal, user_id, time_slot=None,
+                                      situation=None)
+    overall = models_service.stats(session, principal, user_id, last=None)
+    recent = models_service.stats(session, principal, user_id, last=last)
+    xs, ys = views.curve(overall.cumulative_reward)
+    return _page(request, "user.html", admin, user=user, model=model, tab="model",
+                 heat=views.heatmap(model, ctx.mission), overall=overall, recent=recent,
+                 last=last, chart={"x": xs, "y": ys}, done=done)
+
+
+@router.get("/users/{user_id}/why")
+def why_page(
+    request: Request, user_id: str, session: SessionDep, ctx: ContextDep, admin: AdminDep,
+    time_slot: Annotated[str | None, Query(max_length=64)] = None,
+    situation: Annotated[str | None, Query(max_length=64)] = None,
+) -> HTMLResponse:
+    """Why this action: every state's actions in one context, with the numbers behind P."""
+    _check_user_id(user_id)
+    principal = admin.principal
+    user = users_service.get_user(session, principal, user_id)
+    if time_slot is None or situation is None:
+        latest = episodes_service.list_episodes(session, ctx, principal, user_id, limit=1,
+                                                cursor=None).items
+        slot0, sit0 = ((latest[0].context.time_slot, latest[0].context.situation) if latest
+                       else ctx.mission.context_names(0))
+        time_slot, situation = time_slot or slot0, situation or sit0
+    model = models_service.model_view(session, ctx, principal, user_id, time_slot=time_slot,
+                                      situation=situation)
+    context = model.contexts[0]
+    trace = console_service.latest_trace_in_context(session, ctx, principal, user_id,
+                                                    time_slot=time_slot, situation=situation)
+    return _page(request, "why.html", admin, user=user, model=model, tab="why",
+                 context=context, rows=views.why_rows(context), trace=trace,
+                 mission=ctx.mission, v_max=ctx.mission.v_max)
+
+
+@router.get("/users/{user_id}/episodes")
+def episodes_page(
+    request: Request, user_id: str, session: SessionDep, ctx: ContextDep, admin: AdminDep,
+    before: Annotated[int | None, Query(ge=1, le=10**17)] = None,
+    at: Annotated[int | None, Query(ge=1, le=10**17)] = None,
+    per_page: Annotated[int, Query(ge=5, le=200)] = 25,
+) -> HTMLResponse:
+    """The user's episodes, newest first, a page at a time (``at``: from that episode on); each
+    expands into its trace."""
+    _check_user_id(user_id)
+    if at is not None:
+        before = at + 1
+    principal = admin.principal
+    user = users_service.get_user(session, principal, user_id)
+    page = episodes_service.list_episodes(session, ctx, principal, user_id, limit=per_page,
+                                          cursor=None if before is None else str(before))
+    newest = page.items[0].index if page.items else None
+    newer = None
+    if newest is not None and newest < user.episodes:
+        newer = newest + per_page + 1 if newest + per_page < user.episodes else 0
+    return _page(request, "episodes.html", admin, user=user, tab="episodes", page=page,
+                 per_page=per_page, newer=newer,
+                 older=int(page.next_cursor) if page.next_cursor else None)
+
+
+@router.get("/users/{user_id}/episodes/{episode_id}/trace")
+def trace_fragment(
+    request: Request, user_id: str, episode_id: str, session: SessionDep, ctx: ContextDep,
+    admin: AdminDep,
+) -> HTMLResponse:
+    """One episode's trace, as an HTML fragment for the episode list."""
+    _check_user_id(user_id)
+    if len(episode_id) > 128:
+        raise PageError(404, "Not found", "No such episode.")
+    trace = episodes_service.get_trace(session, ctx, admin.principal, episode_id)
+    if trace.user_id != user_id:
+        raise PageError(404, "Not found", f"Episode {episode_id!r} is not {user_id!r}'s.")
+    return _page(request, "_trace.html", admin, trace=trace)
+
+
+# Named as the API's export route on purpose: an export leaves an audit entry, and the session
+# dependency opens a write transaction for the routes of that name.
+@router.get("/users/{user_id}/export")
+def export_model(user_id: str, session: SessionDep, ctx: ContextDep,
+                 admin: AdminDep) -> JSONResponse:
+    """Download the model document of GET /v1/users/{id}/model/export."""
+    _check_user_id(user_id)
+    doc = models_service.export_model(session, ctx, admin.principal, user_id)
+    name = f"attune-model-{user_id.replace(':', '_')}.json"
+    return JSONResponse(doc, headers={"Content-Disposition": f'attachment; filename="{name}"'})
+
+
+# -- admin actions: a confirmation page, then a POST with the CSRF token ----------------------
+_ACTIONS = {
+    "reset": ("Reset the model",
+              "Forget what was learned about {who}: the model starts over as a fresh "
+              "{algorithm} learner. The history ({episodes} episodes) is kept."),
+    "delete": ("Delete the user",
+               "Remove {who} with the whole history ({episodes} episodes) and the model. This "
+               "cannot be undone; export the model first if it may be needed again."),
+}
+
+
+def _confirm(request: Request, session: SessionDep, admin: Admin, user_id: str,
+             action: str) -> HTMLResponse:
+    _check_user_id(user_id)
+    user = users_service.get_user(session, admin.principal, user_id)
+    title, text = _ACTIONS[action]
+    who = f"{user.display_name} ({user.user_id})" if user.display_name else user.user_id
+    return _page(request, "confirm.html", admin, user=user, action=action, title=title,
+                 text=text.format(who=who, algorithm=user.learner.algorithm,
+                                  episodes=user.episodes))
+
+
+@router.get("/users/{user_id}/reset")
+def reset_confirm(request: Request, user_id: str, session: SessionDep,
+                  admin: AdminDep) -> HTMLResponse:
+    """Ask before resetting a user's model."""
+    return _confirm(request, session, admin, user_id, "reset")
+
+
+@router.post("/users/{user_id}/reset")
+def reset(request: Request, user_id: str, session: SessionDep, ctx: ContextDep,
+          admin: AdminDep, form: FormDep) -> RedirectResponse:
+    """Reset the user's model (as DELETE /v1/users/{id}/model), keeping the history."""
+    _check_user_id(user_id)
+    check_post(request, admin, form)
+    models_service.reset_model(session, ctx, admin.principal, user_id)
+    return _redirect(_user_path(user_id, "?done=reset"))
+
+
+@router.get("/users/{user_id}/delete")
+def delete_confirm(request: Request, user_id: str, session: SessionDep,
+                   admin: AdminDep) -> HTMLResponse:
+    """Ask before deleting a user."""
+    return _confirm(request, session, admin, user_id, "delete")
+
+
+@router.post("/users/{user_id}/delete")
+def delete(request: Request, user_id: str, session: SessionDep, ctx: ContextDep,
+           admin: AdminDep, form: FormDep) -> RedirectResponse:
+    """Delete the user with its history and model (as DELETE /v1/users/{id})."""
+    _check_user_id(user_id)
+    check_post(request, admin, form)
+    users_service.delete_user(session, ctx, admin.principal, user_id)
+    return _redirect(f"{COOKIE_PATH}/users?deleted={user_id}")
+
+
+@router.get("/{rest:path}")
+def not_found(rest: str) -> RedirectResponse:
+    """Any other console address: the users list for ``/admin/``, else a 404 page."""
+    if not rest:
+        return home()
+    raise PageError(404, "Not found", "There is no such console page.")

@@ -1,0 +1,88 @@
+"""Reads for the admin console: users found by text, a page at a time, with recent activity."""
+
+from __future__ import annotations
+
+import datetime as dt
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any, TypeVar
+
+from sqlalchemy import Select, case, func, or_, select
+from sqlalchemy.orm import Session
+
+from ..models import Episode, User
+
+__all__ = ["Activity", "count_users", "latest_episode_in_context", "recent_activity",
+           "search_users"]
+
+_S = TypeVar("_S", bound=Select[Any])
+
+
+@dataclass(frozen=True, slots=True)
+class Activity:
+    """A user's last ``window`` episodes: how many, missions, successes; and the latest one."""
+
+    episodes: int
+    missions: int
+    successes: int
+    last_at: dt.datetime | None
+
+
+def _matching(stmt: _S, *, fleet: str | None, text: str | None) -> _S:
+    if fleet is not None:
+        stmt = stmt.where(User.fleet == fleet)
+    if text:
+        stmt = stmt.where(or_(User.user_id.icontains(text, autoescape=True),
+                              User.display_name.icontains(text, autoescape=True)))
+    return stmt
+
+
+def search_users(
+    session: Session, *, fleet: str | None, text: str | None, offset: int, limit: int
+) -> Sequence[User]:
+    stmt = select(User).order_by(User.user_id).offset(offset).limit(limit)
+    return session.scalars(_matching(stmt, fleet=fleet, text=text)).all()
+
+
+def count_users(session: Session, *, fleet: str | None, text: str | None) -> int:
+    stmt = select(func.count()).select_from(User)
+    return int(session.scalar(_matching(stmt, fleet=fleet, text=text)) or 0)
+
+
+def recent_activity(session: Session, user_ids: Sequence[str], *, window: int
+                    ) -> dict[str, Activity]:
+    """Per user: counts over the episodes with ``seq`` in the last ``window`` (the user's own
+    1-based index, so the unique (user_id, seq) index serves the range), and the time of the
+    latest episode's last change (opened or closed)."""
+    if not user_ids:
+        return {}
+    mission = Episode.interaction_class != "none"
+    counts = session.execute(
+        select(Episode.user_id, func.count(),
+               func.sum(case((mission, 1), else_=0)),
+               func.sum(case((Episode.success, 1), else_=0)))
+        .join(User, User.user_id == Episode.user_id)
+        .where(Episode.user_id.in_(user_ids), Episode.seq > User.episode_count - window)
+        .group_by(Episode.user_id)
+    ).all()
+    latest = session.execute(
+        select(Episode.user_id, Episode.created_at, Episode.closed_at)
+        .join(User, User.user_id == Episode.user_id)
+        .where(Episode.user_id.in_(user_ids), Episode.seq == User.episode_count)
+    ).all()
+    last_at = {uid: max(t for t in (created, closed) if t is not None)
+               for uid, created, closed in latest}
+    out = {uid: Activity(int(n), int(m or 0), int(s or 0), last_at.get(uid))
+           for uid, n, m, s in counts}
+    return {uid: out.get(uid, Activity(0, 0, 0, None)) for uid in user_ids}
+
+
+def latest_episode_in_context(session: Session, user_id: str, context: int) -> str | None:
+    """Id of the user's most recent episode in ``context``, if any."""
+    stmt = (
+        select(Episode.id)
+        .where(Episode.user_id == user_id, Episode.context == context)
+        .order_by(Episode.seq.desc())
+        .limit(1)
+    )
+    return session.scalars(stmt).first()

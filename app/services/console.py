@@ -1,0 +1,94 @@
+"""Reads the admin console needs beyond the v1 API's: users found by text, a page at a time, with
+their recent activity; and the latest episode of a user in one context (the decision to explain).
+
+The metrics follow algorithm.md section 6, as ``models.stats`` does: the recent success rate is
+``stats(last=RECENT_EPISODES).success_rate``, computed in SQL for a whole page of users at once.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import math
+from dataclasses import dataclass
+
+from sqlalchemy.orm import Session
+
+from app.db.repositories import console as repo
+from app.errors import ValidationFailed
+from app.schemas.episodes import EpisodeTrace
+from app.schemas.users import UserOut
+
+from .context import Principal, ServiceContext
+from .episodes import get_trace
+from .users import user_out, visible_user
+
+__all__ = ["RECENT_EPISODES", "UserActivity", "UserPage", "find_users",
+           "latest_trace_in_context"]
+
+RECENT_EPISODES = 100  # "recent": the last 100 episodes, the paper's block size (Table II)
+
+
+@dataclass(frozen=True, slots=True)
+class UserActivity:
+    """A user with its recent success rate (None: no mission yet) and last activity."""
+
+    user: UserOut
+    recent_episodes: int
+    recent_missions: int
+    recent_success_rate: float | None
+    last_activity: dt.datetime | None
+
+
+@dataclass(frozen=True, slots=True)
+class UserPage:
+    items: list[UserActivity]
+    total: int
+    page: int  # 1-based
+    per_page: int
+
+    @property
+    def pages(self) -> int:
+        return max(1, math.ceil(self.total / self.per_page))
+
+
+def find_users(
+    session: Session, principal: Principal, *, text: str | None, page: int, per_page: int,
+    window: int = RECENT_EPISODES,
+) -> UserPage:
+    """Users whose id or display name contains ``text`` (any case), by user id, one page.
+
+    Like ``GET /v1/users``, a robot key sees its own fleet and an admin key every fleet.
+    """
+    if page < 1 or not 1 <= per_page <= 500:
+        raise ValidationFailed("page must be 1 or more, per_page between 1 and 500.")
+    text = (text or "").strip() or None
+    if text is not None and len(text) > 200:
+        raise ValidationFailed("search text must be at most 200 characters.")
+    fleet = None if principal.is_admin else principal.fleet
+    total = repo.count_users(session, fleet=fleet, text=text)
+    users = repo.search_users(session, fleet=fleet, text=text, offset=(page - 1) * per_page,
+                              limit=per_page)
+    activity = repo.recent_activity(session, [u.user_id for u in users], window=window)
+    items = []
+    for user in users:
+        a = activity[user.user_id]
+        items.append(UserActivity(
+            user=user_out(user), recent_episodes=a.episodes, recent_missions=a.missions,
+            recent_success_rate=a.successes / a.missions if a.missions else None,
+            last_activity=a.last_at,
+        ))
+    return UserPage(items=items, total=total, page=page, per_page=per_page)
+
+
+def latest_trace_in_context(
+    session: Session, ctx: ServiceContext, principal: Principal, user_id: str, *,
+    time_slot: str, situation: str,
+) -> EpisodeTrace | None:
+    """The trace of the user's most recent episode in (time slot, situation), if any."""
+    visible_user(session, principal, user_id)
+    try:
+        context = ctx.mission.context_index(time_slot, situation)
+    except ValueError as exc:
+        raise ValidationFailed(str(exc)) from None
+    episode_id = repo.latest_episode_in_context(session, user_id, context)
+    return None if episode_id is None else get_trace(session, ctx, principal, episode_id)

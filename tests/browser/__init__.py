@@ -1,0 +1,1 @@
+"""The admin console in headless Chromium against a live service."""

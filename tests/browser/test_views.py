@@ -1,0 +1,112 @@
+"""The console's pure pieces, without a browser: the reward curve's thinning, the heatmap's
+reading of a policy, where signing in may send the browser, the CSRF token."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import pytest
+
+from app.console.auth import csrf_token, safe_next
+from app.console.views import curve, expectation, fmt_count, fmt_measure, heat_class
+from app.schemas.models import ContextModel
+
+
+class TestCurve:
+    def test_short_histories_are_drawn_whole(self) -> None:
+        assert curve([0.0, 1.0, -1.0]) == ([0, 1, 2], [0.0, 1.0, -1.0])
+
+    def test_long_histories_keep_ends_and_extremes_within_the_budget(self) -> None:
+        values = [float((i % 97) - (i % 13)) for i in range(50_001)]
+        values[31_337] = 1e6  # one spike must survive thinning
+        xs, ys = curve(values, max_points=1000)
+        assert len(xs) <= 1002
+        assert xs[0] == 0
+        assert xs[-1] == 50_000
+        assert xs == sorted(set(xs))
+        assert ys == [values[i] for i in xs]
+        assert 31_337 in xs
+        assert min(ys) == min(values)
+
+
+def _context(engaged: list[tuple[str, str | None, float]],
+             type_known: dict[str, list[tuple[str, str | None, float]]],
+             visited: bool = True) -> ContextModel:
+    def actions(rows: list[tuple[str, str | None, float]], service: str | None = None
+                ) -> list[dict[str, Any]]:
+        out = []
+        for kind, name, p in rows:
+            action: dict[str, Any] = {"kind": kind}
+            if kind == "infer_type":
+                action["service"] = name
+            elif kind == "infer_detail":
+                action.update(service=service, detail=name)
+            elif kind == "query_detail":
+                action["service"] = service
+            out.append({"action": action, "q": 0.0, "visits": int(visited), "kept_visits": None,
+                        "since_last": 1, "measure": None, "p": p})
+        return out
+
+    states = [
+        {"state": "OBSERVE", "actions": actions([("initiate", None, 0.7), ("pass", None, 0.3)])},
+        {"state": "ENGAGED", "actions": actions(engaged)},
+        *({"state": "TYPE_KNOWN", "service": k, "actions": actions(rows, k)}
+          for k, rows in type_known.items()),
+    ]
+    return ContextModel.model_validate({"time_slot": "afternoon", "situation": "stretching",
+                                        "states": states})
+
+
+class TestExpectation:
+    def test_the_likeliest_guess_and_the_chance_of_asking(self) -> None:
+        ctx = _context(
+            [("query_type", None, 0.2), ("infer_type", "Drink", 0.6), ("infer_type", "Info", 0.2)],
+            {"Drink": [("query_detail", None, 0.1), ("infer_detail", "tea", 0.8),
+                       ("infer_detail", "coffee", 0.1)],
+             "Info": [("query_detail", None, 0.5), ("infer_detail", "news", 0.5)]},
+        )
+        e = expectation(ctx)
+        assert e is not None
+        assert (e.service, e.detail) == ("Drink", "tea")
+        assert e.p_guess == pytest.approx(0.6 * 0.8)
+        assert e.p_ask == pytest.approx(0.2 + 0.6 * 0.1 + 0.2 * 0.5)
+
+    def test_a_tie_is_no_preference_and_never_engaged_is_nothing(self) -> None:
+        rows = {"Drink": [("infer_detail", "tea", 0.5), ("infer_detail", "coffee", 0.5)]}
+        tie = expectation(_context([("query_type", None, 0.5), ("infer_type", "Drink", 0.5)],
+                                   rows))
+        assert tie is not None
+        assert (tie.service, tie.p_guess, tie.p_ask) == (None, None, 0.5)
+        assert expectation(_context([("infer_type", "Drink", 1.0)], rows, visited=False)) is None
+
+
+def test_number_formats() -> None:
+    assert fmt_count(3) == "3"
+    assert fmt_count(2.5) == "2.50"
+    assert fmt_count(None) == "—"
+    assert fmt_measure(123456.0) == "1.23e+05"
+    assert heat_class(0.04) == "heat-0"
+    assert heat_class(0.96) == "heat-10"
+    assert heat_class(None) == "heat-none"
+
+
+@pytest.mark.parametrize(("asked", "goes"), [
+    ("/admin/users/lin", "/admin/users/lin"),
+    ("/admin/users?q=a&page=2", "/admin/users?q=a&page=2"),
+    (None, "/admin/users"),
+    ("https://evil.example/admin/", "/admin/users"),
+    ("//evil.example/admin/x", "/admin/users"),
+    ("/admin\\..\\x", "/admin/users"),
+    ("/v1/users", "/admin/users"),
+    ("/admin/users/\r\nSet-Cookie:x", "/admin/users"),
+])
+def test_signing_in_only_returns_to_console_pages(asked: str | None, goes: str) -> None:
+    assert safe_next(asked) == goes
+
+
+def test_the_csrf_token_is_derived_from_the_key_and_hides_it() -> None:
+    token = csrf_token("att_secret")
+    assert token == csrf_token("att_secret")
+    assert token != csrf_token("att_other")
+    assert "att_secret" not in token
+    assert len(token) == 64
