@@ -6,13 +6,20 @@ import logging
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 
+from anyio import to_thread
 from fastapi import FastAPI
 from fastapi.routing import APIRoute
 
 from app.api.errors import install_error_handlers
 from app.api.metrics import Metrics
-from app.api.middleware import BodyLimitMiddleware, MetricsMiddleware
-from app.api.routes import episodes, meta, models, users
+from app.api.middleware import (
+    BodyLimitMiddleware,
+    InFlightLimitMiddleware,
+    KeyRateLimiter,
+    MetricsMiddleware,
+)
+from app.api.routes import admin, episodes, meta, models, users
+from app.console import mount_console
 from app.db.session import Database
 from app.services.context import ServiceContext
 from app.settings import Settings, get_settings
@@ -44,6 +51,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        # An admitted request may hold a pool thread while it waits for a user's lock or a
+        # connection; with more threads than admitted requests (InFlightLimitMiddleware), the
+        # holder of the lock always finds a thread to finish on. The 8 spare threads serve the
+        # probes and /metrics, which are not counted.
+        to_thread.current_default_thread_limiter().total_tokens = settings.max_in_flight + 8
         logging.getLogger("attune").info("serving with database %s", db.engine.url
                                          .render_as_string(hide_password=True))
         yield
@@ -55,10 +67,14 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.db = db
     app.state.ctx = ServiceContext.from_settings(settings)
     app.state.metrics = Metrics()
+    app.state.limiter = KeyRateLimiter(settings.rate_limit_per_s, settings.rate_limit_burst)
     install_error_handlers(app)
     for module in (users, episodes, models, meta):
         app.include_router(module.router)
+    app.include_router(admin.router)
+    mount_console(app)
     app.add_middleware(BodyLimitMiddleware, limit=settings.max_body_bytes)
+    app.add_middleware(InFlightLimitMiddleware, limit=settings.max_in_flight)
     app.add_middleware(MetricsMiddleware, metrics=app.state.metrics)
     return app
 
