@@ -13,18 +13,14 @@ from __future__ import annotations
 import gc
 import json
 import random
-import socket
 import threading
 import time
 import warnings
-from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
-from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any
 
 import httpx2
-import uvicorn
 from fastapi import FastAPI
 from sqlalchemy import func, select
 from typer.testing import CliRunner
@@ -34,6 +30,7 @@ from app.db.models import Decision, Episode
 from app.db.session import Database
 from app.learning import office_mission
 from app.settings import Settings
+from tests.live import serving
 
 from .conftest import MakeKey
 
@@ -46,31 +43,6 @@ SLOT_TIMES = {"morning": "09:30", "noon": "12:15", "afternoon": "15:10", "evenin
 SITUATIONS = MISSION.situations
 OTHER_RESPONSE = {"accepted": "rejected", "rejected": "accepted", "terminated": "accepted",
                   "answered": "terminated", "none": "human_request", "human_request": "none"}
-
-
-@contextmanager
-def serving(app: FastAPI) -> Iterator[str]:
-    """``app`` under uvicorn in a background thread on a free port of 127.0.0.1."""
-    sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
-    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-    sock.bind(("127.0.0.1", 0))
-    port = sock.getsockname()[1]
-    server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port,
-                                           log_level="warning"))
-    thread = threading.Thread(target=server.run, kwargs={"sockets": [sock]}, daemon=True)
-    thread.start()
-    try:
-        deadline = time.monotonic() + 15
-        while not server.started:
-            assert thread.is_alive(), "uvicorn stopped while starting"
-            assert time.monotonic() < deadline, "uvicorn did not start within 15 s"
-            time.sleep(0.02)
-        yield f"http://127.0.0.1:{port}"
-    finally:
-        server.should_exit = True
-        thread.join(timeout=15)
-        sock.close()
-        assert not thread.is_alive(), "uvicorn did not stop"
 
 
 @dataclass

@@ -14,17 +14,14 @@ from __future__ import annotations
 
 import json
 import random
-import socket
 import threading
 import time
 from collections import Counter, defaultdict
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
 import httpx2
-import uvicorn
 from sqlalchemy import create_engine, select
 
 from app.db.models import Decision, Episode, Feedback, LearnerModel, Sample, User
@@ -544,28 +541,3 @@ def _acked_model_changing(acks: list[Ack]) -> int:
         elif json.loads(a.body)["initiator"] == "human" or a.response["decision"]["chain"]:
             n += 1
     return n
-
-
-# -- running an app in-process -----------------------------------------------------------------
-@contextmanager
-def serving(app: Any) -> Iterator[str]:
-    """An ASGI app under uvicorn in a background thread on a free port of 127.0.0.1."""
-    sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
-    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-    sock.bind(("127.0.0.1", 0))
-    port = sock.getsockname()[1]
-    server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port,
-                                           log_level="warning"))
-    thread = threading.Thread(target=server.run, kwargs={"sockets": [sock]}, daemon=True)
-    thread.start()
-    try:
-        deadline = time.monotonic() + 15
-        while not server.started:
-            assert thread.is_alive(), "uvicorn stopped while starting"
-            assert time.monotonic() < deadline, "uvicorn did not start within 15 s"
-            time.sleep(0.02)
-        yield f"http://127.0.0.1:{port}"
-    finally:
-        server.should_exit = True
-        thread.join(timeout=15)
-        sock.close()

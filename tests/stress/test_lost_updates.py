@@ -15,10 +15,10 @@ import app.services.episodes as episodes_service
 from app.db import migrate
 from app.main import create_app
 from app.settings import Settings
-from tests.live import LiveService, fresh_database
+from tests.live import LiveService, fresh_database, serving
 
 from .helpers import create_users, live_rebuild, make_keys
-from .history import Workload, check_history, serving
+from .history import Workload, check_history
 
 CLIENTS = 32
 
