@@ -41,6 +41,7 @@ __all__ = [
     "overall_stats",
     "play_event",
     "run_fleet",
+    "state_before",
 ]
 
 FIRST_DAY = dt.date(2026, 11, 2)
@@ -157,7 +158,7 @@ def _action(wire: Any) -> Action:
     return Action(ActionKind(wire.kind), wire.service, wire.detail)
 
 
-def _state_before(space: NegotiationSpace, action: Action) -> int:
+def state_before(space: NegotiationSpace, action: Action) -> int:
     """The state the service is in when it asks the robot for ``action``."""
     if action.kind is ActionKind.PERFORM:
         assert action.service is not None
@@ -208,7 +209,7 @@ def play_event(client: RobotClient, space: NegotiationSpace, person: Person, eve
             raise FleetError(f"episode {episode_id} of {person.user_id} asks for more than "
                              f"{MAX_VISIBLE_STEPS} visible steps, the most a negotiation has.")
         action = _action(decision.action)
-        a, s = space.action_index(action), _state_before(space, action)
+        a, s = space.action_index(action), state_before(space, action)
         flips = person.uniforms[event, 2 * step:2 * step + 2]
         reaction = person_responds(space, profile, context, s, a, flips)
         fields = _outcome_fields(space, action.kind, reaction.response, reaction.next_state)

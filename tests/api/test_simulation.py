@@ -26,6 +26,7 @@ from typer.testing import CliRunner
 from app import cli
 from app.db.models import Decision, Episode
 from app.db.session import Database
+from app.fleet.simulate import state_before
 from app.learning import Action, ActionKind, Transition, office_mission, space_for
 from app.learning.experiments import CLASS_CODE, episode_metrics
 from app.learning.learners.base import interaction_class
@@ -122,20 +123,6 @@ def to_action(d: dict[str, Any]) -> Action:
     return Action(ActionKind(d["kind"]), d.get("service"), d.get("detail"))
 
 
-def state_before(action: Action) -> int:
-    """The state the service is in when it asks the robot for ``action``."""
-    if action.kind is ActionKind.PERFORM:
-        assert action.service is not None
-        assert action.detail is not None
-        return SPACE.detail_known_state(action.service, action.detail)
-    if action.kind is ActionKind.QUERY_DETAIL:
-        assert action.service is not None
-        return SPACE.type_known_state(action.service)
-    if action.kind is ActionKind.QUERY_TYPE:
-        return SPACE.ENGAGED
-    return SPACE.OBSERVE
-
-
 def chain_reward(chain: list[dict[str, Any]]) -> float:
     return sum(REWARDS.positive for s in chain if s["action"]["kind"] == "respond")
 
@@ -191,7 +178,7 @@ def play_event(client: TestClient, user: SimUser, e: int, *,
         assert step < 4, "an episode longer than a negotiation"
         check_decision(decision)
         action = to_action(decision["action"])
-        a, s = SPACE.action_index(action), state_before(action)
+        a, s = SPACE.action_index(action), state_before(SPACE, action)
         assert SPACE.is_valid(s, a)
         reaction = respond(SPACE, profile, context, s, a, user.uniforms[e, 2 * step:2 * step + 2])
         assert reaction.response in decision["expects"]
@@ -219,7 +206,7 @@ def play_event(client: TestClient, user: SimUser, e: int, *,
             assert reaction.next_state == SPACE.END
         else:
             assert out["episode"]["status"] == "open"
-            nxt = state_before(to_action(decision["action"]))
+            nxt = state_before(SPACE, to_action(decision["action"]))
             assert out["episode"]["state"] == SPACE.state_info(nxt).kind.value
         step += 1
         if step == 1 and after_first_outcome is not None:
