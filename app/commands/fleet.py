@@ -106,8 +106,8 @@ def _plot(path: Path, stats: dict[str, dict[str, Any]], change_at: int | None, t
 @fleet.command("simulate")
 def simulate(
     key: Annotated[str, typer.Option(envvar="ATTUNE_KEY", show_default=False,
-                                     help="A robot (or admin) API key [env: ATTUNE_KEY].")],
-    url: Annotated[str, typer.Option(envvar="ATTUNE_URL", help="The service [env: ATTUNE_URL].")
+                                     help="A robot (or admin) API key.")],
+    url: Annotated[str, typer.Option(envvar="ATTUNE_URL", help="The service's base URL.")
                    ] = "http://127.0.0.1:8000",
     robots: Annotated[int, typer.Option(min=1, max=64, help="Concurrent robots.")] = 4,
     users: Annotated[int, typer.Option(min=1, max=1000, help="Simulated people.")] = 6,
