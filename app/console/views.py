@@ -68,6 +68,7 @@ def heat_class(p: float | None) -> str:
 # -- labels ----------------------------------------------------------------------------------
 _KEY_PARAM = {"hri": ("tau", "τ"), "dts": ("forgetting", "λ"), "rmax": ("m", "m"),
               "qlearning": ("exploration", "")}
+_EXPLORATION = {"epsilon": "ε-greedy", "boltzmann": "Boltzmann"}
 
 
 def learner_summary(algorithm: str, params: dict[str, object]) -> str:
@@ -75,7 +76,9 @@ def learner_summary(algorithm: str, params: dict[str, object]) -> str:
     key, symbol = _KEY_PARAM.get(algorithm, ("", ""))
     if key not in params:
         return algorithm
-    return f"{algorithm} {symbol}={params[key]}" if symbol else f"{algorithm} {params[key]}"
+    if symbol:
+        return f"{algorithm} {symbol}={params[key]}"
+    return f"{algorithm} {_EXPLORATION.get(str(params[key]), params[key])}"
 
 
 def action_arg(action: ActionOut) -> str | None:

@@ -8,7 +8,14 @@ from typing import Any
 import pytest
 
 from app.console.auth import csrf_token, safe_next
-from app.console.views import curve, expectation, fmt_count, fmt_measure, heat_class
+from app.console.views import (
+    curve,
+    expectation,
+    fmt_count,
+    fmt_measure,
+    heat_class,
+    learner_summary,
+)
 from app.schemas.models import ContextModel
 
 
@@ -110,3 +117,11 @@ def test_the_csrf_token_is_derived_from_the_key_and_hides_it() -> None:
     assert token != csrf_token("att_other")
     assert "att_secret" not in token
     assert len(token) == 64
+
+
+def test_learner_summary_names_the_variant() -> None:
+    assert learner_summary("hri", {"tau": 0.01}) == "hri τ=0.01"
+    assert learner_summary("rmax", {"m": 2}) == "rmax m=2"
+    assert learner_summary("qlearning", {"exploration": "epsilon"}) == "qlearning ε-greedy"
+    assert learner_summary("qlearning", {"exploration": "boltzmann"}) == "qlearning Boltzmann"
+    assert learner_summary("someday", {}) == "someday"
