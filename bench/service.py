@@ -30,6 +30,7 @@ counted), a request timeout of 10 s, and every seeding loop bounded in count.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
 import os
@@ -296,8 +297,13 @@ def wait_ready(url: str, proc: subprocess.Popen[bytes], log: Path, timeout: floa
 
 
 @contextmanager
-def server(kind: str, workers: int, workdir: Path, database_url: str = "") -> Iterator[str]:
-    """``attune serve`` (kind "service") or the reference app, on a free port; its base URL."""
+def server(kind: str, workers: int, workdir: Path, database_url: str = "",
+           profile: Path | None = None) -> Iterator[str]:
+    """``attune serve`` (kind "service") or the reference app, on a free port; its base URL.
+
+    With ``profile``, the service runs under py-spy, which writes a flame graph of all its
+    processes there when the server stops.
+    """
     port = free_port()
     log = workdir / f"{kind}-{port}.log"
     env = {**os.environ, "ATTUNE_DATABASE_URL": database_url, "ATTUNE_LOG_LEVEL": "warning",
@@ -306,6 +312,11 @@ def server(kind: str, workers: int, workdir: Path, database_url: str = "") -> It
     if kind == "service":
         cmd = [ATTUNE, "serve", "--host", "127.0.0.1", "--port", str(port),
                "--workers", str(workers)]
+        if profile is not None:
+            profile.mkdir(parents=True, exist_ok=True)
+            svg = profile / f"{Path(database_url.split('?')[0]).name or 'db'}-{port}.svg"
+            cmd = [str(Path(sys.executable).with_name("py-spy")), "record", "--subprocesses",
+                   "--rate", "100", "--format", os.environ.get("BENCH_PYSPY_FORMAT", "flamegraph"), "--output", str(svg), "--", *cmd]
         probe = f"http://127.0.0.1:{port}/readyz"
     else:
         cmd = [sys.executable, __file__, "--serve-reference", str(port), str(workers)]
@@ -317,8 +328,15 @@ def server(kind: str, workers: int, workdir: Path, database_url: str = "") -> It
         wait_ready(probe, proc, log)
         yield f"http://127.0.0.1:{port}"
     finally:
-        if proc.poll() is None:
+        if profile is not None and kind == "service" and proc.poll() is None:
+            os.kill(proc.pid, signal.SIGINT)  # py-spy writes its flame graph on SIGINT
+            try:
+                proc.wait(timeout=60)
+            except subprocess.TimeoutExpired:
+                pass
+        with contextlib.suppress(ProcessLookupError):  # the service, once py-spy is gone
             os.killpg(proc.pid, signal.SIGTERM)
+        if proc.poll() is None:
             try:
                 proc.wait(timeout=20)
             except subprocess.TimeoutExpired:
@@ -525,7 +543,7 @@ class Bench:
                 try:
                     keys = data.keys(max(args.clients))
                     self.say(f"[bold]{engine}[/bold], {workers} worker(s): attune serve")
-                    with server("service", workers, workdir, db_url) as url:
+                    with server("service", workers, workdir, db_url, self.args.profile) as url:
                         for c in args.clients:
                             users = [f"c{c}-robot{i}" for i in range(1, c + 1)]
                             self.run_service(url, data, workdir, keys, users, engine, workers,
@@ -557,7 +575,7 @@ class Bench:
 
         data.history("big", args.episodes, tick)
         self.say(f"  done in {time.perf_counter() - t:.1f} s")
-        with server("service", workers, workdir, db_url) as url:
+        with server("service", workers, workdir, db_url, self.args.profile) as url:
             wide = 8 if 8 in args.clients else max(args.clients)
             spread = max(1, args.users // wide)
             users = [f"pop{i * spread + spread // 2:06d}" for i in range(wide)]
@@ -699,6 +717,9 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true",
                         help="a short check: 8 clients, 2 s runs, 2,000 users, 200 episodes")
     parser.add_argument("--json", type=Path, help="also write the figures here")
+    parser.add_argument("--profile", type=Path, metavar="DIR",
+                        help="run the service under py-spy and write its flame graphs (SVG) "
+                        "to DIR; the figures then include the profiler's cost")
     args = parser.parse_args()
     if args.quick:
         args.clients, args.duration, args.users, args.episodes = "8", 2.0, 2000, 200

@@ -13,10 +13,13 @@ import secrets
 from dataclasses import dataclass
 from typing import Any
 
+from sqlalchemy import Connection
 from sqlalchemy.orm import Session
 
-from app.db.models import Decision, Episode, Feedback, User
+from app.db.models import Episode, Feedback, User
 from app.db.repositories import episodes as repo
+from app.db.repositories import negotiation as neg
+from app.db.repositories.negotiation import DecisionRec, EpisodeRec, UserRec
 from app.db.types import utcnow
 from app.errors import Conflict, NotFound, ValidationFailed
 from app.learning import Action, ActionKind, Observation, Polarity, Transition
@@ -41,7 +44,7 @@ from app.schemas.episodes import (
 )
 
 from .context import Principal, ServiceContext, body_hash, rng_for
-from .learners import learner_for_update, save_feedback, save_update
+from .learners import learner_for_update, learner_for_write, save_feedback, store_update
 from .users import ensure_user, visible_user
 
 __all__ = ["EXPECTS", "add_feedback", "get_trace", "list_episodes", "report_outcome",
@@ -90,7 +93,7 @@ def _chain_out(ctx: ServiceContext, chain: list[dict[str, Any]]) -> list[Probabi
     return [ProbabilityOut(action=_action_out(ctx, s["action"]), p=s["p"]) for s in chain]
 
 
-def _decision_out(ctx: ServiceContext, row: Decision) -> DecisionOut:
+def _decision_out(ctx: ServiceContext, row: DecisionRec) -> DecisionOut:
     kind = ctx.space.actions[row.action].kind
     return DecisionOut(
         decision_id=row.id, action=_action_out(ctx, row.action), expects=list(EXPECTS[kind]),
@@ -99,7 +102,7 @@ def _decision_out(ctx: ServiceContext, row: Decision) -> DecisionOut:
     )
 
 
-def _brief(ctx: ServiceContext, ep: Episode) -> EpisodeBrief:
+def _brief(ctx: ServiceContext, ep: Episode | EpisodeRec) -> EpisodeBrief:
     return EpisodeBrief(episode_id=ep.id, status=ep.status,  # type: ignore[arg-type]
                         state=_state_name(ctx, ep.state), total_reward=ep.total_reward)
 
@@ -133,13 +136,15 @@ def _check_service(ctx: ServiceContext, service: str | None, detail: str | None,
 
 
 class _Step:
-    """Draws decisions for one write and collects the transitions to teach the learner."""
+    """Draws decisions for one write and collects what it changes: the new decision rows and
+    the transitions to teach the learner (the caller stores both)."""
 
-    def __init__(self, session: Session, ctx: ServiceContext, user: User, episode: Episode,
+    def __init__(self, ctx: ServiceContext, user: UserRec, episode: EpisodeRec,
                  learner: TabularLearner[Any], model_version: int, *, position: int) -> None:
-        self.session, self.ctx, self.user, self.episode = session, ctx, user, episode
+        self.ctx, self.user, self.episode = ctx, user, episode
         self.learner, self.model_version = learner, model_version
         self.transitions: list[Transition] = []
+        self.new_rows: list[DecisionRec] = []
         self._position = position  # of the next decision row in the episode
 
     def _draw(self, state: int) -> tuple[Drawn, int]:
@@ -150,15 +155,15 @@ class _Step:
         return self.learner.select_action(obs, rng), draw
 
     def _row(self, drawn: Drawn, draw: int, chain: list[dict[str, Any]], *, forced: bool,
-             action: int | None = None) -> Decision:
-        row = Decision(
+             action: int | None = None) -> DecisionRec:
+        row = DecisionRec(
             id=_new_id("dec_"), episode_id=self.episode.id,
             position=self._next_position(), state=drawn.state,
             action=drawn.action if action is None else action,
             probabilities=[float(p) for p in drawn.probabilities], chain=chain, draw=draw,
             forced=forced, model_version=self.model_version, decided_at=utcnow(),
         )
-        self.session.add(row)
+        self.new_rows.append(row)
         return row
 
     def _next_position(self) -> int:
@@ -172,7 +177,7 @@ class _Step:
                                            state,
                                            action, float(reward), next_state, signal))
 
-    def decide(self, state: int, *, forced_path: list[int] | None = None) -> Decision:
+    def decide(self, state: int, *, forced_path: list[int] | None = None) -> DecisionRec:
         """The next visible decision from ``state``; ``forced_path`` are silent actions the
         person settled (a request's type and detail), taken before the learner chooses."""
         chain: list[dict[str, Any]] = []
@@ -194,7 +199,7 @@ class _Step:
         self.episode.state = drawn.state
         return self._row(drawn, draw, chain, forced=False)
 
-    def human_root(self, service: str | None, detail: str | None) -> Decision:
+    def human_root(self, service: str | None, detail: str | None) -> DecisionRec:
         """The root of a human-initiated episode: the robot was passive, the person asked."""
         space = self.ctx.space
         drawn, draw = self._draw(space.OBSERVE)
@@ -204,7 +209,7 @@ class _Step:
         self.teach(space.OBSERVE, space.PASS, 0.0, nxt, Polarity.POSITIVE)
         return row
 
-    def answer(self, row: Decision, response: str, service: str | None, detail: str | None,
+    def answer(self, row: DecisionRec, response: str, service: str | None, detail: str | None,
                 feedback: str | None, reward: float, next_state: int) -> None:
         row.response, row.service, row.detail, row.feedback = response, service, detail, feedback
         row.reward, row.next_state, row.answered_at = reward, next_state, utcnow()
@@ -223,7 +228,8 @@ class _Step:
         if next_state == space.END:
             ep.status, ep.closed_at = "closed", utcnow()
 
-    def after_request(self, state: int, service: str | None, detail: str | None) -> Decision:
+    def after_request(self, state: int, service: str | None, detail: str | None
+                      ) -> DecisionRec:
         """Continue after a person's request: respond, and infer the detail if they gave it."""
         space = self.ctx.space
         if service is None:
@@ -235,6 +241,19 @@ class _Step:
 
 
 # -- use cases ---------------------------------------------------------------------------------
+def _locked_user(session: Session, conn: Connection, ctx: ServiceContext,
+                 principal: Principal, user_id: str) -> UserRec:
+    """Lock the user, creating it in the caller's fleet on its first event (404 for another
+    fleet's user)."""
+    user = neg.lock_user(conn, user_id)
+    if user is None:  # once per user: the ORM path builds the fresh learner and its state
+        ensure_user(session, ctx, principal, user_id)
+        user = neg.lock_user(conn, user_id)
+    if user is None or (not principal.is_admin and user.fleet != principal.fleet):
+        raise NotFound(f"No user {user_id!r} in your fleet.")
+    return user
+
+
 def start_episode(
     session: Session, ctx: ServiceContext, principal: Principal, user_id: str, body: EpisodeIn
 ) -> Written:
@@ -246,19 +265,24 @@ def start_episode(
             raise ValidationFailed("request is only for initiator human (the person asked).")
         _check_service(ctx, body.request.service, body.request.detail, need_service=True,
                        need_detail=False)
-    user, _ = ensure_user(session, ctx, principal, user_id)
-    earlier = repo.get_episode_by_event(session, user_id, body.event_id)
+    conn = session.connection()
+    user = _locked_user(session, conn, ctx, principal, user_id)
+    earlier = neg.episode_by_event(conn, user_id, body.event_id)
     if earlier is not None:
-        if earlier.request_hash != digest:
+        request_hash, response = earlier
+        if request_hash != digest:
             raise Conflict(f"event_id {body.event_id!r} was already used with another body.")
-        return Written(earlier.response, 200, True)
+        return Written(response, 200, True)
 
     local = body.occurred_at.timetz().replace(tzinfo=None)
     slot = ctx.mission.slot_at(local)
     context = ctx.mission.context_index(slot, body.situation)
-    model, learner = learner_for_update(session, ctx, user)
+    model = neg.model_of(conn, user_id)
+    if model is None:  # every user is created with its model; only a broken database lacks it
+        raise RuntimeError(f"user {user_id!r} has no model row")
+    learner = learner_for_write(conn, ctx, user_id, model.version)
     user.episode_count += 1
-    episode = Episode(
+    episode = EpisodeRec(
         id=_new_id("ep_"), user_id=user_id, seq=user.episode_count,
         learner_episode=user.episode_count + model.episode_offset, event_id=body.event_id,
         robot_id=body.robot_id, occurred_at=body.occurred_at.astimezone(dt.UTC),
@@ -267,11 +291,9 @@ def start_episode(
         request_detail=body.request.detail if body.request else None,
         status="open", state=ctx.space.OBSERVE, total_reward=0.0, interaction_class="none",
         initiated=False, success=False, queries=0, request_hash=digest, response={},
-        created_at=utcnow(),
+        created_at=utcnow(), closed_at=None,
     )
-    session.add(episode)
-    session.flush()  # decisions reference it (no ORM relationship orders the inserts)
-    step = _Step(session, ctx, user, episode, learner, model.version, position=0)
+    step = _Step(ctx, user, episode, learner, model.version, position=0)
     if body.initiator == "human":
         service = body.request.service if body.request else None
         detail = body.request.detail if body.request else None
@@ -279,7 +301,6 @@ def start_episode(
         decision = step.after_request(int(root.next_state or 0), service, detail)
     else:
         decision = step.decide(ctx.space.OBSERVE)
-    save_update(session, ctx, user, model, learner, step.transitions)
     out = EpisodeCreated(
         episode_id=episode.id, user_id=user_id, status="open",
         context=ContextOut(time_slot=slot, situation=body.situation),
@@ -287,7 +308,10 @@ def start_episode(
         decision=_decision_out(ctx, decision),
     ).model_dump(mode="json")
     episode.response = out
-    session.flush()
+    neg.insert_episode(conn, episode)  # before its decisions, which reference it
+    neg.insert_decisions(conn, step.new_rows)
+    neg.save_user_counters(conn, user)
+    store_update(session, conn, ctx, user_id, model, learner, step.transitions)
     return Written(out, 201, False)
 
 
@@ -303,7 +327,7 @@ def _owned_episode(session: Session, principal: Principal, episode_id: str, *,
     return user, episode
 
 
-def _transition_of(ctx: ServiceContext, row: Decision, body: OutcomeIn) -> tuple[float, int,
+def _transition_of(ctx: ServiceContext, row: DecisionRec, body: OutcomeIn) -> tuple[float, int,
                                                                                  Polarity]:
     """(reward, next state, signal) of the person's response to a decision."""
     space, rw = ctx.space, ctx.mission.rewards
@@ -329,7 +353,7 @@ def _transition_of(ctx: ServiceContext, row: Decision, body: OutcomeIn) -> tuple
     return rw.positive + rw.accepted_service, END, Polarity.POSITIVE  # perform accepted
 
 
-def _check_outcome(ctx: ServiceContext, row: Decision, body: OutcomeIn) -> None:
+def _check_outcome(ctx: ServiceContext, row: DecisionRec, body: OutcomeIn) -> None:
     action = ctx.space.actions[row.action]
     allowed = EXPECTS[action.kind]
     if body.response not in allowed:
@@ -364,16 +388,21 @@ def report_outcome(
 ) -> Written:
     """What the person did after the robot's action: reward, learning, the next decision."""
     digest = body_hash(body)
-    user, episode = _owned_episode(session, principal, episode_id, lock=True)
-    row = repo.get_decision(session, episode_id, body.decision_id)
+    conn = session.connection()
+    user = neg.lock_user_of_episode(conn, episode_id)
+    loaded = neg.load_episode(conn, episode_id) if user is not None else None
+    if user is None or loaded is None or (not principal.is_admin
+                                          and user.fleet != principal.fleet):
+        raise NotFound(f"No episode {episode_id!r} in your fleet.")
+    episode, model, current = loaded
+    row = current if current is not None and current.id == body.decision_id \
+        else neg.decision_by_id(conn, episode_id, body.decision_id)
     if row is not None and row.outcome_hash is not None:
         if row.outcome_hash != digest:
             raise Conflict(f"Decision {body.decision_id!r} already has a different outcome.")
         return Written(row.outcome_response or {}, 200, True)
     if episode.status != "open":
         raise Conflict(f"Episode {episode_id!r} is closed; it takes no more outcomes.")
-    decisions = repo.list_decisions(session, episode_id)
-    current = decisions[-1] if decisions else None
     if row is None or current is None or row.id != current.id:
         raise Conflict(
             f"Decision {body.decision_id!r} is not the current decision of episode "
@@ -384,9 +413,8 @@ def report_outcome(
     rw = ctx.mission.rewards
     if body.feedback is not None:
         reward += rw.positive if body.feedback == "positive" else rw.negative
-    model, learner = learner_for_update(session, ctx, user)
-    step = _Step(session, ctx, user, episode, learner, model.version,
-                 position=len(decisions))
+    learner = learner_for_write(conn, ctx, user.user_id, model.version)
+    step = _Step(ctx, user, episode, learner, model.version, position=row.position + 1)
     service = body.service if body.response in ("human_request", "answered") else row.service
     detail = body.detail if body.response in ("human_request", "answered") else row.detail
     step.answer(row, body.response, service, detail, body.feedback, reward, next_state)
@@ -394,19 +422,23 @@ def report_outcome(
     # The next decision is drawn before the learner is taught this outcome, so that the write
     # makes one ``update`` call (one version). In a context the negotiation is a DAG: learning
     # about the step just answered cannot change the values of the states after it.
-    decision: Decision | None = None
+    decision: DecisionRec | None = None
     if next_state != ctx.space.END:
         if body.response == "human_request":
             decision = step.after_request(next_state, body.service, body.detail)
         else:
             decision = step.decide(next_state)
-    save_update(session, ctx, user, model, learner, step.transitions)
     out = OutcomeOut(
         reward=reward, episode=_brief(ctx, episode),
         decision=_decision_out(ctx, decision) if decision is not None else None,
     ).model_dump(mode="json")
     row.outcome_hash, row.outcome_response = digest, out
-    session.flush()
+    neg.save_answer(conn, row)
+    neg.insert_decisions(conn, step.new_rows)
+    neg.save_episode(conn, episode)
+    if step.new_rows:
+        neg.save_user_counters(conn, user)
+    store_update(session, conn, ctx, user.user_id, model, learner, step.transitions)
     return Written(out, 200, False, ctx.space.actions[row.action].kind.value)
 
 

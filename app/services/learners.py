@@ -5,10 +5,12 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
+from sqlalchemy import Connection
 from sqlalchemy.orm import Session
 
 from app.db.models import LearnerModel, User
 from app.db.repositories import episodes as episodes_repo
+from app.db.repositories import negotiation as neg
 from app.db.repositories import users as users_repo
 from app.db.types import utcnow
 from app.errors import ValidationFailed
@@ -17,8 +19,8 @@ from app.learning.learners import TabularLearner
 
 from .context import ServiceContext, after_commit
 
-__all__ = ["fresh_learner", "learner_for_update", "learner_for_read", "save_feedback",
-           "save_update"]
+__all__ = ["fresh_learner", "learner_for_read", "learner_for_update", "learner_for_write",
+           "save_feedback", "store_update"]
 
 
 def fresh_learner(
@@ -63,24 +65,35 @@ def _commit_hook(session: Session, ctx: ServiceContext, user_id: str, model: Lea
     after_commit(session, lambda: ctx.cache.put(user_id, version, learner))
 
 
-def save_update(
-    session: Session, ctx: ServiceContext, user: User, model: LearnerModel,
+def learner_for_write(conn: Connection, ctx: ServiceContext, user_id: str, version: int
+                      ) -> TabularLearner[Any]:
+    """The robots' write path's learner at model ``version``: the cached one, else decoded from
+    the stored state; the caller holds the user lock."""
+    learner = ctx.cache.take(user_id, version)
+    if learner is None:
+        learner = learner_from_state(neg.model_state(conn, user_id), ctx.mission)
+    return learner
+
+
+def store_update(
+    session: Session, conn: Connection, ctx: ServiceContext, user_id: str, model: neg.ModelRec,
     learner: TabularLearner[Any], transitions: Sequence[Transition],
 ) -> None:
-    """Teach the learner one report's transitions and store state and journal together."""
+    """Teach the learner one report's transitions and store state and journal together (one
+    new version); the cache gets the learner back once the transaction commits."""
     if transitions:
         learner.update(transitions)
         model.version += 1
-        model.state = learner.to_state()
-        model.updated_at = utcnow()
-        episodes_repo.add_samples(session, [
-            {"user_id": user.user_id, "version": model.version, "kind": "transition",
+        neg.save_model(conn, user_id, version=model.version, state=learner.to_state(),
+                       updated_at=utcnow(), samples=[
+            {"user_id": user_id, "version": model.version, "kind": "transition",
              "episode": tr.episode, "context": tr.context, "state": tr.state,
              "action": tr.action, "reward": float(tr.reward), "next_state": tr.next_state,
              "signal": int(tr.signal)}
             for tr in transitions
         ])
-    _commit_hook(session, ctx, user.user_id, model, learner)
+    version = model.version
+    after_commit(session, lambda: ctx.cache.put(user_id, version, learner))
 
 
 def save_feedback(
