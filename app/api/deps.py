@@ -1,12 +1,22 @@
-"""Annotated dependencies: the request's session (which owns the transaction), the caller, the
-service context."""
+"""Annotated dependencies: the request's session, the caller, the service context.
+
+A request costs the event loop one hop to the thread pool for the caller's key (a short read
+of its own) and one for the route, whose whole transaction runs in that one thread
+(:class:`TransactionalRoute`): between the first statement and the commit nothing waits for the
+event loop, so a writer holds a user's lock (and SQLite's write lock) only while it works.
+"""
 
 from __future__ import annotations
 
-from collections.abc import Iterator
-from typing import Annotated
+import functools
+import inspect
+import logging
+from collections.abc import AsyncIterator, Callable
+from contextlib import AbstractContextManager
+from typing import Annotated, Any
 
 from fastapi import Depends, Header, Request
+from fastapi.routing import APIRoute
 from sqlalchemy.orm import Session
 
 from app.db.session import Database
@@ -16,31 +26,73 @@ from app.services.context import Principal, ServiceContext
 
 from .middleware import KeyRateLimiter
 
-__all__ = ["ContextDep", "CurrentPrincipal", "SessionDep"]
+__all__ = ["ContextDep", "CurrentPrincipal", "SessionDep", "TransactionalRoute", "read_transaction",
+           "writes"]
+
+log = logging.getLogger("attune.api")
 
 _WRITES = {"POST", "PUT", "PATCH", "DELETE"}
-# GET routes that write nonetheless: an export is an admin action and leaves an audit entry.
-_AUDITED_READS = {"export_model"}
+_WRITE_MARK = "__attune_writes__"
+_DB = "attune_db"
 
 
-def get_session(request: Request) -> Iterator[Session]:
-    """One transaction per request: committed when the route returns, rolled back if it raises.
+def writes(endpoint: Callable[..., Any]) -> Callable[..., Any]:
+    """Mark a GET route that writes nonetheless (an admin action that leaves an audit entry):
+    its transaction is a write transaction."""
+    setattr(endpoint, _WRITE_MARK, True)
+    return endpoint
 
-    Writes start as write transactions (SQLite: ``BEGIN IMMEDIATE``). The commit happens before
-    the response is sent (``scope="function"``), so a client never sees a success that was not
-    stored; the learner cache is refreshed only after the commit.
+
+async def get_session(request: Request) -> AsyncIterator[Session]:
+    """The request's session, not yet begun: the route's own thread runs its transaction
+    (``TransactionalRoute``), committed before the response is sent, or rolled back if the
+    route raises; the learner cache is refreshed only after the commit.
+
+    Writes are write transactions (SQLite: ``BEGIN IMMEDIATE``); so is a route marked with
+    :func:`writes`.
     """
     db: Database = request.app.state.db
     route = request.scope.get("route")
-    write = request.method in _WRITES or getattr(route, "name", None) in _AUDITED_READS
-    with db.transaction(write=write) as session:
+    write = request.method in _WRITES or getattr(getattr(route, "endpoint", None),
+                                                 _WRITE_MARK, False)
+    session = db.session(write=write)
+    session.info[_DB] = (db, write)
+    try:
         yield session
+    finally:
+        if session.in_transaction():  # a route outside TransactionalRoute: never commit it
+            log.error("the session of %s %s was used outside its route's transaction; "
+                      "rolled back", request.method, request.url.path)
+        session.close()
 
 
 SessionDep = Annotated[Session, Depends(get_session, scope="function")]
 
 
-def get_context(request: Request) -> ServiceContext:
+def _in_transaction(endpoint: Callable[..., Any]) -> Callable[..., Any]:
+    if inspect.iscoroutinefunction(endpoint) or \
+            "session" not in inspect.signature(endpoint).parameters:
+        return endpoint
+
+    @functools.wraps(endpoint)
+    def run(*args: Any, **kwargs: Any) -> Any:
+        session: Session = kwargs["session"]
+        db, write = session.info[_DB]
+        with db.within(session, write=write):
+            return endpoint(*args, **kwargs)
+
+    return run
+
+
+class TransactionalRoute(APIRoute):
+    """A route whose ``session`` parameter's transaction runs inside the route's own call (in
+    the thread pool): first statement, work, commit and after-commit callbacks in one thread."""
+
+    def __init__(self, path: str, endpoint: Callable[..., Any], **kwargs: Any) -> None:
+        super().__init__(path, _in_transaction(endpoint), **kwargs)
+
+
+async def get_context(request: Request) -> ServiceContext:
     ctx: ServiceContext = request.app.state.ctx
     return ctx
 
@@ -48,13 +100,23 @@ def get_context(request: Request) -> ServiceContext:
 ContextDep = Annotated[ServiceContext, Depends(get_context)]
 
 
+def read_transaction(request: Request) -> AbstractContextManager[Session]:
+    """A short read transaction of its own (for the caller's key, before the route runs)."""
+    db: Database = request.app.state.db
+    return db.transaction(write=False)
+
+
 def current_principal(
     request: Request,
-    session: SessionDep,
     authorization: Annotated[str | None, Header(include_in_schema=False)] = None,
 ) -> Principal:
-    """The caller, once its key is known and within its rate limit (else 401 / 429)."""
-    principal = authenticate(session, authorization)
+    """The caller, once its key is known and within its rate limit (else 401 / 429).
+
+    The key is read in a short read transaction of its own, so the route's transaction begins
+    only in the route.
+    """
+    with read_transaction(request) as session:
+        principal = authenticate(session, authorization)
     limiter: KeyRateLimiter = request.app.state.limiter
     wait = limiter.acquire(principal.key_id)
     if wait:

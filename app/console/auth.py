@@ -17,7 +17,7 @@ from urllib.parse import parse_qsl, urlsplit
 
 from fastapi import Depends, Request
 
-from app.api.deps import SessionDep
+from app.api.deps import SessionDep, read_transaction
 from app.errors import Forbidden, Unauthorized
 from app.services.auth import authenticate, require_admin
 from app.services.context import Principal
@@ -75,12 +75,15 @@ def sign_in(session: SessionDep, secret: str) -> Principal:
     return principal
 
 
-def current_admin(request: Request, session: SessionDep) -> Admin:
+def current_admin(request: Request) -> Admin:
+    """The signed-in admin (the key is read in a short read transaction of its own, as for
+    the API's keys)."""
     secret = request.cookies.get(COOKIE)
     if not secret:
         path = request.url.path + (f"?{request.url.query}" if request.url.query else "")
         raise LoginRequired(path)
-    return Admin(sign_in(session, secret), csrf_token(secret))
+    with read_transaction(request) as session:
+        return Admin(sign_in(session, secret), csrf_token(secret))
 
 
 AdminDep = Annotated[Admin, Depends(current_admin)]

@@ -18,10 +18,9 @@ from urllib.parse import quote
 from fastapi import APIRouter, Query, Request, Response
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import HTMLResponse, JSONResponse, RedirectResponse
-from fastapi.routing import APIRoute
 from fastapi.templating import Jinja2Templates
 
-from app.api.deps import ContextDep, SessionDep
+from app.api.deps import ContextDep, SessionDep, TransactionalRoute, writes
 from app.errors import AppError
 from app.schemas.common import CLIENT_ID_PATTERN
 from app.services import console as console_service
@@ -74,7 +73,7 @@ def _error_page(request: Request, status: int, title: str, detail: str) -> HTMLR
     }, status_code=status)
 
 
-class ConsoleRoute(APIRoute):
+class ConsoleRoute(TransactionalRoute):
     """Turns the console's refusals and the services' errors into pages (the v1 API's handlers
     answer JSON), and adds the pages' security headers."""
 
@@ -289,6 +288,7 @@ def trace_fragment(
 # Named as the API's export route on purpose: an export leaves an audit entry, and the session
 # dependency opens a write transaction for the routes of that name.
 @router.get("/users/{user_id}/export")
+@writes  # an export is an admin action: it leaves an audit entry
 def export_model(user_id: str, session: SessionDep, ctx: ContextDep,
                  admin: AdminDep) -> JSONResponse:
     """Download the model document of GET /v1/users/{id}/model/export."""

@@ -61,16 +61,22 @@ class Database:
     def transaction(self, *, write: bool = True) -> Iterator[Session]:
         """A session whose transaction commits at the end of the block, or rolls back; then the
         callbacks registered for after the commit run (``app.services.context.after_commit``)."""
+        with self.session(write=write) as session, self.within(session, write=write):
+            yield session
+
+    @contextmanager
+    def within(self, session: Session, *, write: bool) -> Iterator[None]:
+        """Run a block as ``session``'s whole transaction: take the write turn (SQLite), commit
+        at the end or roll back, then run the after-commit callbacks, still in the turn (the
+        next writer finds the cache filled). The block's first statement begins it."""
         with self._write_turn(write):
-            with self.session(write=write) as session:
-                try:
-                    yield session
-                    session.commit()
-                except BaseException:
-                    session.rollback()
-                    raise
-                callbacks = session.info.pop("after_commit", [])
-            for callback in callbacks:  # still our turn: the next writer finds the cache filled
+            try:
+                yield
+                session.commit()
+            except BaseException:
+                session.rollback()
+                raise
+            for callback in session.info.pop("after_commit", []):
                 callback()
 
     @contextmanager

@@ -90,7 +90,8 @@ class Params:
         return cls(**data)
 
     def to_dict(self) -> dict[str, Any]:
-        return dataclasses.asdict(self)
+        # The fields are scalars, so a shallow copy is the whole of it (asdict deep-copies).
+        return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
 
 
 @dataclass(frozen=True)

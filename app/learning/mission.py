@@ -281,8 +281,7 @@ class Mission:
     @property
     def fingerprint(self) -> str:
         """A digest of everything that shapes a learner's tables, to match exported states."""
-        canonical = json.dumps(self.to_dict(), sort_keys=True, separators=(",", ":"))
-        return "sha256:" + hashlib.sha256(canonical.encode()).hexdigest()[:32]
+        return _fingerprint(self)
 
     @classmethod
     def from_dict(cls, data: object, *, source: str = "mission") -> Mission:
@@ -395,3 +394,10 @@ _OFFICE = Path(__file__).with_name("missions") / "office.json"
 def office_mission() -> Mission:
     """The paper's office mission (algorithm.md sections 1-2), loaded from the packaged JSON."""
     return load_mission(_OFFICE)
+
+
+@functools.lru_cache(maxsize=16)
+def _fingerprint(mission: Mission) -> str:
+    # Every saved learner state carries it, so it is computed once per mission.
+    canonical = json.dumps(mission.to_dict(), sort_keys=True, separators=(",", ":"))
+    return "sha256:" + hashlib.sha256(canonical.encode()).hexdigest()[:32]

@@ -15,6 +15,7 @@ from app.db.repositories import users as users_repo
 from app.errors import ValidationFailed
 from app.learning import Observation, StateFormatError, Transition, learner_from_state
 from app.learning.experiments import episode_metrics
+from app.learning.state import same_state
 from app.schemas.models import ActionBelief, ContextModel, ModelOut, StateModel, StatsOut
 
 from . import audit
@@ -194,5 +195,6 @@ def rebuild_model(session: Session, ctx: ServiceContext, principal: Principal, u
             report.mismatched_decisions.append(decision.id)
     apply_through(model.version)
     report.rebuilt = learner.to_state()
-    report.identical = report.rebuilt == model.state and not report.mismatched_decisions
+    report.identical = same_state(report.rebuilt, model.state) \
+        and not report.mismatched_decisions
     return report

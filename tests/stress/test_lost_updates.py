@@ -67,16 +67,16 @@ def _in_process_run(url: str, *, clients: int = 8) -> tuple[list[str], Workload,
 
 def test_the_check_reports_a_lost_model_update(monkeypatch: pytest.MonkeyPatch) -> None:
     """Break the update path: every 4th write is acknowledged, but its learning is not saved."""
-    real = episodes_service.save_update
+    real = episodes_service.store_update
     calls = {"n": 0}
 
-    def lossy_save_update(*args: object, **kwargs: object) -> None:
+    def lossy_store_update(*args: object, **kwargs: object) -> None:
         calls["n"] += 1
         if calls["n"] % 4 == 0:
             return  # the write's transitions never reach the model or the journal
         real(*args, **kwargs)  # type: ignore[arg-type]
 
-    monkeypatch.setattr(episodes_service, "save_update", lossy_save_update)
+    monkeypatch.setattr(episodes_service, "store_update", lossy_store_update)
     with fresh_database("sqlite") as url:
         findings, _, _ = _in_process_run(url)
     assert calls["n"] >= 8

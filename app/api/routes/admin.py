@@ -4,12 +4,12 @@ from typing import Annotated
 
 from fastapi import APIRouter, Query
 
-from app.api.deps import CurrentPrincipal, SessionDep
+from app.api.deps import CurrentPrincipal, SessionDep, TransactionalRoute
 from app.api.errors import responses
 from app.schemas.audit import AuditList
 from app.services import audit as service
 
-router = APIRouter(prefix="/v1/admin", tags=["admin"])
+router = APIRouter(prefix="/v1/admin", tags=["admin"], route_class=TransactionalRoute)
 
 
 @router.get("/audit", response_model=AuditList, responses=responses(403))

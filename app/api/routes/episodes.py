@@ -5,7 +5,7 @@ from typing import Annotated
 from fastapi import APIRouter, Query, Request
 from fastapi.responses import JSONResponse
 
-from app.api.deps import ContextDep, CurrentPrincipal, SessionDep
+from app.api.deps import ContextDep, CurrentPrincipal, SessionDep, TransactionalRoute
 from app.api.errors import responses
 from app.api.links import EPISODE_LINKS, OUTCOME_LINKS
 from app.api.metrics import Metrics
@@ -23,7 +23,7 @@ from app.services import episodes as service
 
 from ._common import REPLAY_HEADER, EpisodeId, UserId, written
 
-router = APIRouter(tags=["episodes"])
+router = APIRouter(tags=["episodes"], route_class=TransactionalRoute)
 
 
 def _count(request: Request, body: dict[str, object] | None, replay: bool) -> None:

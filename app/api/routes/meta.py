@@ -6,13 +6,13 @@ from fastapi import APIRouter, Request, Response
 from fastapi.responses import JSONResponse
 from prometheus_client import CONTENT_TYPE_LATEST
 
-from app.api.deps import ContextDep, CurrentPrincipal
+from app.api.deps import ContextDep, CurrentPrincipal, TransactionalRoute
 from app.api.errors import responses
 from app.db import migrate
 from app.db.session import Database
 from app.schemas.models import MissionOut
 
-router = APIRouter(tags=["service"])
+router = APIRouter(tags=["service"], route_class=TransactionalRoute)
 log = logging.getLogger("attune.api")
 
 

@@ -4,14 +4,15 @@ from typing import Annotated, Any
 
 from fastapi import APIRouter, Body, Query, Response
 
-from app.api.deps import ContextDep, CurrentPrincipal, SessionDep
+from app.api.deps import ContextDep, CurrentPrincipal, SessionDep, TransactionalRoute, writes
 from app.api.errors import responses
 from app.schemas.models import ModelOut, StatsOut
 from app.services import models as service
 
 from ._common import UserId, no_content
 
-router = APIRouter(prefix="/v1/users/{user_id}", tags=["models"])
+router = APIRouter(prefix="/v1/users/{user_id}", tags=["models"],
+                   route_class=TransactionalRoute)
 
 
 @router.get("/model", response_model=ModelOut, responses=responses(404))
@@ -44,6 +45,7 @@ def reset_model(user_id: UserId, session: SessionDep, ctx: ContextDep,
 
 
 @router.get("/model/export", responses=responses(403, 404))
+@writes  # an export is an admin action: it leaves an audit entry
 def export_model(user_id: UserId, session: SessionDep, ctx: ContextDep,
                  principal: CurrentPrincipal) -> dict[str, Any]:
     """The model as a self-describing document that PUT /model accepts back (admin)."""

@@ -5,7 +5,7 @@ from typing import Annotated
 from fastapi import APIRouter, Query, Response
 from fastapi.responses import JSONResponse
 
-from app.api.deps import ContextDep, CurrentPrincipal, SessionDep
+from app.api.deps import ContextDep, CurrentPrincipal, SessionDep, TransactionalRoute
 from app.api.errors import responses
 from app.api.links import USER_LINKS
 from app.schemas.users import UserIn, UserList, UserOut
@@ -13,7 +13,7 @@ from app.services import users as service
 
 from ._common import UserId, no_content
 
-router = APIRouter(prefix="/v1/users", tags=["users"])
+router = APIRouter(prefix="/v1/users", tags=["users"], route_class=TransactionalRoute)
 
 
 @router.put(

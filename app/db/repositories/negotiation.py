@@ -120,9 +120,10 @@ _DECISION_COLS = [_decisions.c[f.name] for f in fields(DecisionRec)]
 _N_EPISODE = len(_EPISODE_COLS)
 _EPISODE_NAMES = tuple(f.name for f in fields(EpisodeRec))
 _DECISION_NAMES = tuple(f.name for f in fields(DecisionRec))
-# What an episode's update may change (the rest is set when it is created).
+# What an outcome changes in its episode (the rest, the stored response too, is set when it is
+# created).
 _EPISODE_MUTABLE = ("status", "state", "total_reward", "interaction_class", "initiated",
-                    "success", "queries", "response", "closed_at")
+                    "success", "queries", "closed_at")
 _ANSWER = ("response", "service", "detail", "feedback", "reward", "next_state", "answered_at",
            "outcome_hash", "outcome_response")
 

@@ -27,7 +27,7 @@ from app.learning import (
 )
 from app.learning.learners import TabularLearner
 from app.learning.simulation import STEP_COLUMNS, random_profile, respond
-from app.learning.state import FORMAT, FORMAT_VERSION, decode_array, encode_array
+from app.learning.state import FORMAT, FORMAT_VERSION, decode_array, encode_array, same_state
 
 MISSION = office_mission()
 S = space_for(MISSION)
@@ -260,3 +260,30 @@ def test_exported_size_with_the_most_open_episodes(algorithm: str) -> None:
     state = lr.to_state()
     assert len(state["pending"]) == 3 * TabularLearner.MAX_OPEN_EPISODES
     assert len(json.dumps(state).encode()) < 64 * 1024
+
+
+def test_same_state_compares_arrays_by_content() -> None:
+    """A document written with another compression level is the same learner; any change of
+    content or of a plain field is not."""
+    original = doc("hri")
+    recompressed = copy.deepcopy(original)
+    for array in recompressed["arrays"].values():
+        raw = zlib.decompress(base64.b64decode(array["data"]))
+        array["data"] = base64.b64encode(zlib.compress(raw, 9)).decode("ascii")
+    assert any(recompressed["arrays"][n]["data"] != original["arrays"][n]["data"]
+               for n in original["arrays"])
+    assert same_state(original, recompressed)
+
+    changed = copy.deepcopy(original)
+    raw = bytearray(zlib.decompress(base64.b64decode(changed["arrays"]["visits"]["data"])))
+    raw[0] ^= 1
+    changed["arrays"]["visits"]["data"] = base64.b64encode(zlib.compress(bytes(raw))).decode()
+    assert not same_state(original, changed)
+
+    later = copy.deepcopy(original)
+    later["version"] += 1
+    assert not same_state(original, later)
+
+    missing = copy.deepcopy(original)
+    del missing["arrays"]["visits"]
+    assert not same_state(original, missing)
