@@ -38,6 +38,11 @@ class Settings(BaseSettings):
         default=30.0, gt=0, description="How long a SQLite writer waits for the write lock."
     )
     db_pool_size: int = Field(default=10, ge=1, description="Connections per worker process.")
+    db_pre_ping: bool = Field(
+        default=False, description="Test each pooled connection before use (one more round "
+        "trip per transaction). Off: a connection broken by a database restart fails the one "
+        "request that finds it (503, which clients retry) and the pool replaces them all."
+    )
     model_cache_size: int = Field(
         default=1024, ge=0, description="Decoded learners kept in memory per worker (0: none)."
     )

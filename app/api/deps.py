@@ -1,7 +1,7 @@
 """Annotated dependencies: the request's session, the caller, the service context.
 
-A request costs the event loop one hop to the thread pool for the caller's key (a short read
-of its own) and one for the route, whose whole transaction runs in that one thread
+A request costs the event loop one hop to the thread pool for the caller's key (one read
+statement of its own) and one for the route, whose whole transaction runs in that one thread
 (:class:`TransactionalRoute`): between the first statement and the commit nothing waits for the
 event loop, so a writer holds a user's lock (and SQLite's write lock) only while it works.
 """
@@ -26,7 +26,7 @@ from app.services.context import Principal, ServiceContext
 
 from .middleware import KeyRateLimiter
 
-__all__ = ["ContextDep", "CurrentPrincipal", "SessionDep", "TransactionalRoute", "read_transaction",
+__all__ = ["ContextDep", "CurrentPrincipal", "SessionDep", "TransactionalRoute", "single_read",
            "writes"]
 
 log = logging.getLogger("attune.api")
@@ -100,10 +100,11 @@ async def get_context(request: Request) -> ServiceContext:
 ContextDep = Annotated[ServiceContext, Depends(get_context)]
 
 
-def read_transaction(request: Request) -> AbstractContextManager[Session]:
-    """A short read transaction of its own (for the caller's key, before the route runs)."""
+def single_read(request: Request) -> AbstractContextManager[Session]:
+    """A session for one read statement of its own, outside any transaction (the caller's
+    key, looked up before the route runs)."""
     db: Database = request.app.state.db
-    return db.transaction(write=False)
+    return db.single_read()
 
 
 def current_principal(
@@ -112,10 +113,10 @@ def current_principal(
 ) -> Principal:
     """The caller, once its key is known and within its rate limit (else 401 / 429).
 
-    The key is read in a short read transaction of its own, so the route's transaction begins
-    only in the route.
+    The key is read by a statement of its own, so the route's transaction begins only in the
+    route.
     """
-    with read_transaction(request) as session:
+    with single_read(request) as session:
         principal = authenticate(session, authorization)
     limiter: KeyRateLimiter = request.app.state.limiter
     wait = limiter.acquire(principal.key_id)

@@ -17,7 +17,7 @@ from urllib.parse import parse_qsl, urlsplit
 
 from fastapi import Depends, Request
 
-from app.api.deps import SessionDep, read_transaction
+from app.api.deps import SessionDep, single_read
 from app.errors import Forbidden, Unauthorized
 from app.services.auth import authenticate, require_admin
 from app.services.context import Principal
@@ -76,13 +76,13 @@ def sign_in(session: SessionDep, secret: str) -> Principal:
 
 
 def current_admin(request: Request) -> Admin:
-    """The signed-in admin (the key is read in a short read transaction of its own, as for
-    the API's keys)."""
+    """The signed-in admin (the key is read by a statement of its own, as for the API's
+    keys)."""
     secret = request.cookies.get(COOKIE)
     if not secret:
         path = request.url.path + (f"?{request.url.query}" if request.url.query else "")
         raise LoginRequired(path)
-    with read_transaction(request) as session:
+    with single_read(request) as session:
         return Admin(sign_in(session, secret), csrf_token(secret))
 
 

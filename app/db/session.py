@@ -38,7 +38,7 @@ class Database:
     def __init__(self, settings: Settings) -> None:
         self.url = settings.database_url
         self.is_sqlite = settings.is_sqlite
-        kwargs: dict[str, Any] = {"pool_pre_ping": True}
+        kwargs: dict[str, Any] = {"pool_pre_ping": settings.db_pre_ping}
         if self.is_sqlite:
             kwargs["connect_args"] = {
                 "timeout": settings.sqlite_busy_timeout_s,
@@ -51,11 +51,21 @@ class Database:
         if self.is_sqlite:
             _configure_sqlite(self.engine, settings.sqlite_busy_timeout_s)
         self._write_engine = self.engine.execution_options(**{_WRITE: True})
+        # Single-statement reads (the caller's key): no BEGIN/COMMIT around them.
+        self._autocommit_engine = self.engine.execution_options(isolation_level="AUTOCOMMIT")
         self._writer = threading.Lock() if self.is_sqlite else None
         self._writer_timeout_s = settings.sqlite_busy_timeout_s
 
     def session(self, *, write: bool) -> Session:
         return Session(bind=self._write_engine if write else self.engine, expire_on_commit=False)
+
+    @contextmanager
+    def single_read(self) -> Iterator[Session]:
+        """A session for one read statement, run without a transaction (autocommit): a single
+        statement sees one consistent snapshot anyway, and skipping BEGIN and COMMIT saves two
+        round trips on PostgreSQL."""
+        with Session(bind=self._autocommit_engine, expire_on_commit=False) as session:
+            yield session
 
     @contextmanager
     def transaction(self, *, write: bool = True) -> Iterator[Session]:
@@ -114,5 +124,7 @@ def _configure_sqlite(engine: Engine, busy_timeout_s: float) -> None:
 
     @event.listens_for(engine, "begin")
     def _begin(conn: Connection) -> None:
-        write = conn.get_execution_options().get(_WRITE, False)
-        conn.exec_driver_sql("BEGIN IMMEDIATE" if write else "BEGIN")
+        options = conn.get_execution_options()
+        if options.get("isolation_level") == "AUTOCOMMIT":
+            return
+        conn.exec_driver_sql("BEGIN IMMEDIATE" if options.get(_WRITE, False) else "BEGIN")

@@ -82,7 +82,7 @@ def authenticate(session: Session, authorization: str | None) -> Principal:
     if scheme.lower() != "bearer" or not secret.strip():
         raise Unauthorized("Send your API key as 'Authorization: Bearer <key>'.")
     digest = hash_secret(secret.strip())
-    key = repo.get_key_by_hash(session, digest)
+    key = repo.key_by_hash(session, digest)
     # The lookup goes through the unique index on the SHA-256 of the secret, so what the
     # database compares (and what its timing could reveal) is the digest, never the secret: a
     # prefix of a digest says nothing about the secret that makes it. The final equality is

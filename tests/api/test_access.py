@@ -321,7 +321,7 @@ class TestKeyCheck:
             stranger = ApiKey(id=key.id, prefix=key.prefix, secret_hash="0" * 64,
                               role=key.role, fleet=key.fleet, name=None,
                               created_at=key.created_at, revoked_at=None)
-            monkeypatch.setattr(auth.repo, "get_key_by_hash", lambda *_: stranger)
+            monkeypatch.setattr(auth.repo, "key_by_hash", lambda *_: stranger)
             with pytest.raises(auth.Unauthorized):
                 auth.authenticate(session, f"Bearer {secret}")
 
