@@ -298,7 +298,7 @@ def wait_ready(url: str, proc: subprocess.Popen[bytes], log: Path, timeout: floa
 
 @contextmanager
 def server(kind: str, workers: int, workdir: Path, database_url: str = "",
-           profile: Path | None = None) -> Iterator[str]:
+           profile: Path | None = None, profile_format: str = "flamegraph") -> Iterator[str]:
     """``attune serve`` (kind "service") or the reference app, on a free port; its base URL.
 
     With ``profile``, the service runs under py-spy, which writes a flame graph of all its
@@ -314,9 +314,10 @@ def server(kind: str, workers: int, workdir: Path, database_url: str = "",
                "--workers", str(workers)]
         if profile is not None:
             profile.mkdir(parents=True, exist_ok=True)
-            svg = profile / f"{Path(database_url.split('?')[0]).name or 'db'}-{port}.svg"
+            suffix = {"flamegraph": "svg", "speedscope": "json"}.get(profile_format, "txt")
+            out = profile / f"{Path(database_url.split('?')[0]).name or 'db'}-{port}.{suffix}"
             cmd = [str(Path(sys.executable).with_name("py-spy")), "record", "--subprocesses",
-                   "--rate", "100", "--format", os.environ.get("BENCH_PYSPY_FORMAT", "flamegraph"), "--output", str(svg), "--", *cmd]
+                   "--rate", "100", "--format", profile_format, "--output", str(out), "--", *cmd]
         probe = f"http://127.0.0.1:{port}/readyz"
     else:
         cmd = [sys.executable, __file__, "--serve-reference", str(port), str(workers)]
@@ -543,7 +544,8 @@ class Bench:
                 try:
                     keys = data.keys(max(args.clients))
                     self.say(f"[bold]{engine}[/bold], {workers} worker(s): attune serve")
-                    with server("service", workers, workdir, db_url, self.args.profile) as url:
+                    with server("service", workers, workdir, db_url, self.args.profile,
+                        self.args.profile_format) as url:
                         for c in args.clients:
                             users = [f"c{c}-robot{i}" for i in range(1, c + 1)]
                             self.run_service(url, data, workdir, keys, users, engine, workers,
@@ -575,7 +577,8 @@ class Bench:
 
         data.history("big", args.episodes, tick)
         self.say(f"  done in {time.perf_counter() - t:.1f} s")
-        with server("service", workers, workdir, db_url, self.args.profile) as url:
+        with server("service", workers, workdir, db_url, self.args.profile,
+                        self.args.profile_format) as url:
             wide = 8 if 8 in args.clients else max(args.clients)
             spread = max(1, args.users // wide)
             users = [f"pop{i * spread + spread // 2:06d}" for i in range(wide)]
@@ -718,8 +721,12 @@ def main() -> None:
                         help="a short check: 8 clients, 2 s runs, 2,000 users, 200 episodes")
     parser.add_argument("--json", type=Path, help="also write the figures here")
     parser.add_argument("--profile", type=Path, metavar="DIR",
-                        help="run the service under py-spy and write its flame graphs (SVG) "
-                        "to DIR; the figures then include the profiler's cost")
+                        help="run the service under py-spy and write its profiles to DIR (one "
+                        "per server run); the figures then include the profiler's cost")
+    parser.add_argument("--profile-format", choices=["flamegraph", "speedscope", "raw"],
+                        default="flamegraph",
+                        help="py-spy's output: an SVG flame graph (default), a speedscope "
+                        "JSON, or collapsed stacks as text")
     args = parser.parse_args()
     if args.quick:
         args.clients, args.duration, args.users, args.episodes = "8", 2.0, 2000, 200
