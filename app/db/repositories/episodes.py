@@ -13,9 +13,7 @@ __all__ = [
     "decisions_for_rebuild",
     "delete_samples",
     "episode_owner",
-    "get_decision",
     "get_episode",
-    "get_episode_by_event",
     "get_feedback",
     "has_transition",
     "list_decisions",
@@ -41,11 +39,6 @@ def get_episode(session: Session, episode_id: str) -> Episode | None:
     return session.scalars(stmt.execution_options(populate_existing=True)).first()
 
 
-def get_episode_by_event(session: Session, user_id: str, event_id: str) -> Episode | None:
-    stmt = select(Episode).where(Episode.user_id == user_id, Episode.event_id == event_id)
-    return session.scalars(stmt).first()
-
-
 def list_episodes(
     session: Session, user_id: str, *, before_seq: int | None, limit: int
 ) -> Sequence[Episode]:
@@ -58,11 +51,6 @@ def list_episodes(
 def list_decisions(session: Session, episode_id: str) -> Sequence[Decision]:
     stmt = select(Decision).where(Decision.episode_id == episode_id).order_by(Decision.position)
     return session.scalars(stmt).all()
-
-
-def get_decision(session: Session, episode_id: str, decision_id: str) -> Decision | None:
-    stmt = select(Decision).where(Decision.id == decision_id, Decision.episode_id == episode_id)
-    return session.scalars(stmt.execution_options(populate_existing=True)).first()
 
 
 def list_feedback(session: Session, episode_id: str) -> Sequence[Feedback]:
