@@ -1,4 +1,10 @@
-"""Running the Alembic migrations of ``migrations/`` from the service and the command line."""
+"""Running the Alembic migrations from the service and the command line.
+
+The migration scripts live in ``migrations/`` at the top of a source checkout and ship inside
+the installed package as ``app/migrations`` (the wheel's build maps one onto the other), so an
+installed ``attune`` finds them wherever it runs from. The configuration is built here; the
+repository's ``alembic.ini`` serves developers who call ``alembic`` directly.
+"""
 
 from __future__ import annotations
 
@@ -11,14 +17,31 @@ from alembic.runtime.migration import MigrationContext
 from alembic.script import ScriptDirectory
 from sqlalchemy import Engine
 
-__all__ = ["alembic_config", "current_revision", "head_revision", "is_current", "upgrade"]
+__all__ = ["MigrationsMissing", "alembic_config", "current_revision", "head_revision",
+           "is_current", "script_location", "upgrade"]
 
-ROOT = Path(__file__).resolve().parents[2]
+_PACKAGE = Path(__file__).resolve().parents[1]  # app/
+
+
+class MigrationsMissing(RuntimeError):
+    """The migration scripts are not where an installed or checked-out Attune keeps them."""
+
+
+def script_location() -> Path:
+    """The folder of the migration scripts: inside the installed package, else the checkout's."""
+    for folder in (_PACKAGE / "migrations", _PACKAGE.parent / "migrations"):
+        if (folder / "env.py").is_file() and (folder / "versions").is_dir():
+            return folder
+    raise MigrationsMissing(
+        f"The database migrations are missing: neither {_PACKAGE / 'migrations'} nor "
+        f"{_PACKAGE.parent / 'migrations'} holds them; reinstall Attune."
+    )
 
 
 def alembic_config(url: str) -> Config:
-    cfg = Config(str(ROOT / "alembic.ini"))
-    cfg.set_main_option("script_location", str(ROOT / "migrations"))
+    cfg = Config()
+    cfg.set_main_option("script_location", str(script_location()))
+    cfg.set_main_option("path_separator", "os")
     cfg.set_main_option("sqlalchemy.url", url.replace("%", "%%"))
     cfg.attributes["configure_logging"] = False
     return cfg
