@@ -95,8 +95,14 @@ def test_image_shape() -> None:
     for kw, text in final.instructions:
         if kw == "RUN":
             assert not any(word in text for word in ("apt-get", "pip", "uv ", "gcc")), text
-    copies = final.all("COPY")
-    assert copies == ["--from=build /opt/venv /opt/venv", "--from=build /srv/attune /srv/attune"]
+    # The final stage holds the virtualenv alone: the service is installed in it, not editable,
+    # with its migrations inside the package (no source tree beside it).
+    assert final.all("COPY") == ["--from=build /opt/venv /opt/venv"]
+    # The build stage installs from the lock file, never by resolving anew.
+    syncs = [text for text in build.all("RUN") if "uv sync" in text]
+    assert syncs, "the build stage installs with uv sync"
+    assert all("--frozen" in text and "--no-editable" in text for text in syncs), syncs
+    assert any("uv.lock" in text for text in build.all("COPY"))
     user = final.all("USER")[-1]
     uid = user.split(":")[0]
     assert uid.isdigit(), user
@@ -124,11 +130,23 @@ def test_compose_wiring() -> None:
 
 
 def _run_build_stage(stage: Stage, root: Path, venv: Path) -> Path:
-    """The build stage's COPY and RUN steps with / moved to ``root``; returns the workdir."""
+    """The build stage's ENV, COPY and ``uv sync`` steps with / moved to ``root`` and the
+    image's Python replaced by this machine's; returns the workdir. (uv's cache is left on here:
+    the image turns it off only to keep its layers small.)"""
     workdir = root
     python = shutil.which("python3") or sys.executable
+    env = dict(os.environ)
+
+    def here(text: str) -> str:
+        return text.replace("/opt/venv", str(venv)).replace("/usr/local/bin/python3", python)
+
     for kw, text in stage.instructions:
-        if kw == "WORKDIR":
+        if kw == "ENV":
+            for item in shlex.split(text):
+                name, _, value = item.partition("=")
+                if name != "UV_NO_CACHE":
+                    env[name] = here(value)
+        elif kw == "WORKDIR":
             workdir = root / text.lstrip("/")
             workdir.mkdir(parents=True, exist_ok=True)
         elif kw == "COPY":
@@ -142,11 +160,9 @@ def _run_build_stage(stage: Stage, root: Path, venv: Path) -> Path:
                 else:
                     target.mkdir(parents=True, exist_ok=True)
                     shutil.copy2(src, target / src.name)
-        elif kw == "RUN" and "uv venv" in text:
-            command = (text.replace("/opt/venv", str(venv))
-                       .replace("/usr/local/bin/python3", python))
-            done = subprocess.run(["bash", "-c", command], cwd=workdir, capture_output=True,
-                                  text=True, check=False, timeout=600)
+        elif kw == "RUN" and "uv sync" in text:
+            done = subprocess.run(["bash", "-c", here(text)], cwd=workdir, env=env,
+                                  capture_output=True, text=True, check=False, timeout=600)
             assert done.returncode == 0, done.stdout + done.stderr
     return workdir
 
@@ -157,9 +173,21 @@ def test_the_image_commands_run_here(tmp_path: Path) -> None:
                     "installs it)", pytrace=False)
     _, (build, final) = parse(DOCKERFILE)
     venv = tmp_path / "opt" / "venv"
-    workdir = _run_build_stage(build, tmp_path / "root", venv)
+    _run_build_stage(build, tmp_path / "root", venv)
     assert (venv / "bin" / "attune").exists()
     assert not (venv / "bin" / "uv").exists(), "uv belongs to the build stage only"
+    # Installed, not linked to the source tree: the final stage has no source tree.
+    installed = subprocess.run([str(venv / "bin" / "python"), "-c",
+                                "import app, attune_client"], capture_output=True, text=True,
+                               check=False, timeout=60, cwd=tmp_path)
+    assert "No module named 'attune_client'" in installed.stderr, "no client in the image"
+    located = subprocess.run([str(venv / "bin" / "python"), "-c",
+                              "import app.db.migrate as m; print(m.script_location())"],
+                             capture_output=True, text=True, check=True, timeout=60,
+                             cwd=tmp_path)
+    assert located.stdout.strip().startswith(str(venv)), located.stdout
+    workdir = tmp_path / "root" / "var" / "lib" / "attune"
+    workdir.mkdir(parents=True)
 
     port = free_port()
     command = exec_form(final.all("CMD")[-1])
