@@ -46,6 +46,12 @@ class Settings(BaseSettings):
     model_cache_size: int = Field(
         default=1024, ge=0, description="Decoded learners kept in memory per worker (0: none)."
     )
+    snapshot_every: int = Field(
+        default=16, ge=1, le=10_000,
+        description="Store each user's learner state every this many model versions; between "
+        "snapshots a write stores only the samples it taught, and a worker that does not have "
+        "the learner in memory replays them onto the last snapshot (1: store it on every write).",
+    )
     log_level: str = Field(default="info", description="debug, info, warning or error.")
     rate_limit_per_s: float = Field(
         default=100.0, ge=0,

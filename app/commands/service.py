@@ -176,25 +176,15 @@ def models_rebuild(
 ) -> None:
     """Replay USER_ID's history into a fresh learner, redrawing every decision from the same seed
     stream, and compare with the stored model. Exit 0 when identical, 1 when not."""
-    from app.db.repositories.users import get_model
     from app.services import audit
-    from app.services.context import Principal, ServiceContext
+    from app.services.context import ServiceContext
     from app.services.models import rebuild_model
 
     settings = _settings()
     ctx = ServiceContext.from_settings(settings)
-    admin = Principal("cli", "admin", "default")
     try:
         with _database(settings) as database, database.transaction() as session:
-            report = rebuild_model(session, ctx, admin, user_id)
-            if save and not report.identical:
-                model = get_model(session, user_id)
-                assert model is not None
-                model.state = report.rebuilt
-                model.version += 1
-                audit.record(session, audit.CLI, "model.rebuild", target=user_id, fleet=None,
-                             detail={"version": model.version,
-                                     "mismatched_decisions": len(report.mismatched_decisions)})
+            report = rebuild_model(session, ctx, audit.CLI, user_id, save=save)
     except AppError as exc:
         err.print(f"[red]{exc.detail}[/red]")
         raise typer.Exit(2) from None

@@ -60,12 +60,15 @@ class User(Base):
 
 
 class LearnerModel(Base):
-    """A user's learner state (the learning core's document) and where it started from.
+    """A user's learner: a snapshot of its state (the learning core's document) and where it
+    started from.
 
     ``version`` goes up by one with every change and never goes back (a reset or an import is a
-    change too). ``base_state`` is the imported document the current model grew from (``None``:
+    change too). ``state`` is the learner as of ``state_version`` (written every few versions):
+    replaying the samples written after ``state_version`` onto it gives the learner at
+    ``version``. ``base_state`` is the imported document the current model grew from (``None``:
     a fresh learner), ``base_version`` the version it had then: replaying the samples written
-    after ``base_version`` onto the base rebuilds ``state``.
+    after ``base_version`` onto the base rebuilds the model.
     """
 
     __tablename__ = "learner_models"
@@ -75,6 +78,7 @@ class LearnerModel(Base):
     )
     version: Mapped[int] = mapped_column(Integer, default=0)
     state: Mapped[dict[str, Any]] = mapped_column(LearnerStateType())
+    state_version: Mapped[int] = mapped_column(Integer, default=0)
     base_state: Mapped[dict[str, Any] | None] = mapped_column(LearnerStateType())
     base_version: Mapped[int] = mapped_column(Integer, default=0)
     # Added to a user's episode index to give the learner's: an imported model may have seen

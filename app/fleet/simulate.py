@@ -23,12 +23,11 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from app.learning import Action, ActionKind, Interaction, Mission, NegotiationSpace, Transition
-from app.learning.experiments import CLASS_CODE, episode_metrics
-from app.learning.learners.base import interaction_class
+from app.learning import Action, ActionKind, Interaction, Mission, NegotiationSpace
+from app.learning.experiments import episode_metrics
+from app.learning.negotiation import INTERACTION_CODE, Tally
 from app.learning.simulation import STEP_COLUMNS, UserProfile, drift, event_stream, random_profile
 from app.learning.simulation import respond as person_responds
-from app.learning.space import QUERY_KINDS
 
 __all__ = [
     "FleetError",
@@ -172,19 +171,6 @@ def state_before(space: NegotiationSpace, action: Action) -> int:
     return space.OBSERVE
 
 
-def _outcome_fields(space: NegotiationSpace, kind: ActionKind, response: str,
-                    next_state: int) -> dict[str, str | None]:
-    """``service`` / ``detail`` the robot reports with the person's response."""
-    info = space.state_info(next_state)
-    if response == "human_request":
-        return {"service": info.service}
-    if response == "answered" and kind is ActionKind.QUERY_TYPE:
-        return {"service": info.service}
-    if response == "answered":
-        return {"detail": info.detail}
-    return {}
-
-
 def play_event(client: RobotClient, space: NegotiationSpace, person: Person, event: int,
                robot_id: str) -> PlayedEpisode:
     """One event of ``person``, from the episode's start to its end, the person simulated."""
@@ -199,10 +185,7 @@ def play_event(client: RobotClient, space: NegotiationSpace, person: Person, eve
     episode_id: str = started.episode_id
     decision = started.decision
     service_reward = float(started.total_reward)
-    rows: list[Transition] = []
-    initiated = success = False
-    queries = 0
-    reward = 0.0
+    tally = Tally()
     step = 0
     while decision is not None:
         if step >= MAX_VISIBLE_STEPS:
@@ -212,23 +195,20 @@ def play_event(client: RobotClient, space: NegotiationSpace, person: Person, eve
         a, s = space.action_index(action), state_before(space, action)
         flips = person.uniforms[event, 2 * step:2 * step + 2]
         reaction = person_responds(space, profile, context, s, a, flips)
-        fields = _outcome_fields(space, action.kind, reaction.response, reaction.next_state)
         result = client.report_outcome(episode_id, decision_id=decision.decision_id,
-                                       response=reaction.response, **fields)
+                                       response=reaction.response.value,
+                                       service=reaction.service, detail=reaction.detail)
         if not hasattr(result, "episode"):  # the client queued it: the service is unreachable
             raise FleetError(f"the outcome of {decision.decision_id} could not be delivered.")
-        reward += sum(mission.rewards.positive for c in decision.chain
-                      if c.action.kind == ActionKind.RESPOND.value) + reaction.reward
-        rows.append(Transition(event + 1, context, s, a, reaction.reward, reaction.next_state,
-                               reaction.signal))
-        initiated |= action.kind is ActionKind.INITIATE
-        success |= action.kind is ActionKind.PERFORM and reaction.response == "accepted"
-        queries += action.kind in QUERY_KINDS
+        for silent in decision.chain:  # the service's own steps: respond pays, infer is free
+            if silent.action.kind == ActionKind.RESPOND.value:
+                tally.reward += mission.rewards.positive
+        tally.step(space, s, a, reaction.reward, reaction.next_state, reaction.signal)
         service_reward = float(result.episode.total_reward)
         decision = result.decision
         step += 1
-    return PlayedEpisode(person.user_id, event, episode_id, robot_id, initiated,
-                         interaction_class(space, rows), success, queries, reward,
+    return PlayedEpisode(person.user_id, event, episode_id, robot_id, tally.initiated,
+                         tally.interaction, tally.success, tally.queries, tally.reward,
                          service_reward, step)
 
 
@@ -297,7 +277,7 @@ def local_stats(played: Sequence[PlayedEpisode]) -> dict[str, float | None]:
     """The paper's metrics over ``played``, from the robots' own tally (None where undefined)."""
     m = episode_metrics(
         np.asarray([p.initiated for p in played], dtype=bool),
-        np.asarray([CLASS_CODE[p.interaction] for p in played], dtype=np.int8),
+        np.asarray([INTERACTION_CODE[p.interaction] for p in played], dtype=np.int8),
         np.asarray([p.success for p in played], dtype=bool),
         np.asarray([p.queries for p in played], dtype=np.int64),
         np.asarray([p.reward for p in played], dtype=np.float64),

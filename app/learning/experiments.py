@@ -20,11 +20,11 @@ from typing import Any
 import numpy as np
 
 from .learners import make_learner
-from .learners.base import TabularLearner, interaction_class
+from .learners.base import TabularLearner
 from .mission import Mission
+from .negotiation import INTERACTION_CODE, Tally
 from .simulation import STEP_COLUMNS, UserProfile, drift, event_stream, random_profile, respond
-from .space import ActionKind
-from .types import Interaction, Observation, Transition
+from .types import Observation, Transition
 
 __all__ = [
     "ABLATION_METHODS",
@@ -96,7 +96,6 @@ ABLATION_METHODS: tuple[Method, ...] = (
 )
 
 # Interaction classes as stored in RunResult.interaction.
-CLASS_CODE = {Interaction.NONE: 0, Interaction.I1: 1, Interaction.I2: 2, Interaction.I3: 3}
 
 
 @dataclass
@@ -146,8 +145,8 @@ def run_user(
         while active + 1 < len(change_points) and change_points[active + 1] <= e:
             active += 1
         profile, context, episode = profiles[active], int(contexts[e]), e + 1
-        state, step, total = space.OBSERVE, 0, 0.0
-        rows: list[Transition] = []
+        state, step = space.OBSERVE, 0
+        tally = Tally()
         while state != space.END:
             # Visible steps happen in OBSERVE, ENGAGED, TYPE_KNOWN and DETAIL_KNOWN at most.
             assert 2 * step + 2 <= uniforms.shape[1], "an episode longer than a negotiation"
@@ -162,18 +161,14 @@ def run_user(
                            reaction.next_state, reaction.signal)
             )
             learner.update(batch)
-            rows.extend(batch)
-            total += sum(t.reward for t in batch)
-            kind = space.actions[decision.action].kind
-            if kind is ActionKind.INITIATE:
-                out["initiated"][e] = True
-            elif kind is ActionKind.PERFORM and reaction.response == "accepted":
-                out["success"][e] = True
-            if space.is_query[decision.action]:
-                out["queries"][e] += 1
+            for t in batch:
+                tally.step(space, t.state, t.action, t.reward, t.next_state, t.signal)
             state, step = reaction.next_state, step + 1
-        out["reward"][e] = total
-        out["interaction"][e] = CLASS_CODE[interaction_class(space, rows)]
+        out["reward"][e] = tally.reward
+        out["initiated"][e] = tally.initiated
+        out["interaction"][e] = INTERACTION_CODE[tally.interaction]
+        out["success"][e] = tally.success
+        out["queries"][e] = tally.queries
     return out
 
 

@@ -16,12 +16,13 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from .mission import Mission
+from .negotiation import EXPECTS, Response, outcome
 from .space import ActionKind, NegotiationSpace
 from .types import IntArray, Polarity
 
 __all__ = [
     "Need",
-    "Response",
+    "Reaction",
     "UserProfile",
     "drift",
     "event_stream",
@@ -147,13 +148,16 @@ def event_stream(
 
 
 @dataclass(frozen=True, slots=True)
-class Response:
-    """What the simulated person did: the API's response word, the reward, next state, signal."""
+class Reaction:
+    """What the simulated person did (the API's response word, and the service or detail they
+    named, if any) and what it meant."""
 
-    response: str
+    response: Response
     reward: float
     next_state: int
     signal: Polarity
+    service: str | None = None
+    detail: str | None = None
 
 
 def respond(
@@ -163,50 +167,52 @@ def respond(
     state: int,
     action: int,
     uniforms: np.ndarray,
-) -> Response:
-    """The person's reaction to a visible action (algorithm.md section 1, transitions).
+) -> Reaction:
+    """The person's reaction to a visible action (docs/method.md §1 and §6).
 
     ``uniforms`` are two numbers in [0, 1): the first decides the reaction, the second an abort.
+    The person chooses the response; what it means (reward, next state) is the negotiation's
+    rule, :func:`app.learning.negotiation.outcome`.
     """
     mission = space.mission
-    rw = mission.rewards
     need = profile.need_at(context)
     kind = space.actions[action].kind
-    END = space.END
+    if kind not in EXPECTS:
+        raise ValueError(f"{space.action_name(action)} is silent: the person does not respond "
+                         "to it.")
+    service: str | None = None
+    detail: str | None = None
     # The person may end the dialog at any step; a robot that stays passive starts no dialog.
     if kind is not ActionKind.PASS and profile.p_abort > 0.0 and uniforms[1] < profile.p_abort:
-        return Response("terminated", rw.negative, END, Polarity.NEGATIVE)
-    u = uniforms[0]
-    available = mission.context_names(context)[1] not in mission.unavailable_situations
-    if kind is ActionKind.INITIATE:
-        p = profile.p_acc if need is not None else profile.p_idle_acc
-        if available and u < p:
-            return Response("accepted", rw.positive, space.ENGAGED, Polarity.POSITIVE)
-        return Response("rejected", rw.negative, END, Polarity.NEGATIVE)
-    if kind is ActionKind.PASS:
-        # Section 7: busy (an unavailable situation) => always reject, never initiate.
-        if need is not None and available and u < profile.p_self:
-            name = mission.services[need.service].name
-            return Response("human_request", 0.0, space.request_state(name), Polarity.POSITIVE)
-        return Response("none", 0.0, END, Polarity.NEUTRAL)
-    if kind is ActionKind.QUERY_TYPE:
-        if need is None:
-            return Response("terminated", rw.query + rw.negative, END, Polarity.NEGATIVE)
-        name = mission.services[need.service].name
-        return Response("answered", rw.query, space.type_known_state(name), Polarity.POSITIVE)
-    info = space.states[state]
-    if kind is ActionKind.QUERY_DETAIL:
-        if need is None or mission.services[need.service].name != info.service:
-            return Response("terminated", rw.query + rw.negative, END, Polarity.NEGATIVE)
-        service = mission.services[need.service]
-        nxt = space.detail_known_state(service.name, service.details[need.detail])
-        return Response("answered", rw.query, nxt, Polarity.POSITIVE)
-    if kind is ActionKind.PERFORM:
-        if need is not None:
-            service = mission.services[need.service]
-            right = info.service == service.name and info.detail == service.details[need.detail]
-            if right and u >= profile.eps_fb:
-                return Response("accepted", rw.positive + rw.accepted_service, END,
-                                Polarity.POSITIVE)
-        return Response("rejected", rw.negative, END, Polarity.NEGATIVE)
-    raise ValueError(f"{space.action_name(action)} is silent: the person does not respond to it.")
+        said = Response.TERMINATED
+    else:
+        u = uniforms[0]
+        available = mission.context_names(context)[1] not in mission.unavailable_situations
+        wanted = mission.services[need.service] if need is not None else None
+        info = space.states[state]
+        if kind is ActionKind.INITIATE:
+            p = profile.p_acc if need is not None else profile.p_idle_acc
+            said = Response.ACCEPTED if available and u < p else Response.REJECTED
+        elif kind is ActionKind.PASS:
+            # An unavailable situation (busy): the person never speaks first.
+            if wanted is not None and available and u < profile.p_self:
+                said, service = Response.HUMAN_REQUEST, wanted.name
+            else:
+                said = Response.NONE
+        elif kind is ActionKind.QUERY_TYPE:
+            if wanted is None:
+                said = Response.TERMINATED
+            else:
+                said, service = Response.ANSWERED, wanted.name
+        elif kind is ActionKind.QUERY_DETAIL:
+            if wanted is None or wanted.name != info.service:
+                said = Response.TERMINATED
+            else:
+                assert need is not None
+                said, detail = Response.ANSWERED, wanted.details[need.detail]
+        else:  # perform
+            right = (wanted is not None and need is not None and info.service == wanted.name
+                     and info.detail == wanted.details[need.detail])
+            said = Response.ACCEPTED if right and u >= profile.eps_fb else Response.REJECTED
+    result = outcome(space, action, said, service=service, detail=detail)
+    return Reaction(said, result.reward, result.next_state, result.signal, service, detail)

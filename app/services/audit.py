@@ -11,8 +11,8 @@ from typing import Any
 
 from sqlalchemy.orm import Session
 
-from app.db.models import AuditEntry
 from app.db.repositories import audit as repo
+from app.db.repositories.audit import AuditRow
 from app.db.types import utcnow
 from app.errors import Forbidden, ValidationFailed
 from app.schemas.audit import AuditActor, AuditEntryOut, AuditList
@@ -31,13 +31,13 @@ def record(session: Session, actor: Principal, action: str, *, target: str,
     """Add the entry of an admin action to the current transaction."""
     if action not in ACTIONS:
         raise ValueError(f"unknown audit action {action!r}")
-    repo.add_entry(session, AuditEntry(
-        at=utcnow(), actor_key_id=actor.key_id, actor_role=actor.role,
+    repo.add(session, AuditRow(
+        id=None, at=utcnow(), actor_key_id=actor.key_id, actor_role=actor.role,
         actor_fleet=actor.fleet, action=action, target=target, fleet=fleet, detail=detail,
     ))
 
 
-def _out(entry: AuditEntry) -> AuditEntryOut:
+def _out(entry: AuditRow) -> AuditEntryOut:
     return AuditEntryOut(
         id=str(entry.id), at=entry.at,
         actor=AuditActor(key_id=entry.actor_key_id, role=entry.actor_role,
@@ -56,7 +56,7 @@ def list_audit(session: Session, principal: Principal, *, limit: int, cursor: st
         if not (cursor.isascii() and cursor.isdigit()) or len(cursor) > 18:
             raise ValidationFailed("cursor is not one this API returned.")
         before = int(cursor)
-    rows = repo.list_entries(session, before_id=before, limit=limit + 1)
+    rows = repo.list_page(session, before_id=before, limit=limit + 1)
     more = len(rows) > limit
     return AuditList(items=[_out(e) for e in rows[:limit]],
                      next_cursor=str(rows[limit - 1].id) if more else None)

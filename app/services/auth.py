@@ -6,12 +6,11 @@ import hashlib
 import hmac
 import re
 import secrets
-from collections.abc import Sequence
 
 from sqlalchemy.orm import Session
 
-from app.db.models import ApiKey
 from app.db.repositories import keys as repo
+from app.db.repositories.keys import KeyRow
 from app.db.types import utcnow
 from app.errors import Forbidden, NotFound, Unauthorized, ValidationFailed
 
@@ -34,7 +33,7 @@ def hash_secret(secret: str) -> str:
 def create_key(
     session: Session, *, role: str, fleet: str = "default", name: str | None = None,
     actor: Principal | None = None,
-) -> tuple[ApiKey, str]:
+) -> tuple[KeyRow, str]:
     """A new key and its secret; the secret is not stored and cannot be shown again.
 
     ``actor`` is the admin making it (``None``: an operator on the command line); the audit log
@@ -47,29 +46,30 @@ def create_key(
     if not _FLEET.match(fleet):
         raise ValidationFailed("fleet must match ^[A-Za-z0-9._:-]{1,128}$.")
     secret = SECRET_PREFIX + secrets.token_urlsafe(32)
-    key = ApiKey(
+    key = KeyRow(
         id="key_" + secrets.token_hex(8), prefix=secret[:12], secret_hash=hash_secret(secret),
         role=role, fleet=fleet, name=name, created_at=utcnow(), revoked_at=None,
     )
-    repo.add_key(session, key)
+    repo.add(session, key)
     audit.record(session, actor, "key.create", target=key.id, fleet=fleet,
                  detail={"role": role, "name": name})
     return key, secret
 
 
-def list_keys(session: Session) -> Sequence[ApiKey]:
-    return repo.list_keys(session)
+def list_keys(session: Session) -> list[KeyRow]:
+    return repo.list_all(session)
 
 
-def revoke_key(session: Session, key_id: str, *, actor: Principal | None = None) -> ApiKey:
+def revoke_key(session: Session, key_id: str, *, actor: Principal | None = None) -> KeyRow:
     """Revoke a key (its requests get 401 from now on); ``actor`` as for ``create_key``."""
     actor = actor or audit.CLI
     require_admin(actor)
-    key = repo.get_key(session, key_id)
+    key = repo.get(session, key_id)
     if key is None:
         raise NotFound(f"No key {key_id!r}; `attune keys list` shows the ids.")
     if key.revoked_at is None:
         key.revoked_at = utcnow()
+        repo.revoke(session, key.id, key.revoked_at)
         audit.record(session, actor, "key.revoke", target=key.id, fleet=key.fleet)
     return key
 
@@ -82,7 +82,7 @@ def authenticate(session: Session, authorization: str | None) -> Principal:
     if scheme.lower() != "bearer" or not secret.strip():
         raise Unauthorized("Send your API key as 'Authorization: Bearer <key>'.")
     digest = hash_secret(secret.strip())
-    key = repo.key_by_hash(session, digest)
+    key = repo.by_hash(session, digest)
     # The lookup goes through the unique index on the SHA-256 of the secret, so what the
     # database compares (and what its timing could reveal) is the digest, never the secret: a
     # prefix of a digest says nothing about the secret that makes it. The final equality is

@@ -1,26 +1,34 @@
-"""Loading and saving a user's learner: the cache, the state document and the sample journal."""
+"""A user's learner: made, loaded, taught and saved through one path for every write.
+
+``load_learner`` gives the learner at the model's current version: the worker's cached one, or
+the stored snapshot with the journal's later samples replayed onto it. ``save_learner`` teaches
+it one write's samples (the transitions of an outcome, or one feedback), records them in the
+journal, moves the model's version on by one and, every ``snapshot_every`` versions, stores the
+learner's state, or replaces the model (a reset, a new learner, an import). The cache gets
+the learner back only once the transaction commits.
+"""
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from typing import Any
+from collections.abc import Iterable, Sequence
+from itertools import groupby
+from typing import Any, Literal
 
-from sqlalchemy import Connection
 from sqlalchemy.orm import Session
 
-from app.db.models import LearnerModel, User
-from app.db.repositories import episodes as episodes_repo
-from app.db.repositories import negotiation as neg
-from app.db.repositories import users as users_repo
+from app.db.repositories import models as repo
+from app.db.repositories.models import ModelRow, SampleRow
 from app.db.types import utcnow
 from app.errors import ValidationFailed
-from app.learning import Transition, learner_from_state, make_learner
+from app.learning import Polarity, Transition, learner_from_state, make_learner
 from app.learning.learners import TabularLearner
 
 from .context import ServiceContext, after_commit
 
-__all__ = ["fresh_learner", "learner_for_read", "learner_for_update", "learner_for_write",
-           "save_feedback", "store_update"]
+__all__ = ["StartOver", "fresh_learner", "load_learner", "replay", "save_learner",
+           "transition_samples"]
+
+StartOver = Literal["fresh", "imported"]
 
 
 def fresh_learner(
@@ -33,108 +41,93 @@ def fresh_learner(
         raise ValidationFailed(str(exc)) from None
 
 
-def _model(session: Session, user: User) -> LearnerModel:
-    model = users_repo.get_model(session, user.user_id)
-    if model is None:  # every user is created with its model; only a broken database lacks it
-        raise RuntimeError(f"user {user.user_id!r} has no model row")
-    return model
+def replay(learner: TabularLearner[Any], samples: Iterable[SampleRow]) -> int:
+    """Teach ``learner`` journal entries in order, one call per model version (as they were
+    taught); returns the number of versions replayed."""
+    writes = 0
+    for _, group in groupby(samples, key=lambda s: s.version):
+        _teach(learner, list(group))
+        writes += 1
+    return writes
 
 
-def learner_for_update(
-    session: Session, ctx: ServiceContext, user: User
-) -> tuple[LearnerModel, TabularLearner[Any]]:
-    """The user's model row and a learner holding its state; the caller holds the user lock."""
-    model = _model(session, user)
-    learner = ctx.cache.take(user.user_id, model.version)
-    if learner is None:
-        learner = learner_from_state(model.state, ctx.mission)
-    return model, learner
+def _teach(learner: TabularLearner[Any], samples: Sequence[SampleRow]) -> None:
+    first = samples[0]
+    if first.kind == "feedback":
+        learner.feedback(first.episode, first.context, first.action, first.reward)
+    else:
+        learner.update([Transition(s.episode, s.context, s.state, s.action, s.reward,
+                                   _next_state(s), Polarity(s.signal)) for s in samples])
 
 
-def learner_for_read(
-    session: Session, ctx: ServiceContext, user: User
-) -> tuple[LearnerModel, TabularLearner[Any]]:
-    """A private copy of the user's learner (readers never share the writers' objects)."""
-    model = _model(session, user)
-    return model, learner_from_state(model.state, ctx.mission)
+def _next_state(sample: SampleRow) -> int:
+    if sample.next_state is None:
+        raise ValueError(f"a transition sample of version {sample.version} has no next state")
+    return sample.next_state
 
 
-def _commit_hook(session: Session, ctx: ServiceContext, user_id: str, model: LearnerModel,
-                 learner: TabularLearner[Any]) -> None:
-    version = model.version
-    after_commit(session, lambda: ctx.cache.put(user_id, version, learner))
+def transition_samples(user_id: str, transitions: Sequence[Transition]) -> list[SampleRow]:
+    """The journal entries of one ``update`` call (the version is set when saved)."""
+    return [SampleRow(user_id, 0, "transition", t.episode, t.context, t.state, t.action,
+                      float(t.reward), t.next_state, int(t.signal)) for t in transitions]
 
 
-def learner_for_write(conn: Connection, ctx: ServiceContext, user_id: str, version: int
-                      ) -> TabularLearner[Any]:
-    """The robots' write path's learner at model ``version``: the cached one, else decoded from
-    the stored state; the caller holds the user lock."""
-    learner = ctx.cache.take(user_id, version)
-    if learner is None:
-        learner = learner_from_state(neg.model_state(conn, user_id), ctx.mission)
+def load_learner(session: Session, ctx: ServiceContext, user_id: str, model: ModelRow, *,
+                 for_write: bool) -> TabularLearner[Any]:
+    """The user's learner at ``model.version``.
+
+    ``for_write``: the caller holds the user's lock and will hand the learner to
+    :func:`save_learner`; the worker's cached learner is taken for it (no other request sees it
+    until the commit puts it back). A reader gets a private learner of its own.
+    """
+    if for_write:
+        cached = ctx.cache.take(user_id, model.version)
+        if cached is not None:
+            return cached
+    learner = learner_from_state(repo.snapshot(session, user_id), ctx.mission)
+    if model.version > model.state_version:
+        replay(learner, repo.samples_since(session, user_id, model.state_version))
     return learner
 
 
-def store_update(
-    session: Session, conn: Connection, ctx: ServiceContext, user_id: str, model: neg.ModelRec,
-    learner: TabularLearner[Any], transitions: Sequence[Transition],
-) -> None:
-    """Teach the learner one report's transitions and store state and journal together (one
-    new version); the cache gets the learner back once the transaction commits."""
-    if transitions:
-        learner.update(transitions)
+def save_learner(session: Session, ctx: ServiceContext, user_id: str, model: ModelRow,
+                 learner: TabularLearner[Any], samples: Sequence[SampleRow] = (), *,
+                 snapshot: bool = False, start_over: StartOver | None = None,
+                 episode_offset: int | None = None) -> None:
+    """Store a write's change of the user's model: one version on.
+
+    With ``samples`` (the transitions of one report, or one feedback): teach them to
+    ``learner`` and journal them; the learner's state is stored when the snapshot cadence
+    (``snapshot_every`` versions) is due, or at once with ``snapshot``. The learner raises
+    ``ValueError`` before changing anything if a sample does not fit; then nothing is stored.
+
+    With ``start_over``, the model is replaced by ``learner`` (a reset or a new learner:
+    ``"fresh"``; an imported document: ``"imported"``, which becomes the base a rebuild starts
+    from); the history stays. ``episode_offset`` moves the learner's episode clock.
+
+    With neither, nothing is stored; the learner just goes back to the cache.
+    """
+    if start_over is not None:
+        ctx.cache.drop(user_id)
         model.version += 1
-        neg.save_model(conn, user_id, version=model.version, state=learner.to_state(),
-                       updated_at=utcnow(), samples=[
-            {"user_id": user_id, "version": model.version, "kind": "transition",
-             "episode": tr.episode, "context": tr.context, "state": tr.state,
-             "action": tr.action, "reward": float(tr.reward), "next_state": tr.next_state,
-             "signal": int(tr.signal)}
-            for tr in transitions
-        ])
+        model.base_version = model.state_version = model.version
+        if episode_offset is not None:
+            model.episode_offset = episode_offset
+        state = learner.to_state()
+        repo.replace(session, user_id, version=model.version, state=state,
+                     base_state=state if start_over == "imported" else None,
+                     episode_offset=model.episode_offset, updated_at=utcnow())
+    elif samples or snapshot:
+        if samples:
+            _teach(learner, samples)
+        model.version += 1
+        due = snapshot or model.version - model.state_version >= ctx.settings.snapshot_every
+        repo.advance(session, user_id, version=model.version, updated_at=utcnow(),
+                     state=learner.to_state() if due else None)
+        if due:
+            model.state_version = model.version
+        for s in samples:
+            s.version = model.version
+        repo.add_samples(session, list(samples))
     version = model.version
     after_commit(session, lambda: ctx.cache.put(user_id, version, learner))
-
-
-def save_feedback(
-    session: Session, ctx: ServiceContext, user: User, model: LearnerModel,
-    learner: TabularLearner[Any], *, episode: int, context: int, state: int, action: int,
-    reward: float,
-) -> bool:
-    """Add explicit feedback to a sample of the model; False when the model no longer has that
-    sample (it was reset or replaced after the episode), in which case only history records it."""
-    taught = episodes_repo.has_transition(session, user.user_id, episode=episode, action=action,
-                                          after_version=model.base_version)
-    try:
-        if not taught:  # the sample predates a reset or an import: history keeps the feedback
-            raise ValueError("the current model never learned this sample")
-        learner.feedback(episode, context, action, reward)
-    except ValueError:
-        _commit_hook(session, ctx, user.user_id, model, learner)
-        return False
-    model.version += 1
-    model.state = learner.to_state()
-    model.updated_at = utcnow()
-    episodes_repo.add_samples(session, [
-        {"user_id": user.user_id, "version": model.version, "kind": "feedback",
-         "episode": episode, "context": context, "state": state, "action": action,
-         "reward": float(reward), "next_state": None, "signal": 0}
-    ])
-    _commit_hook(session, ctx, user.user_id, model, learner)
-    return True
-
-
-def replace_learner(
-    session: Session, ctx: ServiceContext, user: User, learner: TabularLearner[Any], *,
-    imported: bool,
-) -> LearnerModel:
-    """Start the user's model over from ``learner`` (a reset, a new algorithm, an import)."""
-    model = _model(session, user)
-    ctx.cache.drop(user.user_id)
-    model.version += 1
-    model.state = learner.to_state()
-    model.base_state = model.state if imported else None
-    model.base_version = model.version
-    model.updated_at = utcnow()
-    _commit_hook(session, ctx, user.user_id, model, learner)
-    return model

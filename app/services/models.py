@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import math
-from collections import defaultdict
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -11,28 +10,39 @@ import numpy as np
 from sqlalchemy.orm import Session
 
 from app.db.repositories import episodes as episodes_repo
+from app.db.repositories import models as models_repo
 from app.db.repositories import users as users_repo
+from app.db.repositories.models import ModelRow
 from app.errors import ValidationFailed
-from app.learning import Observation, StateFormatError, Transition, learner_from_state
+from app.learning import Observation, StateFormatError, learner_from_state
 from app.learning.experiments import episode_metrics
+from app.learning.learners import TabularLearner
+from app.learning.negotiation import INTERACTION_CODE
 from app.learning.state import same_state
+from app.learning.types import Interaction
+from app.schemas.common import ActionOut
 from app.schemas.models import ActionBelief, ContextModel, ModelOut, StateModel, StatsOut
 
 from . import audit
 from .auth import require_admin
 from .context import Principal, ServiceContext, rng_for
-from .episodes import _action_out
-from .learners import fresh_learner, learner_for_read, replace_learner
+from .episodes import action_out
+from .learners import fresh_learner, load_learner, replay, save_learner
 from .users import visible_user
 
 __all__ = ["RebuildReport", "export_model", "import_model", "model_view", "rebuild_model",
            "reset_model", "stats"]
 
-_CLASS = {"none": 0, "I1": 1, "I2": 2, "I3": 3}
-
 
 def _num(x: float) -> float | None:
     return None if math.isnan(x) else x
+
+
+def _head(session: Session, user_id: str) -> ModelRow:
+    model = models_repo.head(session, user_id)
+    if model is None:  # every user is created with its model; only a broken database lacks it
+        raise RuntimeError(f"user {user_id!r} has no model row")
+    return model
 
 
 def model_view(
@@ -46,7 +56,8 @@ def model_view(
                                f"{', '.join(t.name for t in mission.time_slots)}.")
     if situation is not None and situation not in mission.situations:
         raise ValidationFailed(f"situation must be one of {', '.join(mission.situations)}.")
-    model, learner = learner_for_read(session, ctx, user)
+    model = _head(session, user_id)
+    learner = load_learner(session, ctx, user_id, model, for_write=False)
     # "if asked now": the next episode; an imported model may have seen more episodes than
     # this user has (learned elsewhere), and its clock must not run backwards
     now = user.episode_count + model.episode_offset + 1
@@ -61,7 +72,8 @@ def model_view(
             info = space.state_info(s)
             actions = [
                 ActionBelief(
-                    action=_action_out(ctx, a), q=float(view.q[a]), visits=int(view.visits[a]),
+                    action=ActionOut(**action_out(space, a)), q=float(view.q[a]),
+                    visits=int(view.visits[a]),
                     kept_visits=None if view.kept_visits is None else float(view.kept_visits[a]),
                     since_last=int(view.since_last[a]),
                     measure=None if view.measure is None else float(view.measure[a]),
@@ -80,12 +92,12 @@ def stats(session: Session, principal: Principal, user_id: str, *, last: int | N
           ) -> StatsOut:
     visible_user(session, principal, user_id)
     rows = episodes_repo.metric_rows(session, user_id, last=last)
-    initiated = np.asarray([r.initiated for r in rows], dtype=bool)
-    interaction = np.asarray([_CLASS[r.interaction_class] for r in rows], dtype=np.int64)
-    success = np.asarray([r.success for r in rows], dtype=bool)
-    queries = np.asarray([r.queries for r in rows], dtype=np.int64)
+    interaction = np.asarray([INTERACTION_CODE[Interaction(r.interaction_class)] for r in rows],
+                             dtype=np.int64)
     reward = np.asarray([r.total_reward for r in rows], dtype=np.float64)
-    m = episode_metrics(initiated, interaction, success, queries, reward)
+    m = episode_metrics(np.asarray([r.initiated for r in rows], dtype=bool), interaction,
+                        np.asarray([r.success for r in rows], dtype=bool),
+                        np.asarray([r.queries for r in rows], dtype=np.int64), reward)
     return StatsOut(
         episodes=len(rows), missions=int(m["missions"]),
         interaction_rate=_num(m["interaction_rate"]), success_rate=_num(m["success_rate"]),
@@ -97,10 +109,10 @@ def stats(session: Session, principal: Principal, user_id: str, *, last: int | N
 def reset_model(session: Session, ctx: ServiceContext, principal: Principal, user_id: str
                 ) -> None:
     require_admin(principal)
-    user = visible_user(session, principal, user_id, for_update=True)
-    model = replace_learner(session, ctx, user,
-                            fresh_learner(ctx, user.algorithm, dict(user.params)),
-                            imported=False)
+    user = visible_user(session, principal, user_id, lock=True)
+    model = _head(session, user_id)
+    save_learner(session, ctx, user_id, model,
+                 fresh_learner(ctx, user.algorithm, dict(user.params)), start_over="fresh")
     audit.record(session, principal, "model.reset", target=user_id, fleet=user.fleet,
                  detail={"version": model.version})
 
@@ -109,27 +121,30 @@ def export_model(session: Session, ctx: ServiceContext, principal: Principal, us
                  ) -> dict[str, Any]:
     require_admin(principal)
     user = visible_user(session, principal, user_id)
-    model = users_repo.get_model(session, user_id)
-    assert model is not None  # every user is created with its model
+    model = _head(session, user_id)
     audit.record(session, principal, "model.export", target=user_id, fleet=user.fleet,
                  detail={"version": model.version})
-    return dict(model.state)
+    if model.state_version == model.version:  # the stored document is the model: as it is
+        return models_repo.snapshot(session, user_id)
+    return load_learner(session, ctx, user_id, model, for_write=False).to_state()
 
 
 def import_model(session: Session, ctx: ServiceContext, principal: Principal, user_id: str,
                  doc: Any) -> ModelOut:
     require_admin(principal)
-    user = visible_user(session, principal, user_id, for_update=True)
+    user = visible_user(session, principal, user_id, lock=True)
     try:
         learner = learner_from_state(doc, ctx.mission)
     except (StateFormatError, ValueError) as exc:
         raise ValidationFailed(f"Not a learner state this deployment can load: {exc}") from None
     user.algorithm, user.params = learner.algorithm, learner.params.to_dict()
-    model = replace_learner(session, ctx, user, learner, imported=True)
-    model.episode_offset = max(model.episode_offset, learner.episodes - user.episode_count)
+    users_repo.save_profile(session, user)
+    model = _head(session, user_id)
+    save_learner(session, ctx, user_id, model, learner, start_over="imported",
+                 episode_offset=max(model.episode_offset,
+                                    learner.episodes - user.episode_count))
     audit.record(session, principal, "model.import", target=user_id, fleet=user.fleet,
                  detail={"algorithm": learner.algorithm, "version": model.version})
-    session.flush()
     return model_view(session, ctx, principal, user_id, time_slot=None, situation=None)
 
 
@@ -147,42 +162,31 @@ class RebuildReport:
     rebuilt: dict[str, Any] = field(default_factory=dict)
 
 
-def rebuild_model(session: Session, ctx: ServiceContext, principal: Principal, user_id: str
-                  ) -> RebuildReport:
+def rebuild_model(session: Session, ctx: ServiceContext, principal: Principal, user_id: str, *,
+                  save: bool = False) -> RebuildReport:
     """Replay the user's history onto a fresh learner (or the imported base) and redraw every
-    decision from the same seed stream; the result must equal the stored model."""
-    user = visible_user(session, principal, user_id, for_update=True)
-    model = users_repo.get_model(session, user_id)
-    assert model is not None
-    learner = (learner_from_state(model.base_state, ctx.mission) if model.base_state
-               else fresh_learner(ctx, user.algorithm, dict(user.params)))
-    groups: dict[int, list[Any]] = defaultdict(list)
-    for s in episodes_repo.samples_since(session, user_id, model.base_version):
-        groups[s.version].append(s)
-    versions = sorted(groups)
-    report = RebuildReport(user_id, model.version)
-    applied = 0
+    decision from the same seed stream; the result must equal the stored model. With ``save``,
+    a rebuilt model that differs is stored (one version on, audited)."""
+    user = visible_user(session, principal, user_id, lock=True)
+    model = _head(session, user_id)
+    base = models_repo.base_state(session, user_id)
+    learner: TabularLearner[Any] = (learner_from_state(base, ctx.mission) if base
+                                    else fresh_learner(ctx, user.algorithm, dict(user.params)))
+    samples = models_repo.samples_since(session, user_id, model.base_version)
+    report = RebuildReport(user_id, model.version, samples=len(samples))
+    taught = 0
 
-    def apply_through(version: int) -> None:
-        nonlocal applied
-        while applied < len(versions) and versions[applied] <= version:
-            rows = groups[versions[applied]]
-            if rows[0].kind == "feedback":
-                r = rows[0]
-                learner.feedback(r.episode, r.context, r.action, r.reward)
-            else:
-                learner.update([
-                    Transition(r.episode, r.context, r.state, r.action, r.reward,
-                               int(r.next_state), r.signal)
-                    for r in rows
-                ])
-            report.writes += 1
-            report.samples += len(rows)
-            applied += 1
+    def teach_through(version: int) -> None:
+        nonlocal taught
+        upto = taught
+        while upto < len(samples) and samples[upto].version <= version:
+            upto += 1
+        report.writes += replay(learner, samples[taught:upto])
+        taught = upto
 
     for decision, context, seq in episodes_repo.decisions_for_rebuild(
             session, user_id, model.base_version):
-        apply_through(decision.model_version)
+        teach_through(decision.model_version)
         drawn_steps = [s for s in decision.chain if not s.get("forced")]
         start = drawn_steps[0]["state"] if drawn_steps else decision.state
         assert decision.draw is not None
@@ -193,8 +197,13 @@ def rebuild_model(session: Session, ctx: ServiceContext, principal: Principal, u
         report.decisions += 1
         if not same:
             report.mismatched_decisions.append(decision.id)
-    apply_through(model.version)
+    teach_through(model.version)
     report.rebuilt = learner.to_state()
-    report.identical = same_state(report.rebuilt, model.state) \
-        and not report.mismatched_decisions
+    stored = load_learner(session, ctx, user_id, model, for_write=False).to_state()
+    report.identical = same_state(report.rebuilt, stored) and not report.mismatched_decisions
+    if save and not report.identical:
+        save_learner(session, ctx, user_id, model, learner, snapshot=True)
+        audit.record(session, principal, "model.rebuild", target=user_id, fleet=None,
+                     detail={"version": model.version,
+                             "mismatched_decisions": len(report.mismatched_decisions)})
     return report

@@ -5,12 +5,13 @@ from __future__ import annotations
 import base64
 import binascii
 import re
-from collections.abc import Sequence
 
 from sqlalchemy.orm import Session
 
-from app.db.models import User
+from app.db.repositories import models as models_repo
 from app.db.repositories import users as repo
+from app.db.repositories.users import UserRow
+from app.db.types import utcnow
 from app.errors import Conflict, NotFound, ValidationFailed
 from app.schemas.common import CLIENT_ID_PATTERN
 from app.schemas.users import LearnerSpec, UserIn, UserList, UserOut
@@ -18,25 +19,27 @@ from app.schemas.users import LearnerSpec, UserIn, UserList, UserOut
 from . import audit
 from .auth import require_admin
 from .context import Principal, ServiceContext
-from .learners import fresh_learner, replace_learner
+from .learners import fresh_learner, save_learner
 
-__all__ = ["delete_user", "get_user", "list_users", "put_user", "user_out", "visible_user"]
-
-
-def visible_user(
-    session: Session, principal: Principal, user_id: str, *, for_update: bool = False
-) -> User:
-    """The user, if the caller may see it; another fleet's user is reported as absent (404)."""
-    return _visible(principal, user_id, repo.get_user(session, user_id, for_update=for_update))
+__all__ = ["create_user", "delete_user", "get_user", "list_users", "put_user", "user_out",
+           "visible_user"]
 
 
-def _visible(principal: Principal, user_id: str, user: User | None) -> User:
+def visible_user(session: Session, principal: Principal, user_id: str, *,
+                 lock: bool = False) -> UserRow:
+    """The user, if the caller may see it (locked for the transaction with ``lock``); another
+    fleet's user is reported as absent (404)."""
+    user = repo.lock(session, user_id) if lock else repo.get(session, user_id)
+    return _visible(principal, user_id, user)
+
+
+def _visible(principal: Principal, user_id: str, user: UserRow | None) -> UserRow:
     if user is None or (not principal.is_admin and user.fleet != principal.fleet):
         raise NotFound(f"No user {user_id!r} in your fleet.")
     return user
 
 
-def user_out(user: User) -> UserOut:
+def user_out(user: UserRow) -> UserOut:
     return UserOut(
         user_id=user.user_id, fleet=user.fleet, display_name=user.display_name,
         learner=LearnerSpec(algorithm=user.algorithm, params=dict(user.params)),
@@ -44,25 +47,15 @@ def user_out(user: User) -> UserOut:
     )
 
 
-def ensure_user(
-    session: Session, ctx: ServiceContext, principal: Principal, user_id: str, *,
-    spec: LearnerSpec | None = None, display_name: str | None = None,
-) -> tuple[User, bool]:
-    """Lock the user (creating it in the caller's fleet if absent); (user, created).
-
-    An existing user is only locked: the fresh learner (and its encoded state) is built only
-    when the user has to be created, so the robots' hot path does not pay for it.
-    """
-    existing = repo.get_user(session, user_id, for_update=True)
-    if existing is not None:
-        return _visible(principal, user_id, existing), False
+def create_user(session: Session, ctx: ServiceContext, principal: Principal, user_id: str, *,
+                spec: LearnerSpec | None = None, display_name: str | None = None) -> bool:
+    """Create the user in the caller's fleet with a fresh learner, unless it exists; True when
+    created. (Two requests creating the same user at once: one creates it, both go on.)"""
     spec = spec or LearnerSpec()
     learner = fresh_learner(ctx, spec.algorithm, spec.params)
-    created = repo.insert_user_if_absent(
-        session, user_id=user_id, fleet=principal.fleet, algorithm=spec.algorithm,
-        params=learner.params.to_dict(), display_name=display_name, state=learner.to_state(),
-    )
-    return visible_user(session, principal, user_id, for_update=True), created
+    return repo.create(session, user_id=user_id, fleet=principal.fleet,
+                       algorithm=spec.algorithm, params=learner.params.to_dict(),
+                       display_name=display_name, state=learner.to_state(), now=utcnow())
 
 
 def put_user(
@@ -70,8 +63,12 @@ def put_user(
     *, reset_model: bool,
 ) -> tuple[UserOut, bool]:
     """Create or update a user; (user, created)."""
-    user, created = ensure_user(session, ctx, principal, user_id, spec=body.learner,
-                                display_name=body.display_name)
+    existing = repo.lock(session, user_id)
+    created = False
+    if existing is None:
+        created = create_user(session, ctx, principal, user_id, spec=body.learner,
+                              display_name=body.display_name)
+    user = visible_user(session, principal, user_id, lock=True)
     if created:
         return user_out(user), True
     if body.display_name is not None:
@@ -86,8 +83,10 @@ def put_user(
                     "forgets what was learned. Repeat with ?reset_model=true to do so."
                 )
             user.algorithm, user.params = body.learner.algorithm, params
-            replace_learner(session, ctx, user, learner, imported=False)
-    session.flush()
+            model = models_repo.head(session, user_id)
+            assert model is not None  # every user is created with its model
+            save_learner(session, ctx, user_id, model, learner, start_over="fresh")
+    repo.save_profile(session, user)
     return user_out(user), False
 
 
@@ -117,8 +116,7 @@ def list_users(
     session: Session, principal: Principal, *, limit: int, cursor: str | None
 ) -> UserList:
     fleet = None if principal.is_admin else principal.fleet
-    rows: Sequence[User] = repo.list_users(session, fleet=fleet, after=_after(cursor),
-                                           limit=limit + 1)
+    rows = repo.list_page(session, fleet=fleet, after=_after(cursor), limit=limit + 1)
     items = [user_out(u) for u in rows[:limit]]
     more = len(rows) > limit
     return UserList(items=items, next_cursor=_cursor(rows[limit - 1].user_id) if more else None)
@@ -127,7 +125,7 @@ def list_users(
 def delete_user(session: Session, ctx: ServiceContext, principal: Principal, user_id: str
                 ) -> None:
     require_admin(principal)
-    user = visible_user(session, principal, user_id, for_update=True)
+    user = visible_user(session, principal, user_id, lock=True)
     audit.record(session, principal, "user.delete", target=user_id, fleet=user.fleet,
                  detail={"episodes": user.episode_count})
     repo.delete_user(session, user_id)

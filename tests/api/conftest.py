@@ -10,7 +10,9 @@ from __future__ import annotations
 
 import os
 import secrets
+import shutil
 from collections.abc import Callable, Iterator
+from pathlib import Path
 
 import psycopg
 import pytest
@@ -37,9 +39,9 @@ def database_url(request: pytest.FixtureRequest,
                  tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
     """A migrated database of each engine, for the whole session."""
     if request.param == "sqlite":
-        url = f"sqlite:///{tmp_path_factory.mktemp('sqlite') / 'attune.db'}"
-        migrate.upgrade(url)
-        yield url
+        folder = tmp_path_factory.mktemp("sqlite")
+        migrate.upgrade(f"sqlite:///{folder / 'template.db'}")
+        yield f"sqlite:///{folder / 'attune.db'}"
         return
     name = f"attune_test_{os.getpid()}_{secrets.token_hex(4)}"
     try:
@@ -70,10 +72,18 @@ def engine_name(database_url: str) -> str:
 
 @pytest.fixture
 def empty_tables(database_url: str) -> None:
+    """Every test starts from the migrated, empty schema: a copy of the SQLite template, or the
+    PostgreSQL tables truncated (the audit log refuses row deletes; TRUNCATE is not one)."""
+    if database_url.startswith("sqlite"):
+        path = Path(database_url.removeprefix("sqlite:///"))
+        for extra in ("-wal", "-shm"):
+            path.with_name(path.name + extra).unlink(missing_ok=True)
+        shutil.copyfile(path.with_name("template.db"), path)
+        return
     engine = create_engine(database_url)
     with engine.begin() as conn:
-        for table in reversed(Base.metadata.sorted_tables):
-            conn.execute(text(f"DELETE FROM {table.name}"))
+        names = ", ".join(t.name for t in Base.metadata.sorted_tables)
+        conn.execute(text(f"TRUNCATE {names} RESTART IDENTITY CASCADE"))
     engine.dispose()
 
 

@@ -28,8 +28,8 @@ from app.db.models import Decision, Episode
 from app.db.session import Database
 from app.fleet.simulate import state_before
 from app.learning import Action, ActionKind, Transition, office_mission, space_for
-from app.learning.experiments import CLASS_CODE, episode_metrics
-from app.learning.learners.base import interaction_class
+from app.learning.experiments import episode_metrics
+from app.learning.negotiation import INTERACTION_CODE, interaction_class
 from app.learning.simulation import (
     STEP_COLUMNS,
     UserProfile,
@@ -211,7 +211,7 @@ def play_event(client: TestClient, user: SimUser, e: int, *,
         step += 1
         if step == 1 and after_first_outcome is not None:
             after_first_outcome(seen, decision is None)
-    seen.interaction = CLASS_CODE[interaction_class(SPACE, rows)]
+    seen.interaction = INTERACTION_CODE[interaction_class(SPACE, rows)]
     assert seen.reward == pytest.approx(seen.expected_reward)
     user.episodes.append(seen)
     return seen

@@ -1,33 +1,48 @@
+"""The audit log of admin actions. Entries are added and read, never changed or removed: this
+module offers nothing else, and the database refuses both (triggers, see the migrations)."""
+
 from __future__ import annotations
 
-from collections.abc import Sequence
+import datetime as dt
+from dataclasses import dataclass
 from typing import Any
 
-from sqlalchemy import event, select
+from sqlalchemy import insert, select
 from sqlalchemy.orm import Session
 
 from ..models import AuditEntry
+from ._rows import columns, conn, table
 
-__all__ = ["add_entry", "list_entries"]
-
-
-def add_entry(session: Session, entry: AuditEntry) -> AuditEntry:
-    session.add(entry)
-    session.flush()
-    return entry
+__all__ = ["AuditRow", "add", "list_page"]
 
 
-def list_entries(session: Session, *, before_id: int | None, limit: int) -> Sequence[AuditEntry]:
+@dataclass(slots=True)
+class AuditRow:
+    id: int | None  # set by the database
+    at: dt.datetime
+    actor_key_id: str  # "cli": the command line
+    actor_role: str
+    actor_fleet: str
+    action: str  # "user.delete", "model.reset", ...
+    target: str  # a user id or a key id
+    fleet: str | None  # the target's fleet
+    detail: dict[str, Any] | None
+
+
+_audit = table(AuditEntry)
+_COLS = columns(_audit, AuditRow)
+
+
+def add(session: Session, entry: AuditRow) -> None:
+    conn(session).execute(insert(_audit).values(
+        at=entry.at, actor_key_id=entry.actor_key_id, actor_role=entry.actor_role,
+        actor_fleet=entry.actor_fleet, action=entry.action, target=entry.target,
+        fleet=entry.fleet, detail=entry.detail))
+
+
+def list_page(session: Session, *, before_id: int | None, limit: int) -> list[AuditRow]:
     """Newest first."""
-    stmt = select(AuditEntry).order_by(AuditEntry.id.desc()).limit(limit)
+    stmt = select(*_COLS).order_by(_audit.c.id.desc()).limit(limit)
     if before_id is not None:
-        stmt = stmt.where(AuditEntry.id < before_id)
-    return session.scalars(stmt).all()
-
-
-def _append_only(_mapper: Any, _connection: Any, target: AuditEntry) -> None:
-    raise RuntimeError(f"audit entry {target.id} is append only: it is never changed or removed")
-
-
-event.listen(AuditEntry, "before_update", _append_only)
-event.listen(AuditEntry, "before_delete", _append_only)
+        stmt = stmt.where(_audit.c.id < before_id)
+    return [AuditRow(*row) for row in conn(session).execute(stmt)]

@@ -11,6 +11,8 @@ from sqlalchemy import Select, case, func, or_, select
 from sqlalchemy.orm import Session
 
 from ..models import Episode, User
+from ._rows import columns, conn, table
+from .users import UserRow
 
 __all__ = ["Activity", "count_users", "latest_episode_in_context", "recent_activity",
            "search_users"]
@@ -39,14 +41,16 @@ def _matching(stmt: _S, *, fleet: str | None, text: str | None) -> _S:
 
 def search_users(
     session: Session, *, fleet: str | None, text: str | None, offset: int, limit: int
-) -> Sequence[User]:
-    stmt = select(User).order_by(User.user_id).offset(offset).limit(limit)
-    return session.scalars(_matching(stmt, fleet=fleet, text=text)).all()
+) -> list[UserRow]:
+    stmt = select(*columns(table(User), UserRow)).order_by(User.user_id).offset(offset) \
+        .limit(limit)
+    return [UserRow(*row) for row in conn(session).execute(_matching(stmt, fleet=fleet,
+                                                                      text=text))]
 
 
 def count_users(session: Session, *, fleet: str | None, text: str | None) -> int:
     stmt = select(func.count()).select_from(User)
-    return int(session.scalar(_matching(stmt, fleet=fleet, text=text)) or 0)
+    return int(conn(session).execute(_matching(stmt, fleet=fleet, text=text)).scalar() or 0)
 
 
 def recent_activity(session: Session, user_ids: Sequence[str], *, window: int
@@ -57,7 +61,7 @@ def recent_activity(session: Session, user_ids: Sequence[str], *, window: int
     if not user_ids:
         return {}
     mission = Episode.interaction_class != "none"
-    counts = session.execute(
+    counts = conn(session).execute(
         select(Episode.user_id, func.count(),
                func.sum(case((mission, 1), else_=0)),
                func.sum(case((Episode.success, 1), else_=0)))
@@ -65,7 +69,7 @@ def recent_activity(session: Session, user_ids: Sequence[str], *, window: int
         .where(Episode.user_id.in_(user_ids), Episode.seq > User.episode_count - window)
         .group_by(Episode.user_id)
     ).all()
-    latest = session.execute(
+    latest = conn(session).execute(
         select(Episode.user_id, Episode.created_at, Episode.closed_at)
         .join(User, User.user_id == Episode.user_id)
         .where(Episode.user_id.in_(user_ids), Episode.seq == User.episode_count)
@@ -85,4 +89,5 @@ def latest_episode_in_context(session: Session, user_id: str, context: int) -> s
         .order_by(Episode.seq.desc())
         .limit(1)
     )
-    return session.scalars(stmt).first()
+    found: str | None = conn(session).execute(stmt).scalar()
+    return found

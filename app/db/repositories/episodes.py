@@ -1,129 +1,257 @@
+"""The episode aggregate: an episode, its decisions (and what the person did), its feedback."""
+
 from __future__ import annotations
 
-from collections.abc import Sequence
+import datetime as dt
+from dataclasses import dataclass
 from typing import Any
 
-from sqlalchemy import Row, delete, func, insert, select
+from sqlalchemy import and_, bindparam, func, insert, select, update
 from sqlalchemy.orm import Session
 
-from ..models import Decision, Episode, Feedback, Sample, User
+from ..models import Decision, Episode, Feedback, LearnerModel, User
+from ._rows import columns, conn, names, record, table, values
+from .models import ModelRow
 
-__all__ = [
-    "add_samples",
-    "decisions_for_rebuild",
-    "delete_samples",
-    "episode_owner",
-    "get_episode",
-    "get_feedback",
-    "has_transition",
-    "list_decisions",
-    "list_episodes",
-    "list_feedback",
-    "metric_rows",
-    "samples_since",
-]
+__all__ = ["DecisionRow", "EpisodeRow", "FeedbackRow", "MetricRow", "add_feedback",
+           "by_event", "decision", "decisions", "decisions_for_rebuild", "feedback",
+           "feedback_list", "get", "insert_decisions", "insert_episode", "list_page",
+           "load_for_outcome", "metric_rows", "owner", "save_answer", "save_episode"]
 
 
-def episode_owner(session: Session, episode_id: str) -> Row[str, str] | None:
+@dataclass(slots=True)
+class EpisodeRow:
+    id: str
+    user_id: str
+    seq: int  # the user's 1-based episode index
+    learner_episode: int  # seq + the model's episode offset
+    event_id: str
+    robot_id: str | None
+    occurred_at: dt.datetime
+    time_slot: str
+    situation: str
+    context: int
+    initiator: str
+    request_service: str | None
+    request_detail: str | None
+    status: str
+    state: int
+    total_reward: float
+    interaction_class: str
+    initiated: bool
+    success: bool
+    queries: int
+    request_hash: str
+    response: dict[str, Any]
+    created_at: dt.datetime
+    closed_at: dt.datetime | None
+
+
+@dataclass(slots=True)
+class DecisionRow:
+    id: str
+    episode_id: str
+    position: int
+    state: int
+    action: int
+    probabilities: list[float]
+    chain: list[dict[str, Any]]
+    draw: int | None  # position in the user's seed stream
+    forced: bool  # the person chose the action (a request)
+    model_version: int  # the model it was drawn from
+    decided_at: dt.datetime
+    response: str | None = None
+    service: str | None = None
+    detail: str | None = None
+    feedback: str | None = None
+    reward: float | None = None
+    next_state: int | None = None
+    answered_at: dt.datetime | None = None
+    outcome_hash: str | None = None
+    outcome_response: dict[str, Any] | None = None
+
+
+@dataclass(slots=True)
+class FeedbackRow:
+    episode_id: str
+    feedback_id: str
+    feedback: str
+    reward: float
+    received_at: dt.datetime
+    request_hash: str
+    response: dict[str, Any]
+
+
+@dataclass(frozen=True, slots=True)
+class MetricRow:
+    seq: int
+    initiated: bool
+    interaction_class: str
+    success: bool
+    queries: int
+    total_reward: float
+
+
+_episodes = table(Episode)
+_decisions = table(Decision)
+_feedback = table(Feedback)
+_models = table(LearnerModel)
+_users = table(User)
+
+_EPISODE_COLS = columns(_episodes, EpisodeRow)
+_DECISION_COLS = columns(_decisions, DecisionRow)
+_N_EPISODE = len(_EPISODE_COLS)
+_N_MODEL = len(columns(_models, ModelRow))
+_EPISODE_NAMES = names(EpisodeRow)
+_DECISION_NAMES = names(DecisionRow)
+# What an outcome or feedback changes in its episode (the rest, the stored response too, is set
+# when it is created).
+_EPISODE_MUTABLE = ("status", "state", "total_reward", "interaction_class", "initiated",
+                    "success", "queries", "closed_at")
+_ANSWER = ("response", "service", "detail", "feedback", "reward", "next_state", "answered_at",
+           "outcome_hash", "outcome_response")
+
+_LATEST = (select(func.max(_decisions.c.position))
+           .where(_decisions.c.episode_id == _episodes.c.id)
+           .correlate(_episodes).scalar_subquery())
+_FOR_OUTCOME = (
+    select(*_EPISODE_COLS, *columns(_models, ModelRow), *_DECISION_COLS)
+    .join(_models, _models.c.user_id == _episodes.c.user_id)
+    .outerjoin(_decisions, and_(_decisions.c.episode_id == _episodes.c.id,
+                                _decisions.c.position == _LATEST))
+    .where(_episodes.c.id == bindparam("episode_id"))
+)
+_GET = select(*_EPISODE_COLS).where(_episodes.c.id == bindparam("episode_id"))
+_OWNER = (select(_episodes.c.user_id, _users.c.fleet)
+          .join(_users, _users.c.user_id == _episodes.c.user_id)
+          .where(_episodes.c.id == bindparam("episode_id")))
+_DECISION = select(*_DECISION_COLS).where(_decisions.c.id == bindparam("decision_id"),
+                                          _decisions.c.episode_id == bindparam("episode_id"))
+_DECISIONS = (select(*_DECISION_COLS).where(_decisions.c.episode_id == bindparam("episode_id"))
+              .order_by(_decisions.c.position))
+_BY_EVENT = select(_episodes.c.request_hash, _episodes.c.response).where(
+    _episodes.c.user_id == bindparam("user_id"), _episodes.c.event_id == bindparam("event_id"))
+_FEEDBACK_COLS = columns(_feedback, FeedbackRow)
+_FEEDBACK = select(*_FEEDBACK_COLS).where(_feedback.c.episode_id == bindparam("episode_id"),
+                                          _feedback.c.feedback_id == bindparam("feedback_id"))
+_FEEDBACK_LIST = (select(*_FEEDBACK_COLS)
+                  .where(_feedback.c.episode_id == bindparam("episode_id"))
+                  .order_by(_feedback.c.id))
+_INSERT_EPISODE = insert(_episodes)
+_INSERT_DECISION = insert(_decisions)
+_INSERT_FEEDBACK = insert(_feedback)
+# Updates: the SET columns are the keys of the parameters; the row's key is a "b_" parameter.
+_UPDATE_DECISION = update(_decisions).where(_decisions.c.id == bindparam("b_id"))
+_UPDATE_EPISODE = update(_episodes).where(_episodes.c.id == bindparam("b_id"))
+
+
+def load_for_outcome(session: Session, episode_id: str
+                     ) -> tuple[EpisodeRow, ModelRow, DecisionRow | None] | None:
+    """The episode, its user's model head and its current (latest) decision, in one query."""
+    row = conn(session).execute(_FOR_OUTCOME, {"episode_id": episode_id}).first()
+    if row is None:
+        return None
+    v = tuple(row)
+    rest = v[_N_EPISODE + _N_MODEL:]
+    return (EpisodeRow(*v[:_N_EPISODE]), ModelRow(*v[_N_EPISODE:_N_EPISODE + _N_MODEL]),
+            DecisionRow(*rest) if rest[0] is not None else None)
+
+
+def get(session: Session, episode_id: str) -> EpisodeRow | None:
+    return record(EpisodeRow, conn(session).execute(_GET, {"episode_id": episode_id}).first())
+
+
+def owner(session: Session, episode_id: str) -> tuple[str, str] | None:
     """(user_id, fleet) of an episode, without loading it."""
-    stmt = (
-        select(Episode.user_id, User.fleet)
-        .join(User, User.user_id == Episode.user_id)
-        .where(Episode.id == episode_id)
-    )
-    return session.execute(stmt).first()
+    row = conn(session).execute(_OWNER, {"episode_id": episode_id}).first()
+    return None if row is None else (row[0], row[1])
 
 
-def get_episode(session: Session, episode_id: str) -> Episode | None:
-    stmt = select(Episode).where(Episode.id == episode_id)
-    return session.scalars(stmt.execution_options(populate_existing=True)).first()
+def by_event(session: Session, user_id: str, event_id: str
+             ) -> tuple[str, dict[str, Any]] | None:
+    """(request hash, stored response) of the episode an event opened, if any."""
+    row = conn(session).execute(_BY_EVENT, {"user_id": user_id, "event_id": event_id}).first()
+    return None if row is None else (row[0], row[1])
 
 
-def list_episodes(
-    session: Session, user_id: str, *, before_seq: int | None, limit: int
-) -> Sequence[Episode]:
-    stmt = select(Episode).where(Episode.user_id == user_id).order_by(Episode.seq.desc())
+def decision(session: Session, episode_id: str, decision_id: str) -> DecisionRow | None:
+    return record(DecisionRow, conn(session).execute(
+        _DECISION, {"decision_id": decision_id, "episode_id": episode_id}).first())
+
+
+def decisions(session: Session, episode_id: str) -> list[DecisionRow]:
+    """The episode's decisions in order."""
+    return [DecisionRow(*row) for row in conn(session).execute(
+        _DECISIONS, {"episode_id": episode_id})]
+
+
+def insert_episode(session: Session, episode: EpisodeRow) -> None:
+    conn(session).execute(_INSERT_EPISODE, [values(episode, _EPISODE_NAMES)])
+
+
+def save_episode(session: Session, episode: EpisodeRow) -> None:
+    conn(session).execute(_UPDATE_EPISODE,
+                          {"b_id": episode.id, **values(episode, _EPISODE_MUTABLE)})
+
+
+def insert_decisions(session: Session, rows: list[DecisionRow]) -> None:
+    if rows:
+        conn(session).execute(_INSERT_DECISION, [values(r, _DECISION_NAMES) for r in rows])
+
+
+def save_answer(session: Session, row: DecisionRow) -> None:
+    """Store the person's response to a decision and the outcome request's response."""
+    conn(session).execute(_UPDATE_DECISION, {"b_id": row.id, **values(row, _ANSWER)})
+
+
+def feedback(session: Session, episode_id: str, feedback_id: str) -> FeedbackRow | None:
+    return record(FeedbackRow, conn(session).execute(
+        _FEEDBACK, {"episode_id": episode_id, "feedback_id": feedback_id}).first())
+
+
+def feedback_list(session: Session, episode_id: str) -> list[FeedbackRow]:
+    return [FeedbackRow(*row) for row in conn(session).execute(
+        _FEEDBACK_LIST, {"episode_id": episode_id})]
+
+
+def add_feedback(session: Session, row: FeedbackRow) -> None:
+    conn(session).execute(_INSERT_FEEDBACK, [values(row, names(FeedbackRow))])
+
+
+def list_page(session: Session, user_id: str, *, before_seq: int | None, limit: int
+              ) -> list[EpisodeRow]:
+    """A user's episodes, newest first, before ``before_seq``."""
+    stmt = (select(*_EPISODE_COLS).where(_episodes.c.user_id == user_id)
+            .order_by(_episodes.c.seq.desc()).limit(limit))
     if before_seq is not None:
-        stmt = stmt.where(Episode.seq < before_seq)
-    return session.scalars(stmt.limit(limit)).all()
+        stmt = stmt.where(_episodes.c.seq < before_seq)
+    return [EpisodeRow(*row) for row in conn(session).execute(stmt)]
 
 
-def list_decisions(session: Session, episode_id: str) -> Sequence[Decision]:
-    stmt = select(Decision).where(Decision.episode_id == episode_id).order_by(Decision.position)
-    return session.scalars(stmt).all()
-
-
-def list_feedback(session: Session, episode_id: str) -> Sequence[Feedback]:
-    stmt = select(Feedback).where(Feedback.episode_id == episode_id).order_by(Feedback.id)
-    return session.scalars(stmt).all()
-
-
-def get_feedback(session: Session, episode_id: str, feedback_id: str) -> Feedback | None:
-    stmt = select(Feedback).where(
-        Feedback.episode_id == episode_id, Feedback.feedback_id == feedback_id
-    )
-    return session.scalars(stmt).first()
-
-
-def metric_rows(
-    session: Session, user_id: str, *, last: int | None
-) -> Sequence[Row[int, bool, str, bool, int, float]]:
-    """(seq, initiated, interaction_class, success, queries, total_reward), oldest first."""
+def metric_rows(session: Session, user_id: str, *, last: int | None) -> list[MetricRow]:
+    """The figures of the user's last ``last`` episodes (all: ``None``), oldest first."""
     stmt = (
-        select(Episode.seq, Episode.initiated, Episode.interaction_class, Episode.success,
-               Episode.queries, Episode.total_reward)
-        .where(Episode.user_id == user_id)
-        .order_by(Episode.seq.desc())
+        select(_episodes.c.seq, _episodes.c.initiated, _episodes.c.interaction_class,
+               _episodes.c.success, _episodes.c.queries, _episodes.c.total_reward)
+        .where(_episodes.c.user_id == user_id).order_by(_episodes.c.seq.desc())
     )
     if last is not None:
         stmt = stmt.limit(last)
-    rows = session.execute(stmt).all()
+    rows = [MetricRow(*row) for row in conn(session).execute(stmt)]
     return rows[::-1]
 
 
-def add_samples(session: Session, rows: list[dict[str, Any]]) -> None:
-    if rows:
-        session.execute(insert(Sample), rows)
-
-
-def samples_since(session: Session, user_id: str, version: int) -> Sequence[Sample]:
+def decisions_for_rebuild(session: Session, user_id: str, version: int
+                          ) -> list[tuple[DecisionRow, int, int]]:
+    """Drawn decisions of the user from model ``version`` on, in draw order: (decision,
+    context, learner's episode index)."""
     stmt = (
-        select(Sample)
-        .where(Sample.user_id == user_id, Sample.version > version)
-        .order_by(Sample.version, Sample.id)
+        select(*_DECISION_COLS, _episodes.c.context, _episodes.c.learner_episode)
+        .join(_episodes, _episodes.c.id == _decisions.c.episode_id)
+        .where(_episodes.c.user_id == user_id, _decisions.c.draw.is_not(None),
+               _decisions.c.model_version >= version)
+        .order_by(_decisions.c.draw)
     )
-    return session.scalars(stmt).all()
-
-
-def has_transition(session: Session, user_id: str, *, episode: int, action: int,
-                   after_version: int) -> bool:
-    """Whether the model taught after ``after_version`` holds ``action``'s sample of ``episode``."""
-    stmt = select(Sample.id).where(
-        Sample.user_id == user_id, Sample.episode == episode, Sample.action == action,
-        Sample.kind == "transition", Sample.version > after_version,
-    ).limit(1)
-    return session.execute(stmt).first() is not None
-
-
-def delete_samples(session: Session, user_id: str) -> None:
-    session.execute(delete(Sample).where(Sample.user_id == user_id))
-
-
-def decisions_for_rebuild(
-    session: Session, user_id: str, version: int
-) -> Sequence[Row[Decision, int, int]]:
-    """Drawn decisions of the user from model ``version`` on: (decision, context, learner's
-    episode index)."""
-    stmt = (
-        select(Decision, Episode.context, Episode.learner_episode)
-        .join(Episode, Episode.id == Decision.episode_id)
-        .where(Episode.user_id == user_id, Decision.draw.is_not(None),
-               Decision.model_version >= version)
-        .order_by(Decision.draw)
-    )
-    return session.execute(stmt).all()
-
-
-def count_episodes(session: Session, user_id: str) -> int:
-    stmt = select(func.count()).select_from(Episode).where(Episode.user_id == user_id)
-    return int(session.scalar(stmt) or 0)
+    n = len(_DECISION_COLS)
+    return [(DecisionRow(*row[:n]), row[n], row[n + 1])
+            for row in conn(session).execute(stmt)]

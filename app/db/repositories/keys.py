@@ -1,38 +1,56 @@
+"""API keys: the SHA-256 of each secret, with the key's role and fleet."""
+
 from __future__ import annotations
 
-from collections.abc import Sequence
-from typing import Any
+import datetime as dt
+from dataclasses import dataclass
 
-from sqlalchemy import Row, Table, bindparam, select
+from sqlalchemy import bindparam, insert, select, update
 from sqlalchemy.orm import Session
 
 from ..models import ApiKey
+from ._rows import columns, conn, names, record, table, values
 
-__all__ = ["add_key", "get_key", "key_by_hash", "list_keys"]
-
-_keys: Table = ApiKey.__table__  # type: ignore[assignment]
-# Every request looks its key up: one prebuilt Core statement, no ORM object.
-_BY_HASH = select(_keys.c.id, _keys.c.role, _keys.c.fleet, _keys.c.secret_hash,
-                  _keys.c.revoked_at).where(_keys.c.secret_hash == bindparam("secret_hash"))
+__all__ = ["KeyRow", "add", "by_hash", "get", "list_all", "revoke"]
 
 
-def add_key(session: Session, key: ApiKey) -> ApiKey:
-    session.add(key)
-    session.flush()
-    return key
+@dataclass(slots=True)
+class KeyRow:
+    id: str
+    prefix: str
+    secret_hash: str
+    role: str
+    fleet: str
+    name: str | None
+    created_at: dt.datetime
+    revoked_at: dt.datetime | None
 
 
-def get_key(session: Session, key_id: str) -> ApiKey | None:
-    return session.get(ApiKey, key_id)
+_keys = table(ApiKey)
+_COLS = columns(_keys, KeyRow)
+# Every request looks its key up (unless the worker's key cache has it): one prebuilt statement.
+_BY_HASH = select(*_COLS).where(_keys.c.secret_hash == bindparam("secret_hash"))
+_GET = select(*_COLS).where(_keys.c.id == bindparam("key_id"))
 
 
-def key_by_hash(session: Session, secret_hash: str) -> Row[Any, Any, Any, Any, Any] | None:
-    """(id, role, fleet, secret_hash, revoked_at) of the key with this digest."""
-    return session.connection().execute(_BY_HASH, {"secret_hash": secret_hash}).first()
+def add(session: Session, key: KeyRow) -> None:
+    conn(session).execute(insert(_keys), [values(key, names(KeyRow))])
 
 
-def list_keys(session: Session, *, fleet: str | None = None) -> Sequence[ApiKey]:
-    stmt = select(ApiKey).order_by(ApiKey.created_at, ApiKey.id)
+def get(session: Session, key_id: str) -> KeyRow | None:
+    return record(KeyRow, conn(session).execute(_GET, {"key_id": key_id}).first())
+
+
+def by_hash(session: Session, secret_hash: str) -> KeyRow | None:
+    return record(KeyRow, conn(session).execute(_BY_HASH, {"secret_hash": secret_hash}).first())
+
+
+def list_all(session: Session, *, fleet: str | None = None) -> list[KeyRow]:
+    stmt = select(*_COLS).order_by(_keys.c.created_at, _keys.c.id)
     if fleet is not None:
-        stmt = stmt.where(ApiKey.fleet == fleet)
-    return session.scalars(stmt).all()
+        stmt = stmt.where(_keys.c.fleet == fleet)
+    return [KeyRow(*row) for row in conn(session).execute(stmt)]
+
+
+def revoke(session: Session, key_id: str, at: dt.datetime) -> None:
+    conn(session).execute(update(_keys).where(_keys.c.id == key_id).values(revoked_at=at))

@@ -1,69 +1,116 @@
+"""The user aggregate: a person the fleet serves; the row is the per-user lock of every write."""
+
 from __future__ import annotations
 
-from collections.abc import Sequence
+import datetime as dt
+from dataclasses import dataclass
 from typing import Any
 
-from sqlalchemy import delete, select
+from sqlalchemy import bindparam, delete, insert, select, update
 from sqlalchemy.dialects import postgresql, sqlite
 from sqlalchemy.orm import Session
 
-from ..models import LearnerModel, User
-from ..types import utcnow
+from ..models import Episode, LearnerModel, User
+from ._rows import columns, conn, record, table
 
-__all__ = ["delete_user", "get_model", "get_user", "insert_user_if_absent", "list_users"]
-
-
-def get_user(session: Session, user_id: str, *, for_update: bool = False) -> User | None:
-    stmt = select(User).where(User.user_id == user_id)
-    if for_update:
-        # PostgreSQL: the per-user lock. SQLite ignores it; its write transactions are
-        # BEGIN IMMEDIATE, which already holds the database's single write lock.
-        stmt = stmt.with_for_update()
-    return session.scalars(stmt.execution_options(populate_existing=True)).first()
+__all__ = ["UserRow", "create", "delete_user", "get", "list_page", "lock", "lock_owner",
+           "save_counters", "save_profile"]
 
 
-def insert_user_if_absent(
-    session: Session, *, user_id: str, fleet: str, algorithm: str, params: dict[str, Any],
-    display_name: str | None, state: dict[str, Any],
-) -> bool:
+@dataclass(slots=True)
+class UserRow:
+    """A user; ``episode_count`` and ``draws`` (decisions drawn: the seed stream's position) are
+    the counters the write path moves."""
+
+    user_id: str
+    fleet: str
+    display_name: str | None
+    algorithm: str
+    params: dict[str, Any]
+    created_at: dt.datetime
+    episode_count: int
+    draws: int
+
+
+_users = table(User)
+_models = table(LearnerModel)
+_episodes = table(Episode)
+_COLS = columns(_users, UserRow)
+_GET = select(*_COLS).where(_users.c.user_id == bindparam("user_id"))
+# PostgreSQL: the row lock is the per-user lock. SQLite ignores FOR UPDATE: its write
+# transactions are BEGIN IMMEDIATE, which already hold the database's single write lock.
+_LOCK = _GET.with_for_update()
+_LOCK_OWNER = select(*_COLS).where(_users.c.user_id == select(_episodes.c.user_id).where(
+    _episodes.c.id == bindparam("episode_id")).scalar_subquery()).with_for_update()
+_SAVE_COUNTERS = update(_users).where(_users.c.user_id == bindparam("b_user_id"))
+
+
+def get(session: Session, user_id: str) -> UserRow | None:
+    return record(UserRow, conn(session).execute(_GET, {"user_id": user_id}).first())
+
+
+def lock(session: Session, user_id: str) -> UserRow | None:
+    """The user, locked for the rest of the transaction (``None``: no such user)."""
+    return record(UserRow, conn(session).execute(_LOCK, {"user_id": user_id}).first())
+
+
+def lock_owner(session: Session, episode_id: str) -> UserRow | None:
+    """The user who owns an episode, locked as by :func:`lock`; ``None`` if no episode.
+
+    The lock comes first and alone: on PostgreSQL a statement that waited for it sees the rows
+    committed by the previous holder only if it starts after the wait (READ COMMITTED), so the
+    episode is read by the next statement.
+    """
+    return record(UserRow, conn(session).execute(_LOCK_OWNER, {"episode_id": episode_id}).first())
+
+
+def create(session: Session, *, user_id: str, fleet: str, algorithm: str,
+           params: dict[str, Any], display_name: str | None, state: dict[str, Any],
+           now: dt.datetime) -> bool:
     """Insert the user and its fresh model unless the id exists; True when inserted.
 
     ``ON CONFLICT DO NOTHING`` makes two robots creating the same user at once safe: one wins,
     the other sees the winner's row when it locks it.
     """
-    values = {
-        "user_id": user_id, "fleet": fleet, "algorithm": algorithm, "params": params,
-        "display_name": display_name, "created_at": utcnow(), "episode_count": 0, "draws": 0,
-    }
-    dialect = session.get_bind().dialect.name
-    insert = postgresql.insert if dialect == "postgresql" else sqlite.insert
+    c = conn(session)
+    dialect = postgresql if c.dialect.name == "postgresql" else sqlite
     stmt = (
-        insert(User).values(**values).on_conflict_do_nothing(index_elements=["user_id"])
-        .returning(User.user_id)
+        dialect.insert(_users).values(
+            user_id=user_id, fleet=fleet, algorithm=algorithm, params=params,
+            display_name=display_name, created_at=now, episode_count=0, draws=0)
+        .on_conflict_do_nothing(index_elements=["user_id"]).returning(_users.c.user_id)
     )
-    inserted = session.execute(stmt).first() is not None
-    if inserted:
-        session.add(LearnerModel(user_id=user_id, version=0, state=state, base_state=None,
-                                 base_version=0, episode_offset=0, updated_at=utcnow()))
-        session.flush()
-    return inserted
+    if c.execute(stmt).first() is None:
+        return False
+    c.execute(insert(_models).values(
+        user_id=user_id, version=0, state=state, base_state=None, base_version=0,
+        episode_offset=0, updated_at=now))
+    return True
 
 
-def list_users(
-    session: Session, *, fleet: str | None, after: str | None, limit: int
-) -> Sequence[User]:
-    stmt = select(User).order_by(User.user_id).limit(limit)
+def save_counters(session: Session, user: UserRow) -> None:
+    conn(session).execute(_SAVE_COUNTERS, {"b_user_id": user.user_id,
+                                           "episode_count": user.episode_count,
+                                           "draws": user.draws})
+
+
+def save_profile(session: Session, user: UserRow) -> None:
+    """Store the display name and the learner's algorithm and parameters."""
+    conn(session).execute(update(_users).where(_users.c.user_id == user.user_id).values(
+        display_name=user.display_name, algorithm=user.algorithm, params=user.params))
+
+
+def list_page(session: Session, *, fleet: str | None, after: str | None, limit: int
+              ) -> list[UserRow]:
+    """Users by id, after ``after``; of one fleet, or of every fleet (``None``)."""
+    stmt = select(*_COLS).order_by(_users.c.user_id).limit(limit)
     if fleet is not None:
-        stmt = stmt.where(User.fleet == fleet)
+        stmt = stmt.where(_users.c.fleet == fleet)
     if after is not None:
-        stmt = stmt.where(User.user_id > after)
-    return session.scalars(stmt).all()
+        stmt = stmt.where(_users.c.user_id > after)
+    return [UserRow(*row) for row in conn(session).execute(stmt)]
 
 
 def delete_user(session: Session, user_id: str) -> None:
-    session.execute(delete(User).where(User.user_id == user_id))
-
-
-def get_model(session: Session, user_id: str) -> LearnerModel | None:
-    stmt = select(LearnerModel).where(LearnerModel.user_id == user_id)
-    return session.scalars(stmt.execution_options(populate_existing=True)).first()
+    """The user, its model, history and journal (the foreign keys cascade)."""
+    conn(session).execute(delete(_users).where(_users.c.user_id == user_id))

@@ -9,7 +9,7 @@ from ..config import PARAMS
 from ..mission import Mission
 from ..protocols import Learner
 from ..state import StateFormatError
-from .base import TabularLearner, interaction_class
+from .base import TabularLearner
 from .dts import DtsLearner
 from .hri import HriLearner
 from .qlearning import QLearner
@@ -22,7 +22,6 @@ __all__ = [
     "QLearner",
     "RmaxLearner",
     "TabularLearner",
-    "interaction_class",
     "learner_from_state",
     "make_learner",
 ]

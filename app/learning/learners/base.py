@@ -18,7 +18,7 @@ import numpy as np
 from ..config import Params
 from ..mission import Mission
 from ..planning import draw
-from ..space import NegotiationSpace, space_for
+from ..space import space_for
 from ..state import FORMAT, FORMAT_VERSION, StateFormatError, decode_array, encode_array
 from ..types import (
     ChainStep,
@@ -26,28 +26,16 @@ from ..types import (
     Decision,
     FloatArray,
     IntArray,
-    Interaction,
     Observation,
     Polarity,
     Transition,
 )
 
-__all__ = ["TabularLearner", "interaction_class"]
+__all__ = ["TabularLearner"]
 
 P = TypeVar("P", bound=Params)
 _ONE = np.ones(1, dtype=np.float64)
 _ONE.setflags(write=False)
-
-
-def interaction_class(space: NegotiationSpace, rows: Sequence[Transition]) -> Interaction:
-    """Eq. (1) from an episode's root step: who initiated and how it was taken."""
-    for row in rows:
-        if row.state == space.OBSERVE:
-            accepted = row.next_state != space.END
-            if row.action == space.INITIATE:
-                return Interaction.I2 if accepted else Interaction.I3
-            return Interaction.I1 if accepted else Interaction.NONE
-    return Interaction.NONE
 
 
 class TabularLearner(Generic[P]):

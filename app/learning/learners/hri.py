@@ -16,10 +16,11 @@ from typing import Any, ClassVar
 import numpy as np
 
 from ..config import HriParams
+from ..negotiation import interaction_class
 from ..planning import gibbs, value_iteration
 from ..state import StateFormatError
 from ..types import FloatArray, IntArray, Interaction, Polarity, Transition
-from .base import TabularLearner, check_nonnegative, interaction_class
+from .base import TabularLearner, check_nonnegative
 
 __all__ = ["HriLearner"]
 

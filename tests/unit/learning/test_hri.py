@@ -24,7 +24,8 @@ from app.learning import (
     office_mission,
     space_for,
 )
-from app.learning.learners import HriLearner, interaction_class
+from app.learning.learners import HriLearner
+from app.learning.negotiation import interaction_class
 
 MISSION = office_mission()
 S = space_for(MISSION)

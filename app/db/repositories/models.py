@@ -1,0 +1,125 @@
+"""The learner-model aggregate: a user's model row and its journal (the samples it was taught).
+
+The model row holds ``version`` (up by one with every change), the learner's state document as
+of ``state_version`` (a snapshot, written every few versions), and where the model started
+(``base_state`` at ``base_version``: an imported document, or ``None`` for a fresh learner).
+Replaying the journal's samples after ``state_version`` onto the snapshot gives the learner at
+``version``; replaying those after ``base_version`` onto the base gives it too (a rebuild).
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+from dataclasses import dataclass
+from typing import Any
+
+from sqlalchemy import bindparam, insert, select, update
+from sqlalchemy.orm import Session
+
+from ..models import LearnerModel, Sample
+from ._rows import columns, conn, names, record, table
+
+__all__ = ["ModelRow", "SampleRow", "add_samples", "advance", "base_state", "has_transition",
+           "head", "replace", "samples_since", "snapshot"]
+
+
+@dataclass(slots=True)
+class ModelRow:
+    """A model's head, without its documents."""
+
+    version: int
+    base_version: int
+    episode_offset: int
+    state_version: int
+
+
+@dataclass(slots=True)
+class SampleRow:
+    """One journal entry: a transition the learner was taught, or explicit feedback
+    (``kind`` "feedback", ``next_state`` None). ``version`` is the model version its write
+    produced; the samples of one version were one ``update`` (or ``feedback``) call."""
+
+    user_id: str
+    version: int
+    kind: str
+    episode: int
+    context: int
+    state: int
+    action: int
+    reward: float
+    next_state: int | None
+    signal: int
+
+
+_models = table(LearnerModel)
+_samples = table(Sample)
+_HEAD = select(*columns(_models, ModelRow)).where(_models.c.user_id == bindparam("user_id"))
+_SNAPSHOT = select(_models.c.state).where(_models.c.user_id == bindparam("user_id"))
+_ADVANCE = update(_models).where(_models.c.user_id == bindparam("b_user_id"))
+_INSERT_SAMPLES = insert(_samples)
+_SAMPLE_NAMES = names(SampleRow)
+_SINCE = (select(*columns(_samples, SampleRow))
+          .where(_samples.c.user_id == bindparam("user_id"),
+                 _samples.c.version > bindparam("version"))
+          .order_by(_samples.c.version, _samples.c.id))
+
+
+def head(session: Session, user_id: str) -> ModelRow | None:
+    return record(ModelRow, conn(session).execute(_HEAD, {"user_id": user_id}).first())
+
+
+def snapshot(session: Session, user_id: str) -> dict[str, Any]:
+    """The stored state document (the learner as of the row's ``state_version``)."""
+    doc: dict[str, Any] = conn(session).execute(_SNAPSHOT, {"user_id": user_id}).scalar_one()
+    return doc
+
+
+def base_state(session: Session, user_id: str) -> dict[str, Any] | None:
+    doc: dict[str, Any] | None = conn(session).execute(
+        select(_models.c.base_state).where(_models.c.user_id == user_id)).scalar_one()
+    return doc
+
+
+def advance(session: Session, user_id: str, *, version: int, updated_at: dt.datetime,
+            state: dict[str, Any] | None = None) -> None:
+    """Move the model to ``version``; with ``state``, the snapshot moves there too."""
+    params: dict[str, Any] = {"b_user_id": user_id, "version": version,
+                              "updated_at": updated_at}
+    if state is not None:
+        params["state"], params["state_version"] = state, version
+    conn(session).execute(_ADVANCE, params)
+
+
+def replace(session: Session, user_id: str, *, version: int, state: dict[str, Any],
+            base_state: dict[str, Any] | None, episode_offset: int,
+            updated_at: dt.datetime) -> None:
+    """Start the model over at ``version`` from ``state`` (a reset, a new learner, an import:
+    ``base_state`` is the imported document, ``None`` for a fresh learner)."""
+    conn(session).execute(_ADVANCE, {
+        "b_user_id": user_id, "version": version, "state": state, "state_version": version,
+        "base_state": base_state, "base_version": version, "episode_offset": episode_offset,
+        "updated_at": updated_at})
+
+
+def add_samples(session: Session, rows: list[SampleRow]) -> None:
+    if rows:
+        conn(session).execute(_INSERT_SAMPLES, [
+            {name: getattr(r, name) for name in _SAMPLE_NAMES} for r in rows])
+
+
+def samples_since(session: Session, user_id: str, version: int) -> list[SampleRow]:
+    """The journal after ``version``, in the order it was taught."""
+    return [SampleRow(*row) for row in conn(session).execute(
+        _SINCE, {"user_id": user_id, "version": version})]
+
+
+def has_transition(session: Session, user_id: str, *, episode: int, action: int,
+                   after_version: int) -> bool:
+    """Whether the model taught after ``after_version`` holds ``action``'s sample of
+    ``episode``."""
+    stmt = select(_samples.c.id).where(
+        _samples.c.user_id == user_id, _samples.c.episode == episode,
+        _samples.c.action == action, _samples.c.kind == "transition",
+        _samples.c.version > after_version,
+    ).limit(1)
+    return conn(session).execute(stmt).first() is not None
