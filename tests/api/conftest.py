@@ -41,6 +41,7 @@ def database_url(request: pytest.FixtureRequest,
     if request.param == "sqlite":
         folder = tmp_path_factory.mktemp("sqlite")
         migrate.upgrade(f"sqlite:///{folder / 'template.db'}")
+        shutil.copyfile(folder / "template.db", folder / "attune.db")
         yield f"sqlite:///{folder / 'attune.db'}"
         return
     name = f"attune_test_{os.getpid()}_{secrets.token_hex(4)}"

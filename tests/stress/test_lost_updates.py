@@ -11,7 +11,7 @@ import httpx2
 import pytest
 from sqlalchemy import create_engine, text
 
-import app.services.episodes as episodes_service
+import app.services.episodes.write as episodes_write
 from app.db import migrate
 from app.main import create_app
 from app.settings import Settings
@@ -67,16 +67,16 @@ def _in_process_run(url: str, *, clients: int = 8) -> tuple[list[str], Workload,
 
 def test_the_check_reports_a_lost_model_update(monkeypatch: pytest.MonkeyPatch) -> None:
     """Break the update path: every 4th write is acknowledged, but its learning is not saved."""
-    real = episodes_service.store_update
+    real = episodes_write.save_learner
     calls = {"n": 0}
 
-    def lossy_store_update(*args: object, **kwargs: object) -> None:
+    def lossy_save_learner(*args: object, **kwargs: object) -> None:
         calls["n"] += 1
         if calls["n"] % 4 == 0:
             return  # the write's transitions never reach the model or the journal
         real(*args, **kwargs)  # type: ignore[arg-type]
 
-    monkeypatch.setattr(episodes_service, "store_update", lossy_store_update)
+    monkeypatch.setattr(episodes_write, "save_learner", lossy_save_learner)
     with fresh_database("sqlite") as url:
         findings, _, _ = _in_process_run(url)
     assert calls["n"] >= 8
