@@ -8,7 +8,6 @@ GET, so a HEAD operation needs no heading of its own.
 from __future__ import annotations
 
 import copy
-from pathlib import Path
 from typing import Any
 
 import pytest
