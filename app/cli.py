@@ -34,7 +34,7 @@ app = typer.Typer(
 )
 
 experiment = typer.Typer(
-    help="Reproduce the paper's experiments with simulated users (algorithm.md section 6).\n\n"
+    help="Reproduce the paper's experiments with simulated users (docs/method.md §12).\n\n"
     "Every run is seeded and deterministic: the same options give the same numbers, whatever "
     "--jobs is. Runs go to worker processes in parallel, with a progress bar.",
     no_args_is_help=True,

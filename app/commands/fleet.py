@@ -202,7 +202,7 @@ def _report(run: FleetRun, stats: dict[str, dict[str, Any]],
             late: dict[str, dict[str, Any]] | None, change_at: int | None, events: int,
             plot: Path | None, json_path: Path | None, learner: str) -> None:
     rows: dict[str, dict[str, Any]] = {**stats, "all": overall_stats(list(stats.values()))}
-    out.print(_table("Metrics from the service's stats endpoint (algorithm.md section 6)", rows))
+    out.print(_table("Metrics from the service's stats endpoint (docs/method.md §10)", rows))
     document: dict[str, Any] = {"users": stats, "overall": rows["all"]}
     if late is not None and change_at is not None:
         late_rows: dict[str, dict[str, Any]] = {**late,

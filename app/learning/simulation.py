@@ -1,4 +1,4 @@
-"""Simulated users (algorithm.md section 7): seeded, with common random numbers across methods.
+"""Simulated users (docs/method.md §11): seeded, with common random numbers across methods.
 
 A user has 3-5 *need rules*: in context (time slot, situation) they want service k, detail d.
 Events come as a stream generated up front (so every method sees the same events); the user's
@@ -43,7 +43,7 @@ class Need:
 
 @dataclass(frozen=True, slots=True)
 class UserProfile:
-    """A simulated person: need rules plus response parameters (defaults of section 7)."""
+    """A simulated person: need rules plus response parameters (defaults of docs/method.md §11)."""
 
     needs: tuple[Need, ...]
     p_acc: float = 0.95  # accepts an initiation when a need exists
@@ -164,7 +164,7 @@ def respond(
     action: int,
     uniforms: np.ndarray,
 ) -> Response:
-    """The person's reaction to a visible action (algorithm.md section 1, transitions).
+    """The person's reaction to a visible action (docs/method.md §2, transitions).
 
     ``uniforms`` are two numbers in [0, 1): the first decides the reaction, the second an abort.
     """
@@ -184,7 +184,7 @@ def respond(
             return Response("accepted", rw.positive, space.ENGAGED, Polarity.POSITIVE)
         return Response("rejected", rw.negative, END, Polarity.NEGATIVE)
     if kind is ActionKind.PASS:
-        # Section 7: busy (an unavailable situation) => always reject, never initiate.
+        # docs/method.md §11: busy (an unavailable situation) => always reject, never initiate.
         if need is not None and available and u < profile.p_self:
             name = mission.services[need.service].name
             return Response("human_request", 0.0, space.request_state(name), Polarity.POSITIVE)
