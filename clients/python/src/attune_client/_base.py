@@ -141,7 +141,7 @@ def result_parser(kind: ReportKind) -> Callable[[httpx.Response], OutcomeResult 
 
 
 class Api:
-    """The requests of every endpoint (``api-v1.md``)."""
+    """The requests of every endpoint (the v1 contract: ``docs/api.md`` in the Attune repo)."""
 
     @staticmethod
     def health() -> Op[bool]:
