@@ -140,10 +140,10 @@ def keys_create(
         with _database(_settings()) as database, database.transaction() as session:
             key, secret = create_key(session, role=role, fleet=fleet, name=name)
     except AppError as exc:
-        err.print(f"[red]{exc.detail}[/red]")
+        _say(exc.detail, "red")
         raise typer.Exit(2) from None
-    err.print(f"Created {key.role} key {key.id} for fleet {key.fleet!r}. Store the secret now: "
-              "it cannot be shown again.")
+    _say(f"Created {key.role} key {key.id} for fleet {key.fleet!r}. Store the secret now: "
+         "it cannot be shown again.")
     typer.echo(secret)
 
 
@@ -239,7 +239,7 @@ def models_rebuild(
                              detail={"version": model.version,
                                      "mismatched_decisions": len(report.mismatched_decisions)})
     except AppError as exc:
-        err.print(f"[red]{exc.detail}[/red]")
+        _say(exc.detail, "red")
         raise typer.Exit(2) from None
     summary = {
         "user_id": user_id, "version": report.version, "writes_replayed": report.writes,
@@ -248,7 +248,7 @@ def models_rebuild(
     }
     typer.echo(json.dumps(summary))
     if not report.identical:
-        err.print("[red]The rebuilt model differs from the stored one.[/red]"
-                  + (" Stored the rebuilt model." if save else ""))
+        _say("The rebuilt model differs from the stored one."
+             + (" Stored the rebuilt model." if save else ""), "red")
         raise typer.Exit(1)
-    err.print(f"Rebuilt {user_id}: identical to the stored model (version {report.version}).")
+    _say(f"Rebuilt {user_id}: identical to the stored model (version {report.version}).")
