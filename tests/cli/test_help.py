@@ -7,11 +7,13 @@ measures; here we check what it imports, which does not depend on the machine).
 
 from __future__ import annotations
 
+import importlib.metadata
 import json
 import subprocess
 import sys
 from importlib.metadata import version
 
+import pytest
 from typer.testing import CliRunner
 
 from app.cli import app
@@ -54,6 +56,16 @@ def test_version_is_the_installed_distributions() -> None:
     done = CliRunner().invoke(app, ["--version"])
     assert done.exit_code == 0
     assert done.stdout == f"attune {version('attune')}\n"
+
+
+def test_version_when_the_code_was_never_installed(monkeypatch: pytest.MonkeyPatch) -> None:
+    def not_installed(name: str) -> str:
+        raise importlib.metadata.PackageNotFoundError(name)
+
+    monkeypatch.setattr(importlib.metadata, "version", not_installed)
+    done = CliRunner().invoke(app, ["--version"])
+    assert done.exit_code == 0
+    assert done.stdout == "attune unknown\n"
 
 
 def test_help_of_every_command_imports_nothing_heavy() -> None:
