@@ -9,21 +9,25 @@ simulated robots and people against a running service (``app.commands.fleet``).
 from __future__ import annotations
 
 import dataclasses
+import os
 import time
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
-from rich.console import Console
 
 from app.commands import fleet as fleet_commands
 from app.commands import service as service_commands
-from app.experiments.runner import default_workers, jobs_for, run_jobs
-from app.learning.experiments import ABLATION_METHODS, E1E2, E3, PA, PAPER_METHODS, Method, Protocol
-from app.learning.simulation import UserProfile
+from app.commands._extras import require
+from app.commands._output import print_json, stderr_console, stdout_console
 
-__all__ = ["app", "experiment", "main"]
+if TYPE_CHECKING:  # the commands import these when they run; --help needs none of them
+    from rich.console import Console
+
+    from app.learning.experiments import Method, Protocol
+
+__all__ = ["app", "experiment", "main", "version"]
 
 app = typer.Typer(
     name="attune",
@@ -33,8 +37,35 @@ app = typer.Typer(
     add_completion=False,
 )
 
+
+def version() -> str:
+    """The version of the installed ``attune`` distribution (``unknown`` when the code runs
+    from a folder that was never installed)."""
+    from importlib.metadata import PackageNotFoundError
+    from importlib.metadata import version as distribution_version
+
+    try:
+        return distribution_version("attune")
+    except PackageNotFoundError:
+        return "unknown"
+
+
+def _print_version(value: bool) -> None:
+    if value:
+        typer.echo(f"attune {version()}")
+        raise typer.Exit()
+
+
+@app.callback()
+def _options(
+    show_version: Annotated[bool, typer.Option(
+        "--version", callback=_print_version, is_eager=True,
+        help="Print the version (attune X.Y.Z) and exit.")] = False,
+) -> None:
+    """Options of ``attune`` itself, before the command."""
+
 experiment = typer.Typer(
-    help="Reproduce the paper's experiments with simulated users (algorithm.md section 6).\n\n"
+    help="Reproduce the paper's experiments with simulated users (docs/method.md §12).\n\n"
     "Every run is seeded and deterministic: the same options give the same numbers, whatever "
     "--jobs is. Runs go to worker processes in parallel, with a progress bar.",
     no_args_is_help=True,
@@ -54,7 +85,9 @@ SeedsOption = Annotated[
 JobsOption = Annotated[
     int | None,
     typer.Option("--jobs", "-j", min=1, show_default=False,
-                 help=f"Worker processes (default: one per CPU, {default_workers()} here). "
+                 # os.cpu_count() is app.experiments.runner.default_workers(), without importing
+                 # the runner (and numpy) for --help.
+                 help=f"Worker processes (default: one per CPU, {os.cpu_count() or 1} here). "
                  "1 runs everything in this process."),
 ]
 UsersOption = Annotated[int, typer.Option("--users", min=1, help="Simulated users per run.")]
@@ -66,7 +99,11 @@ UserOption = Annotated[
                  "each in [0, 1]). Repeatable."),
 ]
 ProgressOption = Annotated[
-    bool, typer.Option("--progress/--no-progress", help="Show a progress bar.")
+    bool, typer.Option("--progress/--no-progress", help="Show a progress bar (on stderr).")
+]
+JsonOption = Annotated[
+    bool, typer.Option("--json", help="Print the summary (summary.json) on stdout instead of "
+                       "the table; messages and progress go to stderr as always.")
 ]
 
 
@@ -83,6 +120,8 @@ def _run(
 ) -> tuple[list[Any], dict[str, Any]]:
     """Run methods x protocols x seeds, report how many runs and how long; returns the results
     and the run information for the summary."""
+    from app.experiments.runner import default_workers, jobs_for, run_jobs
+
     user_params = _user_params(user or ())
     todo = jobs_for(methods, protocols, seeds, users, user_params)
     workers = min(jobs or default_workers(), len(todo))
@@ -109,6 +148,8 @@ def _run(
 
 def _user_params(pairs: Sequence[str]) -> dict[str, float]:
     """Parse ``--user NAME=VALUE`` options, refusing unknown names and values outside [0, 1]."""
+    from app.learning.simulation import UserProfile
+
     allowed = [f.name for f in dataclasses.fields(UserProfile) if f.name != "needs"]
     out: dict[str, float] = {}
     for pair in pairs:
@@ -157,17 +198,23 @@ def paper(
     users: UsersOption = 6,
     user: UserOption = None,
     progress: ProgressOption = True,
+    json_output: JsonOption = False,
 ) -> None:
     """Run E1/E2, E3 and PA for the paper's methods and write the reports."""
+    require("matplotlib", "experiments", "attune experiment")
     from app.experiments.report import print_table2, write_paper_report
+    from app.learning.experiments import E1E2, E3, PA, PAPER_METHODS
 
-    console = Console()
+    console = stderr_console()
     results, info = _run(console, PAPER_METHODS, (E1E2, E3, PA), seeds, users, jobs, progress,
                          "Paper experiments", user)
     start = time.perf_counter()
     summary, files = write_paper_report(results, out, info)
-    print_table2(summary, console)
     _written(console, out, files, time.perf_counter() - start)
+    if json_output:
+        print_json(summary)
+    else:
+        print_table2(summary, stdout_console())
 
 
 @experiment.command(
@@ -188,19 +235,25 @@ def ablation(
     users: UsersOption = 6,
     user: UserOption = None,
     progress: ProgressOption = True,
+    json_output: JsonOption = False,
 ) -> None:
     """Run the HRI ablations on E3 and PA and write the reports."""
+    require("matplotlib", "experiments", "attune experiment")
     from app.experiments.report import print_metrics_table, write_ablation_report
+    from app.learning.experiments import ABLATION_METHODS, E3, PA
 
-    console = Console()
+    console = stderr_console()
     results, info = _run(console, ABLATION_METHODS, (E3, PA), seeds, users, jobs, progress,
                          "Ablations", user)
     start = time.perf_counter()
     summary, files = write_ablation_report(results, out, info)
+    _written(console, out, files, time.perf_counter() - start)
+    if json_output:
+        print_json(summary)
+        return
     blocks = summary["protocols"][E3.name]["blocks"]
     print_metrics_table(blocks[f"1-{E3.n_events}"], summary["methods"], "Ablations on E3",
-                        console, with_paper=False)
-    _written(console, out, files, time.perf_counter() - start)
+                        stdout_console(), with_paper=False)
 
 
 def main() -> None:

@@ -2,42 +2,25 @@
 
 from __future__ import annotations
 
-import json
 import math
 import secrets
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
-from rich.console import Console
-from rich.progress import (
-    BarColumn,
-    MofNCompleteColumn,
-    Progress,
-    TextColumn,
-    TimeElapsedColumn,
-    TimeRemainingColumn,
-)
-from rich.table import Table
 
-from app.fleet.simulate import (
-    METRICS,
-    FleetError,
-    FleetRun,
-    PlayedEpisode,
-    local_stats,
-    make_people,
-    overall_stats,
-    run_fleet,
-)
-from app.learning import Mission, MissionError, space_for
+from ._extras import require
+from ._output import print_json, stderr_console, stdout_console
+
+if TYPE_CHECKING:  # imported by the command when it runs (--help needs none of them)
+    from rich.table import Table
+
+    from app.fleet.simulate import FleetRun
 
 __all__ = ["fleet"]
 
 fleet = typer.Typer(help="Simulated fleets: robots and people played against a live service.",
                     no_args_is_help=True)
-out = Console(highlight=False)
-err = Console(stderr=True, highlight=False)
 
 TOLERANCE = 1e-9  # the robots' tally and the service's stats are the same sums
 
@@ -53,8 +36,12 @@ def _fmt(name: str, value: float | None) -> str:
 
 
 def _table(title: str, rows: dict[str, dict[str, Any]]) -> Table:
+    from rich.table import Table
+
+    from app.fleet.simulate import METRICS
+
     table = Table(title=title, title_justify="left")
-    table.add_column("user")
+    table.add_column("user", no_wrap=True, min_width=max(map(len, rows), default=4))
     heads = {"episodes": "episodes", "missions": "missions", "interaction_rate": "interaction",
              "success_rate": "success", "queries_per_mission": "queries/mission",
              "total_reward": "cum. reward"}
@@ -68,6 +55,8 @@ def _table(title: str, rows: dict[str, dict[str, Any]]) -> Table:
 
 
 def _differences(service: dict[str, Any], local: dict[str, float | None]) -> list[str]:
+    from app.fleet.simulate import METRICS
+
     found = []
     for k in METRICS:
         a, b = service.get(k), local.get(k)
@@ -123,9 +112,9 @@ def simulate(
         "<random>, so that runs never reuse each other's users.")] = None,
     plot: Annotated[Path | None, typer.Option(
         show_default=False, help="Write a PNG of each person's cumulative reward here.")] = None,
-    json_path: Annotated[Path | None, typer.Option(
-        "--json", show_default=False,
-        help="Write the metrics (per user and overall, as the service reports them) here.")] = None,
+    json_output: Annotated[bool, typer.Option(
+        "--json", help="Print the metrics (per user and overall, as the service reports them) "
+        "as JSON on stdout instead of tables.")] = False,
     progress: Annotated[bool, typer.Option("--progress/--no-progress",
                                            help="Show a progress bar.")] = True,
     timeout: Annotated[float, typer.Option(min=0.1, help="Seconds per request.")] = 30.0,
@@ -140,7 +129,24 @@ def simulate(
     per user and overall, and checked against the robots' own tally. Exit code 1 if they differ
     or the run failed, 2 if the service cannot be used.
     """
+    require("attune_client", "fleet", "attune fleet")
+    if plot is not None:
+        require("matplotlib", "fleet", "attune fleet simulate --plot")
+
     from attune_client import APIConnectionError, APIStatusError, Client
+    from rich.progress import (
+        BarColumn,
+        MofNCompleteColumn,
+        Progress,
+        TextColumn,
+        TimeElapsedColumn,
+        TimeRemainingColumn,
+    )
+
+    from app.fleet.simulate import FleetError, PlayedEpisode, make_people, run_fleet
+    from app.learning import Mission, MissionError, space_for
+
+    err = stderr_console()
 
     prefix = prefix or f"fleet-{seed}-{secrets.token_hex(3)}"
 
@@ -195,21 +201,30 @@ def simulate(
         if change_at is not None:
             late = {p.user_id: reader.get_stats(p.user_id, last=events - change_at).model_dump()
                     for p in people}
-    _report(run, stats, late, change_at, events, plot, json_path, learner)
+    _report(run, stats, late, change_at, events, plot, json_output, learner)
 
 
 def _report(run: FleetRun, stats: dict[str, dict[str, Any]],
             late: dict[str, dict[str, Any]] | None, change_at: int | None, events: int,
-            plot: Path | None, json_path: Path | None, learner: str) -> None:
+            plot: Path | None, json_output: bool, learner: str) -> None:
+    from app.fleet.simulate import local_stats, overall_stats
+
+    out, err = stdout_console(), stderr_console()
+    tables = []
     rows: dict[str, dict[str, Any]] = {**stats, "all": overall_stats(list(stats.values()))}
-    out.print(_table("Metrics from the service's stats endpoint (algorithm.md section 6)", rows))
+    tables.append(_table("Metrics from the service's stats endpoint (docs/method.md §10)", rows))
     document: dict[str, Any] = {"users": stats, "overall": rows["all"]}
     if late is not None and change_at is not None:
         late_rows: dict[str, dict[str, Any]] = {**late,
                                                 "all": overall_stats(list(late.values()))}
-        out.print(_table(f"Since the change: the last {events - change_at} episodes of each "
-                         "person", late_rows))
+        tables.append(_table(f"Since the change: the last {events - change_at} episodes of "
+                             "each person", late_rows))
         document["since_change"] = {"users": late, "overall": late_rows["all"]}
+    if json_output:
+        print_json(document)
+    else:
+        for table in tables:
+            out.print(table)
 
     mismatches = []
     for user_id, played in run.episodes.items():
@@ -221,10 +236,6 @@ def _report(run: FleetRun, stats: dict[str, dict[str, Any]],
             err.print(f"  {line}")
     else:
         err.print("The service's stats equal the robots' own tally for every user.")
-    if json_path is not None:
-        json_path.parent.mkdir(parents=True, exist_ok=True)
-        json_path.write_text(json.dumps(document, indent=2) + "\n")
-        err.print(f"Metrics written to {json_path}")
     if plot is not None:
         _plot(plot, stats, change_at, f"Cumulative reward per person ({learner}, "
               f"{run.robots} robots)")

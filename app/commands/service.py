@@ -9,16 +9,23 @@ import socket
 import tempfile
 from collections.abc import Iterator
 from contextlib import contextmanager
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 from rich.console import Console
-from rich.table import Table
 
-from app.db import migrate
-from app.db.session import Database
 from app.errors import AppError
-from app.settings import Settings
+
+from ._lazy import LazyModule, lazy_callable
+
+if TYPE_CHECKING:
+    from app.db import migrate
+    from app.db.session import Database
+    from app.settings import Settings
+else:  # imported when a command runs: --help needs neither SQLAlchemy, Alembic nor pydantic
+    migrate = LazyModule("app.db.migrate")
+    Database = lazy_callable("app.db.session", "Database")
+    Settings = lazy_callable("app.settings", "Settings")
 
 __all__ = ["db", "keys", "models", "serve"]
 
@@ -133,40 +140,73 @@ def keys_create(
         with _database(_settings()) as database, database.transaction() as session:
             key, secret = create_key(session, role=role, fleet=fleet, name=name)
     except AppError as exc:
-        err.print(f"[red]{exc.detail}[/red]")
+        _say(exc.detail, "red")
         raise typer.Exit(2) from None
-    err.print(f"Created {key.role} key {key.id} for fleet {key.fleet!r}. Store the secret now: "
-              "it cannot be shown again.")
+    _say(f"Created {key.role} key {key.id} for fleet {key.fleet!r}. Store the secret now: "
+         "it cannot be shown again.")
     typer.echo(secret)
 
 
+def _say(message: str, style: str = "") -> None:
+    """One message on stderr, as it is (no markup), on one line however long."""
+    from rich.text import Text
+
+    err.print(Text(message, style=style), soft_wrap=True)
+
+
+JsonOption = Annotated[bool, typer.Option("--json", help="Print JSON on stdout instead of a "
+                                          "table.")]
+
+
 @keys.command("list")
-def keys_list() -> None:
+def keys_list(json_output: JsonOption = False) -> None:
     """List keys (ids, roles, fleets; never the secrets)."""
+    from rich.table import Table
+
     from app.services.auth import list_keys
 
+    from ._output import print_json, stdout_console
+
     with _database(_settings()) as database, database.transaction(write=False) as session:
-        rows = list_keys(session)
-        table = Table("id", "role", "fleet", "name", "prefix", "created", "revoked")
-        for k in rows:
-            table.add_row(k.id, k.role, k.fleet, k.name or "", k.prefix + "…",
-                          k.created_at.isoformat(timespec="seconds"),
-                          k.revoked_at.isoformat(timespec="seconds") if k.revoked_at else "")
-    Console().print(table)
+        rows: list[dict[str, Any]] = [
+            {"id": k.id, "role": k.role, "fleet": k.fleet, "name": k.name, "prefix": k.prefix,
+             "created_at": k.created_at.isoformat(timespec="seconds"),
+             "revoked_at": k.revoked_at.isoformat(timespec="seconds") if k.revoked_at else None}
+            for k in list_keys(session)
+        ]
+    if json_output:
+        print_json(rows)
+        return
+    table = Table("id", "role", "fleet", "name", "prefix", "created", "revoked")
+    # The ids are what `keys revoke` takes: never cut, even on a narrow terminal.
+    table.columns[0].no_wrap = True
+    table.columns[0].min_width = max((len(r["id"]) for r in rows), default=2)
+    for r in rows:
+        table.add_row(r["id"], r["role"], r["fleet"], r["name"] or "", r["prefix"] + "…",
+                      r["created_at"], r["revoked_at"] or "")
+    stdout_console().print(table)
 
 
 @keys.command("revoke")
 def keys_revoke(key_id: Annotated[str, typer.Argument(help="The key's id (keys list).")]) -> None:
-    """Revoke a key: its requests get 401 from now on."""
+    """Revoke a key: its requests get 401 from now on. Revoking a revoked key changes nothing.
+    Exit 2 if there is no such key."""
+    from app.db.repositories.keys import get_key
     from app.services.auth import revoke_key
 
     try:
         with _database(_settings()) as database, database.transaction() as session:
+            before = get_key(session, key_id)
+            revoked_at = before.revoked_at if before is not None else None
             revoke_key(session, key_id)
     except AppError as exc:
-        err.print(f"[red]{exc.detail}[/red]")
-        raise typer.Exit(1) from None
-    err.print(f"Revoked {key_id}.")
+        _say(exc.detail, "red")
+        raise typer.Exit(2) from None
+    if revoked_at is not None:
+        _say(f"Key {key_id} was already revoked at {revoked_at.isoformat(timespec='seconds')}; "
+             "nothing changed.")
+        return
+    _say(f"Revoked {key_id}: its requests get 401 from now on.")
 
 
 @models.command("rebuild")
@@ -176,6 +216,7 @@ def models_rebuild(
 ) -> None:
     """Replay USER_ID's history into a fresh learner, redrawing every decision from the same seed
     stream, and compare with the stored model. Exit 0 when identical, 1 when not."""
+    from app.db.repositories.users import get as get_user
     from app.services import audit
     from app.services.context import ServiceContext
     from app.services.models import rebuild_model
@@ -184,9 +225,12 @@ def models_rebuild(
     ctx = ServiceContext.from_settings(settings)
     try:
         with _database(settings) as database, database.transaction() as session:
+            if get_user(session, user_id) is None:
+                _say(f"No user {user_id!r} in this database.", "red")
+                raise typer.Exit(2)
             report = rebuild_model(session, ctx, audit.CLI, user_id, save=save)
     except AppError as exc:
-        err.print(f"[red]{exc.detail}[/red]")
+        _say(exc.detail, "red")
         raise typer.Exit(2) from None
     summary = {
         "user_id": user_id, "version": report.version, "writes_replayed": report.writes,
@@ -195,7 +239,7 @@ def models_rebuild(
     }
     typer.echo(json.dumps(summary))
     if not report.identical:
-        err.print("[red]The rebuilt model differs from the stored one.[/red]"
-                  + (" Stored the rebuilt model." if save else ""))
+        _say("The rebuilt model differs from the stored one."
+             + (" Stored the rebuilt model." if save else ""), "red")
         raise typer.Exit(1)
-    err.print(f"Rebuilt {user_id}: identical to the stored model (version {report.version}).")
+    _say(f"Rebuilt {user_id}: identical to the stored model (version {report.version}).")

@@ -55,7 +55,7 @@ INTERACTION_NAMES = ("none", "I1", "I2", "I3")  # RunResult.interaction codes 0.
 SPREAD_LABEL = "mean ± std over users × seeds (one sample per simulated user and seed)"
 SHADE_LABEL = "shaded: 95% CI of the mean (±1.96 standard errors over users × seeds)"
 
-# algorithm.md section 6: the paper's Table II (E3); other methods are not in the paper.
+# docs/method.md §13: the paper's Table II (E3); other methods are not in the paper.
 PAPER_TABLE2: dict[str, dict[str, float]] = {
     "R-MAX": {"interaction_rate": 0.4992, "success_rate": 0.7148, "queries_per_mission": 1.2},
     "HRI τ=0.01": {"interaction_rate": 0.765, "success_rate": 0.725, "queries_per_mission": 0.79},
@@ -370,10 +370,10 @@ DEFINITIONS = """\
 
 
 def claims_markdown(summary: Mapping[str, Any]) -> str:
-    """The paper's qualitative claims (algorithm.md section 6), each reproduced or not, with the
+    """The paper's qualitative claims (docs/method.md §13), each reproduced or not, with the
     numbers it was decided on (E1 and E2 from the e1e2 runs, Table II orderings from E3)."""
     lines = [
-        "## The paper's claims, checked (algorithm.md section 6)",
+        "## The paper's claims, checked (docs/method.md §13)",
         "",
         "✓ reproduced by our reconstruction, ✗ not reproduced.",
         "",

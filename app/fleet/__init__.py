@@ -1,6 +1,6 @@
 """A fleet of simulated robots serving simulated people, over the network.
 
-The people are the learning core's simulated users (algorithm.md section 7); the robots talk to
+The people are the learning core's simulated users (docs/method.md §11); the robots talk to
 a running Attune service only through ``attune_client``, as real robot controllers do.
 """
 

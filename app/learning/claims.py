@@ -1,4 +1,4 @@
-"""The paper's qualitative claims (algorithm.md section 6), checked on experiment results.
+"""The paper's qualitative claims (docs/method.md §13), checked on experiment results.
 
 Each check returns a :class:`Claim` with the numbers it was decided on, so a report can say
 plainly which claims our reconstruction reproduces and which it does not. Method labels are

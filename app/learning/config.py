@@ -96,7 +96,7 @@ class Params:
 
 @dataclass(frozen=True)
 class HriParams(Params):
-    """The paper's HRI-based learner (algorithm.md sections 3-4).
+    """The paper's HRI-based learner (docs/method.md §4-§5).
 
     tau: Gibbs temperature tau0 (paper: 0.01 "HRI-based 100", 0.005 "HRI-based 200").
     kappa: context factor, tau(c) = tau0 * (1 + kappa * U(c)), U = share of unvisited pairs in c.

@@ -1,4 +1,4 @@
-"""The paper's experiments (algorithm.md section 6) as pure, seeded functions.
+"""The paper's experiments (docs/method.md §12) as pure, seeded functions.
 
 A *run* is one method on one protocol with one seed: ``n_users`` simulated users, each with a
 fresh learner, each living through the protocol's event stream. Seeds are split so that methods

@@ -99,7 +99,7 @@ class Service:
 
 @dataclass(frozen=True, slots=True)
 class Rewards:
-    """Reward constants of the negotiation (algorithm.md section 1)."""
+    """Reward constants of the negotiation (docs/method.md §2)."""
 
     positive: float = 1.0
     accepted_service: float = 5.0
@@ -392,7 +392,7 @@ _OFFICE = Path(__file__).with_name("missions") / "office.json"
 
 @functools.cache
 def office_mission() -> Mission:
-    """The paper's office mission (algorithm.md sections 1-2), loaded from the packaged JSON."""
+    """The paper's office mission (docs/method.md §2), loaded from the packaged JSON."""
     return load_mission(_OFFICE)
 
 

@@ -1,7 +1,7 @@
 """The rules of the service negotiation: what a person's response to a robot's action means.
 
 One place for what the service, the simulated people, the experiments, the stats and the
-console all need to agree on (docs/method.md §1):
+console all need to agree on (docs/method.md §2 and §3):
 
 - :data:`EXPECTS`: which responses each visible action allows;
 - :func:`outcome`: the reward, the next state and the signal of a response;

@@ -1,4 +1,4 @@
-"""Simulated users (algorithm.md section 7): seeded, with common random numbers across methods.
+"""Simulated users (docs/method.md §11): seeded, with common random numbers across methods.
 
 A user has 3-5 *need rules*: in context (time slot, situation) they want service k, detail d.
 Events come as a stream generated up front (so every method sees the same events); the user's
@@ -44,7 +44,7 @@ class Need:
 
 @dataclass(frozen=True, slots=True)
 class UserProfile:
-    """A simulated person: need rules plus response parameters (defaults of section 7)."""
+    """A simulated person: need rules plus response parameters (defaults of docs/method.md §11)."""
 
     needs: tuple[Need, ...]
     p_acc: float = 0.95  # accepts an initiation when a need exists
@@ -168,7 +168,7 @@ def respond(
     action: int,
     uniforms: np.ndarray,
 ) -> Reaction:
-    """The person's reaction to a visible action (docs/method.md §1 and §6).
+    """The person's reaction to a visible action (docs/method.md §2 and §11).
 
     ``uniforms`` are two numbers in [0, 1): the first decides the reaction, the second an abort.
     The person chooses the response; what it means (reward, next state) is the negotiation's
@@ -194,7 +194,7 @@ def respond(
             p = profile.p_acc if need is not None else profile.p_idle_acc
             said = Response.ACCEPTED if available and u < p else Response.REJECTED
         elif kind is ActionKind.PASS:
-            # An unavailable situation (busy): the person never speaks first.
+            # docs/method.md §11: busy (an unavailable situation): never speaks first.
             if wanted is not None and available and u < profile.p_self:
                 said, service = Response.HUMAN_REQUEST, wanted.name
             else:

@@ -1,4 +1,4 @@
-"""The service-negotiation MDP of a mission (algorithm.md section 1), laid out for tables.
+"""The service-negotiation MDP of a mission (docs/method.md §2), laid out for tables.
 
 Per context there are ``L`` non-terminal local states, in this order::
 
@@ -13,9 +13,9 @@ and ``END = L`` is the absorbing terminal. The (state, action) *pairs* of a cont
 range ``actions_of(s)``. Each pair has a fixed list of possible successors (``succ``, padded to
 ``M`` columns, END always among them); learners keep their counts per successor column.
 
-Beyond algorithm.md section 1, ``pass`` may also lead to ENGAGED: a person who addresses the robot
-without naming a service yet (an I1 episode whose type is still unknown). The simulated users
-never do; the service's API allows it.
+Beyond the paper's negotiation (docs/method.md §2), ``pass`` may also lead to ENGAGED: a person
+who addresses the robot without naming a service yet (an I1 episode whose type is still
+unknown). The simulated users never do; the service's API allows it.
 """
 
 from __future__ import annotations

@@ -31,7 +31,7 @@ IntArray = NDArray[np.int64]
 
 
 class Polarity(IntEnum):
-    """The polarity of a human response or of a sample (algorithm.md 3.2); also an array index."""
+    """The polarity of a human response or of a sample (docs/method.md §4); also an array index."""
 
     NEUTRAL = 0
     POSITIVE = 1

@@ -1,7 +1,7 @@
 """Reads the admin console needs beyond the v1 API's: users found by text, a page at a time, with
 their recent activity; and the latest episode of a user in one context (the decision to explain).
 
-The metrics follow algorithm.md section 6, as ``models.stats`` does: the recent success rate is
+The metrics follow docs/method.md §10, as ``models.stats`` does: the recent success rate is
 ``stats(last=RECENT_EPISODES).success_rate``, computed in SQL for a whole page of users at once.
 """
 

@@ -1,4 +1,4 @@
-"""Episodes: start, outcomes, feedback, traces and lists, against the contract (api-v1.md).
+"""Episodes: start, outcomes, feedback, traces and lists, against the contract (docs/api.md).
 
 Decisions are drawn from a seeded stream per user, so a test that needs a given action kind
 tries a few fresh users until one's first decision is of that kind (``first``).

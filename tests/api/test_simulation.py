@@ -1,4 +1,4 @@
-"""Acceptance: simulated users (algorithm.md section 7) driven through the HTTP API.
+"""Acceptance: simulated users (docs/method.md §11) driven through the HTTP API.
 
 Each simulated person lives through a seeded event stream whose needs drift half-way; the test
 plays the person (``respond``) against the service's decisions, records what it saw, and then

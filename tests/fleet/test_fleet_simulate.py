@@ -1,8 +1,9 @@
 """Acceptance: ``attune fleet simulate`` against a live ``attune serve`` (4 robots, 6 people).
 
 The command runs as a robot operator would run it, in its own process, over the network. It must
-finish without error, and the metrics it prints (and writes with ``--json``) must equal what the
-service's stats endpoint says for each user; overall figures must pool the users' episodes.
+finish without error, and the metrics it prints (as tables, or as JSON with ``--json``) must equal
+what the service's stats endpoint says for each user; overall figures must pool the users'
+episodes. Its output is a pipe, not a terminal: the tables must come whole (user ids, headings).
 """
 
 from __future__ import annotations
@@ -28,14 +29,14 @@ MISSION = office_mission()
 ROBOTS, USERS, EVENTS, CHANGE_AT = 4, 6, 24, 12
 
 
-def simulate(service: LiveService, key: str, out: Path, *extra: str
+def simulate(service: LiveService, key: str, out: Path, *extra: str, as_json: bool = True
              ) -> subprocess.CompletedProcess[str]:
     args = [ATTUNE, "fleet", "simulate", "--url", service.url, "--key", key,
             "--robots", str(ROBOTS), "--users", str(USERS), "--events", str(EVENTS),
             "--change-at", str(CHANGE_AT), "--seed", "5", "--prefix", "fleet-t",
-            "--json", str(out / "metrics.json"), "--plot", str(out / "reward.png"),
-            "--no-progress", "--deadline", "240", *extra]
-    env = {**os.environ, "COLUMNS": "200", "ATTUNE_KEY": ""}
+            "--plot", str(out / "reward.png"), "--no-progress", "--deadline", "240",
+            *(["--json"] if as_json else []), *extra]
+    env = {**os.environ, "COLUMNS": "40", "ATTUNE_KEY": ""}  # narrow: nothing may be cut
     return subprocess.run(args, env=env, capture_output=True, text=True, timeout=300,
                           check=False)
 
@@ -57,25 +58,39 @@ def test_fleet_against_a_live_service(engine: str, workers: int, tmp_path: Path)
         done = simulate(service, key, tmp_path)
         assert done.returncode == 0, done.stdout + done.stderr
         assert "equal the robots' own tally for every user" in done.stderr
-        printed = json.loads((tmp_path / "metrics.json").read_text())
+        printed = json.loads(done.stdout)  # stdout holds the JSON document and nothing else
         assert (tmp_path / "reward.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
         user_ids = [f"fleet-t-u{i}" for i in range(1, USERS + 1)]
         assert sorted(printed["users"]) == sorted(user_ids)
-        table = done.stdout.splitlines()
         for user_id in user_ids:
             got = stats_of(service, key, user_id)
             assert got["episodes"] == EVENTS
             assert printed["users"][user_id] == got  # every field, cumulative curve included
             late = stats_of(service, key, user_id, last=EVENTS - CHANGE_AT)
             assert printed["since_change"]["users"][user_id] == late
-            # The printed table row carries the same figures, as formatted.
-            row = next(line for line in table if f" {user_id} " in f" {line} ")
-            for name in METRICS:
-                assert _fmt(name, got[name]) in row, (name, row)
         assert printed["overall"] == pytest.approx(
             overall_stats([stats_of(service, key, u) for u in user_ids]))
         assert printed["overall"]["episodes"] == USERS * EVENTS
+
+        # Without --json, the same figures as tables, whole although COLUMNS is narrow.
+        table_run = simulate(service, key, tmp_path, "--prefix", "fleet-table-check-with-a-"
+                             "long-prefix", "--users", "2", "--events", "4", "--change-at", "2",
+                             as_json=False)
+        assert table_run.returncode == 0, table_run.stderr
+        table = table_run.stdout.splitlines()
+        headers = [line for line in table if "interaction" in line]
+        assert len(headers) == 2  # all episodes, and since the change
+        for header in headers:
+            assert [cell.strip() for cell in header.split("┃")[1:-1]] == [
+                "user", "episodes", "missions", "interaction", "success", "queries/mission",
+                "cum. reward"]
+        for user_id in ("fleet-table-check-with-a-long-prefix-u1",
+                        "fleet-table-check-with-a-long-prefix-u2"):
+            got = stats_of(service, key, user_id)
+            row = next(line for line in table if line.startswith(f"│ {user_id} "))
+            for name in METRICS:
+                assert _fmt(name, got[name]) in row, (name, row)
 
         # Every episode was played by a fleet robot and closed; the robots shared the people.
         robots_seen: set[str] = set()
@@ -102,7 +117,7 @@ def test_fleet_says_why_it_cannot_start(tmp_path: Path) -> None:
         done = simulate(service, "att_not-a-key", tmp_path, "--timeout", "2")
         assert done.returncode == 2
         assert "No service answers" in done.stderr
-    assert not (tmp_path / "metrics.json").exists()
+    assert not (tmp_path / "reward.png").exists()
 
 
 # -- the parts, without a service ----------------------------------------------------------------
@@ -157,19 +172,18 @@ def test_a_difference_between_service_and_robots_is_reported() -> None:
     assert not math.isnan(service["total_reward"])
 
 
-def test_a_run_does_not_depend_on_how_many_robots_share_the_people(tmp_path: Path) -> None:
+def test_a_run_does_not_depend_on_how_many_robots_share_the_people() -> None:
     """Each person's model depends on that person's history only, so with the same people (and
     user ids) the stats are the same whether one robot plays them all or four share them."""
     documents = []
     for robots in (1, 4):
         with fresh_database("sqlite") as url, LiveService(url) as service:
             key = service.create_key("robot")
-            out = tmp_path / f"robots-{robots}.json"
             done = subprocess.run(
                 [ATTUNE, "fleet", "simulate", "--url", service.url, "--key", key, "--robots",
                  str(robots), "--users", "3", "--events", "16", "--seed", "2", "--prefix", "det",
-                 "--json", str(out), "--no-progress"],
+                 "--json", "--no-progress"],
                 capture_output=True, text=True, timeout=300, check=False)
             assert done.returncode == 0, done.stderr
-            documents.append(json.loads(out.read_text()))
+            documents.append(json.loads(done.stdout))
     assert documents[0] == documents[1]

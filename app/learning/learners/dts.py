@@ -7,10 +7,11 @@ Two ideas the paper's learner does without:
   an offer, answer a question, like a service), so only human-facing pairs are learned and the
   planner can chain a learned answer into a silent inference at once (one answered query teaches
   the robot what to infer next time).
-- **Forgetting plus posterior sampling** (section 8: discounted Thompson sampling, Raj & Kalyani
-  2017; forgetting counts n <- lambda * n + 1): each pair's counts decay by ``forgetting`` at
-  every new sample of that pair, so stale evidence fades at the speed the pair is used, and
-  exploration comes from sampling models from the posterior instead of a temperature.
+- **Forgetting plus posterior sampling** (docs/method.md §8: discounted Thompson sampling, Raj
+  & Kalyani 2017; forgetting counts n <- lambda * n + 1): each pair's counts decay by
+  ``forgetting`` at every new sample of that pair, so stale evidence fades at the speed the pair
+  is used, and exploration comes from sampling models from the posterior instead of a
+  temperature.
 
 Per decision, ``samples`` models are drawn (Dirichlet successors, Normal mean rewards), each is
 solved by value iteration, and the action distribution is the share of models in which each

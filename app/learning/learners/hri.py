@@ -1,4 +1,4 @@
-"""The paper's HRI-based learner (algorithm.md sections 3-4).
+"""The paper's HRI-based learner (docs/method.md §4-§5).
 
 Model learning keeps, per (context, pair) and per sample polarity (neutral, +, -), the weighted
 successor counts ``ns`` and reward sums ``rs``; ``rho`` is the reference polarity, the human's

@@ -25,7 +25,7 @@ def test_the_public_api_is_there() -> None:
         "AttuneError", "APIConnectionError", "APITimeoutError", "APIStatusError",
         "BadRequestError", "AuthenticationError", "PermissionDeniedError", "NotFoundError",
         "ConflictError", "PayloadTooLargeError", "UnprocessableEntityError", "RateLimitError",
-        "InternalServerError", "ServiceUnavailableError",
+        "InternalServerError", "ServiceUnavailableError", "OutboxError",
         "Action", "ActionProbability", "Decision", "Context", "EpisodeStarted", "EpisodeState",
         "OutcomeResult", "FeedbackResult", "User", "UserPage", "EpisodeTrace",
         "EpisodeSummary", "EpisodePage", "ModelView", "Stats", "Mission", "LearnerSpec",
@@ -50,6 +50,8 @@ def test_the_errors_form_one_hierarchy() -> None:
     assert issubclass(a.APITimeoutError, a.APIConnectionError)
     assert issubclass(a.APIConnectionError, a.AttuneError)
     assert issubclass(a.ServiceUnavailableError, a.InternalServerError)
+    assert issubclass(a.OutboxError, a.AttuneError)
+    assert not issubclass(a.OutboxError, a.APIStatusError | a.APIConnectionError)
     for cls in (a.BadRequestError, a.AuthenticationError, a.PermissionDeniedError,
                 a.NotFoundError, a.ConflictError, a.PayloadTooLargeError,
                 a.UnprocessableEntityError, a.RateLimitError, a.InternalServerError):

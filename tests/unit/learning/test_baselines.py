@@ -1,4 +1,4 @@
-"""R-MAX, Q-learning and discounted Thompson sampling against algorithm.md section 5 (and the
+"""R-MAX, Q-learning and discounted Thompson sampling against docs/method.md §6-§8 (and the
 DTS learner's own docstring), on hand-built histories with hand-computed expectations."""
 
 from __future__ import annotations

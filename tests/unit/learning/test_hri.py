@@ -1,4 +1,4 @@
-"""The HRI learner against algorithm.md sections 3-4, on small hand-built histories.
+"""The HRI learner against docs/method.md §4-§5, on small hand-built histories.
 
 Every expected number is worked out by hand from the spec (office mission: gamma 0.9, Vmax 60,
 r_pos 1, r_acc 5, r_neg -2, r_q -0.5), not read back from the code.
@@ -413,7 +413,7 @@ class TestActionSelection:
 
     def test_favorable_actions_alternate(self) -> None:
         # Both query_detail and infer(tea) are above the state's mean; the one unused for longer
-        # gets the larger measure (algorithm.md section 4, "expected behavior").
+        # gets the larger measure (docs/method.md §5, "how this behaves").
         learner = hri()
         feed(learner, i2(1, query_detail=True), i2(2))
         tk = S.type_known_state(DRINK)

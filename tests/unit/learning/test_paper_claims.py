@@ -1,7 +1,7 @@
 """The paper's orderings that our reconstruction reproduces, on a seeded run small enough for CI.
 
 Claims the reconstruction does not reproduce are reported by `attune experiment paper`
-(claims.md) and in the README's Results section; they are not asserted here either way.
+(claims.md) and in docs/method.md §13; they are not asserted here either way.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Simulated users (algorithm.md sections 1 and 7): profiles, drift, streams, responses."""
+"""Simulated users (docs/method.md §2 and §11): profiles, drift, streams, responses."""
 
 from __future__ import annotations
 

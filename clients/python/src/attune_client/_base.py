@@ -141,7 +141,7 @@ def result_parser(kind: ReportKind) -> Callable[[httpx.Response], OutcomeResult 
 
 
 class Api:
-    """The requests of every endpoint (``api-v1.md``)."""
+    """The requests of every endpoint (docs/api.md in the Attune repository)."""
 
     @staticmethod
     def health() -> Op[bool]:

@@ -3,7 +3,8 @@
 ``AttuneError`` is the base of them all. ``APIConnectionError`` means no answer came (after the
 retries); ``APIStatusError`` means the service answered with an error status, and carries the
 contract's error body: ``error`` (a name such as ``"Conflict"``), ``detail`` (a sentence a
-person can act on) and, for validation errors, ``fields``.
+person can act on) and, for validation errors, ``fields``. ``OutboxError`` means the outbox file
+cannot be opened where it was asked for.
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ __all__ = [
     "ConflictError",
     "InternalServerError",
     "NotFoundError",
+    "OutboxError",
     "PayloadTooLargeError",
     "PermissionDeniedError",
     "RateLimitError",
@@ -54,6 +56,19 @@ class APITimeoutError(APIConnectionError):
 
     def __init__(self, *, request: httpx.Request, message: str = "Request timed out.") -> None:
         super().__init__(request=request, message=message)
+
+
+class OutboxError(AttuneError):
+    """The outbox file cannot be opened or set up: its folder is missing or not writable, or
+    the path is not a usable SQLite file. ``path`` is the outbox path as given; the message
+    names it and says why."""
+
+    path: str
+
+    def __init__(self, message: str, *, path: str) -> None:
+        super().__init__(message)
+        self.message = message
+        self.path = path
 
 
 class APIStatusError(AttuneError):

@@ -24,6 +24,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from typing import Any
 
+from ._exceptions import OutboxError
 from ._models import PendingReport, Queued, Rejection, ReportKind
 
 __all__ = ["Outbox"]
@@ -71,8 +72,25 @@ def _report(row: tuple[Any, ...]) -> PendingReport:
                          attempts=attempts, last_error=last_error)
 
 
+def _why(path: str, exc: sqlite3.Error) -> str:
+    """Why SQLite could not open or set up ``path``, in words a robot's operator can act on."""
+    folder = os.path.dirname(os.path.abspath(path))
+    if os.path.isdir(path):
+        return "that is a folder; give the path of a file in it"
+    if not os.path.exists(folder):
+        return f"its folder {folder} does not exist (the client does not create folders)"
+    if not os.path.isdir(folder):
+        return f"{folder} is not a folder"
+    if not os.access(folder, os.W_OK | os.X_OK):
+        return f"its folder {folder} is not writable (the outbox keeps journal files beside it)"
+    if os.path.exists(path) and not os.access(path, os.R_OK | os.W_OK):
+        return "the file is not readable and writable"
+    return f"SQLite says: {exc}"
+
+
 class Outbox:
-    """A queue of reports in the SQLite file at ``path`` (created if absent).
+    """A queue of reports in the SQLite file at ``path`` (created if absent; its folder must
+    exist and be writable, else ``OutboxError``).
 
     The methods that write (``append``, ``begin`` ... ``commit``) are meant to be called by one
     thread at a time; the client serialises them with its own lock. ``entries``, ``rejected``
@@ -82,14 +100,22 @@ class Outbox:
     def __init__(self, path: str | os.PathLike[str], *, busy_timeout: float = 120.0) -> None:
         self.path = os.fspath(path)
         self._busy_ms = int(busy_timeout * 1000)
-        self._writer = self._connect()
-        self._reader = self._connect()
         self._read_lock = threading.Lock()
         self._in_transaction = False
-        with self._transaction():
-            for statement in _SCHEMA:  # not executescript(), which would commit first
-                self._writer.execute(statement)
-            self._writer.execute(f"PRAGMA user_version = {_SCHEMA_VERSION}")
+        opened: list[sqlite3.Connection] = []
+        try:
+            opened.append(self._connect())
+            opened.append(self._connect())
+            self._writer, self._reader = opened
+            with self._transaction():
+                for statement in _SCHEMA:  # not executescript(), which would commit first
+                    self._writer.execute(statement)
+                self._writer.execute(f"PRAGMA user_version = {_SCHEMA_VERSION}")
+        except sqlite3.Error as exc:
+            for conn in opened:
+                conn.close()
+            raise OutboxError(f"Cannot open the outbox {self.path!r}: {_why(self.path, exc)}.",
+                              path=self.path) from exc
 
     def _connect(self) -> sqlite3.Connection:
         conn = sqlite3.connect(self.path, timeout=self._busy_ms / 1000, isolation_level=None,

@@ -1,0 +1,87 @@
+"""Commands whose extra is not installed say which one to install, in one line, and exit 2.
+
+A missing package is simulated by ``sys.modules[name] = None``, which makes ``import name``
+raise ImportError as if it were not installed.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import typer
+from typer.testing import CliRunner
+
+from app.cli import app
+from app.commands._extras import require
+
+FLEET = "attune fleet needs the 'fleet' extra: pip install 'attune[fleet]'\n"
+PLOT = "attune fleet simulate --plot needs the 'fleet' extra: pip install 'attune[fleet]'\n"
+EXPERIMENTS = "attune experiment needs the 'experiments' extra: pip install 'attune[experiments]'\n"
+NOBODY = "http://127.0.0.1:9"  # nothing listens there: the command must stop before connecting
+
+
+def without(monkeypatch: pytest.MonkeyPatch, *modules: str) -> None:
+    for name in modules:
+        monkeypatch.setitem(sys.modules, name, None)
+
+
+def test_require_passes_when_the_module_imports() -> None:
+    require("json", "fleet", "attune fleet")
+
+
+def test_require_names_the_extra_and_exits_2(monkeypatch: pytest.MonkeyPatch,
+                                             capsys: pytest.CaptureFixture[str]) -> None:
+    without(monkeypatch, "matplotlib")
+    with pytest.raises(typer.Exit) as stopped:
+        require("matplotlib", "experiments", "attune experiment")
+    assert stopped.value.exit_code == 2
+    assert capsys.readouterr().err == EXPERIMENTS
+
+
+@pytest.mark.parametrize("command", ["paper", "ablation"])
+def test_experiments_without_matplotlib(monkeypatch: pytest.MonkeyPatch, tmp_path: Path,
+                                        command: str) -> None:
+    without(monkeypatch, "matplotlib")
+    done = CliRunner().invoke(app, ["experiment", command, "--seeds", "1", "--users", "1",
+                                    "--jobs", "1", "--out", str(tmp_path / "out")])
+    assert done.exit_code == 2
+    assert done.stderr == EXPERIMENTS
+    assert done.stdout == ""
+    assert not (tmp_path / "out").exists()  # stopped before running anything
+
+
+def test_fleet_without_the_client(monkeypatch: pytest.MonkeyPatch) -> None:
+    without(monkeypatch, "attune_client")
+    done = CliRunner().invoke(app, ["fleet", "simulate", "--key", "att_x", "--url", NOBODY])
+    assert done.exit_code == 2
+    assert done.stderr == FLEET
+    assert done.stdout == ""
+
+
+def test_fleet_plot_without_matplotlib(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
+    without(monkeypatch, "matplotlib")
+    done = CliRunner().invoke(app, ["fleet", "simulate", "--key", "att_x", "--url", NOBODY,
+                                    "--plot", str(tmp_path / "reward.png")])
+    assert done.exit_code == 2
+    assert done.stderr == PLOT  # before trying the service: no "No service answers"
+    # Without --plot, matplotlib is not needed: the command goes on (and finds no service).
+    done = CliRunner().invoke(app, ["fleet", "simulate", "--key", "att_x", "--url", NOBODY,
+                                    "--timeout", "1", "--no-progress"])
+    assert done.exit_code == 2
+    assert "No service answers" in done.stderr
+
+
+def test_the_console_script_prints_one_line_and_no_traceback(tmp_path: Path) -> None:
+    """As the ``attune`` script runs it (``app.cli:main``), in a fresh interpreter."""
+    code = ("import sys; sys.modules['matplotlib'] = None; "
+            "sys.argv = ['attune', 'experiment', 'paper', '--seeds', '1', '--out', "
+            f"{str(tmp_path / 'out')!r}]; "
+            "from app.cli import main; main()")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=120, check=False)
+    assert done.returncode == 2
+    assert done.stderr == EXPERIMENTS
+    assert done.stdout == ""
