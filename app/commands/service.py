@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 import typer
 from rich.console import Console
 
-from app.errors import AppError
+from app.errors import AppError, NotFound
 
 from ._lazy import LazyModule, lazy_callable
 
@@ -191,20 +191,18 @@ def keys_list(json_output: JsonOption = False) -> None:
 def keys_revoke(key_id: Annotated[str, typer.Argument(help="The key's id (keys list).")]) -> None:
     """Revoke a key: its requests get 401 from now on. Revoking a revoked key changes nothing.
     Exit 2 if there is no such key."""
-    from app.db.repositories.keys import get_key
     from app.services.auth import revoke_key
 
     try:
         with _database(_settings()) as database, database.transaction() as session:
-            before = get_key(session, key_id)
-            revoked_at = before.revoked_at if before is not None else None
-            revoke_key(session, key_id)
+            key, changed = revoke_key(session, key_id)
     except AppError as exc:
         _say(exc.detail, "red")
         raise typer.Exit(2) from None
-    if revoked_at is not None:
-        _say(f"Key {key_id} was already revoked at {revoked_at.isoformat(timespec='seconds')}; "
-             "nothing changed.")
+    if not changed:
+        assert key.revoked_at is not None
+        _say(f"Key {key_id} was already revoked at "
+             f"{key.revoked_at.isoformat(timespec='seconds')}; nothing changed.")
         return
     _say(f"Revoked {key_id}: its requests get 401 from now on.")
 
@@ -216,7 +214,6 @@ def models_rebuild(
 ) -> None:
     """Replay USER_ID's history into a fresh learner, redrawing every decision from the same seed
     stream, and compare with the stored model. Exit 0 when identical, 1 when not."""
-    from app.db.repositories.users import get as get_user
     from app.services import audit
     from app.services.context import ServiceContext
     from app.services.models import rebuild_model
@@ -225,10 +222,10 @@ def models_rebuild(
     ctx = ServiceContext.from_settings(settings)
     try:
         with _database(settings) as database, database.transaction() as session:
-            if get_user(session, user_id) is None:
-                _say(f"No user {user_id!r} in this database.", "red")
-                raise typer.Exit(2)
             report = rebuild_model(session, ctx, audit.CLI, user_id, save=save)
+    except NotFound:  # the command line sees every fleet: the user is not in the database
+        _say(f"No user {user_id!r} in this database.", "red")
+        raise typer.Exit(2) from None
     except AppError as exc:
         _say(exc.detail, "red")
         raise typer.Exit(2) from None

@@ -60,8 +60,10 @@ def list_keys(session: Session) -> list[KeyRow]:
     return repo.list_all(session)
 
 
-def revoke_key(session: Session, key_id: str, *, actor: Principal | None = None) -> KeyRow:
-    """Revoke a key (its requests get 401 from now on); ``actor`` as for ``create_key``."""
+def revoke_key(session: Session, key_id: str, *, actor: Principal | None = None
+               ) -> tuple[KeyRow, bool]:
+    """Revoke a key (its requests get 401 from now on); ``actor`` as for ``create_key``.
+    Returns the key and whether this call revoked it (False: it was revoked already)."""
     actor = actor or audit.CLI
     require_admin(actor)
     key = repo.get(session, key_id)
@@ -71,7 +73,8 @@ def revoke_key(session: Session, key_id: str, *, actor: Principal | None = None)
         key.revoked_at = utcnow()
         repo.revoke(session, key.id, key.revoked_at)
         audit.record(session, actor, "key.revoke", target=key.id, fleet=key.fleet)
-    return key
+        return key, True
+    return key, False
 
 
 def authenticate(session: Session, authorization: str | None) -> Principal:
