@@ -37,6 +37,11 @@ class Settings(BaseSettings):
     sqlite_busy_timeout_s: float = Field(
         default=30.0, gt=0, description="How long a SQLite writer waits for the write lock."
     )
+    sqlite_inline_writes: bool = Field(
+        default=True, description="SQLite: run the robots' short writes on the worker's event "
+        "loop when the database's write lock is free at once (else in the thread pool, as every "
+        "other request)."
+    )
     db_pool_size: int = Field(default=10, ge=1, description="Connections per worker process.")
     db_pre_ping: bool = Field(
         default=False, description="Test each pooled connection before use (one more round "
@@ -45,6 +50,12 @@ class Settings(BaseSettings):
     )
     model_cache_size: int = Field(
         default=1024, ge=0, description="Decoded learners kept in memory per worker (0: none)."
+    )
+    key_cache_seconds: float = Field(
+        default=5.0, ge=0, le=3600,
+        description="How long a worker keeps an API key it authenticated before reading it "
+        "from the database again: a key revoked by the command line or another worker keeps "
+        "working for at most this long in each worker (0: read every request's key).",
     )
     snapshot_every: int = Field(
         default=16, ge=1, le=10_000,

@@ -1,39 +1,46 @@
-"""Annotated dependencies: the request's session, the caller, the service context.
+"""What a route gets besides its parameters: the caller, the request's session and the service
+context.
 
-A request costs the event loop one hop to the thread pool for the caller's key (one read
-statement of its own) and one for the route, whose whole transaction runs in that one thread
-(:class:`TransactionalRoute`): between the first statement and the commit nothing waits for the
-event loop, so a writer holds a user's lock (and SQLite's write lock) only while it works.
+A request costs the event loop one hop to the thread pool, for the route, whose whole
+transaction runs in that one call (:class:`TransactionalRoute`): between the first statement and
+the commit nothing waits for the event loop, so a writer holds a user's lock (and SQLite's write
+lock) only while it works. The caller is known before that, on the event loop, from the worker's
+key cache (a key is looked up in the database, in the thread pool, only when the cache does not
+have it).
 """
 
 from __future__ import annotations
 
 import functools
 import inspect
-import logging
-from collections.abc import AsyncIterator, Callable
-from contextlib import AbstractContextManager
+from collections.abc import Callable
 from typing import Annotated, Any
 
+from anyio import to_thread
 from fastapi import Depends, Header, Request
+from fastapi.concurrency import run_in_threadpool
 from fastapi.routing import APIRoute
-from sqlalchemy.orm import Session
 
 from app.db.session import Database
 from app.errors import TooManyRequests
-from app.services.auth import authenticate
-from app.services.context import Principal, ServiceContext
+from app.services.auth import authenticate, bearer_digest
+from app.services.context import KeyCache, Principal, ServiceContext
 
 from .middleware import KeyRateLimiter
 
-__all__ = ["ContextDep", "CurrentPrincipal", "SessionDep", "TransactionalRoute", "single_read",
-           "writes"]
-
-log = logging.getLogger("attune.api")
+__all__ = ["CurrentPrincipal", "TransactionalRoute", "principal_of", "writes"]
 
 _WRITES = {"POST", "PUT", "PATCH", "DELETE"}
 _WRITE_MARK = "__attune_writes__"
-_DB = "attune_db"
+_INJECTED = ("session", "ctx")
+_INLINE_MARK = "__attune_inline__"
+
+
+def inline(endpoint: Callable[..., Any]) -> Callable[..., Any]:
+    """Mark a short write (a robot's episode start or outcome): on SQLite it runs on the event
+    loop when the write lock is free at once (``Database.try_inline``), else in the pool."""
+    setattr(endpoint, _INLINE_MARK, True)
+    return endpoint
 
 
 def writes(endpoint: Callable[..., Any]) -> Callable[..., Any]:
@@ -43,81 +50,100 @@ def writes(endpoint: Callable[..., Any]) -> Callable[..., Any]:
     return endpoint
 
 
-async def get_session(request: Request) -> AsyncIterator[Session]:
-    """The request's session, not yet begun: the route's own thread runs its transaction
-    (``TransactionalRoute``), committed before the response is sent, or rolled back if the
-    route raises; the learner cache is refreshed only after the commit.
-
-    Writes are write transactions (SQLite: ``BEGIN IMMEDIATE``); so is a route marked with
-    :func:`writes`.
-    """
-    db: Database = request.app.state.db
-    route = request.scope.get("route")
-    write = request.method in _WRITES or getattr(getattr(route, "endpoint", None),
-                                                 _WRITE_MARK, False)
-    session = db.session(write=write)
-    session.info[_DB] = (db, write)
-    try:
-        yield session
-    finally:
-        if session.in_transaction():  # a route outside TransactionalRoute: never commit it
-            log.error("the session of %s %s was used outside its route's transaction; "
-                      "rolled back", request.method, request.url.path)
-        session.close()
-
-
-SessionDep = Annotated[Session, Depends(get_session, scope="function")]
-
-
-def _in_transaction(endpoint: Callable[..., Any]) -> Callable[..., Any]:
-    if inspect.iscoroutinefunction(endpoint) or \
-            "session" not in inspect.signature(endpoint).parameters:
+def _in_transaction(endpoint: Callable[..., Any], *, write: bool, inline: bool
+                    ) -> Callable[..., Any]:
+    """``endpoint`` with its ``session`` and ``ctx`` parameters filled in by the route: the
+    request's session, whose transaction is the endpoint's whole call (committed at the end,
+    rolled back if it raises; the after-commit callbacks run once it committed), and the
+    service context. FastAPI sees the endpoint's other parameters, plus the request."""
+    if inspect.iscoroutinefunction(endpoint):
         return endpoint
+    signature = inspect.signature(endpoint)
+    injected = [name for name in _INJECTED if name in signature.parameters]
+    if not injected:
+        return endpoint
+    params = [p for p in signature.parameters.values() if p.name not in _INJECTED]
+    own_request = any(p.name == "request" for p in params)
+    if not own_request:
+        params.append(inspect.Parameter("request", inspect.Parameter.KEYWORD_ONLY,
+                                        annotation=Request))
 
     @functools.wraps(endpoint)
-    def run(*args: Any, **kwargs: Any) -> Any:
-        session: Session = kwargs["session"]
-        db, write = session.info[_DB]
-        with db.within(session, write=write):
-            return endpoint(*args, **kwargs)
+    async def run_here_or_in_thread(**kwargs: Any) -> Any:
+        request: Request = kwargs["request"] if own_request else kwargs["request"]
+        db: Database = request.app.state.db
+        inline = db.try_inline()
+        if inline is None:
+            return await run_in_threadpool(run, **kwargs)
+        if not own_request:
+            kwargs.pop("request")
+        if "ctx" in injected:
+            kwargs["ctx"] = request.app.state.ctx
+        with inline as session:
+            kwargs["session"] = session
+            return endpoint(**kwargs)
 
-    return run
+    @functools.wraps(endpoint)
+    def run(**kwargs: Any) -> Any:
+        request: Request = kwargs["request"] if own_request else kwargs.pop("request")
+        if "ctx" in injected:
+            kwargs["ctx"] = request.app.state.ctx
+        if "session" not in injected:
+            return endpoint(**kwargs)
+        db: Database = request.app.state.db
+        with db.transaction(write=write) as session:
+            kwargs["session"] = session
+            return endpoint(**kwargs)
+
+    run.__signature__ = signature.replace(parameters=params)  # type: ignore[attr-defined]
+    if not (write and inline):
+        return run
+    run_here_or_in_thread.__signature__ = run.__signature__  # type: ignore[attr-defined]
+    return run_here_or_in_thread
 
 
 class TransactionalRoute(APIRoute):
-    """A route whose ``session`` parameter's transaction runs inside the route's own call (in
-    the thread pool): first statement, work, commit and after-commit callbacks in one thread."""
+    """A route whose endpoint takes ``session: Session`` and/or ``ctx: ServiceContext``, given
+    by the route (not by dependencies): the session's transaction is the endpoint's whole call,
+    in the thread pool. Routes of POST, PUT, PATCH and DELETE, and GET routes marked with
+    :func:`writes`, run write transactions (SQLite: ``BEGIN IMMEDIATE``); the others read."""
 
     def __init__(self, path: str, endpoint: Callable[..., Any], **kwargs: Any) -> None:
-        super().__init__(path, _in_transaction(endpoint), **kwargs)
+        methods = {m.upper() for m in kwargs.get("methods") or ("GET",)}
+        write = bool(methods & _WRITES) or getattr(endpoint, _WRITE_MARK, False)
+        inline = getattr(endpoint, _INLINE_MARK, False)
+        super().__init__(path, _in_transaction(endpoint, write=write, inline=inline), **kwargs)
 
 
-async def get_context(request: Request) -> ServiceContext:
+def _lookup(db: Database, authorization: str | None) -> Principal:
+    with db.single_read() as session:
+        return authenticate(session, authorization)
+
+
+async def principal_of(request: Request, authorization: str | None, *,
+                       cached: bool = True) -> Principal:
+    """Who holds the key of an ``Authorization`` header (401 if nobody).
+
+    A key the worker saw in the last ``ATTUNE_KEY_CACHE_SECONDS`` comes from its cache, on the
+    event loop (unless not ``cached``); otherwise it is read by a statement of its own in the
+    thread pool.
+    """
     ctx: ServiceContext = request.app.state.ctx
-    return ctx
+    keys: KeyCache = ctx.keys
+    digest = bearer_digest(authorization)
+    principal = keys.get(digest) if cached else None
+    if principal is None:
+        principal = await to_thread.run_sync(_lookup, request.app.state.db, authorization)
+        keys.put(digest, principal)
+    return principal
 
 
-ContextDep = Annotated[ServiceContext, Depends(get_context)]
-
-
-def single_read(request: Request) -> AbstractContextManager[Session]:
-    """A session for one read statement of its own, outside any transaction (the caller's
-    key, looked up before the route runs)."""
-    db: Database = request.app.state.db
-    return db.single_read()
-
-
-def current_principal(
+async def current_principal(
     request: Request,
     authorization: Annotated[str | None, Header(include_in_schema=False)] = None,
 ) -> Principal:
-    """The caller, once its key is known and within its rate limit (else 401 / 429).
-
-    The key is read by a statement of its own, so the route's transaction begins only in the
-    route.
-    """
-    with single_read(request) as session:
-        principal = authenticate(session, authorization)
+    """The caller, once its key is known and within its rate limit (else 401 / 429)."""
+    principal = await principal_of(request, authorization)
     limiter: KeyRateLimiter = request.app.state.limiter
     wait = limiter.acquire(principal.key_id)
     if wait:

@@ -1,10 +1,11 @@
 """Who is using the console: an admin key, entered once, kept in a browser-session cookie.
 
 The cookie holds the key itself (HttpOnly, SameSite=Strict, no Max-Age: it ends with the browser
-session) and every request authenticates it again through ``app.services.auth.authenticate``, the
-service the v1 API uses, so a revoked key stops working at the next click. State-changing POSTs
-carry a CSRF token derived from the key (an HMAC, so the page never shows the key) and must come
-from the console's own origin.
+session) and every request authenticates it again as the v1 API does
+(``app.api.deps.principal_of``, without the workers' key cache), so a revoked key stops at
+the next click.
+State-changing POSTs carry a CSRF token derived from the key (an HMAC, so the page never shows
+the key) and must come from the console's own origin.
 """
 
 from __future__ import annotations
@@ -17,9 +18,9 @@ from urllib.parse import parse_qsl, urlsplit
 
 from fastapi import Depends, Request
 
-from app.api.deps import SessionDep, single_read
+from app.api.deps import principal_of
 from app.errors import Forbidden, Unauthorized
-from app.services.auth import authenticate, require_admin
+from app.services.auth import require_admin
 from app.services.context import Principal
 
 __all__ = ["COOKIE", "Admin", "AdminDep", "FormDep", "LoginRequired", "PageError", "check_post",
@@ -57,10 +58,13 @@ def csrf_token(secret: str) -> str:
     return hmac.new(secret.encode("utf-8"), _CSRF_CONTEXT, hashlib.sha256).hexdigest()
 
 
-def sign_in(session: SessionDep, secret: str) -> Principal:
-    """The admin behind ``secret``; 401 for an unknown or revoked key, 403 for a robot key."""
+async def sign_in(request: Request, secret: str) -> Principal:
+    """The admin behind ``secret``; 401 for an unknown or revoked key, 403 for a robot key.
+
+    Read from the database on every page (not from the workers' key cache): a revoked admin key
+    stops at the next click."""
     try:
-        principal = authenticate(session, f"Bearer {secret}")
+        principal = await principal_of(request, f"Bearer {secret}", cached=False)
     except Unauthorized:
         raise PageError(401, "Unknown or revoked key",
                         "This key is not known to the service, or it was revoked. Sign in with "
@@ -75,15 +79,13 @@ def sign_in(session: SessionDep, secret: str) -> Principal:
     return principal
 
 
-def current_admin(request: Request) -> Admin:
-    """The signed-in admin (the key is read by a statement of its own, as for the API's
-    keys)."""
+async def current_admin(request: Request) -> Admin:
+    """The signed-in admin (the key is checked as the API's keys are)."""
     secret = request.cookies.get(COOKIE)
     if not secret:
         path = request.url.path + (f"?{request.url.query}" if request.url.query else "")
         raise LoginRequired(path)
-    with single_read(request) as session:
-        return Admin(sign_in(session, secret), csrf_token(secret))
+    return Admin(await sign_in(request, secret), csrf_token(secret))
 
 
 AdminDep = Annotated[Admin, Depends(current_admin)]

@@ -19,14 +19,16 @@ from fastapi import APIRouter, Query, Request, Response
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import HTMLResponse, JSONResponse, RedirectResponse
 from fastapi.templating import Jinja2Templates
+from sqlalchemy.orm import Session
 
-from app.api.deps import ContextDep, SessionDep, TransactionalRoute, writes
+from app.api.deps import TransactionalRoute, writes
 from app.errors import AppError
 from app.schemas.common import CLIENT_ID_PATTERN
 from app.services import console as console_service
 from app.services import episodes as episodes_service
 from app.services import models as models_service
 from app.services import users as users_service
+from app.services.context import ServiceContext
 
 from . import views
 from .auth import (
@@ -152,7 +154,7 @@ def login_form(request: Request, next: Annotated[str | None, Query(max_length=20
 
 
 @router.post("/login")
-def login(request: Request, session: SessionDep, form: FormDep) -> Response:
+async def login(request: Request, form: FormDep) -> Response:
     """Check the key; keep it in a browser-session cookie; go where the person was heading."""
     target = safe_next(form.get("next"))
     if not same_origin(request):
@@ -161,7 +163,7 @@ def login(request: Request, session: SessionDep, form: FormDep) -> Response:
     try:
         if not secret:
             raise PageError(401, "Key needed", "Paste an admin key to sign in.")
-        sign_in(session, secret)
+        await sign_in(request, secret)
     except PageError as exc:
         return _page(request, "login.html", None, exc.status, next=target, error=exc,
                      signed_out=False)
@@ -186,7 +188,7 @@ def logout(request: Request, form: FormDep) -> Response:
 # -- users -----------------------------------------------------------------------------------
 @router.get("/users")
 def users_page(
-    request: Request, session: SessionDep, admin: AdminDep,
+    request: Request, session: Session, admin: AdminDep,
     q: Annotated[str | None, Query(max_length=200)] = None,
     page: Annotated[int, Query(ge=1, le=1_000_000)] = 1,
     per_page: Annotated[int, Query(ge=5, le=200)] = 25,
@@ -201,7 +203,7 @@ def users_page(
 
 @router.get("/users/{user_id}")
 def user_page(
-    request: Request, user_id: str, session: SessionDep, ctx: ContextDep, admin: AdminDep,
+    request: Request, user_id: str, session: Session, ctx: ServiceContext, admin: AdminDep,
     last: Annotated[int, Query(ge=1, le=1_000_000)] = console_service.RECENT_EPISODES,
     done: Annotated[str | None, Query(max_length=32)] = None,
 ) -> HTMLResponse:
@@ -221,7 +223,7 @@ def user_page(
 
 @router.get("/users/{user_id}/why")
 def why_page(
-    request: Request, user_id: str, session: SessionDep, ctx: ContextDep, admin: AdminDep,
+    request: Request, user_id: str, session: Session, ctx: ServiceContext, admin: AdminDep,
     time_slot: Annotated[str | None, Query(max_length=64)] = None,
     situation: Annotated[str | None, Query(max_length=64)] = None,
 ) -> HTMLResponse:
@@ -247,7 +249,7 @@ def why_page(
 
 @router.get("/users/{user_id}/episodes")
 def episodes_page(
-    request: Request, user_id: str, session: SessionDep, ctx: ContextDep, admin: AdminDep,
+    request: Request, user_id: str, session: Session, ctx: ServiceContext, admin: AdminDep,
     before: Annotated[int | None, Query(ge=1, le=10**17)] = None,
     at: Annotated[int | None, Query(ge=1, le=10**17)] = None,
     per_page: Annotated[int, Query(ge=5, le=200)] = 25,
@@ -272,7 +274,7 @@ def episodes_page(
 
 @router.get("/users/{user_id}/episodes/{episode_id}/trace")
 def trace_fragment(
-    request: Request, user_id: str, episode_id: str, session: SessionDep, ctx: ContextDep,
+    request: Request, user_id: str, episode_id: str, session: Session, ctx: ServiceContext,
     admin: AdminDep,
 ) -> HTMLResponse:
     """One episode's trace, as an HTML fragment for the episode list."""
@@ -289,7 +291,7 @@ def trace_fragment(
 # dependency opens a write transaction for the routes of that name.
 @router.get("/users/{user_id}/export")
 @writes  # an export is an admin action: it leaves an audit entry
-def export_model(user_id: str, session: SessionDep, ctx: ContextDep,
+def export_model(user_id: str, session: Session, ctx: ServiceContext,
                  admin: AdminDep) -> JSONResponse:
     """Download the model document of GET /v1/users/{id}/model/export."""
     _check_user_id(user_id)
@@ -309,7 +311,7 @@ _ACTIONS = {
 }
 
 
-def _confirm(request: Request, session: SessionDep, admin: Admin, user_id: str,
+def _confirm(request: Request, session: Session, admin: Admin, user_id: str,
              action: str) -> HTMLResponse:
     _check_user_id(user_id)
     user = users_service.get_user(session, admin.principal, user_id)
@@ -321,14 +323,14 @@ def _confirm(request: Request, session: SessionDep, admin: Admin, user_id: str,
 
 
 @router.get("/users/{user_id}/reset")
-def reset_confirm(request: Request, user_id: str, session: SessionDep,
+def reset_confirm(request: Request, user_id: str, session: Session,
                   admin: AdminDep) -> HTMLResponse:
     """Ask before resetting a user's model."""
     return _confirm(request, session, admin, user_id, "reset")
 
 
 @router.post("/users/{user_id}/reset")
-def reset(request: Request, user_id: str, session: SessionDep, ctx: ContextDep,
+def reset(request: Request, user_id: str, session: Session, ctx: ServiceContext,
           admin: AdminDep, form: FormDep) -> RedirectResponse:
     """Reset the user's model (as DELETE /v1/users/{id}/model), keeping the history."""
     _check_user_id(user_id)
@@ -338,14 +340,14 @@ def reset(request: Request, user_id: str, session: SessionDep, ctx: ContextDep,
 
 
 @router.get("/users/{user_id}/delete")
-def delete_confirm(request: Request, user_id: str, session: SessionDep,
+def delete_confirm(request: Request, user_id: str, session: Session,
                    admin: AdminDep) -> HTMLResponse:
     """Ask before deleting a user."""
     return _confirm(request, session, admin, user_id, "delete")
 
 
 @router.post("/users/{user_id}/delete")
-def delete(request: Request, user_id: str, session: SessionDep, ctx: ContextDep,
+def delete(request: Request, user_id: str, session: Session, ctx: ServiceContext,
            admin: AdminDep, form: FormDep) -> RedirectResponse:
     """Delete the user with its history and model (as DELETE /v1/users/{id})."""
     _check_user_id(user_id)

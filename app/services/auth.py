@@ -15,10 +15,10 @@ from app.db.types import utcnow
 from app.errors import Forbidden, NotFound, Unauthorized, ValidationFailed
 
 from . import audit
-from .context import Principal
+from .context import KeyCache, Principal, after_commit
 
-__all__ = ["ROLES", "authenticate", "create_key", "hash_secret", "list_keys", "require_admin",
-           "revoke_key"]
+__all__ = ["ROLES", "authenticate", "bearer_digest", "create_key", "hash_secret", "list_keys",
+           "require_admin", "revoke_key"]
 
 ROLES = ("robot", "admin")
 _FLEET = re.compile(r"^[A-Za-z0-9._:-]{1,128}$")
@@ -60,10 +60,13 @@ def list_keys(session: Session) -> list[KeyRow]:
     return repo.list_all(session)
 
 
-def revoke_key(session: Session, key_id: str, *, actor: Principal | None = None
-               ) -> tuple[KeyRow, bool]:
+def revoke_key(session: Session, key_id: str, *, actor: Principal | None = None,
+               keys: KeyCache | None = None) -> tuple[KeyRow, bool]:
     """Revoke a key (its requests get 401 from now on); ``actor`` as for ``create_key``.
-    Returns the key and whether this call revoked it (False: it was revoked already)."""
+    Returns the key and whether this call revoked it (False: it was revoked already).
+
+    ``keys``: the calling worker's key cache, which forgets the key once this commits (other
+    workers, and a revocation from the command line, wait out their cache's bound)."""
     actor = actor or audit.CLI
     require_admin(actor)
     key = repo.get(session, key_id)
@@ -73,18 +76,26 @@ def revoke_key(session: Session, key_id: str, *, actor: Principal | None = None
         key.revoked_at = utcnow()
         repo.revoke(session, key.id, key.revoked_at)
         audit.record(session, actor, "key.revoke", target=key.id, fleet=key.fleet)
+        if keys is not None:
+            cache = keys
+            after_commit(session, lambda: cache.drop(key_id))
         return key, True
     return key, False
 
 
-def authenticate(session: Session, authorization: str | None) -> Principal:
-    """The caller of a request from its ``Authorization: Bearer <key>`` header."""
+def bearer_digest(authorization: str | None) -> str:
+    """The SHA-256 of the key in an ``Authorization: Bearer <key>`` header (401 if none)."""
     if not authorization:
         raise Unauthorized("Send your API key as 'Authorization: Bearer <key>'.")
     scheme, _, secret = authorization.partition(" ")
     if scheme.lower() != "bearer" or not secret.strip():
         raise Unauthorized("Send your API key as 'Authorization: Bearer <key>'.")
-    digest = hash_secret(secret.strip())
+    return hash_secret(secret.strip())
+
+
+def authenticate(session: Session, authorization: str | None) -> Principal:
+    """The caller of a request from its ``Authorization: Bearer <key>`` header."""
+    digest = bearer_digest(authorization)
     key = repo.by_hash(session, digest)
     # The lookup goes through the unique index on the SHA-256 of the secret, so what the
     # database compares (and what its timing could reveal) is the digest, never the secret: a

@@ -5,6 +5,7 @@ from __future__ import annotations
 import hashlib
 import json
 import threading
+import time
 from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -18,7 +19,8 @@ from app.learning import Mission, NegotiationSpace, load_mission, office_mission
 from app.learning.learners import TabularLearner
 from app.settings import Settings
 
-__all__ = ["LearnerCache", "Principal", "ServiceContext", "after_commit", "body_hash", "rng_for"]
+__all__ = ["KeyCache", "LearnerCache", "Principal", "ServiceContext", "after_commit", "body_hash",
+           "rng_for"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -32,6 +34,42 @@ class Principal:
     @property
     def is_admin(self) -> bool:
         return self.role == "admin"
+
+
+class KeyCache:
+    """The keys a worker authenticated lately, by digest, each kept ``seconds`` (0: none).
+
+    A key revoked elsewhere (the command line, another worker) keeps working in this worker
+    for at most ``seconds`` after it was last read from the database; a revocation made in
+    this worker drops it at once (:meth:`drop`). Unknown keys are not kept. Thread-safe enough:
+    the dict's single operations are atomic, and a race only re-reads a key.
+    """
+
+    def __init__(self, seconds: float, clock: Callable[[], float] = time.monotonic,
+                 size: int = 10_000) -> None:
+        self.seconds, self.clock, self.size = seconds, clock, size
+        self._items: dict[str, tuple[Principal, float]] = {}
+
+    def get(self, digest: str) -> Principal | None:
+        item = self._items.get(digest)
+        if item is None:
+            return None
+        if self.clock() >= item[1]:
+            self._items.pop(digest, None)
+            return None
+        return item[0]
+
+    def put(self, digest: str, principal: Principal) -> None:
+        if self.seconds <= 0:
+            return
+        if len(self._items) >= self.size:
+            self._items.clear()  # a flood of distinct keys: start over rather than grow
+        self._items[digest] = (principal, self.clock() + self.seconds)
+
+    def drop(self, key_id: str) -> None:
+        for digest, (principal, _) in list(self._items.items()):
+            if principal.key_id == key_id:
+                self._items.pop(digest, None)
 
 
 class LearnerCache:
@@ -79,13 +117,15 @@ class ServiceContext:
     mission: Mission
     space: NegotiationSpace
     cache: LearnerCache
+    keys: KeyCache
 
     @classmethod
     def from_settings(cls, settings: Settings) -> ServiceContext:
         mission = (
             load_mission(settings.mission_path) if settings.mission_path else office_mission()
         )
-        return cls(settings, mission, space_for(mission), LearnerCache(settings.model_cache_size))
+        return cls(settings, mission, space_for(mission), LearnerCache(settings.model_cache_size),
+                   KeyCache(settings.key_cache_seconds))
 
 
 def rng_for(seed: int, user_id: str, draw: int) -> np.random.Generator:

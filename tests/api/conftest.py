@@ -95,6 +95,28 @@ def app(settings: Settings, empty_tables: None) -> Iterator[FastAPI]:
     application.state.db.dispose()
 
 
+class ManualClock:
+    """A clock the test moves: ``advance(seconds)``."""
+
+    def __init__(self) -> None:
+        self.now = 1000.0
+
+    def __call__(self) -> float:
+        return self.now
+
+    def advance(self, seconds: float) -> None:
+        self.now += seconds
+
+
+@pytest.fixture
+def key_clock(app: FastAPI) -> ManualClock:
+    """The clock of the app's key cache, moved by the test (a revocation made outside the
+    worker takes effect once the cache's bound has passed)."""
+    clock = ManualClock()
+    app.state.ctx.keys.clock = clock
+    return clock
+
+
 @pytest.fixture
 def db(app: FastAPI) -> Database:
     """The app's own database object (for looking at what was stored)."""

@@ -27,7 +27,7 @@ from app.services import auth
 from app.services.auth import list_keys, revoke_key
 from app.settings import Settings
 
-from .conftest import MakeKey
+from .conftest import MakeKey, ManualClock
 from .helpers import assert_error, event, start
 
 # Every route that needs a key: (method, path, body).
@@ -100,7 +100,8 @@ class TestNoKey:
 
 class TestRevokedKey:
     def test_every_route_refuses_a_revoked_key(self, app: FastAPI, db: Database,
-                                               make_key: MakeKey, lin: dict[str, str]) -> None:
+                                               make_key: MakeKey, lin: dict[str, str],
+                                               key_clock: ManualClock) -> None:
         secret = make_key("admin", name="to-revoke")
         with TestClient(app, headers={"Authorization": f"Bearer {secret}"},
                         raise_server_exceptions=False) as c:
@@ -108,8 +109,58 @@ class TestRevokedKey:
             with db.transaction() as session:
                 [key] = [k for k in list_keys(session) if k.name == "to-revoke"]
                 revoke_key(session, key.id)
+            key_clock.advance(app.state.settings.key_cache_seconds)
             for method, path, body in ALL_ROUTES:
                 assert_error(_call(c, method, path, body, lin), 401, "Unauthorized")
+
+
+class TestKeyCache:
+    """A worker keeps the keys it authenticated for ``key_cache_seconds``: a key revoked from
+    outside (the command line, another worker) keeps working in it for at most that long; a
+    revocation made in the worker itself takes effect at once."""
+
+    def _revoked_outside(self, db: Database, name: str) -> None:
+        with db.transaction() as session:
+            [key] = [k for k in list_keys(session) if k.name == name]
+            revoke_key(session, key.id)
+
+    def test_a_revocation_from_outside_takes_effect_within_the_bound(
+            self, app: FastAPI, db: Database, make_key: MakeKey, key_clock: ManualClock) -> None:
+        bound = app.state.settings.key_cache_seconds
+        assert bound > 0  # the default keeps keys a few seconds
+        secret = make_key("robot", name="cached")
+        with TestClient(app, headers={"Authorization": f"Bearer {secret}"},
+                        raise_server_exceptions=False) as c:
+            assert c.get("/v1/users").status_code == 200
+            self._revoked_outside(db, "cached")
+            key_clock.advance(bound * 0.9)
+            assert c.get("/v1/users").status_code == 200  # still in this worker's cache
+            key_clock.advance(bound * 0.1)
+            assert_error(c.get("/v1/users"), 401, "Unauthorized")
+
+    def test_a_revocation_in_the_worker_takes_effect_at_once(
+            self, app: FastAPI, db: Database, make_key: MakeKey, key_clock: ManualClock) -> None:
+        secret = make_key("robot", name="cached")
+        with TestClient(app, headers={"Authorization": f"Bearer {secret}"},
+                        raise_server_exceptions=False) as c:
+            assert c.get("/v1/users").status_code == 200
+            with db.transaction() as session:
+                [key] = [k for k in list_keys(session) if k.name == "cached"]
+                revoke_key(session, key.id, keys=app.state.ctx.keys)
+            assert_error(c.get("/v1/users"), 401, "Unauthorized")
+
+    def test_no_cache_reads_every_key(self, settings: Settings, empty_tables: None,
+                                      make_key: MakeKey) -> None:
+        app = create_app(settings.model_copy(update={"key_cache_seconds": 0}))
+        try:
+            secret = make_key("robot", name="uncached")
+            with TestClient(app, headers={"Authorization": f"Bearer {secret}"},
+                            raise_server_exceptions=False) as c:
+                assert c.get("/v1/users").status_code == 200
+                self._revoked_outside(app.state.db, "uncached")
+                assert_error(c.get("/v1/users"), 401, "Unauthorized")
+        finally:
+            app.state.db.dispose()
 
 
 class TestRobotOnAdminRoutes:

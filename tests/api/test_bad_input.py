@@ -372,7 +372,8 @@ class TestAuth:
             assert c.get("/v1/users").status_code == 200
 
     def test_a_revoked_key_is_401(self, app: FastAPI, db: Database, make_key: Any,
-                                  robot: TestClient, ep: dict[str, Any]) -> None:
+                                  robot: TestClient, ep: dict[str, Any],
+                                  key_clock: Any) -> None:
         secret = make_key("robot", name="to-revoke")
         with TestClient(app, headers={"Authorization": f"Bearer {secret}"},
                         raise_server_exceptions=False) as c:
@@ -381,6 +382,7 @@ class TestAuth:
                 [key] = [k for k in list_keys(session) if k.name == "to-revoke"]
                 assert secret.startswith(key.prefix)
                 revoke_key(session, key.id)
+            key_clock.advance(app.state.settings.key_cache_seconds)
             before = state(robot, ep)
             assert_error(c.get("/v1/users/lin"), 401, "Unauthorized")
             assert_error(c.post("/v1/users/lin/episodes", json=event("e-revoked")), 401,

@@ -3,8 +3,9 @@ from __future__ import annotations
 from typing import Annotated
 
 from fastapi import APIRouter, Query
+from sqlalchemy.orm import Session
 
-from app.api.deps import CurrentPrincipal, SessionDep, TransactionalRoute
+from app.api.deps import CurrentPrincipal, TransactionalRoute
 from app.api.errors import responses
 from app.schemas.audit import AuditList
 from app.services import audit as service
@@ -14,7 +15,7 @@ router = APIRouter(prefix="/v1/admin", tags=["admin"], route_class=Transactional
 
 @router.get("/audit", response_model=AuditList, responses=responses(403))
 def list_audit(
-    session: SessionDep, principal: CurrentPrincipal,
+    session: Session, principal: CurrentPrincipal,
     limit: Annotated[int, Query(ge=1, le=500)] = 50,
     cursor: Annotated[str | None, Query(max_length=32)] = None,
 ) -> AuditList:

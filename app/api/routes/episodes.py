@@ -4,8 +4,9 @@ from typing import Annotated
 
 from fastapi import APIRouter, Query, Request
 from fastapi.responses import JSONResponse
+from sqlalchemy.orm import Session
 
-from app.api.deps import ContextDep, CurrentPrincipal, SessionDep, TransactionalRoute
+from app.api.deps import CurrentPrincipal, TransactionalRoute, inline
 from app.api.errors import responses
 from app.api.links import EPISODE_LINKS, OUTCOME_LINKS
 from app.api.metrics import Metrics
@@ -20,6 +21,7 @@ from app.schemas.episodes import (
     OutcomeOut,
 )
 from app.services import episodes as service
+from app.services.context import ServiceContext
 
 from ._common import REPLAY_HEADER, EpisodeId, UserId, written
 
@@ -41,8 +43,9 @@ def _count(request: Request, body: dict[str, object] | None, replay: bool) -> No
                      "event_id.", "headers": REPLAY_HEADER, "links": EPISODE_LINKS},
                201: {"links": EPISODE_LINKS}, **responses(404, 409)},
 )
-def start_episode(user_id: UserId, body: EpisodeIn, request: Request, session: SessionDep,
-                  ctx: ContextDep, principal: CurrentPrincipal) -> JSONResponse:
+@inline
+def start_episode(user_id: UserId, body: EpisodeIn, request: Request, session: Session,
+                  ctx: ServiceContext, principal: CurrentPrincipal) -> JSONResponse:
     """An event happened near this user: open an episode and get the robot's first action."""
     result = service.start_episode(session, ctx, principal, user_id, body)
     _count(request, result.body, result.replay)
@@ -56,8 +59,9 @@ def start_episode(user_id: UserId, body: EpisodeIn, request: Request, session: S
                      "links": OUTCOME_LINKS},
                **responses(404, 409)},
 )
+@inline
 def report_outcome(episode_id: EpisodeId, body: OutcomeIn, request: Request,
-                   session: SessionDep, ctx: ContextDep,
+                   session: Session, ctx: ServiceContext,
                    principal: CurrentPrincipal) -> JSONResponse:
     """What the person did after the robot's action; answers with the next decision."""
     result = service.report_outcome(session, ctx, principal, episode_id, body)
@@ -72,14 +76,14 @@ def report_outcome(episode_id: EpisodeId, body: OutcomeIn, request: Request,
     "/v1/episodes/{episode_id}/feedback", response_model=FeedbackOut,
     responses={200: {"headers": REPLAY_HEADER}, **responses(404, 409)},
 )
-def add_feedback(episode_id: EpisodeId, body: FeedbackIn, session: SessionDep,
-                 ctx: ContextDep, principal: CurrentPrincipal) -> JSONResponse:
+def add_feedback(episode_id: EpisodeId, body: FeedbackIn, session: Session,
+                 ctx: ServiceContext, principal: CurrentPrincipal) -> JSONResponse:
     """Explicit feedback on an episode, during or after it (idempotent on feedback_id)."""
     return written(service.add_feedback(session, ctx, principal, episode_id, body))
 
 
 @router.get("/v1/episodes/{episode_id}", response_model=EpisodeTrace, responses=responses(404))
-def get_episode(episode_id: EpisodeId, session: SessionDep, ctx: ContextDep,
+def get_episode(episode_id: EpisodeId, session: Session, ctx: ServiceContext,
                 principal: CurrentPrincipal) -> EpisodeTrace:
     """The whole trace of an episode: every decision, response, reward and feedback."""
     return service.get_trace(session, ctx, principal, episode_id)
@@ -88,7 +92,7 @@ def get_episode(episode_id: EpisodeId, session: SessionDep, ctx: ContextDep,
 @router.get("/v1/users/{user_id}/episodes", response_model=EpisodeList,
             responses=responses(404))
 def list_episodes(
-    user_id: UserId, session: SessionDep, ctx: ContextDep, principal: CurrentPrincipal,
+    user_id: UserId, session: Session, ctx: ServiceContext, principal: CurrentPrincipal,
     limit: Annotated[int, Query(ge=1, le=500)] = 50,
     cursor: Annotated[str | None, Query(max_length=32)] = None,
 ) -> EpisodeList:

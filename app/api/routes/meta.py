@@ -6,18 +6,19 @@ from fastapi import APIRouter, Request, Response
 from fastapi.responses import JSONResponse
 from prometheus_client import CONTENT_TYPE_LATEST
 
-from app.api.deps import ContextDep, CurrentPrincipal, TransactionalRoute
+from app.api.deps import CurrentPrincipal, TransactionalRoute
 from app.api.errors import responses
 from app.db import migrate
 from app.db.session import Database
 from app.schemas.models import MissionOut
+from app.services.context import ServiceContext
 
 router = APIRouter(tags=["service"], route_class=TransactionalRoute)
 log = logging.getLogger("attune.api")
 
 
 @router.get("/v1/mission", response_model=MissionOut, responses=responses())
-def get_mission(ctx: ContextDep, _: CurrentPrincipal) -> MissionOut:
+def get_mission(ctx: ServiceContext, _: CurrentPrincipal) -> MissionOut:
     """The mission in force: situations, time slots, services and rewards."""
     return MissionOut.model_validate(ctx.mission.to_dict())
 

@@ -3,11 +3,13 @@ from __future__ import annotations
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Body, Query, Response
+from sqlalchemy.orm import Session
 
-from app.api.deps import ContextDep, CurrentPrincipal, SessionDep, TransactionalRoute, writes
+from app.api.deps import CurrentPrincipal, TransactionalRoute, writes
 from app.api.errors import responses
 from app.schemas.models import ModelOut, StatsOut
 from app.services import models as service
+from app.services.context import ServiceContext
 
 from ._common import UserId, no_content
 
@@ -17,7 +19,7 @@ router = APIRouter(prefix="/v1/users/{user_id}", tags=["models"],
 
 @router.get("/model", response_model=ModelOut, responses=responses(404))
 def get_model(
-    user_id: UserId, session: SessionDep, ctx: ContextDep, principal: CurrentPrincipal,
+    user_id: UserId, session: Session, ctx: ServiceContext, principal: CurrentPrincipal,
     time_slot: Annotated[str | None, Query(max_length=64)] = None,
     situation: Annotated[str | None, Query(max_length=64)] = None,
 ) -> ModelOut:
@@ -28,7 +30,7 @@ def get_model(
 
 @router.get("/stats", response_model=StatsOut, responses=responses(404))
 def get_stats(
-    user_id: UserId, session: SessionDep, principal: CurrentPrincipal,
+    user_id: UserId, session: Session, principal: CurrentPrincipal,
     last: Annotated[int | None, Query(ge=1, description="Only the last N episodes.")] = None,
 ) -> StatsOut:
     """The paper's metrics over the user's last N episodes (all by default)."""
@@ -37,7 +39,7 @@ def get_stats(
 
 @router.delete("/model", status_code=204, response_class=Response,
                responses=responses(403, 404))
-def reset_model(user_id: UserId, session: SessionDep, ctx: ContextDep,
+def reset_model(user_id: UserId, session: Session, ctx: ServiceContext,
                 principal: CurrentPrincipal) -> Response:
     """Forget what was learned, keep the history (admin)."""
     service.reset_model(session, ctx, principal, user_id)
@@ -46,7 +48,7 @@ def reset_model(user_id: UserId, session: SessionDep, ctx: ContextDep,
 
 @router.get("/model/export", responses=responses(403, 404))
 @writes  # an export is an admin action: it leaves an audit entry
-def export_model(user_id: UserId, session: SessionDep, ctx: ContextDep,
+def export_model(user_id: UserId, session: Session, ctx: ServiceContext,
                  principal: CurrentPrincipal) -> dict[str, Any]:
     """The model as a self-describing document that PUT /model accepts back (admin)."""
     return service.export_model(session, ctx, principal, user_id)
@@ -54,7 +56,7 @@ def export_model(user_id: UserId, session: SessionDep, ctx: ContextDep,
 
 @router.put("/model", response_model=ModelOut, responses=responses(403, 404))
 def import_model(
-    user_id: UserId, session: SessionDep, ctx: ContextDep, principal: CurrentPrincipal,
+    user_id: UserId, session: Session, ctx: ServiceContext, principal: CurrentPrincipal,
     doc: Annotated[dict[str, Any], Body(
         description="A document from GET /model/export.",
         examples=[{"format": "attune.learner-state", "format_version": 1, "algorithm": "hri",

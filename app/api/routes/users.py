@@ -4,12 +4,14 @@ from typing import Annotated
 
 from fastapi import APIRouter, Query, Response
 from fastapi.responses import JSONResponse
+from sqlalchemy.orm import Session
 
-from app.api.deps import ContextDep, CurrentPrincipal, SessionDep, TransactionalRoute
+from app.api.deps import CurrentPrincipal, TransactionalRoute
 from app.api.errors import responses
 from app.api.links import USER_LINKS
 from app.schemas.users import UserIn, UserList, UserOut
 from app.services import users as service
+from app.services.context import ServiceContext
 
 from ._common import UserId, no_content
 
@@ -23,7 +25,7 @@ router = APIRouter(prefix="/v1/users", tags=["users"], route_class=Transactional
         **responses(404, 409)},
 )
 def put_user(
-    user_id: UserId, session: SessionDep, ctx: ContextDep, principal: CurrentPrincipal,
+    user_id: UserId, session: Session, ctx: ServiceContext, principal: CurrentPrincipal,
     body: UserIn | None = None,
     reset_model: Annotated[bool, Query(description="Allow changing the learner of a user with "
                                        "history (forgets what was learned).")] = False,
@@ -35,14 +37,14 @@ def put_user(
 
 
 @router.get("/{user_id}", response_model=UserOut, responses=responses(404))
-def get_user(user_id: UserId, session: SessionDep, principal: CurrentPrincipal) -> UserOut:
+def get_user(user_id: UserId, session: Session, principal: CurrentPrincipal) -> UserOut:
     """One user."""
     return service.get_user(session, principal, user_id)
 
 
 @router.get("", response_model=UserList, responses=responses())
 def list_users(
-    session: SessionDep, principal: CurrentPrincipal,
+    session: Session, principal: CurrentPrincipal,
     limit: Annotated[int, Query(ge=1, le=500)] = 50,
     cursor: Annotated[str | None, Query(max_length=200)] = None,
 ) -> UserList:
@@ -52,7 +54,7 @@ def list_users(
 
 @router.delete("/{user_id}", status_code=204, response_class=Response,
                responses=responses(403, 404))
-def delete_user(user_id: UserId, session: SessionDep, ctx: ContextDep,
+def delete_user(user_id: UserId, session: Session, ctx: ServiceContext,
                 principal: CurrentPrincipal) -> Response:
     """Remove a user with its history and model (admin)."""
     service.delete_user(session, ctx, principal, user_id)
