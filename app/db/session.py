@@ -20,6 +20,7 @@ from collections.abc import Iterator
 from contextlib import AbstractContextManager, contextmanager
 from typing import Any
 
+import orjson
 from sqlalchemy import Engine, create_engine, event
 from sqlalchemy.engine import Connection
 from sqlalchemy.exc import OperationalError
@@ -27,6 +28,8 @@ from sqlalchemy.orm import Session
 
 from app.errors import ServiceUnavailable
 from app.settings import Settings
+
+from .types import json_dumps
 
 __all__ = ["Database"]
 
@@ -39,7 +42,9 @@ class Database:
     def __init__(self, settings: Settings) -> None:
         self.url = settings.database_url
         self.is_sqlite = settings.is_sqlite
-        kwargs: dict[str, Any] = {"pool_pre_ping": settings.db_pre_ping}
+        kwargs: dict[str, Any] = {"pool_pre_ping": settings.db_pre_ping,
+                                  "json_serializer": json_dumps,
+                                  "json_deserializer": orjson.loads}
         if self.is_sqlite:
             kwargs["connect_args"] = {
                 "timeout": settings.sqlite_busy_timeout_s,
@@ -173,4 +178,6 @@ def _configure_sqlite(engine: Engine, busy_timeout_s: float) -> None:
         options = conn.get_execution_options()
         if options.get("isolation_level") == "AUTOCOMMIT":
             return
-        conn.exec_driver_sql("BEGIN IMMEDIATE" if options.get(_WRITE, False) else "BEGIN")
+        # On the driver's connection: a statement through SQLAlchemy costs more than this one.
+        driver: Any = conn.connection.driver_connection
+        driver.execute("BEGIN IMMEDIATE" if options.get(_WRITE, False) else "BEGIN")

@@ -3,15 +3,20 @@
 from __future__ import annotations
 
 import datetime as dt
-import json
 from typing import Any
 
+import orjson
 from sqlalchemy import DateTime, Dialect, Text
 from sqlalchemy.types import TypeDecorator
 
 from app.learning.state import FORMAT
 
-__all__ = ["LearnerStateType", "UTCDateTime", "utcnow"]
+__all__ = ["LearnerStateType", "UTCDateTime", "json_dumps", "utcnow"]
+
+
+def json_dumps(value: Any) -> str:
+    """JSON text of a document (the JSON columns' serializer): compact, numpy numbers allowed."""
+    return orjson.dumps(value, option=orjson.OPT_SERIALIZE_NUMPY).decode()
 
 
 def utcnow() -> dt.datetime:
@@ -54,10 +59,11 @@ class LearnerStateType(TypeDecorator[dict[str, Any]]):
             return None
         if value.get("format") != FORMAT:
             raise ValueError(f"a learner state must have format {FORMAT!r}")
-        return json.dumps(value, separators=(",", ":"), sort_keys=True)
+        return orjson.dumps(value, option=orjson.OPT_SORT_KEYS | orjson.OPT_SERIALIZE_NUMPY
+                            ).decode()
 
     def process_result_value(self, value: str | None, dialect: Dialect) -> dict[str, Any] | None:
         if value is None:
             return None
-        doc: dict[str, Any] = json.loads(value)
+        doc: dict[str, Any] = orjson.loads(value)
         return doc

@@ -2,8 +2,8 @@ from __future__ import annotations
 
 from typing import Annotated
 
+import orjson
 from fastapi import Path, Response
-from fastapi.responses import JSONResponse
 
 from app.schemas.common import CLIENT_ID_PATTERN
 from app.services.episodes import Written
@@ -18,9 +18,12 @@ REPLAY_HEADER = {
 }
 
 
-def written(result: Written) -> JSONResponse:
+def written(result: Written) -> Response:
+    """A robot write's answer (with ``Idempotent-Replay: true`` when it repeats an earlier
+    one), encoded once, with orjson."""
     headers = {"Idempotent-Replay": "true"} if result.replay else None
-    return JSONResponse(result.body, status_code=result.status, headers=headers)
+    return Response(orjson.dumps(result.body), status_code=result.status, headers=headers,
+                    media_type="application/json")
 
 
 def no_content() -> Response:

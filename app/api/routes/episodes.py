@@ -2,8 +2,7 @@ from __future__ import annotations
 
 from typing import Annotated
 
-from fastapi import APIRouter, Query, Request
-from fastapi.responses import JSONResponse
+from fastapi import APIRouter, Query, Request, Response
 from sqlalchemy.orm import Session
 
 from app.api.deps import CurrentPrincipal, TransactionalRoute, inline
@@ -45,7 +44,7 @@ def _count(request: Request, body: dict[str, object] | None, replay: bool) -> No
 )
 @inline
 def start_episode(user_id: UserId, body: EpisodeIn, request: Request, session: Session,
-                  ctx: ServiceContext, principal: CurrentPrincipal) -> JSONResponse:
+                  ctx: ServiceContext, principal: CurrentPrincipal) -> Response:
     """An event happened near this user: open an episode and get the robot's first action."""
     result = service.start_episode(session, ctx, principal, user_id, body)
     _count(request, result.body, result.replay)
@@ -62,7 +61,7 @@ def start_episode(user_id: UserId, body: EpisodeIn, request: Request, session: S
 @inline
 def report_outcome(episode_id: EpisodeId, body: OutcomeIn, request: Request,
                    session: Session, ctx: ServiceContext,
-                   principal: CurrentPrincipal) -> JSONResponse:
+                   principal: CurrentPrincipal) -> Response:
     """What the person did after the robot's action; answers with the next decision."""
     result = service.report_outcome(session, ctx, principal, episode_id, body)
     if not result.replay and result.kind is not None:
@@ -77,7 +76,7 @@ def report_outcome(episode_id: EpisodeId, body: OutcomeIn, request: Request,
     responses={200: {"headers": REPLAY_HEADER}, **responses(404, 409)},
 )
 def add_feedback(episode_id: EpisodeId, body: FeedbackIn, session: Session,
-                 ctx: ServiceContext, principal: CurrentPrincipal) -> JSONResponse:
+                 ctx: ServiceContext, principal: CurrentPrincipal) -> Response:
     """Explicit feedback on an episode, during or after it (idempotent on feedback_id)."""
     return written(service.add_feedback(session, ctx, principal, episode_id, body))
 

@@ -10,7 +10,7 @@ from sqlalchemy import and_, bindparam, func, insert, select, update
 from sqlalchemy.orm import Session
 
 from ..models import Decision, Episode, Feedback, LearnerModel, User
-from ._rows import columns, conn, names, record, table, values
+from ._rows import Prepared, columns, conn, names, record, table, values
 from .models import ModelRow
 
 __all__ = ["DecisionRow", "EpisodeRow", "FeedbackRow", "MetricRow", "add_feedback",
@@ -114,7 +114,7 @@ _ANSWER = ("response", "service", "detail", "feedback", "reward", "next_state", 
 _LATEST = (select(func.max(_decisions.c.position))
            .where(_decisions.c.episode_id == _episodes.c.id)
            .correlate(_episodes).scalar_subquery())
-_FOR_OUTCOME = (
+_FOR_OUTCOME = Prepared(
     select(*_EPISODE_COLS, *columns(_models, ModelRow), *_DECISION_COLS)
     .join(_models, _models.c.user_id == _episodes.c.user_id)
     .outerjoin(_decisions, and_(_decisions.c.episode_id == _episodes.c.id,
@@ -125,30 +125,33 @@ _GET = select(*_EPISODE_COLS).where(_episodes.c.id == bindparam("episode_id"))
 _OWNER = (select(_episodes.c.user_id, _users.c.fleet)
           .join(_users, _users.c.user_id == _episodes.c.user_id)
           .where(_episodes.c.id == bindparam("episode_id")))
-_DECISION = select(*_DECISION_COLS).where(_decisions.c.id == bindparam("decision_id"),
-                                          _decisions.c.episode_id == bindparam("episode_id"))
+_DECISION = Prepared(select(*_DECISION_COLS).where(
+    _decisions.c.id == bindparam("decision_id"),
+    _decisions.c.episode_id == bindparam("episode_id")))
 _DECISIONS = (select(*_DECISION_COLS).where(_decisions.c.episode_id == bindparam("episode_id"))
               .order_by(_decisions.c.position))
-_BY_EVENT = select(_episodes.c.request_hash, _episodes.c.response).where(
-    _episodes.c.user_id == bindparam("user_id"), _episodes.c.event_id == bindparam("event_id"))
+_BY_EVENT = Prepared(select(_episodes.c.request_hash, _episodes.c.response).where(
+    _episodes.c.user_id == bindparam("user_id"), _episodes.c.event_id == bindparam("event_id")))
 _FEEDBACK_COLS = columns(_feedback, FeedbackRow)
 _FEEDBACK = select(*_FEEDBACK_COLS).where(_feedback.c.episode_id == bindparam("episode_id"),
                                           _feedback.c.feedback_id == bindparam("feedback_id"))
 _FEEDBACK_LIST = (select(*_FEEDBACK_COLS)
                   .where(_feedback.c.episode_id == bindparam("episode_id"))
                   .order_by(_feedback.c.id))
-_INSERT_EPISODE = insert(_episodes)
-_INSERT_DECISION = insert(_decisions)
+_INSERT_EPISODE = Prepared(insert(_episodes), keyed=True)
+_INSERT_DECISION = Prepared(insert(_decisions), keyed=True)
 _INSERT_FEEDBACK = insert(_feedback)
 # Updates: the SET columns are the keys of the parameters; the row's key is a "b_" parameter.
-_UPDATE_DECISION = update(_decisions).where(_decisions.c.id == bindparam("b_id"))
-_UPDATE_EPISODE = update(_episodes).where(_episodes.c.id == bindparam("b_id"))
+_UPDATE_DECISION = Prepared(update(_decisions).where(_decisions.c.id == bindparam("b_id")),
+                            keyed=True)
+_UPDATE_EPISODE = Prepared(update(_episodes).where(_episodes.c.id == bindparam("b_id")),
+                           keyed=True)
 
 
 def load_for_outcome(session: Session, episode_id: str
                      ) -> tuple[EpisodeRow, ModelRow, DecisionRow | None] | None:
     """The episode, its user's model head and its current (latest) decision, in one query."""
-    row = conn(session).execute(_FOR_OUTCOME, {"episode_id": episode_id}).first()
+    row = _FOR_OUTCOME.first(session, {"episode_id": episode_id})
     if row is None:
         return None
     v = tuple(row)
@@ -170,13 +173,13 @@ def owner(session: Session, episode_id: str) -> tuple[str, str] | None:
 def by_event(session: Session, user_id: str, event_id: str
              ) -> tuple[str, dict[str, Any]] | None:
     """(request hash, stored response) of the episode an event opened, if any."""
-    row = conn(session).execute(_BY_EVENT, {"user_id": user_id, "event_id": event_id}).first()
+    row = _BY_EVENT.first(session, {"user_id": user_id, "event_id": event_id})
     return None if row is None else (row[0], row[1])
 
 
 def decision(session: Session, episode_id: str, decision_id: str) -> DecisionRow | None:
-    return record(DecisionRow, conn(session).execute(
-        _DECISION, {"decision_id": decision_id, "episode_id": episode_id}).first())
+    return record(DecisionRow, _DECISION.first(session, {"decision_id": decision_id,
+                                                         "episode_id": episode_id}))
 
 
 def decisions(session: Session, episode_id: str) -> list[DecisionRow]:
@@ -186,22 +189,20 @@ def decisions(session: Session, episode_id: str) -> list[DecisionRow]:
 
 
 def insert_episode(session: Session, episode: EpisodeRow) -> None:
-    conn(session).execute(_INSERT_EPISODE, [values(episode, _EPISODE_NAMES)])
+    _INSERT_EPISODE.run(session, values(episode, _EPISODE_NAMES))
 
 
 def save_episode(session: Session, episode: EpisodeRow) -> None:
-    conn(session).execute(_UPDATE_EPISODE,
-                          {"b_id": episode.id, **values(episode, _EPISODE_MUTABLE)})
+    _UPDATE_EPISODE.run(session, {"b_id": episode.id, **values(episode, _EPISODE_MUTABLE)})
 
 
 def insert_decisions(session: Session, rows: list[DecisionRow]) -> None:
-    if rows:
-        conn(session).execute(_INSERT_DECISION, [values(r, _DECISION_NAMES) for r in rows])
+    _INSERT_DECISION.run_many(session, [values(r, _DECISION_NAMES) for r in rows])
 
 
 def save_answer(session: Session, row: DecisionRow) -> None:
     """Store the person's response to a decision and the outcome request's response."""
-    conn(session).execute(_UPDATE_DECISION, {"b_id": row.id, **values(row, _ANSWER)})
+    _UPDATE_DECISION.run(session, {"b_id": row.id, **values(row, _ANSWER)})
 
 
 def feedback(session: Session, episode_id: str, feedback_id: str) -> FeedbackRow | None:

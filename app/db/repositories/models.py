@@ -17,7 +17,7 @@ from sqlalchemy import bindparam, insert, select, update
 from sqlalchemy.orm import Session
 
 from ..models import LearnerModel, Sample
-from ._rows import columns, conn, names, record, table
+from ._rows import Prepared, columns, conn, names, record, table
 
 __all__ = ["ModelRow", "SampleRow", "add_samples", "advance", "base_state", "has_transition",
            "head", "replace", "samples_since", "snapshot"]
@@ -53,24 +53,29 @@ class SampleRow:
 
 _models = table(LearnerModel)
 _samples = table(Sample)
-_HEAD = select(*columns(_models, ModelRow)).where(_models.c.user_id == bindparam("user_id"))
-_SNAPSHOT = select(_models.c.state).where(_models.c.user_id == bindparam("user_id"))
-_ADVANCE = update(_models).where(_models.c.user_id == bindparam("b_user_id"))
-_INSERT_SAMPLES = insert(_samples)
+_HEAD = Prepared(select(*columns(_models, ModelRow))
+                 .where(_models.c.user_id == bindparam("user_id")))
+_SNAPSHOT = Prepared(select(_models.c.state).where(_models.c.user_id == bindparam("user_id")))
+_ADVANCE = Prepared(update(_models).where(_models.c.user_id == bindparam("b_user_id")),
+                    keyed=True)
+_INSERT_SAMPLES = Prepared(insert(_samples), keyed=True)
 _SAMPLE_NAMES = names(SampleRow)
-_SINCE = (select(*columns(_samples, SampleRow))
-          .where(_samples.c.user_id == bindparam("user_id"),
-                 _samples.c.version > bindparam("version"))
-          .order_by(_samples.c.version, _samples.c.id))
+_SINCE = Prepared(select(*columns(_samples, SampleRow))
+                  .where(_samples.c.user_id == bindparam("user_id"),
+                         _samples.c.version > bindparam("version"))
+                  .order_by(_samples.c.version, _samples.c.id))
 
 
 def head(session: Session, user_id: str) -> ModelRow | None:
-    return record(ModelRow, conn(session).execute(_HEAD, {"user_id": user_id}).first())
+    return record(ModelRow, _HEAD.first(session, {"user_id": user_id}))
 
 
 def snapshot(session: Session, user_id: str) -> dict[str, Any]:
     """The stored state document (the learner as of the row's ``state_version``)."""
-    doc: dict[str, Any] = conn(session).execute(_SNAPSHOT, {"user_id": user_id}).scalar_one()
+    row = _SNAPSHOT.first(session, {"user_id": user_id})
+    if row is None:
+        raise LookupError(f"user {user_id!r} has no model row")
+    doc: dict[str, Any] = row[0]
     return doc
 
 
@@ -87,7 +92,7 @@ def advance(session: Session, user_id: str, *, version: int, updated_at: dt.date
                               "updated_at": updated_at}
     if state is not None:
         params["state"], params["state_version"] = state, version
-    conn(session).execute(_ADVANCE, params)
+    _ADVANCE.run(session, params)
 
 
 def replace(session: Session, user_id: str, *, version: int, state: dict[str, Any],
@@ -95,22 +100,21 @@ def replace(session: Session, user_id: str, *, version: int, state: dict[str, An
             updated_at: dt.datetime) -> None:
     """Start the model over at ``version`` from ``state`` (a reset, a new learner, an import:
     ``base_state`` is the imported document, ``None`` for a fresh learner)."""
-    conn(session).execute(_ADVANCE, {
+    _ADVANCE.run(session, {
         "b_user_id": user_id, "version": version, "state": state, "state_version": version,
         "base_state": base_state, "base_version": version, "episode_offset": episode_offset,
         "updated_at": updated_at})
 
 
 def add_samples(session: Session, rows: list[SampleRow]) -> None:
-    if rows:
-        conn(session).execute(_INSERT_SAMPLES, [
-            {name: getattr(r, name) for name in _SAMPLE_NAMES} for r in rows])
+    _INSERT_SAMPLES.run_many(session, [{name: getattr(r, name) for name in _SAMPLE_NAMES}
+                                       for r in rows])
 
 
 def samples_since(session: Session, user_id: str, version: int) -> list[SampleRow]:
     """The journal after ``version``, in the order it was taught."""
-    return [SampleRow(*row) for row in conn(session).execute(
-        _SINCE, {"user_id": user_id, "version": version})]
+    return [SampleRow(*row) for row in _SINCE.all(session, {"user_id": user_id,
+                                                            "version": version})]
 
 
 def has_transition(session: Session, user_id: str, *, episode: int, action: int,

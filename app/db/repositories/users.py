@@ -11,7 +11,7 @@ from sqlalchemy.dialects import postgresql, sqlite
 from sqlalchemy.orm import Session
 
 from ..models import Episode, LearnerModel, User
-from ._rows import columns, conn, record, table
+from ._rows import Prepared, columns, conn, record, table
 
 __all__ = ["UserRow", "create", "delete_user", "get", "list_page", "lock", "lock_owner",
            "save_counters", "save_profile"]
@@ -39,10 +39,11 @@ _COLS = columns(_users, UserRow)
 _GET = select(*_COLS).where(_users.c.user_id == bindparam("user_id"))
 # PostgreSQL: the row lock is the per-user lock. SQLite ignores FOR UPDATE: its write
 # transactions are BEGIN IMMEDIATE, which already hold the database's single write lock.
-_LOCK = _GET.with_for_update()
-_LOCK_OWNER = select(*_COLS).where(_users.c.user_id == select(_episodes.c.user_id).where(
-    _episodes.c.id == bindparam("episode_id")).scalar_subquery()).with_for_update()
-_SAVE_COUNTERS = update(_users).where(_users.c.user_id == bindparam("b_user_id"))
+_LOCK = Prepared(_GET.with_for_update())
+_LOCK_OWNER = Prepared(select(*_COLS).where(_users.c.user_id == select(_episodes.c.user_id).where(
+    _episodes.c.id == bindparam("episode_id")).scalar_subquery()).with_for_update())
+_SAVE_COUNTERS = Prepared(update(_users).where(_users.c.user_id == bindparam("b_user_id")),
+                          keyed=True)
 
 
 def get(session: Session, user_id: str) -> UserRow | None:
@@ -51,7 +52,7 @@ def get(session: Session, user_id: str) -> UserRow | None:
 
 def lock(session: Session, user_id: str) -> UserRow | None:
     """The user, locked for the rest of the transaction (``None``: no such user)."""
-    return record(UserRow, conn(session).execute(_LOCK, {"user_id": user_id}).first())
+    return record(UserRow, _LOCK.first(session, {"user_id": user_id}))
 
 
 def lock_owner(session: Session, episode_id: str) -> UserRow | None:
@@ -61,7 +62,7 @@ def lock_owner(session: Session, episode_id: str) -> UserRow | None:
     committed by the previous holder only if it starts after the wait (READ COMMITTED), so the
     episode is read by the next statement.
     """
-    return record(UserRow, conn(session).execute(_LOCK_OWNER, {"episode_id": episode_id}).first())
+    return record(UserRow, _LOCK_OWNER.first(session, {"episode_id": episode_id}))
 
 
 def create(session: Session, *, user_id: str, fleet: str, algorithm: str,
@@ -89,9 +90,8 @@ def create(session: Session, *, user_id: str, fleet: str, algorithm: str,
 
 
 def save_counters(session: Session, user: UserRow) -> None:
-    conn(session).execute(_SAVE_COUNTERS, {"b_user_id": user.user_id,
-                                           "episode_count": user.episode_count,
-                                           "draws": user.draws})
+    _SAVE_COUNTERS.run(session, {"b_user_id": user.user_id, "episode_count": user.episode_count,
+                                 "draws": user.draws})
 
 
 def save_profile(session: Session, user: UserRow) -> None:
