@@ -1,0 +1,44 @@
+"""``/docs`` (Swagger UI) and ``/redoc`` (Redoc), with their scripts and styles served by the
+service itself from ``/static/docs/`` (``app/api/static/docs``, vendored with their licences):
+the pages work where there is no internet, as robots' and care homes' networks often are."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from fastapi import FastAPI
+from fastapi.openapi.docs import get_redoc_html, get_swagger_ui_html
+from fastapi.responses import HTMLResponse
+from fastapi.staticfiles import StaticFiles
+
+__all__ = ["STATIC_URL", "install_docs"]
+
+STATIC = Path(__file__).parent / "static" / "docs"
+STATIC_URL = "/static/docs"
+
+
+def install_docs(app: FastAPI) -> None:
+    """Serve the two documentation pages of ``app.openapi_url`` and their assets (the app is
+    made with ``docs_url=None, redoc_url=None``, so FastAPI's CDN-loading pages are off)."""
+    app.mount(STATIC_URL, StaticFiles(directory=STATIC), name="docs-static")
+    openapi_url = app.openapi_url or "/openapi.json"
+    favicon = f"{STATIC_URL}/swagger-ui/favicon-32x32.png"
+
+    @app.get("/docs", include_in_schema=False)
+    def swagger_ui() -> HTMLResponse:
+        return get_swagger_ui_html(
+            openapi_url=openapi_url, title=f"{app.title} API",
+            swagger_js_url=f"{STATIC_URL}/swagger-ui/swagger-ui-bundle.js",
+            swagger_css_url=f"{STATIC_URL}/swagger-ui/swagger-ui.css",
+            swagger_favicon_url=favicon, oauth2_redirect_url=None,
+            # No validator badge: it would send the schema to an online validator.
+            swagger_ui_parameters={"validatorUrl": None},
+        )
+
+    @app.get("/redoc", include_in_schema=False)
+    def redoc() -> HTMLResponse:
+        return get_redoc_html(
+            openapi_url=openapi_url, title=f"{app.title} API reference",
+            redoc_js_url=f"{STATIC_URL}/redoc/redoc.standalone.js",
+            redoc_favicon_url=favicon, with_google_fonts=False,
+        )
