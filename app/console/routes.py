@@ -21,6 +21,7 @@ from fastapi.responses import HTMLResponse, JSONResponse, RedirectResponse
 from fastapi.templating import Jinja2Templates
 
 from app.api.deps import ContextDep, SessionDep, TransactionalRoute, writes
+from app.api.errors import validation_detail
 from app.errors import AppError
 from app.schemas.common import CLIENT_ID_PATTERN
 from app.services import console as console_service
@@ -95,10 +96,8 @@ class ConsoleRoute(TransactionalRoute):
                 response = _error_page(request, exc.status_code, _TITLES.get(
                     exc.status_code, "Error"), exc.detail)
             except RequestValidationError as exc:
-                first = exc.errors()[0] if exc.errors() else {}
-                where = ".".join(str(p) for p in first.get("loc", ()))
                 response = _error_page(request, 422, "Bad address",
-                                       f"{where}: {first.get('msg', 'invalid')}.")
+                                       validation_detail(request, exc))
             response.headers.update(_HEADERS)
             return response
 

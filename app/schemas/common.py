@@ -20,6 +20,12 @@ class ErrorOut(BaseModel):
         default=None, description="Validation errors only: where and what.",
         exclude_if=lambda v: v is None,
     )
+    request_id: str | None = Field(
+        default=None, examples=["3f1c9d2e8b7a4c6d9e0f1a2b3c4d5e6f"],
+        description="The request's id, as in its X-Request-ID response header and in the "
+        "service's log lines of that request.",
+        exclude_if=lambda v: v is None,
+    )
 
 
 class ActionOut(BaseModel):
