@@ -5,21 +5,47 @@ the pages work where there is no internet, as robots' and care homes' networks o
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 from fastapi import FastAPI
 from fastapi.openapi.docs import get_redoc_html, get_swagger_ui_html
 from fastapi.responses import HTMLResponse
 from fastapi.staticfiles import StaticFiles
 
-__all__ = ["STATIC_URL", "install_docs"]
+from app.logs import REQUEST_ID_PATTERN
+
+__all__ = ["REQUEST_ID_HEADER", "STATIC_URL", "install_docs"]
 
 STATIC = Path(__file__).parent / "static" / "docs"
 STATIC_URL = "/static/docs"
+REQUEST_ID_HEADER = {
+    "description": "The request's id: the caller's X-Request-ID when it sent a valid one (1 to "
+                   "128 letters, digits and . _ : -), else one made by the service (32 "
+                   "lowercase hexadecimal characters). Error bodies carry it as request_id.",
+    "schema": {"type": "string", "pattern": REQUEST_ID_PATTERN},
+}
+
+
+def _with_request_id(app: FastAPI) -> None:
+    """Declare the X-Request-ID header on every response of the OpenAPI document."""
+    generate = app.openapi
+
+    def openapi() -> dict[str, Any]:
+        schema = generate()  # FastAPI's own, cached until the routes change
+        for item in schema.get("paths", {}).values():
+            for operation in item.values():
+                for response in operation.get("responses", {}).values():
+                    response.setdefault("headers", {}).setdefault("X-Request-ID",
+                                                                  REQUEST_ID_HEADER)
+        return schema
+
+    app.openapi = openapi  # type: ignore[method-assign]
 
 
 def install_docs(app: FastAPI) -> None:
     """Serve the two documentation pages of ``app.openapi_url`` and their assets (the app is
     made with ``docs_url=None, redoc_url=None``, so FastAPI's CDN-loading pages are off)."""
+    _with_request_id(app)
     app.mount(STATIC_URL, StaticFiles(directory=STATIC), name="docs-static")
     openapi_url = app.openapi_url or "/openapi.json"
     favicon = f"{STATIC_URL}/swagger-ui/favicon-32x32.png"

@@ -4,9 +4,21 @@ from typing import Annotated, Any
 
 from pydantic import BaseModel, ConfigDict, Field, StringConstraints
 
-__all__ = ["CLIENT_ID_PATTERN", "ActionOut", "ClientId", "ErrorOut", "Page", "ProbabilityOut"]
+__all__ = ["CLIENT_ID_PATTERN", "MAX_POSITION", "ActionOut", "ClientId", "ErrorOut", "Page",
+           "ProbabilityOut", "position_of"]
 
 CLIENT_ID_PATTERN = r"^[A-Za-z0-9._:-]{1,128}$"
+# Episode and audit cursors are positions (a user's episode index, an audit entry's id), which
+# the database stores as 32-bit integers: no cursor the API returns is larger.
+MAX_POSITION = 2**31 - 1
+
+
+def position_of(cursor: str) -> int | None:
+    """The position a page cursor stands for, or None if the API never returns that cursor."""
+    if not (cursor.isascii() and cursor.isdigit()) or len(cursor) > 10:
+        return None
+    value = int(cursor)
+    return value if value <= MAX_POSITION else None
 ClientId = Annotated[str, StringConstraints(pattern=CLIENT_ID_PATTERN)]
 
 

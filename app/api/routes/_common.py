@@ -24,7 +24,7 @@ Last = Annotated[int | None, Query(ge=1, le=LAST_MAX,
 _CURSOR = ("The `next_cursor` of the previous page, passed back unchanged. It is opaque: a value "
            "the API did not return (even one that matches the pattern) is refused with 422.")
 # Episode and audit pages: the position of the last item of the previous page.
-SeqCursor = Annotated[str | None, Query(pattern=r"^[0-9]{1,18}$", description=_CURSOR)]
+SeqCursor = Annotated[str | None, Query(pattern=r"^[0-9]{1,10}$", description=_CURSOR)]
 # Users pages: the last user id of the previous page, base64url-encoded without padding.
 UserCursor = Annotated[str | None, Query(pattern=r"^[A-Za-z0-9_-]{1,200}$",
                                          description=_CURSOR)]
