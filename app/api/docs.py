@@ -48,7 +48,7 @@ def _csp(html: bytes) -> str:
 
 
 def _page(response: HTMLResponse) -> HTMLResponse:
-    response.headers["Content-Security-Policy"] = _csp(response.body)
+    response.headers["Content-Security-Policy"] = _csp(bytes(response.body))
     response.headers["X-Content-Type-Options"] = "nosniff"
     return response
 
