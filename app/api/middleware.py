@@ -115,13 +115,14 @@ class RequestContextMiddleware:
                                   "The server failed; the error was logged.")
             status = 500
         finally:
-            latency_ms = round((time.perf_counter() - start) * 1000, 2)
-            route = route_template(scope)
-            fields = {"method": method, "route": route, "status": status,
-                      "latency_ms": latency_ms, "key_id": ctx.key_id}
-            access_log.info("method=%s route=%s status=%d latency_ms=%s key_id=%s", method,
-                            route, status, latency_ms, ctx.key_id or "-",
-                            extra={logs.FIELDS: fields})
+            if access_log.isEnabledFor(logging.INFO):
+                latency_ms = round((time.perf_counter() - start) * 1000, 2)
+                route = route_template(scope)
+                fields = {"method": method, "route": route, "status": status,
+                          "latency_ms": latency_ms, "key_id": ctx.key_id}
+                access_log.info("method=%s route=%s status=%d latency_ms=%s key_id=%s",
+                                method, route, status, latency_ms, ctx.key_id or "-",
+                                extra={logs.FIELDS: fields})
             logs.unbind(token)
 
 

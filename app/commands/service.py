@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import json
 import logging
@@ -229,7 +230,8 @@ def serve(
                                 log_level=settings.log_level, access_log=False,
                                 proxy_headers=False)
         if workers == 1:
-            uvicorn.Server(config).run(sockets=[sock])
+            with contextlib.suppress(KeyboardInterrupt):  # Ctrl+C: as uvicorn.run does
+                uvicorn.Server(config).run(sockets=[sock])
             return
         from .supervisor import Supervisor
 
