@@ -34,7 +34,8 @@ _DESCRIPTIONS = {
          "application/*+json); a body without a Content-Type is refused too.",
     422: "Validation failed: the detail names the field and the allowed values.",
     429: "The API key is over its rate limit; retry after the Retry-After seconds.",
-    500: "Server error (no stack trace is sent; the log has it).",
+    500: "Server error. No stack trace is sent: the service's log has it, under the "
+         "response's request_id.",
     503: "The service is at capacity, or the database is busy or unreachable; retry after the "
          "Retry-After seconds.",
 }

@@ -113,7 +113,6 @@ class RequestContextMiddleware:
             if not started:
                 await _send_error(send_with_id, 500, "InternalError",
                                   "The server failed; the error was logged.")
-            status = 500
         finally:
             if access_log.isEnabledFor(logging.INFO):
                 latency_ms = round((time.perf_counter() - start) * 1000, 2)
