@@ -11,16 +11,17 @@ from __future__ import annotations
 import functools
 import inspect
 import logging
-from collections.abc import AsyncIterator, Callable
+from collections.abc import AsyncIterator, Callable, Coroutine
 from contextlib import AbstractContextManager
 from typing import Annotated, Any
 
-from fastapi import Depends, Header, Request
+from fastapi import Depends, Header, Request, Response, params
 from fastapi.routing import APIRoute
 from sqlalchemy.orm import Session
 
+from app import logs
 from app.db.session import Database
-from app.errors import TooManyRequests
+from app.errors import TooManyRequests, UnsupportedMediaType
 from app.services.auth import authenticate
 from app.services.context import Principal, ServiceContext
 
@@ -84,12 +85,43 @@ def _in_transaction(endpoint: Callable[..., Any]) -> Callable[..., Any]:
     return run
 
 
+def is_json(content_type: str | None) -> bool:
+    """``application/json`` or ``application/<anything>+json``, parameters aside."""
+    if not content_type:
+        return False
+    kind = content_type.split(";", 1)[0].strip().lower()
+    return kind == "application/json" or (kind.startswith("application/")
+                                          and kind.endswith("+json"))
+
+
 class TransactionalRoute(APIRoute):
     """A route whose ``session`` parameter's transaction runs inside the route's own call (in
-    the thread pool): first statement, work, commit and after-commit callbacks in one thread."""
+    the thread pool): first statement, work, commit and after-commit callbacks in one thread.
+
+    A route that takes a JSON body refuses a non-empty body sent as anything but JSON (another
+    Content-Type, or none) with 415, before reading it as JSON; an empty body is left to the
+    route (422 where the body is required, the defaults where it is optional).
+    """
 
     def __init__(self, path: str, endpoint: Callable[..., Any], **kwargs: Any) -> None:
         super().__init__(path, _in_transaction(endpoint), **kwargs)
+
+    def get_route_handler(self) -> Callable[[Request], Coroutine[Any, Any, Response]]:
+        handler = super().get_route_handler()
+        body = self.body_field
+        if body is None or isinstance(body.field_info, params.Form):
+            return handler
+
+        async def json_only(request: Request) -> Response:
+            content_type = request.headers.get("content-type")
+            if not is_json(content_type) and await request.body():
+                came = (f"as {content_type.split(';', 1)[0].strip()!r}" if content_type
+                        else "without a Content-Type")
+                raise UnsupportedMediaType("The body must be JSON, sent with Content-Type: "
+                                           f"application/json; this one came {came}.")
+            return await handler(request)
+
+        return json_only
 
 
 async def get_context(request: Request) -> ServiceContext:
@@ -118,6 +150,9 @@ def current_principal(
     """
     with single_read(request) as session:
         principal = authenticate(session, authorization)
+    ctx = logs.current()
+    if ctx is not None:  # for the access line
+        ctx.key_id = principal.key_id
     limiter: KeyRateLimiter = request.app.state.limiter
     wait = limiter.acquire(principal.key_id)
     if wait:

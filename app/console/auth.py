@@ -17,6 +17,7 @@ from urllib.parse import parse_qsl, urlsplit
 
 from fastapi import Depends, Request
 
+from app import logs
 from app.api.deps import SessionDep, single_read
 from app.errors import Forbidden, Unauthorized
 from app.services.auth import authenticate, require_admin
@@ -83,7 +84,11 @@ def current_admin(request: Request) -> Admin:
         path = request.url.path + (f"?{request.url.query}" if request.url.query else "")
         raise LoginRequired(path)
     with single_read(request) as session:
-        return Admin(sign_in(session, secret), csrf_token(secret))
+        principal = sign_in(session, secret)
+    ctx = logs.current()
+    if ctx is not None:  # for the access line
+        ctx.key_id = principal.key_id
+    return Admin(principal, csrf_token(secret))
 
 
 AdminDep = Annotated[Admin, Depends(current_admin)]

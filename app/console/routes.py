@@ -21,8 +21,9 @@ from fastapi.responses import HTMLResponse, JSONResponse, RedirectResponse
 from fastapi.templating import Jinja2Templates
 
 from app.api.deps import ContextDep, SessionDep, TransactionalRoute, writes
+from app.api.errors import validation_detail
 from app.errors import AppError
-from app.schemas.common import CLIENT_ID_PATTERN
+from app.schemas.common import CLIENT_ID_PATTERN, MAX_POSITION
 from app.services import console as console_service
 from app.services import episodes as episodes_service
 from app.services import models as models_service
@@ -95,10 +96,8 @@ class ConsoleRoute(TransactionalRoute):
                 response = _error_page(request, exc.status_code, _TITLES.get(
                     exc.status_code, "Error"), exc.detail)
             except RequestValidationError as exc:
-                first = exc.errors()[0] if exc.errors() else {}
-                where = ".".join(str(p) for p in first.get("loc", ()))
                 response = _error_page(request, 422, "Bad address",
-                                       f"{where}: {first.get('msg', 'invalid')}.")
+                                       validation_detail(request, exc))
             response.headers.update(_HEADERS)
             return response
 
@@ -248,8 +247,8 @@ def why_page(
 @router.get("/users/{user_id}/episodes")
 def episodes_page(
     request: Request, user_id: str, session: SessionDep, ctx: ContextDep, admin: AdminDep,
-    before: Annotated[int | None, Query(ge=1, le=10**17)] = None,
-    at: Annotated[int | None, Query(ge=1, le=10**17)] = None,
+    before: Annotated[int | None, Query(ge=1, le=MAX_POSITION)] = None,
+    at: Annotated[int | None, Query(ge=1, le=MAX_POSITION - 1)] = None,
     per_page: Annotated[int, Query(ge=5, le=200)] = 25,
 ) -> HTMLResponse:
     """The user's episodes, newest first, a page at a time (``at``: from that episode on); each

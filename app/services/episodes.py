@@ -25,7 +25,7 @@ from app.errors import Conflict, NotFound, ValidationFailed
 from app.learning import Action, ActionKind, Observation, Polarity, Transition
 from app.learning import Decision as Drawn
 from app.learning.learners import TabularLearner
-from app.schemas.common import ActionOut, ProbabilityOut
+from app.schemas.common import ActionOut, ProbabilityOut, position_of
 from app.schemas.episodes import (
     ContextOut,
     DecisionOut,
@@ -512,9 +512,9 @@ def list_episodes(session: Session, ctx: ServiceContext, principal: Principal, u
     visible_user(session, principal, user_id)
     before: int | None = None
     if cursor is not None:
-        if not (cursor.isascii() and cursor.isdigit()) or len(cursor) > 18:
+        before = position_of(cursor)
+        if before is None:
             raise ValidationFailed("cursor is not one this API returned.")
-        before = int(cursor)
     rows = repo.list_episodes(session, user_id, before_seq=before, limit=limit + 1)
     items = [EpisodeSummary(**_summary_fields(ctx, ep)) for ep in rows[:limit]]
     more = len(rows) > limit

@@ -1,8 +1,6 @@
 from __future__ import annotations
 
-from typing import Annotated
-
-from fastapi import APIRouter, Query, Request
+from fastapi import APIRouter, Request
 from fastapi.responses import JSONResponse
 
 from app.api.deps import ContextDep, CurrentPrincipal, SessionDep, TransactionalRoute
@@ -21,7 +19,7 @@ from app.schemas.episodes import (
 )
 from app.services import episodes as service
 
-from ._common import REPLAY_HEADER, EpisodeId, UserId, written
+from ._common import REPLAY_HEADER, EpisodeId, Limit, SeqCursor, UserId, written
 
 router = APIRouter(tags=["episodes"], route_class=TransactionalRoute)
 
@@ -39,7 +37,7 @@ def _count(request: Request, body: dict[str, object] | None, replay: bool) -> No
     "/v1/users/{user_id}/episodes", status_code=201, response_model=EpisodeCreated,
     responses={200: {"model": EpisodeCreated, "description": "Idempotent replay of an earlier "
                      "event_id.", "headers": REPLAY_HEADER, "links": EPISODE_LINKS},
-               201: {"links": EPISODE_LINKS}, **responses(404, 409)},
+               201: {"links": EPISODE_LINKS}, **responses(404, 409, 415)},
 )
 def start_episode(user_id: UserId, body: EpisodeIn, request: Request, session: SessionDep,
                   ctx: ContextDep, principal: CurrentPrincipal) -> JSONResponse:
@@ -54,7 +52,7 @@ def start_episode(user_id: UserId, body: EpisodeIn, request: Request, session: S
     responses={200: {"headers": REPLAY_HEADER, "description": "The reward, the episode, and "
                      "the next decision (null when the episode ended).",
                      "links": OUTCOME_LINKS},
-               **responses(404, 409)},
+               **responses(404, 409, 415)},
 )
 def report_outcome(episode_id: EpisodeId, body: OutcomeIn, request: Request,
                    session: SessionDep, ctx: ContextDep,
@@ -70,7 +68,7 @@ def report_outcome(episode_id: EpisodeId, body: OutcomeIn, request: Request,
 
 @router.post(
     "/v1/episodes/{episode_id}/feedback", response_model=FeedbackOut,
-    responses={200: {"headers": REPLAY_HEADER}, **responses(404, 409)},
+    responses={200: {"headers": REPLAY_HEADER}, **responses(404, 409, 415)},
 )
 def add_feedback(episode_id: EpisodeId, body: FeedbackIn, session: SessionDep,
                  ctx: ContextDep, principal: CurrentPrincipal) -> JSONResponse:
@@ -89,8 +87,8 @@ def get_episode(episode_id: EpisodeId, session: SessionDep, ctx: ContextDep,
             responses=responses(404))
 def list_episodes(
     user_id: UserId, session: SessionDep, ctx: ContextDep, principal: CurrentPrincipal,
-    limit: Annotated[int, Query(ge=1, le=500)] = 50,
-    cursor: Annotated[str | None, Query(max_length=32)] = None,
+    limit: Limit = 50,
+    cursor: SeqCursor = None,
 ) -> EpisodeList:
     """A user's episodes, newest first, without traces."""
     return service.list_episodes(session, ctx, principal, user_id, limit=limit, cursor=cursor)
