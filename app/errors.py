@@ -1,6 +1,7 @@
 """Domain errors: each carries its HTTP status and its wire name; one handler renders them all.
 
-The body is always ``{"error": <name>, "detail": <sentence>}`` (plus ``fields`` for validation).
+The body is always ``{"error": <name>, "detail": <sentence>}`` (plus ``fields`` for validation);
+the HTTP layer adds the request's ``request_id``.
 Nothing here imports FastAPI: services raise these, ``app.api.errors`` turns them into responses.
 """
 
@@ -18,6 +19,7 @@ __all__ = [
     "ServiceUnavailable",
     "TooManyRequests",
     "Unauthorized",
+    "UnsupportedMediaType",
     "ValidationFailed",
 ]
 
@@ -72,6 +74,13 @@ class Conflict(AppError):
 class PayloadTooLarge(AppError):
     status_code = 413
     error = "PayloadTooLarge"
+
+
+class UnsupportedMediaType(AppError):
+    """A JSON body sent as something else (text/plain, a form, multipart, or no type)."""
+
+    status_code = 415
+    error = "UnsupportedMediaType"
 
 
 class TooManyRequests(AppError):

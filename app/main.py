@@ -10,13 +10,16 @@ from anyio import to_thread
 from fastapi import FastAPI
 from fastapi.routing import APIRoute
 
+from app.api.docs import install_docs
 from app.api.errors import install_error_handlers
 from app.api.metrics import Metrics
 from app.api.middleware import (
     BodyLimitMiddleware,
+    HeadMiddleware,
     InFlightLimitMiddleware,
     KeyRateLimiter,
     MetricsMiddleware,
+    RequestContextMiddleware,
 )
 from app.api.routes import admin, episodes, meta, models, users
 from app.console import mount_console
@@ -36,7 +39,19 @@ A robot reports an **event** near a person (`POST /v1/users/{user_id}/episodes`)
 Writes are idempotent: repeat them with the same ids after a network failure.
 
 Every request but `/healthz`, `/readyz` and `/metrics` needs `Authorization: Bearer <api key>`;
-keys are made with `attune keys create`. Errors are `{"error": "...", "detail": "..."}`.
+keys are made with `attune keys create`.
+
+Errors are `{"error": "...", "detail": "...", "request_id": "..."}` (plus `fields` on a 422).
+Every response carries an `X-Request-ID` header: the caller's own when it sent a valid one
+(1 to 128 letters, digits and `. _ : -`), else one the service made (32 hexadecimal
+characters). The same id is in the error body and in the service's log lines of that request.
+
+Request bodies are JSON: a body sent with another `Content-Type` (`text/plain`, a form,
+multipart) or with none is refused with 415 `UnsupportedMediaType`; a request whose body is
+optional may send no body at all. Every `GET` also answers `HEAD` (same status and headers, no
+body), and a 405 lists the path's methods in its `Allow` header. Integer query parameters are
+bounded (`limit` 1 to 500, `last` 1 to 1000000); outside the range, 422 names the parameter and
+its range.
 """
 
 
@@ -62,7 +77,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         db.dispose()
 
     app = FastAPI(title="Attune", version="1.0.0", description=DESCRIPTION, lifespan=lifespan,
-                  generate_unique_id_function=_operation_id)
+                  generate_unique_id_function=_operation_id, docs_url=None, redoc_url=None)
     app.state.settings = settings
     app.state.db = db
     app.state.ctx = ServiceContext.from_settings(settings)
@@ -72,10 +87,15 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     for module in (users, episodes, models, meta):
         app.include_router(module.router)
     app.include_router(admin.router)
+    install_docs(app)
     mount_console(app)
+    # The last added is the outermost: every response, whoever answers it, gets its request id
+    # and its access line.
+    app.add_middleware(HeadMiddleware)
     app.add_middleware(BodyLimitMiddleware, limit=settings.max_body_bytes)
     app.add_middleware(InFlightLimitMiddleware, limit=settings.max_in_flight)
     app.add_middleware(MetricsMiddleware, metrics=app.state.metrics)
+    app.add_middleware(RequestContextMiddleware)
     return app
 
 

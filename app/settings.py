@@ -64,6 +64,12 @@ class Settings(BaseSettings):
         "the learner in memory replays them onto the last snapshot (1: store it on every write).",
     )
     log_level: str = Field(default="info", description="debug, info, warning or error.")
+    log_format: str = Field(
+        default="text",
+        description="text (lines for people) or json (one JSON object per line for log "
+        "shippers: time, level, logger, message, request_id, and the access line's method, "
+        "route, status, latency_ms and key_id).",
+    )
     rate_limit_per_s: float = Field(
         default=100.0, ge=0,
         description="Requests per second each API key may make, per worker process (a token "
@@ -100,6 +106,14 @@ class Settings(BaseSettings):
         value = value.lower()
         if value not in {"debug", "info", "warning", "error"}:
             raise ValueError("log_level must be debug, info, warning or error.")
+        return value
+
+    @field_validator("log_format")
+    @classmethod
+    def _known_format(cls, value: str) -> str:
+        value = value.lower()
+        if value not in {"text", "json"}:
+            raise ValueError("log_format must be text or json.")
         return value
 
     @property

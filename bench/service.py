@@ -677,20 +677,24 @@ def targets(bench: Bench, console: Any) -> list[str]:
 
 def serve_reference(port: int, workers: int) -> None:
     """The reference app, served exactly as ``attune serve`` serves the service (same uvicorn
-    options, same listening socket with TCP_NODELAY when there are several workers)."""
+    options, no uvicorn access log, the same listening socket with TCP_NODELAY bound first)."""
     import uvicorn
 
     options: dict[str, Any] = {"factory": True, "host": "127.0.0.1", "port": port,
                                "workers": workers, "log_level": "warning",
-                               "proxy_headers": False}
+                               "access_log": False, "proxy_headers": False}
+    config = uvicorn.Config("service:reference_app", **options)
+    sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    sock.bind(("127.0.0.1", port))
+    sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+    sock.set_inheritable(True)
     if workers == 1:
-        uvicorn.run("service:reference_app", **options)
+        with contextlib.suppress(KeyboardInterrupt):  # Ctrl+C: as uvicorn.run does
+            uvicorn.Server(config).run(sockets=[sock])
         return
     from uvicorn.supervisors import Multiprocess
 
-    config = uvicorn.Config("service:reference_app", **options)
-    sock = config.bind_socket()
-    sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
     Multiprocess(config, sockets=[sock]).run()
 
 

@@ -13,16 +13,17 @@ from __future__ import annotations
 
 import functools
 import inspect
-from collections.abc import Callable
+from collections.abc import Callable, Coroutine
 from typing import Annotated, Any
 
 from anyio import to_thread
-from fastapi import Depends, Header, Request
+from fastapi import Depends, Header, Request, Response, params
 from fastapi.concurrency import run_in_threadpool
 from fastapi.routing import APIRoute
 
+from app import logs
 from app.db.session import Database
-from app.errors import TooManyRequests
+from app.errors import TooManyRequests, UnsupportedMediaType
 from app.services.auth import authenticate, bearer_digest
 from app.services.context import KeyCache, Principal, ServiceContext
 
@@ -102,17 +103,48 @@ def _in_transaction(endpoint: Callable[..., Any], *, write: bool, inline: bool
     return run_here_or_in_thread
 
 
+def is_json(content_type: str | None) -> bool:
+    """``application/json`` or ``application/<anything>+json``, parameters aside."""
+    if not content_type:
+        return False
+    kind = content_type.split(";", 1)[0].strip().lower()
+    return kind == "application/json" or (kind.startswith("application/")
+                                          and kind.endswith("+json"))
+
+
 class TransactionalRoute(APIRoute):
     """A route whose endpoint takes ``session: Session`` and/or ``ctx: ServiceContext``, given
     by the route (not by dependencies): the session's transaction is the endpoint's whole call,
     in the thread pool. Routes of POST, PUT, PATCH and DELETE, and GET routes marked with
-    :func:`writes`, run write transactions (SQLite: ``BEGIN IMMEDIATE``); the others read."""
+    :func:`writes`, run write transactions (SQLite: ``BEGIN IMMEDIATE``); the others read.
+
+    A route that takes a JSON body refuses a non-empty body sent as anything but JSON (another
+    Content-Type, or none) with 415, before reading it as JSON; an empty body is left to the
+    route (422 where the body is required, the defaults where it is optional).
+    """
 
     def __init__(self, path: str, endpoint: Callable[..., Any], **kwargs: Any) -> None:
         methods = {m.upper() for m in kwargs.get("methods") or ("GET",)}
         write = bool(methods & _WRITES) or getattr(endpoint, _WRITE_MARK, False)
         inline = getattr(endpoint, _INLINE_MARK, False)
         super().__init__(path, _in_transaction(endpoint, write=write, inline=inline), **kwargs)
+
+    def get_route_handler(self) -> Callable[[Request], Coroutine[Any, Any, Response]]:
+        handler = super().get_route_handler()
+        body = self.body_field
+        if body is None or isinstance(body.field_info, params.Form):
+            return handler
+
+        async def json_only(request: Request) -> Response:
+            content_type = request.headers.get("content-type")
+            if not is_json(content_type) and await request.body():
+                came = (f"as {content_type.split(';', 1)[0].strip()!r}" if content_type
+                        else "without a Content-Type")
+                raise UnsupportedMediaType("The body must be JSON, sent with Content-Type: "
+                                           f"application/json; this one came {came}.")
+            return await handler(request)
+
+        return json_only
 
 
 def _lookup(db: Database, authorization: str | None) -> Principal:
@@ -135,6 +167,9 @@ async def principal_of(request: Request, authorization: str | None, *,
     if principal is None:
         principal = await to_thread.run_sync(_lookup, request.app.state.db, authorization)
         keys.put(digest, principal)
+    context = logs.current()
+    if context is not None:  # for the access line
+        context.key_id = principal.key_id
     return principal
 
 

@@ -1,4 +1,5 @@
-"""The one error handler family: every failure leaves as ``{"error", "detail"}`` JSON."""
+"""The one error handler family: every failure leaves as ``{"error", "detail", "request_id"}``
+JSON (plus ``fields`` on a 422)."""
 
 from __future__ import annotations
 
@@ -10,13 +11,15 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from sqlalchemy.exc import DataError, IntegrityError, OperationalError
 from starlette.exceptions import HTTPException as StarletteHTTPException
+from starlette.routing import Match, Mount
 
 from app.errors import AppError, BadRequest, Conflict, ServiceUnavailable, ValidationFailed
 from app.schemas.common import ErrorOut
 
-from .middleware import BodyTooLarge
+from .middleware import BodyTooLarge, error_body
 
-__all__ = ["ERROR_RESPONSES", "install_error_handlers", "responses"]
+__all__ = ["ERROR_RESPONSES", "allowed_methods", "install_error_handlers", "responses",
+           "validation_detail"]
 
 log = logging.getLogger("attune.api")
 
@@ -27,9 +30,12 @@ _DESCRIPTIONS = {
     404: "No such resource in your fleet.",
     409: "Conflict: an ID reused with another body, or a state that does not allow this.",
     413: "Request body over the size limit (64 KiB by default).",
+    415: "The body is not sent as JSON: its Content-Type must be application/json (or "
+         "application/*+json); a body without a Content-Type is refused too.",
     422: "Validation failed: the detail names the field and the allowed values.",
     429: "The API key is over its rate limit; retry after the Retry-After seconds.",
-    500: "Server error (no stack trace is sent; the log has it).",
+    500: "Server error. No stack trace is sent: the service's log has it, under the "
+         "response's request_id.",
     503: "The service is at capacity, or the database is busy or unreachable; retry after the "
          "Retry-After seconds.",
 }
@@ -48,12 +54,99 @@ def responses(*codes: int) -> dict[int | str, dict[str, Any]]:
     return {c: ERROR_RESPONSES[c] for c in sorted({*codes, *every})}
 
 
+def _json(body: dict[str, Any], status: int,
+          headers: dict[str, str] | None = None) -> JSONResponse:
+    return JSONResponse(body, status_code=status, headers=headers or None)
+
+
 def _render(exc: AppError) -> JSONResponse:
-    return JSONResponse(exc.body(), status_code=exc.status_code, headers=exc.headers() or None)
+    more = {"fields": exc.fields} if exc.fields is not None else {}
+    return _json(error_body(exc.error, exc.detail, **more), exc.status_code, exc.headers())
 
 
 def _loc(loc: tuple[Any, ...]) -> str:
     return ".".join(str(p) for p in loc)
+
+
+def _query_fields(dependant: Any) -> dict[str, Any]:
+    """The query parameters of a route and of its dependencies, by name."""
+    found: dict[str, Any] = {}
+    stack = [dependant]
+    while stack:
+        current = stack.pop()
+        for field in getattr(current, "query_params", ()):
+            found.setdefault(field.alias, field)
+        stack.extend(getattr(current, "dependencies", ()))
+    return found
+
+
+def _int_range(field: Any) -> tuple[int | None, int | None] | None:
+    """(lowest, highest) of an integer parameter, from its ge/gt/le/lt; None if not an int."""
+    annotation = getattr(field.field_info, "annotation", None)
+    if annotation is not int and int not in getattr(annotation, "__args__", ()):
+        return None
+    low = high = None
+    for rule in field.field_info.metadata:
+        if getattr(rule, "ge", None) is not None:
+            low = int(rule.ge)
+        if getattr(rule, "gt", None) is not None:
+            low = int(rule.gt) + 1
+        if getattr(rule, "le", None) is not None:
+            high = int(rule.le)
+        if getattr(rule, "lt", None) is not None:
+            high = int(rule.lt) - 1
+    return low, high
+
+
+def _range_sentence(name: str, low: int | None, high: int | None) -> str:
+    if low is not None and high is not None:
+        return f"{name} must be an integer from {low} to {high}."
+    if low is not None:
+        return f"{name} must be an integer of at least {low}."
+    if high is not None:
+        return f"{name} must be an integer of at most {high}."
+    return f"{name} must be an integer."
+
+
+def validation_detail(request: Request, exc: RequestValidationError) -> str:
+    """The sentence of a 422: an integer query parameter's error names the parameter and its
+    range (``last must be an integer from 1 to 1000000.``); any other names the field and
+    what is wrong with it."""
+    errors = exc.errors()
+    first = errors[0] if errors else {}
+    loc = tuple(first.get("loc", ()))
+    if len(loc) == 2 and loc[0] == "query":
+        field = _query_fields(getattr(request.scope.get("route"), "dependant", None)).get(loc[1])
+        bounds = _int_range(field) if field is not None else None
+        if bounds is not None:
+            return _range_sentence(str(loc[1]), *bounds)
+        if loc[1] == "cursor":
+            return "cursor is not one this API returned."  # as the services say it
+    return f"{_loc(loc)}: {first.get('msg', 'invalid')}."
+
+
+_PROBED = ("GET", "POST", "PUT", "PATCH", "DELETE")
+
+
+def allowed_methods(request: Request) -> list[str] | None:
+    """Every method the request's path answers (``HEAD`` with ``GET``), from all the routes
+    that match it, not only the first; None when a mounted app answered (it knows its own)."""
+    if isinstance(request.scope.get("route"), Mount):
+        return None
+    scope = request.scope
+    allowed: list[str] = []
+    for method in _PROBED:
+        probe = {"type": "http", "method": method, "path": scope["path"],
+                 "root_path": scope.get("root_path", ""), "headers": [], "query_string": b""}
+        for route in request.app.router.routes:
+            if isinstance(route, Mount):
+                continue
+            if route.matches(probe)[0] is Match.FULL:
+                allowed.append(method)
+                break
+    if "GET" in allowed:
+        allowed.insert(1, "HEAD")
+    return allowed
 
 
 def install_error_handlers(app: FastAPI) -> None:
@@ -62,7 +155,7 @@ def install_error_handlers(app: FastAPI) -> None:
         return _render(exc)
 
     @app.exception_handler(RequestValidationError)
-    async def validation_error(_: Request, exc: RequestValidationError) -> JSONResponse:
+    async def validation_error(request: Request, exc: RequestValidationError) -> JSONResponse:
         errors = exc.errors()
         for err in errors:
             if err.get("type") == "json_invalid":
@@ -75,23 +168,26 @@ def install_error_handlers(app: FastAPI) -> None:
              "type": str(err.get("type", ""))}
             for err in errors
         ]
-        first = errors[0] if errors else {}
-        detail = f"{_loc(first.get('loc', ()))}: {first.get('msg', 'invalid')}."
-        return _render(ValidationFailed(detail, fields=fields))
+        return _render(ValidationFailed(validation_detail(request, exc), fields=fields))
 
     @app.exception_handler(StarletteHTTPException)
-    async def http_error(_: Request, exc: StarletteHTTPException) -> JSONResponse:
+    async def http_error(request: Request, exc: StarletteHTTPException) -> JSONResponse:
         if isinstance(exc.__cause__, BodyTooLarge):  # a streamed body went over the limit
-            return JSONResponse({"error": "PayloadTooLarge", "detail": str(exc.__cause__)},
-                                status_code=413)
+            return _json(error_body("PayloadTooLarge", str(exc.__cause__)), 413)
         names = {400: "BadRequest", 404: "NotFound", 405: "MethodNotAllowed",
                  413: "PayloadTooLarge"}
         name = names.get(exc.status_code, "HTTPError")
         detail = str(exc.detail)
+        headers = dict(getattr(exc, "headers", None) or {})
         if exc.status_code == 404:
             detail = "No such endpoint; GET /docs lists them."
-        return JSONResponse({"error": name, "detail": detail}, status_code=exc.status_code,
-                            headers=getattr(exc, "headers", None))
+        if exc.status_code == 405:
+            allowed = allowed_methods(request)
+            if allowed:
+                headers["Allow"] = ", ".join(allowed)
+            detail = (f"{request.method} is not a method of this path; it answers "
+                      f"{headers.get('Allow', 'other methods')}.")
+        return _json(error_body(name, detail), exc.status_code, headers)
 
     @app.exception_handler(IntegrityError)
     async def integrity_error(_: Request, exc: IntegrityError) -> JSONResponse:
@@ -111,10 +207,5 @@ def install_error_handlers(app: FastAPI) -> None:
         log.warning("database error: %s", exc.orig)
         return _render(ServiceUnavailable("The database is busy or unreachable; retry."))
 
-    @app.exception_handler(Exception)
-    async def server_error(request: Request, exc: Exception) -> JSONResponse:
-        log.exception("unhandled error on %s %s", request.method, request.url.path)
-        return JSONResponse(
-            {"error": "InternalError", "detail": "The server failed; the error was logged."},
-            status_code=500,
-        )
+    # No handler for Exception: RequestContextMiddleware logs an unhandled error once, with
+    # its traceback and request id, and answers the contract's 500.

@@ -1,9 +1,11 @@
-"""ASGI middleware and limits: the request body limit (413), overload shedding (503), the
-per-key rate limit (429) and Prometheus request metrics."""
+"""ASGI middleware and limits: request ids and the access line, HEAD on GET routes, the request
+body limit (413), overload shedding (503), the per-key rate limit (429) and Prometheus request
+metrics."""
 
 from __future__ import annotations
 
 import json
+import logging
 import math
 import threading
 import time
@@ -12,10 +14,16 @@ from typing import Any
 
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
+from app import logs
+
 from .metrics import Metrics
 
-__all__ = ["BodyLimitMiddleware", "BodyTooLarge", "InFlightLimitMiddleware", "KeyRateLimiter",
-           "MetricsMiddleware"]
+__all__ = ["BodyLimitMiddleware", "BodyTooLarge", "HeadMiddleware", "InFlightLimitMiddleware",
+           "KeyRateLimiter", "MetricsMiddleware", "RequestContextMiddleware", "error_body",
+           "route_template"]
+
+access_log = logging.getLogger("attune.access")
+log = logging.getLogger("attune.api")
 
 # Probes and scrapes must answer while the service sheds load: they are what tells an operator
 # (or an orchestrator) that it is alive but busy.
@@ -31,13 +39,122 @@ class BodyTooLarge(Exception):
         self.limit = limit
 
 
-async def _send_413(send: Send, limit: int) -> None:
-    body = json.dumps({"error": "PayloadTooLarge",
-                       "detail": f"The request body is over the {limit}-byte limit."}).encode()
-    await send({"type": "http.response.start", "status": 413,
+def error_body(error: str, detail: str, **more: Any) -> dict[str, Any]:
+    """The contract's error body, with the id of the request being answered."""
+    body: dict[str, Any] = {"error": error, "detail": detail, **more}
+    request_id = logs.current_request_id()
+    if request_id is not None:
+        body["request_id"] = request_id
+    return body
+
+
+async def _send_error(send: Send, status: int, error: str, detail: str,
+                      headers: tuple[tuple[bytes, bytes], ...] = ()) -> None:
+    body = json.dumps(error_body(error, detail)).encode()
+    await send({"type": "http.response.start", "status": status,
                 "headers": [(b"content-type", b"application/json"),
-                            (b"content-length", str(len(body)).encode())]})
+                            (b"content-length", str(len(body)).encode()), *headers]})
     await send({"type": "http.response.body", "body": body})
+
+
+async def _send_413(send: Send, limit: int) -> None:
+    await _send_error(send, 413, "PayloadTooLarge",
+                      f"The request body is over the {limit}-byte limit.")
+
+
+def route_template(scope: Scope) -> str:
+    """The path template of the route that answered (``/v1/users/{user_id}``), or
+    ``unmatched``: a label of bounded cardinality for metrics and logs."""
+    path = getattr(scope.get("route"), "path", None)
+    return path if isinstance(path, str) and path else "unmatched"
+
+
+class RequestContextMiddleware:
+    """The outermost of the service's middleware: gives each request its id (the caller's valid
+    ``X-Request-ID``, else a fresh one) for its log lines, its error body and its
+    ``X-Request-ID`` response header; answers an unhandled error with the contract's 500 after
+    logging it once, with its traceback; and writes the request's access line (``attune.access``)
+    once the response is sent, whoever answered it."""
+
+    def __init__(self, app: ASGIApp) -> None:
+        self.app = app
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        start = time.perf_counter()
+        method = scope.get("method", "?")
+        given = None
+        for name, value in scope.get("headers", []):
+            if name == b"x-request-id":
+                given = value.decode("latin-1")
+                break
+        ctx = logs.RequestContext(logs.request_id_from(given))
+        header = (b"x-request-id", ctx.request_id.encode())
+        status = 500
+        started = False
+
+        async def send_with_id(message: Message) -> None:
+            nonlocal status, started
+            if message["type"] == "http.response.start":
+                status, started = message["status"], True
+                headers = [(k, v) for k, v in message.get("headers", [])
+                           if k.lower() != b"x-request-id"]
+                message = {**message, "headers": [*headers, header]}
+            await send(message)
+
+        token = logs.bind(ctx)
+        try:
+            await self.app(scope, receive, send_with_id)
+        except Exception:
+            # Logged here, once, and not raised on: the server would log it a second time.
+            log.exception("unhandled error on %s %s", method, route_template(scope))
+            if not started:
+                await _send_error(send_with_id, 500, "InternalError",
+                                  "The server failed; the error was logged.")
+        finally:
+            if access_log.isEnabledFor(logging.INFO):
+                latency_ms = round((time.perf_counter() - start) * 1000, 2)
+                route = route_template(scope)
+                fields = {"method": method, "route": route, "status": status,
+                          "latency_ms": latency_ms, "key_id": ctx.key_id}
+                access_log.info("method=%s route=%s status=%d latency_ms=%s key_id=%s",
+                                method, route, status, latency_ms, ctx.key_id or "-",
+                                extra={logs.FIELDS: fields})
+            logs.unbind(token)
+
+
+class HeadMiddleware:
+    """``HEAD`` on every ``GET`` route: the request runs as its ``GET`` (same status and
+    headers, ``Content-Length`` included) and the body is left out. Routes do not declare
+    ``HEAD`` themselves, so the OpenAPI document lists only their ``GET``."""
+
+    def __init__(self, app: ASGIApp) -> None:
+        self.app = app
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http" or scope.get("method") != "HEAD":
+            await self.app(scope, receive, send)
+            return
+        body_sent = False
+
+        async def headers_only(message: Message) -> None:
+            nonlocal body_sent
+            if message["type"] == "http.response.body":
+                if body_sent or message.get("more_body", False):
+                    return
+                body_sent = True
+                message = {"type": "http.response.body", "body": b"", "more_body": False}
+            await send(message)
+
+        # A copy: the server reads the method of its own scope to know that no body follows.
+        as_get = {**scope, "method": "GET"}
+        try:
+            await self.app(as_get, receive, headers_only)
+        finally:
+            if "route" in as_get:  # for the metrics and the access line
+                scope["route"] = as_get["route"]
 
 
 class BodyLimitMiddleware:
@@ -105,10 +222,8 @@ class MetricsMiddleware:
         try:
             await self.app(scope, receive, tracking_send)
         finally:
-            route = scope.get("route")
-            path = getattr(route, "path", None) or "unmatched"
-            self.metrics.observe_request(scope.get("method", "?"), path, status["code"],
-                                         time.perf_counter() - start)
+            self.metrics.observe_request(scope.get("method", "?"), route_template(scope),
+                                         status["code"], time.perf_counter() - start)
 
 
 class InFlightLimitMiddleware:
@@ -124,9 +239,8 @@ class InFlightLimitMiddleware:
         self.app, self.limit, self.retry_after = app, limit, retry_after
         self.in_flight = 0
         self.shed = 0
-        body = json.dumps({"error": "ServiceUnavailable",
-                           "detail": f"The service is at capacity; retry in {retry_after} s."})
-        self._body = body.encode()
+        self._detail = f"The service is at capacity; retry in {retry_after} s."
+        self._retry_after = ((b"retry-after", str(retry_after).encode()),)
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] != "http" or scope.get("path") in EXEMPT_PATHS:
@@ -134,11 +248,7 @@ class InFlightLimitMiddleware:
             return
         if self.in_flight >= self.limit:
             self.shed += 1
-            await send({"type": "http.response.start", "status": 503,
-                        "headers": [(b"content-type", b"application/json"),
-                                    (b"content-length", str(len(self._body)).encode()),
-                                    (b"retry-after", str(self.retry_after).encode())]})
-            await send({"type": "http.response.body", "body": self._body})
+            await _send_error(send, 503, "ServiceUnavailable", self._detail, self._retry_after)
             return
         self.in_flight += 1
         try:

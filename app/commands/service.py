@@ -2,14 +2,17 @@
 
 from __future__ import annotations
 
+import contextlib
+import errno
 import json
 import logging
 import os
 import socket
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from typing import TYPE_CHECKING, Annotated, Any
+from pathlib import Path
+from typing import TYPE_CHECKING, Annotated, Any, NoReturn
 
 import typer
 from rich.console import Console
@@ -46,31 +49,149 @@ def _settings() -> Settings:
         raise typer.Exit(2) from None
 
 
-def _upgrade(settings: Settings) -> None:
-    safe = Database(settings)
+class StartFailure(Exception):
+    """Why the service (or a command) cannot start, as one sentence for the operator."""
+
+
+def _fail(exc: StartFailure) -> NoReturn:
+    typer.echo(str(exc), err=True)  # plain: rich would wrap the sentence at 80 columns
+    raise typer.Exit(1)
+
+
+def _one_line(exc: BaseException) -> str:
+    """The first line of an error's message (a driver's hints follow on further lines)."""
+    lines = str(getattr(exc, "orig", None) or exc).strip().splitlines()
+    text = " ".join(lines[0].split()) if lines else ""
+    return text.rstrip(".") or type(exc).__name__
+
+
+def _sqlite_file(settings: Settings) -> Path | None:
+    """The SQLite database's file, or None (PostgreSQL, or an in-memory database)."""
+    if not settings.is_sqlite:
+        return None
+    from sqlalchemy.engine import make_url
+
+    name = make_url(settings.database_url).database
+    if not name or name == ":memory:" or name.startswith("file:"):
+        return None
+    return Path(name).absolute()
+
+
+def _remove_sqlite(path: Path) -> None:
+    for suffix in ("", "-wal", "-shm", "-journal"):
+        Path(f"{path}{suffix}").unlink(missing_ok=True)
+
+
+def _migrations_head() -> str | None:
     try:
+        return migrate.head_revision()
+    except Exception as exc:  # alembic's CommandError for a missing folder, or a broken script
+        raise StartFailure("The database migrations that come with Attune cannot be read "
+                           f"({_one_line(exc)}); reinstall Attune.") from exc
+
+
+def _known_revision(url: str, revision: str) -> bool:
+    from alembic.script import ScriptDirectory
+    from alembic.util import CommandError
+
+    try:
+        ScriptDirectory.from_config(migrate.alembic_config(url)).get_revision(revision)
+    except CommandError:
+        return False
+    return True
+
+
+def _echo(line: str) -> None:
+    typer.echo(line, err=True)  # plain: rich would wrap the line at 80 columns
+
+
+def _upgrade(settings: Settings, *, report_current: bool = True,
+             say: Callable[[str], None] = _echo) -> None:
+    """Bring the database's schema up to date (telling ``say`` what was done), or raise
+    :class:`StartFailure`.
+
+    Nothing is touched before the migrations are found and the database's folder exists; a
+    SQLite file made by a failed attempt is removed again.
+    """
+    head = _migrations_head()
+    sqlite = _sqlite_file(settings)
+    if sqlite is not None and not sqlite.parent.is_dir():
+        raise StartFailure(f"The SQLite database {sqlite} cannot be made: the folder "
+                           f"{sqlite.parent} does not exist.")
+    made = sqlite is not None and not sqlite.exists()
+    try:
+        safe = Database(settings)
         url = safe.engine.url.render_as_string(hide_password=True)
-        before = migrate.current_revision(safe.engine)
-    finally:
-        safe.dispose()
-    migrate.upgrade(settings.database_url)
-    after = migrate.head_revision()
-    if before == after:
-        err.print(f"Database {url} is up to date (schema {after}).")
-    else:
-        err.print(f"Database {url} upgraded: schema {before or 'empty'} -> {after}.")
+        try:
+            before = migrate.current_revision(safe.engine)
+        except Exception as exc:  # the driver's error: refused, unknown host, bad password...
+            raise StartFailure(f"Cannot reach the database {url}: {_one_line(exc)}.") from exc
+        finally:
+            safe.dispose()
+        if before is not None and before != head and not _known_revision(settings.database_url,
+                                                                           before):
+            raise StartFailure(f"The database {url} has schema revision {before}, which this "
+                               f"version of Attune (schema {head}) does not know: it was made "
+                               "by a newer release; run that release, or restore a backup.")
+        if before == head:
+            if report_current:
+                say(f"Database {url} is up to date (schema {head}).")
+            return
+        try:
+            migrate.upgrade(settings.database_url)
+        except Exception as exc:
+            raise StartFailure(f"Upgrading the database {url} to schema {head} failed: "
+                               f"{_one_line(exc)}.") from exc
+        say(f"Database {url} upgraded: schema {before or 'empty'} -> {head}.")
+    except BaseException:
+        if made and sqlite is not None:
+            _remove_sqlite(sqlite)
+        raise
 
 
 @contextmanager
 def _database(settings: Settings) -> Iterator[Database]:
     """The database, its schema brought up to date first (a fresh machine has none yet)."""
+    try:
+        _upgrade(settings, report_current=False)
+    except StartFailure as exc:
+        _fail(exc)
     database = Database(settings)
     try:
-        if not migrate.is_current(database.engine):
-            _upgrade(settings)
         yield database
     finally:
         database.dispose()
+
+
+def _listen(host: str, port: int) -> socket.socket:
+    """The service's listening socket, bound before anything else is done (a port in use must
+    not leave a database behind); uvicorn's workers share it."""
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    sock = socket.socket(family, socket.SOCK_STREAM)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    try:
+        sock.bind((host, port))
+    except OSError as exc:
+        sock.close()
+        if exc.errno == errno.EADDRINUSE:
+            raise StartFailure(f"Port {port} on {host} is already in use: stop what uses it, or "
+                               "pass another --port.") from None
+        if exc.errno == errno.EACCES:
+            raise StartFailure(f"Not allowed to listen on port {port} of {host}: pass a port "
+                               "above 1023, or run with the rights to use it.") from None
+        if exc.errno == errno.EADDRNOTAVAIL or isinstance(exc, socket.gaierror):
+            raise StartFailure(f"Cannot listen on {host}: it is not an address of this "
+                               "machine; pass another --host.") from None
+        raise StartFailure(f"Cannot listen on {host}:{port}: "
+                           f"{exc.strerror or _one_line(exc)}.") from None
+    # uvicorn's own socket is made without IPPROTO_TCP, so asyncio does not turn Nagle's
+    # algorithm off on the connections it accepts, and every response sent in two writes waits
+    # for the client's delayed ACK (40 ms a request on Linux: 160 instead of 10,000 requests/s
+    # for a bare app with 2 workers). Accepted connections inherit TCP_NODELAY from the
+    # listener.
+    sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+    sock.set_inheritable(True)
+    return sock
 
 
 def serve(
@@ -79,40 +200,60 @@ def serve(
     workers: Annotated[int, typer.Option(min=1, help="Worker processes (each with its own "
                                          "connection pool and learner cache).")] = 1,
 ) -> None:
-    """Apply pending migrations, then serve the v1 API (docs at /docs)."""
+    """Apply pending migrations, then serve the v1 API (docs at /docs).
+
+    A start that cannot succeed (the port in use, the database unreachable, its schema from a
+    newer release, the migrations missing) says why in one line and exits 1, leaving no new
+    database file behind.
+    """
+    import logging.config
+
     import uvicorn
 
-    settings = _settings()
-    logging.basicConfig(level=settings.log_level.upper(),
-                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
-    _upgrade(settings)
-    if workers > 1 and not os.environ.get("PROMETHEUS_MULTIPROC_DIR"):
-        # Every worker writes its metrics here and /metrics adds them up.
-        os.environ["PROMETHEUS_MULTIPROC_DIR"] = tempfile.mkdtemp(prefix="attune-metrics-")
-    err.print(f"Attune on http://{host}:{port} (docs: http://{host}:{port}/docs), "
-              f"{workers} worker(s).")
-    options: dict[str, Any] = {"factory": True, "host": host, "port": port, "workers": workers,
-                               "log_level": settings.log_level, "proxy_headers": False}
-    if workers == 1:
-        uvicorn.run("app.main:app", **options)
-        return
-    config = uvicorn.Config("app.main:app", **options)
-    from uvicorn.supervisors import Multiprocess
+    from app import logs
 
-    # uvicorn's shared socket is made without IPPROTO_TCP, so asyncio does not turn Nagle's
-    # algorithm off on the connections it accepts, and every response sent in two writes waits
-    # for the client's delayed ACK (40 ms a request on Linux: 160 instead of 10,000 requests/s
-    # for a bare app with 2 workers). Accepted connections inherit TCP_NODELAY from the listener.
-    sock = config.bind_socket()
-    if sock.family in (socket.AF_INET, socket.AF_INET6):
-        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-    Multiprocess(config, sockets=[sock]).run()
+    settings = _settings()
+    log_config = logs.logging_config(settings.log_level, settings.log_format)
+    logging.config.dictConfig(log_config)
+    try:
+        sock = _listen(host, port)
+    except StartFailure as exc:
+        _fail(exc)
+    say = logging.getLogger("attune.serve").info  # a log line: JSON with ATTUNE_LOG_FORMAT=json
+    try:
+        try:
+            _upgrade(settings, say=say)
+        except StartFailure as exc:
+            _fail(exc)
+        if workers > 1 and not os.environ.get("PROMETHEUS_MULTIPROC_DIR"):
+            # Every worker writes its metrics here and /metrics adds them up.
+            os.environ["PROMETHEUS_MULTIPROC_DIR"] = tempfile.mkdtemp(prefix="attune-metrics-")
+        say(f"Attune on http://{host}:{port} (docs: http://{host}:{port}/docs), "
+            f"{workers} worker(s).")
+        # uvicorn's access log is off: the service writes one access line per request itself
+        # (logger attune.access), with the route, the key id and the request id.
+        config = uvicorn.Config("app.main:app", factory=True, host=host, port=port,
+                                workers=workers, log_config=log_config,
+                                log_level=settings.log_level, access_log=False,
+                                proxy_headers=False)
+        if workers == 1:
+            with contextlib.suppress(KeyboardInterrupt):  # Ctrl+C: as uvicorn.run does
+                uvicorn.Server(config).run(sockets=[sock])
+            return
+        from .supervisor import Supervisor
+
+        Supervisor(config, sockets=[sock]).run()
+    finally:
+        sock.close()
 
 
 @db.command("upgrade")
 def db_upgrade() -> None:
     """Apply pending migrations to ATTUNE_DATABASE_URL and exit."""
-    _upgrade(_settings())
+    try:
+        _upgrade(_settings())
+    except StartFailure as exc:
+        _fail(exc)
 
 
 @db.command("current")

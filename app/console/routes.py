@@ -1,7 +1,7 @@
 """The console's pages, under ``/admin``, rendered on the server.
 
 Every page reads the services behind the v1 API (``app.services.*``) in the request's own
-transaction (``SessionDep``), exactly as the API's routes do, so the console adds no second source
+transaction (given by the route class), exactly as the API's routes do, so the console adds no second source
 of truth: what a page shows for a user is what ``GET /v1/users/{id}/model``, ``/stats`` and
 ``GET /v1/episodes/{id}`` return; the users list adds each user's recent success rate and last
 activity (``app.services.console``, with the same definitions as ``/stats``).
@@ -22,8 +22,9 @@ from fastapi.templating import Jinja2Templates
 from sqlalchemy.orm import Session
 
 from app.api.deps import TransactionalRoute, writes
+from app.api.errors import validation_detail
 from app.errors import AppError
-from app.schemas.common import CLIENT_ID_PATTERN
+from app.schemas.common import CLIENT_ID_PATTERN, MAX_POSITION
 from app.services import console as console_service
 from app.services import episodes as episodes_service
 from app.services import models as models_service
@@ -97,10 +98,8 @@ class ConsoleRoute(TransactionalRoute):
                 response = _error_page(request, exc.status_code, _TITLES.get(
                     exc.status_code, "Error"), exc.detail)
             except RequestValidationError as exc:
-                first = exc.errors()[0] if exc.errors() else {}
-                where = ".".join(str(p) for p in first.get("loc", ()))
                 response = _error_page(request, 422, "Bad address",
-                                       f"{where}: {first.get('msg', 'invalid')}.")
+                                       validation_detail(request, exc))
             response.headers.update(_HEADERS)
             return response
 
@@ -250,8 +249,8 @@ def why_page(
 @router.get("/users/{user_id}/episodes")
 def episodes_page(
     request: Request, user_id: str, session: Session, ctx: ServiceContext, admin: AdminDep,
-    before: Annotated[int | None, Query(ge=1, le=10**17)] = None,
-    at: Annotated[int | None, Query(ge=1, le=10**17)] = None,
+    before: Annotated[int | None, Query(ge=1, le=MAX_POSITION)] = None,
+    at: Annotated[int | None, Query(ge=1, le=MAX_POSITION - 1)] = None,
     per_page: Annotated[int, Query(ge=5, le=200)] = 25,
 ) -> HTMLResponse:
     """The user's episodes, newest first, a page at a time (``at``: from that episode on); each

@@ -4,9 +4,21 @@ from typing import Annotated, Any
 
 from pydantic import BaseModel, ConfigDict, Field, StringConstraints
 
-__all__ = ["CLIENT_ID_PATTERN", "ActionOut", "ClientId", "ErrorOut", "Page", "ProbabilityOut"]
+__all__ = ["CLIENT_ID_PATTERN", "MAX_POSITION", "ActionOut", "ClientId", "ErrorOut", "Page",
+           "ProbabilityOut", "position_of"]
 
 CLIENT_ID_PATTERN = r"^[A-Za-z0-9._:-]{1,128}$"
+# Episode and audit cursors are positions (a user's episode index, an audit entry's id), which
+# the database stores as 32-bit integers: no cursor the API returns is larger.
+MAX_POSITION = 2**31 - 1
+
+
+def position_of(cursor: str) -> int | None:
+    """The position a page cursor stands for, or None if the API never returns that cursor."""
+    if not (cursor.isascii() and cursor.isdigit()) or len(cursor) > 10:
+        return None
+    value = int(cursor)
+    return value if value <= MAX_POSITION else None
 ClientId = Annotated[str, StringConstraints(pattern=CLIENT_ID_PATTERN)]
 
 
@@ -18,6 +30,12 @@ class ErrorOut(BaseModel):
     # exclude_if rather than a wrap serializer: the OpenAPI schema keeps the fields
     fields: list[dict[str, Any]] | None = Field(
         default=None, description="Validation errors only: where and what.",
+        exclude_if=lambda v: v is None,
+    )
+    request_id: str | None = Field(
+        default=None, examples=["3f1c9d2e8b7a4c6d9e0f1a2b3c4d5e6f"],
+        description="The request's id, as in its X-Request-ID response header and in the "
+        "service's log lines of that request.",
         exclude_if=lambda v: v is None,
     )
 

@@ -16,6 +16,7 @@ from app.db.repositories.audit import AuditRow
 from app.db.types import utcnow
 from app.errors import Forbidden, ValidationFailed
 from app.schemas.audit import AuditActor, AuditEntryOut, AuditList
+from app.schemas.common import position_of
 
 from .context import Principal
 
@@ -53,9 +54,9 @@ def list_audit(session: Session, principal: Principal, *, limit: int, cursor: st
         raise Forbidden("This needs an admin key.")
     before: int | None = None
     if cursor is not None:
-        if not (cursor.isascii() and cursor.isdigit()) or len(cursor) > 18:
+        before = position_of(cursor)
+        if before is None:
             raise ValidationFailed("cursor is not one this API returned.")
-        before = int(cursor)
     rows = repo.list_page(session, before_id=before, limit=limit + 1)
     more = len(rows) > limit
     return AuditList(items=[_out(e) for e in rows[:limit]],

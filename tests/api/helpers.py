@@ -39,5 +39,6 @@ def assert_error(r: Any, status: int, name: str) -> dict[str, Any]:
     assert body["error"] == name
     assert isinstance(body["detail"], str)
     assert body["detail"]
-    assert set(body) <= {"error", "detail", "fields"}
+    assert set(body) <= {"error", "detail", "fields", "request_id"}
+    assert body["request_id"] == r.headers["x-request-id"]
     return body

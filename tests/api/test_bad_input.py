@@ -26,7 +26,8 @@ def assert_error(r: Any, status: int | tuple[int, ...], name: str | None = None
     assert r.status_code in statuses, r.text
     assert r.headers["content-type"].startswith("application/json")
     body: dict[str, Any] = r.json()
-    assert set(body) <= {"error", "detail", "fields"}
+    assert set(body) <= {"error", "detail", "fields", "request_id"}
+    assert body["request_id"] == r.headers["x-request-id"]
     assert isinstance(body["error"], str)
     assert body["error"]
     assert isinstance(body["detail"], str)
@@ -35,7 +36,8 @@ def assert_error(r: Any, status: int | tuple[int, ...], name: str | None = None
     if name is not None:
         assert body["error"] == name
     names = {400: "BadRequest", 401: "Unauthorized", 403: "Forbidden", 404: "NotFound",
-             409: "Conflict", 413: "PayloadTooLarge", 422: "ValidationError"}
+             409: "Conflict", 413: "PayloadTooLarge", 415: "UnsupportedMediaType",
+             422: "ValidationError"}
     if r.status_code in names:
         assert body["error"] == names[r.status_code]
     return body
@@ -138,7 +140,7 @@ class TestEpisodeBodies:
     def test_a_json_body_sent_as_text_plain_is_refused(self, robot: TestClient) -> None:
         r = robot.post("/v1/users/lin/episodes", content=json.dumps(event("e1")),
                        headers={"Content-Type": "text/plain"})
-        assert_error(r, (400, 415, 422))
+        assert_error(r, 415, "UnsupportedMediaType")
         assert robot.get("/v1/users/lin").status_code == 404
 
 

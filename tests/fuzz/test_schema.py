@@ -3,8 +3,8 @@
 Every operation gets generated requests (valid and invalid) with a valid admin key; a stateful
 run follows the schema's links as a robot would (create a user, start an episode, report the
 outcomes of its decisions). No response may be a 5xx, every response must conform to the
-schema, and every error must be the contract's one body ``{"error", "detail"}``. The run is
-bounded: a fixed number of examples per operation and of stateful steps.
+schema, and every error must be the contract's one body ``{"error", "detail", "request_id"}``.
+The run is bounded: a fixed number of examples per operation and of stateful steps.
 """
 
 from __future__ import annotations
@@ -52,12 +52,14 @@ ANSWERS: dict[str, list[dict[str, Any]]] = {  # two valid answers per kind of de
 
 @schemathesis.check
 def contract_error_body(ctx: Any, response: Any, case: Case) -> bool | None:
-    """Every error is ``{"error": <name>, "detail": <sentence>}`` (plus ``fields`` on 422)."""
+    """Every error is ``{"error": <name>, "detail": <sentence>, "request_id": <its
+    X-Request-ID>}`` (plus ``fields`` on 422)."""
     if response.status_code < 400:
         return None
     body = json.loads(response.content)
     assert isinstance(body, dict), body
-    assert set(body) <= {"error", "detail", "fields"}, body
+    assert set(body) <= {"error", "detail", "fields", "request_id"}, body
+    assert body.get("request_id") == response.headers.get("x-request-id", [None])[0], body
     assert isinstance(body.get("error"), str), body
     assert isinstance(body.get("detail"), str), body
     assert body["detail"], body

@@ -3,7 +3,7 @@ from __future__ import annotations
 from typing import Annotated
 
 import orjson
-from fastapi import Path, Response
+from fastapi import Path, Query, Response
 
 from app.schemas.common import CLIENT_ID_PATTERN
 from app.services.episodes import Written
@@ -12,6 +12,22 @@ UserId = Annotated[str, Path(pattern=CLIENT_ID_PATTERN, description="Client-chos
                              examples=["lin"])]
 EpisodeId = Annotated[str, Path(max_length=128, description="Server-chosen episode id.",
                                 examples=["ep_0123456789abcdef0123456789abcdef"])]
+# Integer query parameters are bounded, so that no value reaches the database as an integer it
+# cannot hold (a 422 naming the parameter and its range instead, on every engine).
+LIMIT_MAX = 500
+LAST_MAX = 1_000_000
+Limit = Annotated[int, Query(ge=1, le=LIMIT_MAX,
+                             description=f"Items per page, 1 to {LIMIT_MAX}.")]
+Last = Annotated[int | None, Query(ge=1, le=LAST_MAX,
+                                   description=f"Only the last N episodes, 1 to {LAST_MAX} "
+                                   "(all of them when absent).")]
+_CURSOR = ("The `next_cursor` of the previous page, passed back unchanged. It is opaque: a value "
+           "the API did not return (even one that matches the pattern) is refused with 422.")
+# Episode and audit pages: the position of the last item of the previous page.
+SeqCursor = Annotated[str | None, Query(pattern=r"^[0-9]{1,10}$", description=_CURSOR)]
+# Users pages: the last user id of the previous page, base64url-encoded without padding.
+UserCursor = Annotated[str | None, Query(pattern=r"^[A-Za-z0-9_-]{1,200}$",
+                                         description=_CURSOR)]
 REPLAY_HEADER = {
     "Idempotent-Replay": {"description": "true when this repeats an earlier identical write.",
                           "schema": {"type": "string", "enum": ["true"]}},

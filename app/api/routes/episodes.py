@@ -1,8 +1,6 @@
 from __future__ import annotations
 
-from typing import Annotated
-
-from fastapi import APIRouter, Query, Request, Response
+from fastapi import APIRouter, Request, Response
 from sqlalchemy.orm import Session
 
 from app.api.deps import CurrentPrincipal, TransactionalRoute, inline
@@ -22,7 +20,7 @@ from app.schemas.episodes import (
 from app.services import episodes as service
 from app.services.context import ServiceContext
 
-from ._common import REPLAY_HEADER, EpisodeId, UserId, written
+from ._common import REPLAY_HEADER, EpisodeId, Limit, SeqCursor, UserId, written
 
 router = APIRouter(tags=["episodes"], route_class=TransactionalRoute)
 
@@ -40,7 +38,7 @@ def _count(request: Request, body: dict[str, object] | None, replay: bool) -> No
     "/v1/users/{user_id}/episodes", status_code=201, response_model=EpisodeCreated,
     responses={200: {"model": EpisodeCreated, "description": "Idempotent replay of an earlier "
                      "event_id.", "headers": REPLAY_HEADER, "links": EPISODE_LINKS},
-               201: {"links": EPISODE_LINKS}, **responses(404, 409)},
+               201: {"links": EPISODE_LINKS}, **responses(404, 409, 415)},
 )
 @inline
 def start_episode(user_id: UserId, body: EpisodeIn, request: Request, session: Session,
@@ -56,7 +54,7 @@ def start_episode(user_id: UserId, body: EpisodeIn, request: Request, session: S
     responses={200: {"headers": REPLAY_HEADER, "description": "The reward, the episode, and "
                      "the next decision (null when the episode ended).",
                      "links": OUTCOME_LINKS},
-               **responses(404, 409)},
+               **responses(404, 409, 415)},
 )
 @inline
 def report_outcome(episode_id: EpisodeId, body: OutcomeIn, request: Request,
@@ -73,7 +71,7 @@ def report_outcome(episode_id: EpisodeId, body: OutcomeIn, request: Request,
 
 @router.post(
     "/v1/episodes/{episode_id}/feedback", response_model=FeedbackOut,
-    responses={200: {"headers": REPLAY_HEADER}, **responses(404, 409)},
+    responses={200: {"headers": REPLAY_HEADER}, **responses(404, 409, 415)},
 )
 def add_feedback(episode_id: EpisodeId, body: FeedbackIn, session: Session,
                  ctx: ServiceContext, principal: CurrentPrincipal) -> Response:
@@ -92,8 +90,8 @@ def get_episode(episode_id: EpisodeId, session: Session, ctx: ServiceContext,
             responses=responses(404))
 def list_episodes(
     user_id: UserId, session: Session, ctx: ServiceContext, principal: CurrentPrincipal,
-    limit: Annotated[int, Query(ge=1, le=500)] = 50,
-    cursor: Annotated[str | None, Query(max_length=32)] = None,
+    limit: Limit = 50,
+    cursor: SeqCursor = None,
 ) -> EpisodeList:
     """A user's episodes, newest first, without traces."""
     return service.list_episodes(session, ctx, principal, user_id, limit=limit, cursor=cursor)

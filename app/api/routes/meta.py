@@ -8,6 +8,7 @@ from prometheus_client import CONTENT_TYPE_LATEST
 
 from app.api.deps import CurrentPrincipal, TransactionalRoute
 from app.api.errors import responses
+from app.api.middleware import error_body
 from app.db import migrate
 from app.db.session import Database
 from app.schemas.models import MissionOut
@@ -38,13 +39,12 @@ def readyz(request: Request) -> JSONResponse:
         current = migrate.current_revision(db.engine)
     except Exception as exc:  # any failure to reach the database means "not ready"
         log.warning("readiness: database unreachable: %s", exc)
-        return JSONResponse({"error": "ServiceUnavailable",
-                             "detail": "The database does not answer."}, status_code=503)
+        return JSONResponse(error_body("ServiceUnavailable", "The database does not answer."),
+                            status_code=503)
     head = migrate.head_revision()
     if current != head:
-        return JSONResponse({"error": "ServiceUnavailable",
-                             "detail": f"The schema is at {current}, not {head}; run "
-                             "`attune db upgrade`."}, status_code=503)
+        return JSONResponse(error_body("ServiceUnavailable", f"The schema is at {current}, not "
+                                       f"{head}; run `attune db upgrade`."), status_code=503)
     return JSONResponse({"status": "ready", "schema": current})
 
 

@@ -11,7 +11,7 @@ from app.schemas.models import ModelOut, StatsOut
 from app.services import models as service
 from app.services.context import ServiceContext
 
-from ._common import UserId, no_content
+from ._common import Last, UserId, no_content
 
 router = APIRouter(prefix="/v1/users/{user_id}", tags=["models"],
                    route_class=TransactionalRoute)
@@ -31,7 +31,7 @@ def get_model(
 @router.get("/stats", response_model=StatsOut, responses=responses(404))
 def get_stats(
     user_id: UserId, session: Session, principal: CurrentPrincipal,
-    last: Annotated[int | None, Query(ge=1, description="Only the last N episodes.")] = None,
+    last: Last = None,
 ) -> StatsOut:
     """The paper's metrics over the user's last N episodes (all by default)."""
     return service.stats(session, principal, user_id, last=last)
@@ -54,7 +54,7 @@ def export_model(user_id: UserId, session: Session, ctx: ServiceContext,
     return service.export_model(session, ctx, principal, user_id)
 
 
-@router.put("/model", response_model=ModelOut, responses=responses(403, 404))
+@router.put("/model", response_model=ModelOut, responses=responses(403, 404, 415))
 def import_model(
     user_id: UserId, session: Session, ctx: ServiceContext, principal: CurrentPrincipal,
     doc: Annotated[dict[str, Any], Body(

@@ -13,7 +13,7 @@ from app.schemas.users import UserIn, UserList, UserOut
 from app.services import users as service
 from app.services.context import ServiceContext
 
-from ._common import UserId, no_content
+from ._common import Limit, UserCursor, UserId, no_content
 
 router = APIRouter(prefix="/v1/users", tags=["users"], route_class=TransactionalRoute)
 
@@ -22,7 +22,7 @@ router = APIRouter(prefix="/v1/users", tags=["users"], route_class=Transactional
     "/{user_id}", response_model=UserOut, status_code=200, responses={
         200: {"links": USER_LINKS},
         201: {"model": UserOut, "description": "Created.", "links": USER_LINKS},
-        **responses(404, 409)},
+        **responses(404, 409, 415)},
 )
 def put_user(
     user_id: UserId, session: Session, ctx: ServiceContext, principal: CurrentPrincipal,
@@ -45,8 +45,8 @@ def get_user(user_id: UserId, session: Session, principal: CurrentPrincipal) -> 
 @router.get("", response_model=UserList, responses=responses())
 def list_users(
     session: Session, principal: CurrentPrincipal,
-    limit: Annotated[int, Query(ge=1, le=500)] = 50,
-    cursor: Annotated[str | None, Query(max_length=200)] = None,
+    limit: Limit = 50,
+    cursor: UserCursor = None,
 ) -> UserList:
     """Users of your fleet (admins: of every fleet), by user id, a page at a time."""
     return service.list_users(session, principal, limit=limit, cursor=cursor)

@@ -9,6 +9,7 @@ from sqlalchemy.orm import Session
 from app.db.repositories import episodes as repo
 from app.db.repositories.episodes import EpisodeRow
 from app.errors import NotFound, ValidationFailed
+from app.schemas.common import position_of
 from app.schemas.episodes import EpisodeList, EpisodeSummary, EpisodeTrace
 
 from ..context import Principal, ServiceContext
@@ -59,9 +60,9 @@ def list_episodes(session: Session, ctx: ServiceContext, principal: Principal, u
     visible_user(session, principal, user_id)
     before: int | None = None
     if cursor is not None:
-        if not (cursor.isascii() and cursor.isdigit()) or len(cursor) > 18:
+        before = position_of(cursor)
+        if before is None:
             raise ValidationFailed("cursor is not one this API returned.")
-        before = int(cursor)
     rows = repo.list_page(session, user_id, before_seq=before, limit=limit + 1)
     items = [EpisodeSummary.model_validate(_summary(ctx, ep)) for ep in rows[:limit]]
     more = len(rows) > limit

@@ -1,0 +1,234 @@
+"""``attune serve`` as an operator runs it: a start that cannot succeed says why in one line,
+exits non-zero and leaves no file behind; a worker that dies is reported with its cause; the
+logs are one JSON object per line when asked."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import httpx2
+import pytest
+from sqlalchemy import create_engine, text
+
+from app.db import migrate
+from tests.live import ATTUNE, LiveService, free_port, fresh_database
+
+REPO = Path(__file__).resolve().parents[2]
+UNKNOWN = "ffffffffffff"  # a schema revision no release of this code has
+
+
+def _env(**more: str) -> dict[str, str]:
+    env = {k: v for k, v in os.environ.items() if not k.startswith("ATTUNE_")}
+    return {**env, **more}
+
+
+def _serve(cwd: Path, env: dict[str, str], port: int,
+           command: tuple[str, ...] = (ATTUNE,)) -> subprocess.CompletedProcess[str]:
+    """``attune serve`` that is expected to give up; a start that succeeds is a failure."""
+    try:
+        return subprocess.run([*command, "serve", "--host", "127.0.0.1", "--port", str(port)],
+                              cwd=cwd, env=env, capture_output=True, text=True, timeout=90,
+                              check=False)
+    except subprocess.TimeoutExpired as exc:
+        raise AssertionError(f"attune serve did not give up: {exc.stderr!r}") from None
+
+
+def _one_sentence(done: subprocess.CompletedProcess[str], *words: str) -> str:
+    assert done.returncode == 1, (done.returncode, done.stderr)
+    assert done.stdout == ""
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1, done.stderr
+    line = lines[0]
+    assert "Traceback" not in line
+    assert line.endswith("."), line
+    for word in words:
+        assert word in line, (word, line)
+    return line
+
+
+@pytest.fixture
+def folder(tmp_path: Path) -> Path:
+    """An empty working folder: the default database, ./attune.db, would land here."""
+    path = tmp_path / "run"
+    path.mkdir()
+    return path
+
+
+@pytest.fixture
+def taken_port() -> Iterator[int]:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
+        sock.bind(("127.0.0.1", 0))
+        sock.listen()
+        yield sock.getsockname()[1]
+
+
+def _tables(url: str) -> set[str]:
+    from sqlalchemy import inspect
+
+    engine = create_engine(url)
+    try:
+        return set(inspect(engine).get_table_names())
+    finally:
+        engine.dispose()
+
+
+def _stamp(url: str, revision: str) -> None:
+    """A database whose schema revision is ``revision``."""
+    engine = create_engine(url)
+    try:
+        with engine.begin() as conn:
+            conn.execute(text("CREATE TABLE alembic_version (version_num VARCHAR(32) "
+                              "PRIMARY KEY)"))
+            conn.execute(text("INSERT INTO alembic_version VALUES (:r)"), {"r": revision})
+    finally:
+        engine.dispose()
+
+
+class TestFailedStart:
+    def test_port_taken_on_the_default_database(self, folder: Path, taken_port: int) -> None:
+        done = _serve(folder, _env(), taken_port)
+        _one_sentence(done, f"Port {taken_port}", "already in use", "--port")
+        assert list(folder.iterdir()) == []  # no ./attune.db
+
+    def test_port_taken_touches_no_postgresql_database(self, folder: Path, tmp_path: Path,
+                                                        taken_port: int) -> None:
+        with fresh_database("postgresql", tmp_path) as url:
+            done = _serve(folder, _env(ATTUNE_DATABASE_URL=url), taken_port)
+            _one_sentence(done, "already in use")
+            assert _tables(url) == set()  # the port is checked before the database
+
+    def test_sqlite_folder_that_does_not_exist(self, folder: Path, tmp_path: Path) -> None:
+        missing = tmp_path / "no" / "such" / "folder"
+        url = f"sqlite:///{missing / 'attune.db'}"
+        done = _serve(folder, _env(ATTUNE_DATABASE_URL=url), free_port())
+        _one_sentence(done, str(missing / "attune.db"), "does not exist")
+        assert not (tmp_path / "no").exists()
+        assert list(folder.iterdir()) == []
+
+    def test_postgresql_unreachable(self, folder: Path) -> None:
+        closed = free_port()  # nothing listens there
+        url = f"postgresql://postgres@127.0.0.1:{closed}/attune"
+        done = _serve(folder, _env(ATTUNE_DATABASE_URL=url), free_port())
+        line = _one_sentence(done, "Cannot reach the database", f"127.0.0.1:{closed}",
+                             "refused")
+        assert "postgresql+psycopg://postgres@127.0.0.1" in line
+        assert list(folder.iterdir()) == []
+
+    def test_postgresql_database_that_does_not_exist(self, folder: Path) -> None:
+        server = os.environ.get("ATTUNE_TEST_POSTGRES_URL", "postgresql://postgres@127.0.0.1:5432")
+        url = f"{server.rstrip('/')}/attune_never_created_{os.getpid()}"
+        done = _serve(folder, _env(ATTUNE_DATABASE_URL=url), free_port())
+        _one_sentence(done, "Cannot reach the database", "does not exist")
+
+    @pytest.mark.parametrize("engine", ["sqlite", "postgresql"])
+    def test_schema_of_a_newer_release(self, folder: Path, tmp_path: Path,
+                                       engine: str) -> None:
+        with fresh_database(engine, tmp_path) as url:
+            _stamp(url, UNKNOWN)
+            done = _serve(folder, _env(ATTUNE_DATABASE_URL=url), free_port())
+            _one_sentence(done, f"schema revision {UNKNOWN}", "does not know",
+                          str(migrate.head_revision()))
+            assert _tables(url) == {"alembic_version"}  # nothing migrated, nothing dropped
+            engine_ = create_engine(url)
+            try:
+                assert migrate.current_revision(engine_) == UNKNOWN
+            finally:
+                engine_.dispose()
+        assert list(folder.iterdir()) == []
+
+    def test_migrations_missing(self, folder: Path, tmp_path: Path) -> None:
+        """An installation whose migration scripts are gone: no database is made."""
+        copy = tmp_path / "install"
+
+        def skip_migrations(where: str, names: list[str]) -> list[str]:
+            return [n for n in names if n == "__pycache__"
+                    or (Path(where, n).is_dir() and (Path(where, n) / "env.py").exists())]
+
+        shutil.copytree(REPO / "app", copy / "app", ignore=skip_migrations)
+        command = (sys.executable, "-c", "from app.cli import main; main()")
+        done = _serve(folder, _env(PYTHONPATH=str(copy)), free_port(), command)
+        _one_sentence(done, "migrations", "reinstall")
+        assert list(folder.iterdir()) == []
+
+    def test_db_upgrade_says_the_same_in_one_line(self, folder: Path, tmp_path: Path) -> None:
+        url = f"sqlite:///{tmp_path / 'missing' / 'attune.db'}"
+        done = subprocess.run([ATTUNE, "db", "upgrade"], cwd=folder, capture_output=True,
+                              text=True, env=_env(ATTUNE_DATABASE_URL=url), timeout=60,
+                              check=False)
+        _one_sentence(done, "does not exist")
+        done = subprocess.run([ATTUNE, "keys", "list"], cwd=folder, capture_output=True,
+                              text=True, env=_env(ATTUNE_DATABASE_URL=url), timeout=60,
+                              check=False)
+        _one_sentence(done, "does not exist")
+        assert not (tmp_path / "missing").exists()
+
+
+def _workers(pid: int) -> list[int]:
+    """The worker processes of the supervisor ``pid`` (multiprocessing's spawned children)."""
+    found = []
+    for child in Path(f"/proc/{pid}/task/{pid}/children").read_text().split():
+        cmdline = Path(f"/proc/{child}/cmdline").read_bytes().replace(b"\0", b" ")
+        if b"spawn_main" in cmdline:
+            found.append(int(child))
+    return found
+
+
+def _wait_for(predicate: object, what: str, log: LiveService, timeout: float = 60) -> None:
+    deadline = time.monotonic() + timeout
+    while not predicate():  # type: ignore[operator]
+        if time.monotonic() > deadline:
+            raise AssertionError(f"{what} within {timeout} s:\n{log.log()}")
+        time.sleep(0.2)
+
+
+def test_a_dead_worker_is_reported_with_its_cause(tmp_path: Path) -> None:
+    with (fresh_database("sqlite", tmp_path) as url,
+          LiveService(url, workers=2, log_path=tmp_path / "serve.log") as service):
+        assert service.process is not None
+        _wait_for(lambda: len(_workers(service.process.pid)) == 2, "two workers", service)
+        victim = _workers(service.process.pid)[0]
+        os.kill(victim, signal.SIGKILL)
+        said = f"Worker process {victim} was killed by signal SIGKILL (9); starting a new one."
+        _wait_for(lambda: said in service.log(), "the supervisor said why", service)
+        _wait_for(lambda: len(_workers(service.process.pid)) == 2
+                  and victim not in _workers(service.process.pid), "a new worker", service)
+        assert httpx2.get(f"{service.url}/readyz", timeout=10).status_code == 200
+        assert "Traceback" not in service.log()
+
+
+def test_json_logs_one_object_per_line(tmp_path: Path) -> None:
+    env = {"ATTUNE_LOG_FORMAT": "json", "ATTUNE_LOG_LEVEL": "info"}
+    with fresh_database("sqlite", tmp_path) as url:
+        service = LiveService(url, log_path=tmp_path / "serve.log", env=env)
+        with service:
+            secret = service.create_key("robot")
+            headers = {"Authorization": f"Bearer {secret}", "X-Request-ID": "json-1"}
+            r = httpx2.put(f"{service.url}/v1/users/lin", json={}, headers=headers, timeout=10)
+            assert r.status_code == 201
+            httpx2.head(f"{service.url}/healthz", headers={"X-Request-ID": "json-2"},
+                        timeout=10)
+        raw = (tmp_path / "serve.log").read_text()
+    lines = [json.loads(line) for line in raw.splitlines() if line.strip()]
+    for line in lines:
+        assert {"time", "level", "logger", "message"} <= set(line), line
+    access = [line for line in lines if line["logger"] == "attune.access"
+              and line["route"] != "/readyz"]  # LiveService waits on /readyz
+    assert [a["request_id"] for a in access] == ["json-1", "json-2"], access
+    put, head = access
+    assert (put["method"], put["route"], put["status"]) == ("PUT", "/v1/users/{user_id}", 201)
+    assert put["key_id"].startswith("key_")
+    assert (head["method"], head["route"], head["status"], head["key_id"]) == \
+        ("HEAD", "/healthz", 200, None)
+    assert not [line for line in lines if line["logger"] == "uvicorn.access"]
+    assert any(line["logger"] == "attune.serve" and line["message"].startswith("Attune on ")
+               for line in lines)
+    assert secret not in raw
