@@ -11,6 +11,7 @@ have it).
 
 from __future__ import annotations
 
+import asyncio
 import functools
 import inspect
 from collections.abc import Callable, Coroutine
@@ -39,7 +40,8 @@ _INLINE_MARK = "__attune_inline__"
 
 def inline(endpoint: Callable[..., Any]) -> Callable[..., Any]:
     """Mark a short write (a robot's episode start or outcome): on SQLite it runs on the event
-    loop when the write lock is free at once (``Database.try_inline``), else in the pool."""
+    loop in the turn's write group when it can start at once (``Database.join_group``), else
+    in the thread pool as every other request."""
     setattr(endpoint, _INLINE_MARK, True)
     return endpoint
 
@@ -71,18 +73,26 @@ def _in_transaction(endpoint: Callable[..., Any], *, write: bool, inline: bool
 
     @functools.wraps(endpoint)
     async def run_here_or_in_thread(**kwargs: Any) -> Any:
-        request: Request = kwargs["request"] if own_request else kwargs["request"]
+        request: Request = kwargs["request"]
         db: Database = request.app.state.db
-        inline = db.try_inline()
-        if inline is None:
+        group = db.join_group(asyncio.get_running_loop())
+        if group is None:
             return await run_in_threadpool(run, **kwargs)
         if not own_request:
             kwargs.pop("request")
         if "ctx" in injected:
             kwargs["ctx"] = request.app.state.ctx
-        with inline as session:
-            kwargs["session"] = session
-            return endpoint(**kwargs)
+        failure: Exception | None = None
+        try:
+            with group.member() as session:
+                kwargs["session"] = session
+                result = endpoint(**kwargs)
+        except Exception as exc:  # answered once the group committed: it saw the group's writes
+            failure = exc
+        await group.committed()
+        if failure is not None:
+            raise failure
+        return result
 
     @functools.wraps(endpoint)
     def run(**kwargs: Any) -> Any:

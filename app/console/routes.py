@@ -1,10 +1,10 @@
 """The console's pages, under ``/admin``, rendered on the server.
 
 Every page reads the services behind the v1 API (``app.services.*``) in the request's own
-transaction (given by the route class), exactly as the API's routes do, so the console adds no second source
-of truth: what a page shows for a user is what ``GET /v1/users/{id}/model``, ``/stats`` and
-``GET /v1/episodes/{id}`` return; the users list adds each user's recent success rate and last
-activity (``app.services.console``, with the same definitions as ``/stats``).
+transaction (given by the route class), exactly as the API's routes do, so the console adds no
+second source of truth: what a page shows for a user is what ``GET /v1/users/{id}/model``,
+``/stats`` and ``GET /v1/episodes/{id}`` return; the users list adds each user's recent success
+rate and last activity (``app.services.console``, with the same definitions as ``/stats``).
 """
 
 from __future__ import annotations
