@@ -50,7 +50,7 @@ def error_body(error: str, detail: str, **more: Any) -> dict[str, Any]:
 
 async def _send_error(send: Send, status: int, error: str, detail: str,
                       headers: tuple[tuple[bytes, bytes], ...] = ()) -> None:
-    body = json.dumps(error_body(error, detail)).encode()
+    body = json.dumps(error_body(error, detail), separators=(",", ":")).encode()
     await send({"type": "http.response.start", "status": status,
                 "headers": [(b"content-type", b"application/json"),
                             (b"content-length", str(len(body)).encode()), *headers]})

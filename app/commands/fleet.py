@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import secrets
+import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
 
@@ -94,8 +95,9 @@ def _plot(path: Path, stats: dict[str, dict[str, Any]], change_at: int | None, t
 
 @fleet.command("simulate")
 def simulate(
-    key: Annotated[str, typer.Option(envvar="ATTUNE_KEY", show_default=False,
-                                     help="A robot (or admin) API key.")],
+    key: Annotated[str | None, typer.Option(envvar="ATTUNE_KEY", show_default=False,
+                                            help="A robot (or admin) API key (required).")
+                   ] = None,
     url: Annotated[str, typer.Option(envvar="ATTUNE_URL", help="The service's base URL.")
                    ] = "http://127.0.0.1:8000",
     robots: Annotated[int, typer.Option(min=1, max=64, help="Concurrent robots.")] = 4,
@@ -130,6 +132,10 @@ def simulate(
     or the run failed, 2 if the service cannot be used.
     """
     require("attune_client", "fleet", "attune fleet")
+    if not key:  # checked here, after the extra: what to install comes first
+        sys.stderr.write("attune fleet simulate needs an API key: pass --key or set "
+                         "ATTUNE_KEY.\n")
+        raise typer.Exit(2)
     if plot is not None:
         require("matplotlib", "fleet", "attune fleet simulate --plot")
 

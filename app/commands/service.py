@@ -45,8 +45,21 @@ def _settings() -> Settings:
     try:
         return Settings()
     except Exception as exc:  # pydantic's ValidationError: say which variable is wrong
-        err.print(f"[red]Bad ATTUNE_* setting:[/red] {exc}")
+        typer.echo(_bad_settings(exc), err=True)
         raise typer.Exit(2) from None
+
+
+def _bad_settings(exc: Exception) -> str:
+    """One line per wrong ``ATTUNE_*`` variable: its name, what is wrong, what it was."""
+    errors = getattr(exc, "errors", None)
+    if not callable(errors):
+        return f"Bad ATTUNE_* setting: {_one_line(exc)}."
+    lines = []
+    for e in errors():
+        name = "ATTUNE_" + "_".join(str(part) for part in e.get("loc", ())).upper()
+        message = str(e.get("msg", "invalid")).removeprefix("Value error, ").rstrip(".")
+        lines.append(f"Bad setting {name}: {message} (got {e.get('input')!r}).")
+    return "\n".join(lines) or f"Bad ATTUNE_* setting: {_one_line(exc)}."
 
 
 class StartFailure(Exception):
@@ -258,13 +271,29 @@ def db_upgrade() -> None:
 
 @db.command("current")
 def db_current() -> None:
-    """Print the schema revision of the database and of this code."""
-    database = Database(_settings())
+    """Print the schema revision of the database and of this code (nothing is changed: a
+    SQLite file that does not exist is not made)."""
+    settings = _settings()
     try:
-        current = migrate.current_revision(database.engine)
-    finally:
-        database.dispose()
-    typer.echo(f"database: {current or 'empty'}\ncode:     {migrate.head_revision()}")
+        head = _migrations_head()
+        sqlite = _sqlite_file(settings)
+        if sqlite is not None and not sqlite.exists():
+            current: str | None = None
+            where = f" (no file at {sqlite})"
+        else:
+            database = Database(settings)
+            url = database.engine.url.render_as_string(hide_password=True)
+            try:
+                current = migrate.current_revision(database.engine)
+            except Exception as exc:  # the driver's error: refused, unknown host...
+                raise StartFailure(f"Cannot reach the database {url}: {_one_line(exc)}.") \
+                    from exc
+            finally:
+                database.dispose()
+            where = ""
+    except StartFailure as exc:
+        _fail(exc)
+    typer.echo(f"database: {current or 'empty'}{where}\ncode:     {head}")
 
 
 @keys.command("create")

@@ -11,7 +11,7 @@ from __future__ import annotations
 import logging
 import signal
 
-from uvicorn.supervisors.multiprocess import Multiprocess
+from uvicorn.supervisors.multiprocess import Multiprocess, Process
 
 __all__ = ["Supervisor", "describe_exit"]
 
@@ -35,28 +35,38 @@ def describe_exit(exitcode: int) -> str:
 
 
 class Supervisor(Multiprocess):
-    """uvicorn's supervisor, which says why each worker it replaces died."""
+    """uvicorn's supervisor, which says why each worker it replaces died.
+
+    Its check, like uvicorn's: a worker that is gone, or that does not answer a health check in
+    time, is replaced. The cause is read at the moment the worker is found gone (also when it
+    died while the check waited for its answer), so a crash is never reported as a hang.
+    """
 
     def keep_subprocess_alive(self) -> None:
         if self.should_exit.is_set():
-            super().keep_subprocess_alive()
-            return
-        before = list(self.processes)
-        dead = set()
-        for process in before:
-            code = process.exitcode
-            if code is None:
+            return  # the supervisor is stopping: no new workers
+        timeout = self.config.timeout_worker_healthcheck
+        for idx, process in enumerate(self.processes):
+            if process.process.is_alive() and process.ping(timeout):
                 continue
-            dead.add(id(process))
-            if code == STARTUP_FAILURE:
-                log.error("Worker process %s failed to start (%s).", process.pid,
+            hung = process.process.is_alive()  # still running: it did not answer in time
+            process.kill()
+            process.join()
+            code = process.exitcode
+            if hung:
+                log.error("Worker process %s did not answer its health check within %s s; "
+                          "killed it and started a new one.", process.pid, timeout)
+            elif code == STARTUP_FAILURE:
+                # The app, the socket or the settings are broken: every restart would fail too.
+                log.error("Worker process %s failed to start (%s); stopping.", process.pid,
                           describe_exit(code))
+                self.should_exit.set()
+                return
             else:
                 log.error("Worker process %s %s; starting a new one.", process.pid,
-                          describe_exit(code))
-        super().keep_subprocess_alive()
-        for process in before:
-            if id(process) not in dead and process not in self.processes:
-                log.error("Worker process %s did not answer its health check within %s s; "
-                          "killed it and started a new one.", process.pid,
-                          self.config.timeout_worker_healthcheck)
+                          describe_exit(code if code is not None else 0))
+            if self.should_exit.is_set():
+                return
+            replacement = Process(self.config, self.sockets)
+            replacement.start()
+            self.processes[idx] = replacement

@@ -47,6 +47,21 @@ class TestHealth:
         r = client.get("/readyz")
         assert r.status_code == 200, r.text
 
+    def test_readyz_says_a_database_has_no_schema_yet(self, tmp_path: Any) -> None:
+        from app.main import create_app
+        from app.settings import Settings
+
+        empty = create_app(Settings(database_url=f"sqlite:///{tmp_path / 'empty.db'}",
+                                    _env_file=None))  # type: ignore[call-arg]
+        try:
+            with TestClient(empty) as c:
+                r = c.get("/readyz")
+        finally:
+            empty.state.db.dispose()
+        assert r.status_code == 503
+        assert r.json()["detail"].startswith("The database has no schema yet, not ")
+        assert "attune db upgrade" in r.json()["detail"]
+
     def test_health_ignores_a_bad_key(self, app: Any) -> None:
         with TestClient(app, headers={"Authorization": "Bearer nope"}) as c:
             assert c.get("/healthz").status_code == 200

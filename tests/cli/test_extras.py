@@ -61,6 +61,21 @@ def test_fleet_without_the_client(monkeypatch: pytest.MonkeyPatch) -> None:
     assert done.stdout == ""
 
 
+def test_fleet_without_the_client_says_so_before_other_options(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    without(monkeypatch, "attune_client")
+    monkeypatch.delenv("ATTUNE_KEY", raising=False)
+    done = CliRunner().invoke(app, ["fleet", "simulate"])  # no --key either
+    assert done.exit_code == 2
+    assert done.stderr == FLEET
+    # With the client, the missing key is what is said.
+    monkeypatch.undo()
+    monkeypatch.delenv("ATTUNE_KEY", raising=False)
+    done = CliRunner().invoke(app, ["fleet", "simulate"])
+    assert done.exit_code == 2
+    assert done.stderr == "attune fleet simulate needs an API key: pass --key or set ATTUNE_KEY.\n"
+
+
 def test_fleet_plot_without_matplotlib(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
     without(monkeypatch, "matplotlib")
     done = CliRunner().invoke(app, ["fleet", "simulate", "--key", "att_x", "--url", NOBODY,

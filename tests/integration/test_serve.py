@@ -172,6 +172,32 @@ class TestFailedStart:
         assert not (tmp_path / "missing").exists()
 
 
+    def test_db_current_changes_nothing_and_fails_in_one_line(self, folder: Path,
+                                                              tmp_path: Path) -> None:
+        fresh = folder / "fresh.db"
+        done = subprocess.run([ATTUNE, "db", "current"], cwd=folder, capture_output=True,
+                              text=True, env=_env(ATTUNE_DATABASE_URL=f"sqlite:///{fresh}"),
+                              timeout=60, check=False)
+        assert done.returncode == 0, done.stderr
+        assert done.stdout.splitlines()[0] == f"database: empty (no file at {fresh})"
+        assert list(folder.iterdir()) == []  # reading the revision made no database
+        closed = f"postgresql://attune@127.0.0.1:{free_port()}/attune"
+        done = subprocess.run([ATTUNE, "db", "current"], cwd=folder, capture_output=True,
+                              text=True, env=_env(ATTUNE_DATABASE_URL=closed), timeout=60,
+                              check=False)
+        _one_sentence(done, "Cannot reach the database")
+
+    def test_a_bad_setting_is_one_line_naming_the_variable(self, folder: Path) -> None:
+        done = subprocess.run([ATTUNE, "serve"], cwd=folder, capture_output=True, text=True,
+                              env=_env(ATTUNE_LOG_FORMAT="xml"), timeout=60, check=False)
+        assert done.returncode == 2
+        lines = done.stderr.strip().splitlines()
+        assert len(lines) == 1, done.stderr
+        assert lines[0].startswith("Bad setting ATTUNE_LOG_FORMAT:"), lines[0]
+        assert "'xml'" in lines[0]
+        assert list(folder.iterdir()) == []
+
+
 def _workers(pid: int) -> list[int]:
     """The worker processes of the supervisor ``pid`` (multiprocessing's spawned children)."""
     found = []
@@ -203,6 +229,26 @@ def test_a_dead_worker_is_reported_with_its_cause(tmp_path: Path) -> None:
                   and victim not in _workers(service.process.pid), "a new worker", service)
         assert httpx2.get(f"{service.url}/readyz", timeout=10).status_code == 200
         assert "Traceback" not in service.log()
+
+
+def test_a_hung_worker_and_a_dead_one_are_told_apart(tmp_path: Path) -> None:
+    """One worker stops answering (SIGSTOP) while the other is killed: the supervisor's health
+    check waits on the first, and the second's death, seen meanwhile, is still a death."""
+    with (fresh_database("sqlite", tmp_path) as url,
+          LiveService(url, workers=2, log_path=tmp_path / "serve.log") as service):
+        assert service.process is not None
+        _wait_for(lambda: len(_workers(service.process.pid)) == 2, "two workers", service)
+        hung, killed = _workers(service.process.pid)
+        os.kill(hung, signal.SIGSTOP)
+        time.sleep(1)
+        os.kill(killed, signal.SIGKILL)
+        died = f"Worker process {killed} was killed by signal SIGKILL (9); starting a new one."
+        stuck = f"Worker process {hung} did not answer its health check"
+        _wait_for(lambda: died in service.log() and stuck in service.log(),
+                  "both causes reported", service)
+        assert f"Worker process {killed} did not answer" not in service.log()
+        _wait_for(lambda: len(set(_workers(service.process.pid)) - {hung, killed}) == 2,
+                  "two new workers", service)
 
 
 def test_json_logs_one_object_per_line(tmp_path: Path) -> None:

@@ -21,8 +21,10 @@ Limit = Annotated[int, Query(ge=1, le=LIMIT_MAX,
 Last = Annotated[int | None, Query(ge=1, le=LAST_MAX,
                                    description=f"Only the last N episodes, 1 to {LAST_MAX} "
                                    "(all of them when absent).")]
-_CURSOR = ("The `next_cursor` of the previous page, passed back unchanged. It is opaque: a value "
-           "the API did not return (even one that matches the pattern) is refused with 422.")
+_CURSOR = ("The `next_cursor` of the previous page, passed back unchanged; treat it as opaque. A "
+           "value that is not of the shape this API returns (the pattern, and for numbers a "
+           "position below 2147483648) is refused with 422; a value of that shape names a "
+           "position in the list, and the page starts after it.")
 # Episode and audit pages: the position of the last item of the previous page.
 SeqCursor = Annotated[str | None, Query(pattern=r"^[0-9]{1,10}$", description=_CURSOR)]
 # Users pages: the last user id of the previous page, base64url-encoded without padding.

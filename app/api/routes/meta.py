@@ -43,7 +43,8 @@ def readyz(request: Request) -> JSONResponse:
                             status_code=503)
     head = migrate.head_revision()
     if current != head:
-        return JSONResponse(error_body("ServiceUnavailable", f"The schema is at {current}, not "
+        where = "has no schema yet" if current is None else f"is at schema {current}"
+        return JSONResponse(error_body("ServiceUnavailable", f"The database {where}, not "
                                        f"{head}; run `attune db upgrade`."), status_code=503)
     return JSONResponse({"status": "ready", "schema": current})
 
