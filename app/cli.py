@@ -202,7 +202,8 @@ def paper(
 ) -> None:
     """Run E1/E2, E3 and PA for the paper's methods and write the reports."""
     require("matplotlib", "experiments", "attune experiment")
-    from app.experiments.report import print_table2, write_paper_report
+    from app.experiments.outputs import write_paper_report
+    from app.experiments.text import print_table2
     from app.learning.experiments import E1E2, E3, PA, PAPER_METHODS
 
     console = stderr_console()
@@ -239,7 +240,8 @@ def ablation(
 ) -> None:
     """Run the HRI ablations on E3 and PA and write the reports."""
     require("matplotlib", "experiments", "attune experiment")
-    from app.experiments.report import print_metrics_table, write_ablation_report
+    from app.experiments.outputs import write_ablation_report
+    from app.experiments.text import print_metrics_table
     from app.learning.experiments import ABLATION_METHODS, E3, PA
 
     console = stderr_console()

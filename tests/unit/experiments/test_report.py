@@ -14,8 +14,9 @@ import pytest
 from typer.testing import CliRunner
 
 from app.cli import app
-from app.experiments.report import CSV_COLUMNS, cumulative_curve
+from app.experiments.outputs import CSV_COLUMNS
 from app.experiments.runner import Job, jobs_for, run_jobs
+from app.experiments.statistics import cumulative_curve
 from app.learning.experiments import ABLATION_METHODS, E3, PA, PAPER_METHODS, RunResult
 
 SEEDS, USERS = 1, 2
