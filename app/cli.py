@@ -25,7 +25,7 @@ from app.commands._output import print_json, stderr_console, stdout_console
 if TYPE_CHECKING:  # the commands import these when they run; --help needs none of them
     from rich.console import Console
 
-    from app.learning.experiments import Method, Protocol
+    from app.learning.evaluation import Method, Protocol
 
 __all__ = ["app", "experiment", "main", "version"]
 
@@ -204,7 +204,7 @@ def paper(
     require("matplotlib", "experiments", "attune experiment")
     from app.experiments.outputs import write_paper_report
     from app.experiments.text import print_table2
-    from app.learning.experiments import E1E2, E3, PA, PAPER_METHODS
+    from app.learning.evaluation import E1E2, E3, PA, PAPER_METHODS
 
     console = stderr_console()
     results, info = _run(console, PAPER_METHODS, (E1E2, E3, PA), seeds, users, jobs, progress,
@@ -242,7 +242,7 @@ def ablation(
     require("matplotlib", "experiments", "attune experiment")
     from app.experiments.outputs import write_ablation_report
     from app.experiments.text import print_metrics_table
-    from app.learning.experiments import ABLATION_METHODS, E3, PA
+    from app.learning.evaluation import ABLATION_METHODS, E3, PA
 
     console = stderr_console()
     results, info = _run(console, ABLATION_METHODS, (E3, PA), seeds, users, jobs, progress,

@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from app.learning.experiments import E1E2, E3, PA, RunResult
+from app.learning.evaluation import E1E2, E3, PA, RunResult
 
 from .plots import plot_cumulative
 from .statistics import build_summary, group

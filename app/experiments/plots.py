@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from app.learning.experiments import RunResult
+from app.learning.evaluation import RunResult
 
 from .statistics import SHADE_LABEL, cumulative_curve, method_order
 

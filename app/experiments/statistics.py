@@ -2,7 +2,7 @@
 cumulative-reward curves, and the summary (``summary.json``) that the text and the plots show.
 
 Every number is a mean and a standard deviation over users x seeds: one sample per simulated user
-per seed, as ``app.learning.experiments.summarize`` computes them. The curves carry a 95%
+per seed, as ``app.learning.evaluation.summarize`` computes them. The curves carry a 95%
 confidence interval of the mean instead (the spread of single users would hide the differences
 between methods).
 """
@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from app.learning.claims import check_claims
-from app.learning.experiments import E1E2, E3, PA, Protocol, RunResult, summarize
+from app.learning.evaluation import E1E2, E3, PA, Protocol, RunResult, summarize
 
 __all__ = [
     "METRICS",

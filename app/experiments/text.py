@@ -14,7 +14,7 @@ from rich import box
 from rich.console import Console
 from rich.table import Table
 
-from app.learning.experiments import E3, PA
+from app.learning.evaluation import E3, PA
 
 from .statistics import METRICS, PAPER_TABLE2, SPREAD_LABEL, Metric, Stats
 
