@@ -2,8 +2,9 @@
 
 One Typer app with a sub-app per area: ``attune experiment ...`` reproduces the paper's
 experiments; ``attune serve``, ``attune db ...``, ``attune keys ...`` and ``attune models ...``
-run and administer the service (``app.commands.service``); ``attune fleet simulate`` plays
-simulated robots and people against a running service (``app.commands.fleet``).
+run and administer the service (``app.commands.serve``, ``db``, ``keys``, ``models``); ``attune
+fleet simulate`` plays simulated robots and people against a running service
+(``app.commands.fleet``).
 """
 
 from __future__ import annotations
@@ -17,8 +18,11 @@ from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
+from app.commands import db as db_commands
 from app.commands import fleet as fleet_commands
-from app.commands import service as service_commands
+from app.commands import keys as keys_commands
+from app.commands import models as models_commands
+from app.commands import serve as serve_command
 from app.commands._extras import require
 from app.commands._output import print_json, stderr_console, stdout_console
 
@@ -71,10 +75,10 @@ experiment = typer.Typer(
     no_args_is_help=True,
 )
 app.add_typer(experiment, name="experiment")
-app.command("serve")(service_commands.serve)
-app.add_typer(service_commands.db, name="db")
-app.add_typer(service_commands.keys, name="keys")
-app.add_typer(service_commands.models, name="models")
+app.command("serve")(serve_command.serve)
+app.add_typer(db_commands.db, name="db")
+app.add_typer(keys_commands.keys, name="keys")
+app.add_typer(models_commands.models, name="models")
 app.add_typer(fleet_commands.fleet, name="fleet")
 
 SeedsOption = Annotated[
