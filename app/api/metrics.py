@@ -1,4 +1,5 @@
-"""Prometheus metrics: requests and latencies per route, decisions and outcomes per action kind.
+"""Prometheus metrics: requests and latencies per route; decisions and outcomes per fleet and
+action kind.
 
 With several workers (``attune serve --workers N``) every process writes to
 ``PROMETHEUS_MULTIPROC_DIR`` and ``/metrics`` sums them (prometheus_client's multiprocess mode).
@@ -24,10 +25,11 @@ class Metrics:
             ["method", "route"], registry=self.registry,
             buckets=(0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5, 5.0),
         )
-        self.decisions = Counter("attune_decisions", "Decisions sent to robots by action kind.",
-                                 ["kind"], registry=self.registry)
-        self.outcomes = Counter("attune_outcomes", "Outcomes reported by action kind and "
-                                "response.", ["kind", "response"], registry=self.registry)
+        self.decisions = Counter("attune_decisions", "Decisions sent to robots by fleet and "
+                                 "action kind.", ["fleet", "kind"], registry=self.registry)
+        self.outcomes = Counter("attune_outcomes", "Outcomes reported by fleet, action kind and "
+                                "response.", ["fleet", "kind", "response"],
+                                registry=self.registry)
 
     def observe_request(self, method: str, route: str, status: int, seconds: float) -> None:
         self.requests.labels(method, route, str(status)).inc()

@@ -21,7 +21,7 @@ JsonOption = Annotated[bool, typer.Option("--json", help="Print JSON on stdout i
 
 @keys.command("create")
 def keys_create(
-    role: Annotated[str, typer.Option(help="robot or admin.")],
+    role: Annotated[str, typer.Option(help="robot, staff (of one fleet) or admin.")],
     fleet: Annotated[str, typer.Option(help="The fleet the key (and the users it creates) "
                                        "belongs to.")] = "default",
     name: Annotated[str | None, typer.Option(help="A label for people, e.g. 'robot7'.")] = None,

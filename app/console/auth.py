@@ -1,4 +1,5 @@
-"""Who is using the console: an admin key, entered once, kept in a browser-session cookie.
+"""Who is using the console: a staff or admin key, entered once, kept in a browser-session
+cookie.
 
 The cookie holds the key itself (HttpOnly, SameSite=Strict, no Max-Age: it ends with the browser
 session) and every request authenticates it again as the v1 API does
@@ -20,7 +21,7 @@ from fastapi import Depends, Request
 
 from app.api.deps import principal_of
 from app.errors import Forbidden, Unauthorized
-from app.services.auth import require_admin
+from app.services.auth import require_manager
 from app.services.context import Principal
 
 __all__ = ["COOKIE", "Admin", "AdminDep", "FormDep", "LoginRequired", "PageError", "check_post",
@@ -59,23 +60,25 @@ def csrf_token(secret: str) -> str:
 
 
 async def sign_in(request: Request, secret: str) -> Principal:
-    """The admin behind ``secret``; 401 for an unknown or revoked key, 403 for a robot key.
+    """The staff member or admin behind ``secret``; 401 for an unknown or revoked key, 403 for
+    a robot key. A fleet's staff see their fleet only; an admin sees every fleet.
 
-    Read from the database on every page (not from the workers' key cache): a revoked admin key
-    stops at the next click."""
+    Read from the database on every page (not from the workers' key cache): a revoked key stops
+    at the next click."""
     try:
         principal = await principal_of(request, f"Bearer {secret}", cached=False)
     except Unauthorized:
         raise PageError(401, "Unknown or revoked key",
                         "This key is not known to the service, or it was revoked. Sign in with "
-                        "an admin key (attune keys create --role admin).", sign_out=True) from None
-    try:
-        require_admin(principal)
-    except Forbidden:
-        raise PageError(403, "An admin key is needed",
-                        f"This is a {principal.role} key: robots may use the API, but the console "
-                        "needs an admin key (attune keys create --role admin).",
+                        "a staff or admin key (attune keys create --role staff --fleet NAME).",
                         sign_out=True) from None
+    try:
+        require_manager(principal)
+    except Forbidden:
+        raise PageError(403, "A staff or admin key is needed",
+                        f"This is a {principal.role} key: robots may use the API, but the console "
+                        "needs a staff key of the fleet, or an admin key (attune keys create "
+                        "--role staff --fleet NAME).", sign_out=True) from None
     return principal
 
 

@@ -123,8 +123,7 @@ def _redirect(url: str) -> RedirectResponse:
     return RedirectResponse(url, status_code=303)
 
 
-def _user_path(user_id: str, tail: str = "") -> str:
-    return f"{COOKIE_PATH}/users/{user_id}{tail}"
+FleetQuery = Annotated[str | None, Query(max_length=128, pattern=CLIENT_ID_PATTERN)]
 
 
 router = APIRouter(prefix=COOKIE_PATH, route_class=ConsoleRoute, include_in_schema=False)
@@ -204,15 +203,16 @@ def user_page(
     request: Request, user_id: str, session: RequestSession, ctx: ServiceContext, admin: AdminDep,
     last: Annotated[int, Query(ge=1, le=1_000_000)] = console_service.RECENT_EPISODES,
     done: Annotated[str | None, Query(max_length=32)] = None,
+    fleet: FleetQuery = None,
 ) -> HTMLResponse:
     """A user's model at a glance: the heatmap, the paper's metrics, the reward curve."""
     _check_user_id(user_id)
     principal = admin.principal
-    user = users_service.get_user(session, principal, user_id)
+    user = users_service.get_user(session, principal, user_id, fleet=fleet)
     model = models_service.model_view(session, ctx, principal, user_id, time_slot=None,
-                                      situation=None)
-    overall = models_service.stats(session, principal, user_id, last=None)
-    recent = models_service.stats(session, principal, user_id, last=last)
+                                      situation=None, fleet=user.fleet)
+    overall = models_service.stats(session, principal, user_id, last=None, fleet=user.fleet)
+    recent = models_service.stats(session, principal, user_id, last=last, fleet=user.fleet)
     xs, ys = views.curve(overall.cumulative_reward)
     return _page(request, "user.html", admin, user=user, model=model, tab="model",
                  heat=views.heatmap(model, ctx.mission), overall=overall, recent=recent,
@@ -224,22 +224,24 @@ def why_page(
     request: Request, user_id: str, session: RequestSession, ctx: ServiceContext, admin: AdminDep,
     time_slot: Annotated[str | None, Query(max_length=64)] = None,
     situation: Annotated[str | None, Query(max_length=64)] = None,
+    fleet: FleetQuery = None,
 ) -> HTMLResponse:
     """Why this action: every state's actions in one context, with the numbers behind P."""
     _check_user_id(user_id)
     principal = admin.principal
-    user = users_service.get_user(session, principal, user_id)
+    user = users_service.get_user(session, principal, user_id, fleet=fleet)
     if time_slot is None or situation is None:
         latest = episodes_service.list_episodes(session, ctx, principal, user_id, limit=1,
-                                                cursor=None).items
+                                                cursor=None, fleet=user.fleet).items
         slot0, sit0 = ((latest[0].context.time_slot, latest[0].context.situation) if latest
                        else ctx.mission.context_names(0))
         time_slot, situation = time_slot or slot0, situation or sit0
     model = models_service.model_view(session, ctx, principal, user_id, time_slot=time_slot,
-                                      situation=situation)
+                                      situation=situation, fleet=user.fleet)
     context = model.contexts[0]
     trace = console_service.latest_trace_in_context(session, ctx, principal, user_id,
-                                                    time_slot=time_slot, situation=situation)
+                                                    time_slot=time_slot, situation=situation,
+                                                    fleet=user.fleet)
     return _page(request, "why.html", admin, user=user, model=model, tab="why",
                  context=context, rows=views.why_rows(context), trace=trace,
                  mission=ctx.mission, v_max=ctx.mission.v_max)
@@ -251,6 +253,7 @@ def episodes_page(
     before: Annotated[int | None, Query(ge=1, le=MAX_POSITION)] = None,
     at: Annotated[int | None, Query(ge=1, le=MAX_POSITION - 1)] = None,
     per_page: Annotated[int, Query(ge=5, le=200)] = 25,
+    fleet: FleetQuery = None,
 ) -> HTMLResponse:
     """The user's episodes, newest first, a page at a time (``at``: from that episode on); each
     expands into its trace."""
@@ -258,9 +261,10 @@ def episodes_page(
     if at is not None:
         before = at + 1
     principal = admin.principal
-    user = users_service.get_user(session, principal, user_id)
+    user = users_service.get_user(session, principal, user_id, fleet=fleet)
     page = episodes_service.list_episodes(session, ctx, principal, user_id, limit=per_page,
-                                          cursor=None if before is None else str(before))
+                                          cursor=None if before is None else str(before),
+                                          fleet=user.fleet)
     newest = page.items[0].index if page.items else None
     newer = None
     if newest is not None and newest < user.episodes:
@@ -273,14 +277,15 @@ def episodes_page(
 @router.get("/users/{user_id}/episodes/{episode_id}/trace")
 def trace_fragment(
     request: Request, user_id: str, episode_id: str, session: RequestSession, ctx: ServiceContext,
-    admin: AdminDep,
+    admin: AdminDep, fleet: FleetQuery = None,
 ) -> HTMLResponse:
     """One episode's trace, as an HTML fragment for the episode list."""
     _check_user_id(user_id)
     if len(episode_id) > 128:
         raise PageError(404, "Not found", "No such episode.")
+    user = users_service.get_user(session, admin.principal, user_id, fleet=fleet)
     trace = episodes_service.get_trace(session, ctx, admin.principal, episode_id)
-    if trace.user_id != user_id:
+    if trace.user_id != user_id or trace.fleet != user.fleet:
         raise PageError(404, "Not found", f"Episode {episode_id!r} is not {user_id!r}'s.")
     return _page(request, "_trace.html", admin, trace=trace)
 
@@ -290,10 +295,10 @@ def trace_fragment(
 @router.get("/users/{user_id}/export")
 @writes  # an export is an admin action: it leaves an audit entry
 def export_model(user_id: str, session: RequestSession, ctx: ServiceContext,
-                 admin: AdminDep) -> JSONResponse:
+                 admin: AdminDep, fleet: FleetQuery = None) -> JSONResponse:
     """Download the model document of GET /v1/users/{id}/model/export."""
     _check_user_id(user_id)
-    doc = models_service.export_model(session, ctx, admin.principal, user_id)
+    doc = models_service.export_model(session, ctx, admin.principal, user_id, fleet=fleet)
     name = f"attune-model-{user_id.replace(':', '_')}.json"
     return JSONResponse(doc, headers={"Content-Disposition": f'attachment; filename="{name}"'})
 
@@ -310,9 +315,9 @@ _ACTIONS = {
 
 
 def _confirm(request: Request, session: RequestSession, admin: Admin, user_id: str,
-             action: str) -> HTMLResponse:
+             action: str, fleet: str | None) -> HTMLResponse:
     _check_user_id(user_id)
-    user = users_service.get_user(session, admin.principal, user_id)
+    user = users_service.get_user(session, admin.principal, user_id, fleet=fleet)
     title, text = _ACTIONS[action]
     who = f"{user.display_name} ({user.user_id})" if user.display_name else user.user_id
     return _page(request, "confirm.html", admin, user=user, action=action, title=title,
@@ -322,35 +327,36 @@ def _confirm(request: Request, session: RequestSession, admin: Admin, user_id: s
 
 @router.get("/users/{user_id}/reset")
 def reset_confirm(request: Request, user_id: str, session: RequestSession,
-                  admin: AdminDep) -> HTMLResponse:
+                  admin: AdminDep, fleet: FleetQuery = None) -> HTMLResponse:
     """Ask before resetting a user's model."""
-    return _confirm(request, session, admin, user_id, "reset")
+    return _confirm(request, session, admin, user_id, "reset", fleet)
 
 
 @router.post("/users/{user_id}/reset")
 def reset(request: Request, user_id: str, session: RequestSession, ctx: ServiceContext,
-          admin: AdminDep, form: FormDep) -> RedirectResponse:
+          admin: AdminDep, form: FormDep, fleet: FleetQuery = None) -> RedirectResponse:
     """Reset the user's model (as DELETE /v1/users/{id}/model), keeping the history."""
     _check_user_id(user_id)
     check_post(request, admin, form)
-    models_service.reset_model(session, ctx, admin.principal, user_id)
-    return _redirect(_user_path(user_id, "?done=reset"))
+    user = users_service.get_user(session, admin.principal, user_id, fleet=fleet)
+    models_service.reset_model(session, ctx, admin.principal, user_id, fleet=user.fleet)
+    return _redirect(views.user_url(user, done="reset"))
 
 
 @router.get("/users/{user_id}/delete")
 def delete_confirm(request: Request, user_id: str, session: RequestSession,
-                   admin: AdminDep) -> HTMLResponse:
+                   admin: AdminDep, fleet: FleetQuery = None) -> HTMLResponse:
     """Ask before deleting a user."""
-    return _confirm(request, session, admin, user_id, "delete")
+    return _confirm(request, session, admin, user_id, "delete", fleet)
 
 
 @router.post("/users/{user_id}/delete")
 def delete(request: Request, user_id: str, session: RequestSession, ctx: ServiceContext,
-           admin: AdminDep, form: FormDep) -> RedirectResponse:
+           admin: AdminDep, form: FormDep, fleet: FleetQuery = None) -> RedirectResponse:
     """Delete the user with its history and model (as DELETE /v1/users/{id})."""
     _check_user_id(user_id)
     check_post(request, admin, form)
-    users_service.delete_user(session, ctx, admin.principal, user_id)
+    users_service.delete_user(session, ctx, admin.principal, user_id, fleet=fleet)
     return _redirect(f"{COOKIE_PATH}/users?deleted={user_id}")
 
 

@@ -11,10 +11,12 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from urllib.parse import quote, urlencode
 
 from app.learning import Mission
 from app.schemas.common import ActionOut
 from app.schemas.models import ActionBelief, ContextModel, ModelOut, StateModel
+from app.schemas.users import UserOut
 
 __all__ = [
     "Expectation", "HeatCell", "HeatRow", "StateRows", "action_arg", "action_label", "curve",
@@ -27,6 +29,14 @@ DASH = "—"  # a value the learner has no notion of (or no data yet)
 
 
 # -- number formats (the browser tests parse these back) --------------------------------------
+def user_url(user: UserOut, tail: str = "", **params: object) -> str:
+    """A console address of a user's page (its fleet named, so that an admin's links work for
+    every fleet): ``user_url(user, "/why", time_slot="noon")``."""
+    query = urlencode({"fleet": user.fleet, **{k: v for k, v in params.items()
+                                               if v is not None}})
+    return f"/admin/users/{quote(user.user_id, safe='')}{tail}?{query}"
+
+
 def fmt_pct(p: float | None, digits: int = 1) -> str:
     """A probability or rate as a percentage: 0.8312 -> "83.1%"."""
     return DASH if p is None else f"{p * 100:.{digits}f}%"

@@ -45,18 +45,25 @@ class ApiKey(Base):
 
 
 class User(Base):
-    """A person the fleet serves. The row is the per-user lock of every model update."""
+    """A person a fleet serves: ``user_id`` is the fleet's own id for them (two fleets may both
+    have a ``lin``), ``id`` the deployment's. The row is the per-user lock of every model
+    update. ``seed_key`` names the user's stream of decision seeds: the user id for users made
+    before fleets had ids of their own (their decisions redraw as they were), ``fleet/user_id``
+    since."""
 
     __tablename__ = "users"
+    __table_args__ = (UniqueConstraint("fleet", "user_id"),)
 
-    user_id: Mapped[str] = mapped_column(String(CLIENT_ID), primary_key=True)
-    fleet: Mapped[str] = mapped_column(String(CLIENT_ID), index=True)
+    id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)
+    user_id: Mapped[str] = mapped_column(String(CLIENT_ID))
+    fleet: Mapped[str] = mapped_column(String(CLIENT_ID))
     display_name: Mapped[str | None] = mapped_column(String(200))
     algorithm: Mapped[str] = mapped_column(String(32))
     params: Mapped[dict[str, Any]] = mapped_column(JSON)
     created_at: Mapped[dt.datetime] = mapped_column(UTCDateTime(), default=utcnow)
     episode_count: Mapped[int] = mapped_column(Integer, default=0)
     draws: Mapped[int] = mapped_column(Integer, default=0)  # decisions drawn: the seed stream
+    seed_key: Mapped[str] = mapped_column(String(2 * CLIENT_ID + 1))
 
 
 class LearnerModel(Base):
@@ -73,8 +80,8 @@ class LearnerModel(Base):
 
     __tablename__ = "learner_models"
 
-    user_id: Mapped[str] = mapped_column(
-        ForeignKey("users.user_id", ondelete="CASCADE"), primary_key=True
+    user_pk: Mapped[int] = mapped_column(
+        ForeignKey("users.id", ondelete="CASCADE"), primary_key=True
     )
     version: Mapped[int] = mapped_column(Integer, default=0)
     state: Mapped[dict[str, Any]] = mapped_column(LearnerStateType())
@@ -92,12 +99,12 @@ class Episode(Base):
 
     __tablename__ = "episodes"
     __table_args__ = (
-        UniqueConstraint("user_id", "event_id"),
-        UniqueConstraint("user_id", "seq"),
+        UniqueConstraint("user_pk", "event_id"),
+        UniqueConstraint("user_pk", "seq"),
     )
 
     id: Mapped[str] = mapped_column(String(ID), primary_key=True)
-    user_id: Mapped[str] = mapped_column(ForeignKey("users.user_id", ondelete="CASCADE"))
+    user_pk: Mapped[int] = mapped_column(ForeignKey("users.id", ondelete="CASCADE"))
     seq: Mapped[int] = mapped_column(Integer)  # the user's 1-based episode index
     learner_episode: Mapped[int] = mapped_column(Integer)  # seq + the model's episode offset
     event_id: Mapped[str] = mapped_column(String(CLIENT_ID))
@@ -175,12 +182,12 @@ class Sample(Base):
 
     __tablename__ = "samples"
     __table_args__ = (
-        Index("ix_samples_user_version", "user_id", "version"),
-        Index("ix_samples_user_episode", "user_id", "episode"),
+        Index("ix_samples_user_version", "user_pk", "version"),
+        Index("ix_samples_user_episode", "user_pk", "episode"),
     )
 
     id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)
-    user_id: Mapped[str] = mapped_column(ForeignKey("users.user_id", ondelete="CASCADE"))
+    user_pk: Mapped[int] = mapped_column(ForeignKey("users.id", ondelete="CASCADE"))
     version: Mapped[int] = mapped_column(Integer)
     kind: Mapped[str] = mapped_column(String(16))
     episode: Mapped[int] = mapped_column(Integer)

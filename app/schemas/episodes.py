@@ -172,6 +172,7 @@ class FeedbackTrace(BaseModel):
 class EpisodeSummary(BaseModel):
     episode_id: str
     user_id: str
+    fleet: str = Field(description="The user's fleet.")
     event_id: str
     robot_id: str | None
     status: Literal["open", "closed"]

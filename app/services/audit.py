@@ -49,15 +49,17 @@ def _out(entry: AuditRow) -> AuditEntryOut:
 
 def list_audit(session: Session, principal: Principal, *, limit: int, cursor: str | None
                ) -> AuditList:
-    """Admin actions of every fleet, newest first, a page at a time (admin)."""
-    if not principal.is_admin:
-        raise Forbidden("This needs an admin key.")
+    """Admin actions, newest first, a page at a time: of every fleet for an admin, of its own
+    fleet for its staff."""
+    if not principal.manages:
+        raise Forbidden("This needs a staff or admin key.")
     before: int | None = None
     if cursor is not None:
         before = position_of(cursor)
         if before is None:
             raise ValidationFailed("cursor is not one this API returned.")
-    rows = repo.list_page(session, before_id=before, limit=limit + 1)
+    rows = repo.list_page(session, before_id=before, limit=limit + 1,
+                          fleet=None if principal.is_admin else principal.fleet)
     more = len(rows) > limit
     return AuditList(items=[_out(e) for e in rows[:limit]],
                      next_cursor=str(rows[limit - 1].id) if more else None)

@@ -18,9 +18,9 @@ from . import audit
 from .context import KeyCache, Principal, after_commit
 
 __all__ = ["ROLES", "authenticate", "bearer_digest", "create_key", "hash_secret", "list_keys",
-           "require_admin", "revoke_key"]
+           "require_admin", "require_manager", "revoke_key"]
 
-ROLES = ("robot", "admin")
+ROLES = ("robot", "staff", "admin")
 _FLEET = re.compile(r"^[A-Za-z0-9._:-]{1,128}$")
 SECRET_PREFIX = "att_"
 
@@ -71,7 +71,8 @@ def revoke_key(session: Session, key_id: str, *, actor: Principal | None = None,
     require_admin(actor)
     key = repo.get(session, key_id)
     if key is None:
-        raise NotFound(f"No key {key_id!r}; `attune keys list` shows the ids.")
+        raise NotFound(f"No key {key_id!r}; GET /v1/admin/keys and `attune keys list` show "
+                       "the ids.")
     if key.revoked_at is None:
         key.revoked_at = utcnow()
         repo.revoke(session, key.id, key.revoked_at)
@@ -109,5 +110,13 @@ def authenticate(session: Session, authorization: str | None) -> Principal:
 
 
 def require_admin(principal: Principal) -> None:
+    """Deployment-wide actions (keys, fleets): admins only."""
     if not principal.is_admin:
         raise Forbidden("This needs an admin key.")
+
+
+def require_manager(principal: Principal) -> None:
+    """Looking after a fleet's users (reset, export, import, delete, the audit log): the
+    fleet's staff, and admins."""
+    if not principal.manages:
+        raise Forbidden("This needs a staff or admin key.")

@@ -68,10 +68,10 @@ def find_users(
     total = repo.count_users(session, fleet=fleet, text=text)
     users = repo.search_users(session, fleet=fleet, text=text, offset=(page - 1) * per_page,
                               limit=per_page)
-    activity = repo.recent_activity(session, [u.user_id for u in users], window=window)
+    activity = repo.recent_activity(session, [u.id for u in users], window=window)
     items = []
     for user in users:
-        a = activity[user.user_id]
+        a = activity[user.id]
         items.append(UserActivity(
             user=user_out(user), recent_episodes=a.episodes, recent_missions=a.missions,
             recent_success_rate=a.successes / a.missions if a.missions else None,
@@ -82,13 +82,13 @@ def find_users(
 
 def latest_trace_in_context(
     session: Session, ctx: ServiceContext, principal: Principal, user_id: str, *,
-    time_slot: str, situation: str,
+    time_slot: str, situation: str, fleet: str | None = None,
 ) -> EpisodeTrace | None:
     """The trace of the user's most recent episode in (time slot, situation), if any."""
-    visible_user(session, principal, user_id)
+    user = visible_user(session, principal, user_id, fleet=fleet)
     try:
         context = ctx.mission.context_index(time_slot, situation)
     except ValueError as exc:
         raise ValidationFailed(str(exc)) from None
-    episode_id = repo.latest_episode_in_context(session, user_id, context)
+    episode_id = repo.latest_episode_in_context(session, user.id, context)
     return None if episode_id is None else get_trace(session, ctx, principal, episode_id)

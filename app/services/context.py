@@ -26,7 +26,12 @@ __all__ = ["KeyCache", "LearnerCache", "Principal", "ServiceContext", "after_com
 
 @dataclass(frozen=True, slots=True)
 class Principal:
-    """Who is calling: the key's id, role and fleet."""
+    """Who is calling: the key's id, role and fleet.
+
+    Roles: a ``robot`` serves its fleet's users; the ``staff`` of a fleet also look after them
+    (their models, history and audit log; reset, export, import, delete); an ``admin`` runs the
+    deployment and sees every fleet.
+    """
 
     key_id: str
     role: str
@@ -35,6 +40,16 @@ class Principal:
     @property
     def is_admin(self) -> bool:
         return self.role == "admin"
+
+    @property
+    def manages(self) -> bool:
+        """May reset, export, import and delete users, and read the audit log: staff (of their
+        own fleet) and admins."""
+        return self.role in ("staff", "admin")
+
+    def sees(self, fleet: str) -> bool:
+        """Whether the caller may see the users of ``fleet``."""
+        return self.is_admin or fleet == self.fleet
 
 
 class KeyCache:
@@ -84,32 +99,32 @@ class LearnerCache:
 
     def __init__(self, size: int) -> None:
         self.size = size
-        self._items: OrderedDict[str, tuple[int, TabularLearner[Any]]] = OrderedDict()
+        self._items: OrderedDict[int, tuple[int, TabularLearner[Any]]] = OrderedDict()
         self._lock = threading.Lock()
         self.hits = 0
         self.misses = 0
 
-    def take(self, user_id: str, version: int) -> TabularLearner[Any] | None:
+    def take(self, user_pk: int, version: int) -> TabularLearner[Any] | None:
         with self._lock:
-            item = self._items.pop(user_id, None)
+            item = self._items.pop(user_pk, None)
             if item is not None and item[0] == version:
                 self.hits += 1
                 return item[1]
             self.misses += 1
             return None
 
-    def put(self, user_id: str, version: int, learner: TabularLearner[Any]) -> None:
+    def put(self, user_pk: int, version: int, learner: TabularLearner[Any]) -> None:
         if self.size <= 0:
             return
         with self._lock:
-            self._items[user_id] = (version, learner)
-            self._items.move_to_end(user_id)
+            self._items[user_pk] = (version, learner)
+            self._items.move_to_end(user_pk)
             while len(self._items) > self.size:
                 self._items.popitem(last=False)
 
-    def drop(self, user_id: str) -> None:
+    def drop(self, user_pk: int) -> None:
         with self._lock:
-            self._items.pop(user_id, None)
+            self._items.pop(user_pk, None)
 
 
 @dataclass
@@ -129,20 +144,22 @@ class ServiceContext:
                    KeyCache(settings.key_cache_seconds))
 
 
-def rng_for(seed: int, user_id: str, draw: int) -> np.random.Generator:
-    """The generator of a user's ``draw``-th decision: deployment seed, user id, position.
+def rng_for(seed: int, seed_key: str, draw: int) -> np.random.Generator:
+    """The generator of a user's ``draw``-th decision: deployment seed, the user's seed key
+    (``fleet/user_id``; the user id for users made before fleets had ids of their own), and
+    the decision's position.
 
     Deriving it per decision (instead of carrying a generator's state) lets any worker draw the
     next decision and lets ``attune models rebuild`` redraw every past one.
     """
     return np.random.Generator(np.random.PCG64(
-        np.random.SeedSequence(seed, spawn_key=(*_seed_words(user_id), draw))))
+        np.random.SeedSequence(seed, spawn_key=(*_seed_words(seed_key), draw))))
 
 
 @functools.lru_cache(maxsize=65536)
-def _seed_words(user_id: str) -> tuple[int, int, int, int]:
-    """Four 32-bit words of the SHA-256 of the user id (the user's part of the spawn key)."""
-    digest = hashlib.sha256(user_id.encode("utf-8")).digest()
+def _seed_words(seed_key: str) -> tuple[int, int, int, int]:
+    """Four 32-bit words of the SHA-256 of a seed key (the user's part of the spawn key)."""
+    digest = hashlib.sha256(seed_key.encode("utf-8")).digest()
     a, b, c, d = (int.from_bytes(digest[i : i + 4], "little") for i in range(0, 16, 4))
     return a, b, c, d
 

@@ -66,31 +66,31 @@ def _next_state(sample: SampleRow) -> int:
     return sample.next_state
 
 
-def transition_samples(user_id: str, transitions: Sequence[Transition]) -> list[SampleRow]:
+def transition_samples(user_pk: int, transitions: Sequence[Transition]) -> list[SampleRow]:
     """The journal entries of one ``update`` call (the version is set when saved)."""
-    return [SampleRow(user_id, 0, "transition", t.episode, t.context, t.state, t.action,
+    return [SampleRow(user_pk, 0, "transition", t.episode, t.context, t.state, t.action,
                       float(t.reward), t.next_state, int(t.signal)) for t in transitions]
 
 
-def load_learner(session: Session, ctx: ServiceContext, user_id: str, model: ModelRow, *,
+def load_learner(session: Session, ctx: ServiceContext, user_pk: int, model: ModelRow, *,
                  for_write: bool) -> TabularLearner[Any]:
-    """The user's learner at ``model.version``.
+    """The learner of user ``user_pk`` at ``model.version``.
 
     ``for_write``: the caller holds the user's lock and will hand the learner to
     :func:`save_learner`; the worker's cached learner is taken for it (no other request sees it
     until the commit puts it back). A reader gets a private learner of its own.
     """
     if for_write:
-        cached = ctx.cache.take(user_id, model.version)
+        cached = ctx.cache.take(user_pk, model.version)
         if cached is not None:
             return cached
-    learner = learner_from_state(repo.snapshot(session, user_id), ctx.mission)
+    learner = learner_from_state(repo.snapshot(session, user_pk), ctx.mission)
     if model.version > model.state_version:
-        replay(learner, repo.samples_since(session, user_id, model.state_version))
+        replay(learner, repo.samples_since(session, user_pk, model.state_version))
     return learner
 
 
-def save_learner(session: Session, ctx: ServiceContext, user_id: str, model: ModelRow,
+def save_learner(session: Session, ctx: ServiceContext, user_pk: int, model: ModelRow,
                  learner: TabularLearner[Any], samples: Sequence[SampleRow] = (), *,
                  snapshot: bool = False, start_over: StartOver | None = None,
                  episode_offset: int | None = None) -> None:
@@ -108,13 +108,13 @@ def save_learner(session: Session, ctx: ServiceContext, user_id: str, model: Mod
     With neither, nothing is stored; the learner just goes back to the cache.
     """
     if start_over is not None:
-        ctx.cache.drop(user_id)
+        ctx.cache.drop(user_pk)
         model.version += 1
         model.base_version = model.state_version = model.version
         if episode_offset is not None:
             model.episode_offset = episode_offset
         state = learner.to_state()
-        repo.replace(session, user_id, version=model.version, state=state,
+        repo.replace(session, user_pk, version=model.version, state=state,
                      base_state=state if start_over == "imported" else None,
                      episode_offset=model.episode_offset, updated_at=utcnow())
     elif samples or snapshot:
@@ -122,7 +122,7 @@ def save_learner(session: Session, ctx: ServiceContext, user_id: str, model: Mod
             _teach(learner, samples)
         model.version += 1
         due = snapshot or model.version - model.state_version >= ctx.settings.snapshot_every
-        repo.advance(session, user_id, version=model.version, updated_at=utcnow(),
+        repo.advance(session, user_pk, version=model.version, updated_at=utcnow(),
                      state=learner.to_state() if due else None)
         if due:
             model.state_version = model.version
@@ -130,4 +130,4 @@ def save_learner(session: Session, ctx: ServiceContext, user_id: str, model: Mod
             s.version = model.version
         repo.add_samples(session, list(samples))
     version = model.version
-    after_commit(session, lambda: ctx.cache.put(user_id, version, learner))
+    after_commit(session, lambda: ctx.cache.put(user_pk, version, learner))

@@ -13,6 +13,7 @@ from app.db.repositories import episodes as episodes_repo
 from app.db.repositories import models as models_repo
 from app.db.repositories import users as users_repo
 from app.db.repositories.models import ModelRow
+from app.db.repositories.users import UserRow
 from app.errors import ValidationFailed
 from app.learning import Observation, StateFormatError, learner_from_state
 from app.learning.evaluation import episode_metrics
@@ -24,40 +25,40 @@ from app.schemas.common import ActionOut
 from app.schemas.models import ActionBelief, ContextModel, ModelOut, StateModel, StatsOut
 
 from . import audit
-from .auth import require_admin
+from .auth import require_manager
 from .context import Principal, ServiceContext, rng_for
 from .episodes import action_out
 from .learners import fresh_learner, load_learner, replay, save_learner
 from .users import visible_user
 
-__all__ = ["RebuildReport", "export_model", "import_model", "model_view", "rebuild_model",
-           "reset_model", "stats"]
+__all__ = ["RebuildReport", "every_user", "export_model", "fleets_with", "import_model",
+           "model_view", "rebuild_model", "reset_model", "snapshot_model", "stats"]
 
 
 def _num(x: float) -> float | None:
     return None if math.isnan(x) else x
 
 
-def _head(session: Session, user_id: str) -> ModelRow:
-    model = models_repo.head(session, user_id)
+def _head(session: Session, user: UserRow) -> ModelRow:
+    model = models_repo.head(session, user.id)
     if model is None:  # every user is created with its model; only a broken database lacks it
-        raise RuntimeError(f"user {user_id!r} has no model row")
+        raise RuntimeError(f"user {user.fleet}/{user.user_id} has no model row")
     return model
 
 
 def model_view(
     session: Session, ctx: ServiceContext, principal: Principal, user_id: str, *,
-    time_slot: str | None, situation: str | None,
+    time_slot: str | None, situation: str | None, fleet: str | None = None,
 ) -> ModelOut:
-    user = visible_user(session, principal, user_id)
+    user = visible_user(session, principal, user_id, fleet=fleet)
     mission, space = ctx.mission, ctx.space
     if time_slot is not None and time_slot not in [t.name for t in mission.time_slots]:
         raise ValidationFailed(f"time_slot must be one of "
                                f"{', '.join(t.name for t in mission.time_slots)}.")
     if situation is not None and situation not in mission.situations:
         raise ValidationFailed(f"situation must be one of {', '.join(mission.situations)}.")
-    model = _head(session, user_id)
-    learner = load_learner(session, ctx, user_id, model, for_write=False)
+    model = _head(session, user)
+    learner = load_learner(session, ctx, user.id, model, for_write=False)
     # "if asked now": the next episode; an imported model may have seen more episodes than
     # this user has (learned elsewhere), and its clock must not run backwards
     now = user.episode_count + model.episode_offset + 1
@@ -88,10 +89,10 @@ def model_view(
                     version=model.version, episodes=user.episode_count, contexts=contexts)
 
 
-def stats(session: Session, principal: Principal, user_id: str, *, last: int | None
-          ) -> StatsOut:
-    visible_user(session, principal, user_id)
-    rows = episodes_repo.metric_rows(session, user_id, last=last)
+def stats(session: Session, principal: Principal, user_id: str, *, last: int | None,
+          fleet: str | None = None) -> StatsOut:
+    user = visible_user(session, principal, user_id, fleet=fleet)
+    rows = episodes_repo.metric_rows(session, user.id, last=last)
     interaction = np.asarray([INTERACTION_CODE[Interaction(r.interaction_class)] for r in rows],
                              dtype=np.int64)
     reward = np.asarray([r.total_reward for r in rows], dtype=np.float64)
@@ -106,46 +107,47 @@ def stats(session: Session, principal: Principal, user_id: str, *, last: int | N
     )
 
 
-def reset_model(session: Session, ctx: ServiceContext, principal: Principal, user_id: str
-                ) -> None:
-    require_admin(principal)
-    user = visible_user(session, principal, user_id, lock=True)
-    model = _head(session, user_id)
-    save_learner(session, ctx, user_id, model,
+def reset_model(session: Session, ctx: ServiceContext, principal: Principal, user_id: str, *,
+                fleet: str | None = None) -> None:
+    require_manager(principal)
+    user = visible_user(session, principal, user_id, fleet=fleet, lock=True)
+    model = _head(session, user)
+    save_learner(session, ctx, user.id, model,
                  fresh_learner(ctx, user.algorithm, dict(user.params)), start_over="fresh")
     audit.record(session, principal, "model.reset", target=user_id, fleet=user.fleet,
                  detail={"version": model.version})
 
 
-def export_model(session: Session, ctx: ServiceContext, principal: Principal, user_id: str
-                 ) -> dict[str, Any]:
-    require_admin(principal)
-    user = visible_user(session, principal, user_id)
-    model = _head(session, user_id)
+def export_model(session: Session, ctx: ServiceContext, principal: Principal, user_id: str, *,
+                 fleet: str | None = None) -> dict[str, Any]:
+    require_manager(principal)
+    user = visible_user(session, principal, user_id, fleet=fleet)
+    model = _head(session, user)
     audit.record(session, principal, "model.export", target=user_id, fleet=user.fleet,
                  detail={"version": model.version})
     if model.state_version == model.version:  # the stored document is the model: as it is
-        return models_repo.snapshot(session, user_id)
-    return load_learner(session, ctx, user_id, model, for_write=False).to_state()
+        return models_repo.snapshot(session, user.id)
+    return load_learner(session, ctx, user.id, model, for_write=False).to_state()
 
 
 def import_model(session: Session, ctx: ServiceContext, principal: Principal, user_id: str,
-                 doc: Any) -> ModelOut:
-    require_admin(principal)
-    user = visible_user(session, principal, user_id, lock=True)
+                 doc: Any, *, fleet: str | None = None) -> ModelOut:
+    require_manager(principal)
+    user = visible_user(session, principal, user_id, fleet=fleet, lock=True)
     try:
         learner = learner_from_state(doc, ctx.mission)
     except (StateFormatError, ValueError) as exc:
         raise ValidationFailed(f"Not a learner state this deployment can load: {exc}") from None
     user.algorithm, user.params = learner.algorithm, learner.params.to_dict()
     users_repo.save_profile(session, user)
-    model = _head(session, user_id)
-    save_learner(session, ctx, user_id, model, learner, start_over="imported",
+    model = _head(session, user)
+    save_learner(session, ctx, user.id, model, learner, start_over="imported",
                  episode_offset=max(model.episode_offset,
                                     learner.episodes - user.episode_count))
     audit.record(session, principal, "model.import", target=user_id, fleet=user.fleet,
                  detail={"algorithm": learner.algorithm, "version": model.version})
-    return model_view(session, ctx, principal, user_id, time_slot=None, situation=None)
+    return model_view(session, ctx, principal, user_id, time_slot=None, situation=None,
+                      fleet=user.fleet)
 
 
 @dataclass
@@ -163,16 +165,16 @@ class RebuildReport:
 
 
 def rebuild_model(session: Session, ctx: ServiceContext, principal: Principal, user_id: str, *,
-                  save: bool = False) -> RebuildReport:
+                  save: bool = False, fleet: str | None = None) -> RebuildReport:
     """Replay the user's history onto a fresh learner (or the imported base) and redraw every
     decision from the same seed stream; the result must equal the stored model. With ``save``,
     a rebuilt model that differs is stored (one version on, audited)."""
-    user = visible_user(session, principal, user_id, lock=True)
-    model = _head(session, user_id)
-    base = models_repo.base_state(session, user_id)
+    user = visible_user(session, principal, user_id, fleet=fleet, lock=True)
+    model = _head(session, user)
+    base = models_repo.base_state(session, user.id)
     learner: TabularLearner[Any] = (learner_from_state(base, ctx.mission) if base
                                     else fresh_learner(ctx, user.algorithm, dict(user.params)))
-    samples = models_repo.samples_since(session, user_id, model.base_version)
+    samples = models_repo.samples_since(session, user.id, model.base_version)
     report = RebuildReport(user_id, model.version, samples=len(samples))
     taught = 0
 
@@ -185,13 +187,13 @@ def rebuild_model(session: Session, ctx: ServiceContext, principal: Principal, u
         taught = upto
 
     for decision, context, seq in episodes_repo.decisions_for_rebuild(
-            session, user_id, model.base_version):
+            session, user.id, model.base_version):
         teach_through(decision.model_version)
         drawn_steps = [s for s in decision.chain if not s.get("forced")]
         start = drawn_steps[0]["state"] if drawn_steps else decision.state
         assert decision.draw is not None
         again = learner.select_action(Observation(context, start, seq),
-                                      rng_for(ctx.settings.seed, user_id, decision.draw))
+                                      rng_for(ctx.settings.seed, user.seed_key, decision.draw))
         same = np.allclose(again.probabilities, decision.probabilities, rtol=0, atol=1e-12) \
             and (decision.forced or again.action == decision.action)
         report.decisions += 1
@@ -199,11 +201,36 @@ def rebuild_model(session: Session, ctx: ServiceContext, principal: Principal, u
             report.mismatched_decisions.append(decision.id)
     teach_through(model.version)
     report.rebuilt = learner.to_state()
-    stored = load_learner(session, ctx, user_id, model, for_write=False).to_state()
+    stored = load_learner(session, ctx, user.id, model, for_write=False).to_state()
     report.identical = same_state(report.rebuilt, stored) and not report.mismatched_decisions
     if save and not report.identical:
-        save_learner(session, ctx, user_id, model, learner, snapshot=True)
-        audit.record(session, principal, "model.rebuild", target=user_id, fleet=None,
+        save_learner(session, ctx, user.id, model, learner, snapshot=True)
+        audit.record(session, principal, "model.rebuild", target=user_id, fleet=user.fleet,
                      detail={"version": model.version,
                              "mismatched_decisions": len(report.mismatched_decisions)})
     return report
+
+
+def snapshot_model(session: Session, ctx: ServiceContext, principal: Principal, user_id: str, *,
+                   fleet: str | None = None) -> bool:
+    """Store the user's learner state as of its current version (the journal since the last
+    snapshot replayed onto it); the model does not change. False when it was current."""
+    require_manager(principal)
+    user = visible_user(session, principal, user_id, fleet=fleet, lock=True)
+    model = _head(session, user)
+    if model.state_version == model.version:
+        return False
+    learner = load_learner(session, ctx, user.id, model, for_write=False)
+    models_repo.store_snapshot(session, user.id, version=model.version,
+                               state=learner.to_state())
+    return True
+
+
+def fleets_with(session: Session, user_id: str) -> list[str]:
+    """The fleets that have a user of this id (the command line, which sees them all)."""
+    return users_repo.fleets_with(session, user_id)
+
+
+def every_user(session: Session) -> list[tuple[str, str]]:
+    """(fleet, user id) of every user of the deployment (the command line)."""
+    return users_repo.all_ids(session)

@@ -1,4 +1,9 @@
-"""Users: create or update, read, list, delete; and who may see whom."""
+"""Users: create or update, read, list, delete; and who may see whom.
+
+A user is (fleet, user id): each fleet has its own ids. A request about a user means the
+caller's own fleet; an admin may name another with ``fleet``. A fleet the caller may not see is
+answered exactly as a user that does not exist (404), so nothing can be learned about it.
+"""
 
 from __future__ import annotations
 
@@ -17,25 +22,37 @@ from app.schemas.common import CLIENT_ID_PATTERN
 from app.schemas.users import LearnerSpec, UserIn, UserList, UserOut
 
 from . import audit
-from .auth import require_admin
+from .auth import require_manager
 from .context import Principal, ServiceContext
 from .learners import fresh_learner, save_learner
 
-__all__ = ["create_user", "delete_user", "get_user", "list_users", "put_user", "user_out",
-           "visible_user"]
+__all__ = ["create_user", "delete_user", "fleet_of", "get_user", "list_users", "no_user",
+           "put_user", "user_out", "visible_user"]
+
+
+def no_user(user_id: str) -> NotFound:
+    return NotFound(f"No user {user_id!r} in your fleet.")
+
+
+def fleet_of(principal: Principal, fleet: str | None, user_id: str) -> str:
+    """The fleet a request about ``user_id`` means: the caller's own, or the one an admin
+    names. Another fleet named by anyone else is answered as a missing user."""
+    if fleet is None or fleet == principal.fleet:
+        return principal.fleet
+    if principal.is_admin:
+        return fleet
+    raise no_user(user_id)
 
 
 def visible_user(session: Session, principal: Principal, user_id: str, *,
-                 lock: bool = False) -> UserRow:
-    """The user, if the caller may see it (locked for the transaction with ``lock``); another
-    fleet's user is reported as absent (404)."""
-    user = repo.lock(session, user_id) if lock else repo.get(session, user_id)
-    return _visible(principal, user_id, user)
-
-
-def _visible(principal: Principal, user_id: str, user: UserRow | None) -> UserRow:
-    if user is None or (not principal.is_admin and user.fleet != principal.fleet):
-        raise NotFound(f"No user {user_id!r} in your fleet.")
+                 fleet: str | None = None, lock: bool = False) -> UserRow:
+    """The user ``user_id`` of the fleet the request means (locked for the transaction with
+    ``lock``), or 404."""
+    in_fleet = fleet_of(principal, fleet, user_id)
+    user = (repo.lock(session, in_fleet, user_id) if lock
+            else repo.get(session, in_fleet, user_id))
+    if user is None:
+        raise no_user(user_id)
     return user
 
 
@@ -47,28 +64,29 @@ def user_out(user: UserRow) -> UserOut:
     )
 
 
-def create_user(session: Session, ctx: ServiceContext, principal: Principal, user_id: str, *,
+def create_user(session: Session, ctx: ServiceContext, fleet: str, user_id: str, *,
                 spec: LearnerSpec | None = None, display_name: str | None = None) -> bool:
-    """Create the user in the caller's fleet with a fresh learner, unless it exists; True when
-    created. (Two requests creating the same user at once: one creates it, both go on.)"""
+    """Create the user in ``fleet`` with a fresh learner, unless the fleet has that id; True
+    when created. (Two requests creating the same user at once: one creates it, both go on.)"""
     spec = spec or LearnerSpec()
     learner = fresh_learner(ctx, spec.algorithm, spec.params)
-    return repo.create(session, user_id=user_id, fleet=principal.fleet,
-                       algorithm=spec.algorithm, params=learner.params.to_dict(),
-                       display_name=display_name, state=learner.to_state(), now=utcnow())
+    return repo.create(session, user_id=user_id, fleet=fleet, algorithm=spec.algorithm,
+                       params=learner.params.to_dict(), display_name=display_name,
+                       state=learner.to_state(), now=utcnow())
 
 
 def put_user(
     session: Session, ctx: ServiceContext, principal: Principal, user_id: str, body: UserIn,
-    *, reset_model: bool,
+    *, reset_model: bool, fleet: str | None = None,
 ) -> tuple[UserOut, bool]:
-    """Create or update a user; (user, created)."""
-    existing = repo.lock(session, user_id)
+    """Create or update a user of the caller's fleet (an admin's: of ``fleet``); (user,
+    created)."""
+    in_fleet = fleet_of(principal, fleet, user_id)
     created = False
-    if existing is None:
-        created = create_user(session, ctx, principal, user_id, spec=body.learner,
+    if repo.lock(session, in_fleet, user_id) is None:
+        created = create_user(session, ctx, in_fleet, user_id, spec=body.learner,
                               display_name=body.display_name)
-    user = visible_user(session, principal, user_id, lock=True)
+    user = visible_user(session, principal, user_id, fleet=in_fleet, lock=True)
     if created:
         return user_out(user), True
     if body.display_name is not None:
@@ -83,50 +101,63 @@ def put_user(
                     "forgets what was learned. Repeat with ?reset_model=true to do so."
                 )
             user.algorithm, user.params = body.learner.algorithm, params
-            model = models_repo.head(session, user_id)
+            model = models_repo.head(session, user.id)
             assert model is not None  # every user is created with its model
-            save_learner(session, ctx, user_id, model, learner, start_over="fresh")
+            save_learner(session, ctx, user.id, model, learner, start_over="fresh")
     repo.save_profile(session, user)
     return user_out(user), False
 
 
-def get_user(session: Session, principal: Principal, user_id: str) -> UserOut:
-    return user_out(visible_user(session, principal, user_id))
+def get_user(session: Session, principal: Principal, user_id: str, *,
+             fleet: str | None = None) -> UserOut:
+    return user_out(visible_user(session, principal, user_id, fleet=fleet))
 
 
-def _cursor(user_id: str) -> str:
-    return base64.urlsafe_b64encode(user_id.encode()).decode().rstrip("=")
+def _cursor(user: UserRow) -> str:
+    raw = f"{user.fleet}/{user.user_id}".encode()
+    return base64.urlsafe_b64encode(raw).decode().rstrip("=")
 
 
-def _after(cursor: str | None) -> str | None:
+def _after(cursor: str | None, fleet: str | None) -> tuple[str, str] | None:
+    """(fleet, user id) a cursor stands for. A cursor of a list of one fleet given before
+    fleets had ids of their own (a bare user id) still reads, in the listed fleet."""
     if cursor is None:
         return None
     try:
         # validate=True: characters outside the alphabet are refused, not silently dropped
-        after = base64.b64decode(cursor + "=" * (-len(cursor) % 4), altchars=b"-_",
-                                 validate=True).decode()
+        text = base64.b64decode(cursor + "=" * (-len(cursor) % 4), altchars=b"-_",
+                                validate=True).decode()
     except (binascii.Error, UnicodeDecodeError, ValueError):
-        after = ""
-    if not re.fullmatch(CLIENT_ID_PATTERN, after):
+        text = ""
+    in_fleet, slash, user_id = text.rpartition("/")
+    if not slash:
+        in_fleet = fleet or ""
+    if not re.fullmatch(CLIENT_ID_PATTERN, user_id) or (
+            in_fleet and not re.fullmatch(CLIENT_ID_PATTERN, in_fleet)):
         raise ValidationFailed("cursor is not one this API returned.")
-    return after
+    return in_fleet, user_id
 
 
 def list_users(
-    session: Session, principal: Principal, *, limit: int, cursor: str | None
+    session: Session, principal: Principal, *, limit: int, cursor: str | None,
+    fleet: str | None = None,
 ) -> UserList:
-    fleet = None if principal.is_admin else principal.fleet
-    rows = repo.list_page(session, fleet=fleet, after=_after(cursor), limit=limit + 1)
+    """The users of the caller's fleet, a page at a time; an admin's: of every fleet (by fleet,
+    then user id), or of the one it names."""
+    if fleet is not None and not principal.sees(fleet):
+        raise NotFound(f"No fleet {fleet!r} you can see.")
+    listed = fleet if fleet is not None else (None if principal.is_admin else principal.fleet)
+    rows = repo.list_page(session, fleet=listed, after=_after(cursor, listed), limit=limit + 1)
     items = [user_out(u) for u in rows[:limit]]
     more = len(rows) > limit
-    return UserList(items=items, next_cursor=_cursor(rows[limit - 1].user_id) if more else None)
+    return UserList(items=items, next_cursor=_cursor(rows[limit - 1]) if more else None)
 
 
-def delete_user(session: Session, ctx: ServiceContext, principal: Principal, user_id: str
-                ) -> None:
-    require_admin(principal)
-    user = visible_user(session, principal, user_id, lock=True)
+def delete_user(session: Session, ctx: ServiceContext, principal: Principal, user_id: str, *,
+                fleet: str | None = None) -> None:
+    require_manager(principal)
+    user = visible_user(session, principal, user_id, fleet=fleet, lock=True)
     audit.record(session, principal, "user.delete", target=user_id, fleet=user.fleet,
                  detail={"episodes": user.episode_count})
-    repo.delete_user(session, user_id)
-    ctx.cache.drop(user_id)
+    repo.delete_user(session, user)
+    ctx.cache.drop(user.id)

@@ -80,7 +80,8 @@ def test_revoking_says_what_happened_and_twice_changes_nothing(attune: Attune) -
 def test_revoking_an_unknown_key_fails_with_a_sentence(attune: Attune) -> None:
     done = attune("keys", "revoke", "key_0000000000000000")
     assert done.exit_code == 2
-    assert "No key 'key_0000000000000000'; `attune keys list` shows the ids." in done.stderr
+    assert "No key 'key_0000000000000000'; GET /v1/admin/keys and `attune keys list` show " \
+        "the ids." in done.stderr
     assert "Traceback" not in done.stderr
     assert done.stdout == ""
 

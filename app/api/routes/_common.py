@@ -27,9 +27,15 @@ _CURSOR = ("The `next_cursor` of the previous page, passed back unchanged; treat
            "position in the list, and the page starts after it.")
 # Episode and audit pages: the position of the last item of the previous page.
 SeqCursor = Annotated[str | None, Query(pattern=r"^[0-9]{1,10}$", description=_CURSOR)]
-# Users pages: the last user id of the previous page, base64url-encoded without padding.
-UserCursor = Annotated[str | None, Query(pattern=r"^[A-Za-z0-9_-]{1,200}$",
+# Users pages: the fleet and user id of the last user of the previous page, base64url-encoded
+# without padding.
+UserCursor = Annotated[str | None, Query(pattern=r"^[A-Za-z0-9_-]{1,344}$",
                                          description=_CURSOR)]
+Fleet = Annotated[str | None, Query(
+    pattern=CLIENT_ID_PATTERN, examples=["care-home-north"],
+    description="The user's fleet, for admin keys (default: the key's own fleet). Robot and "
+    "staff keys work in their own fleet: another fleet is answered as a user that does not "
+    "exist.")]
 REPLAY_HEADER = {
     "Idempotent-Replay": {"description": "true when this repeats an earlier identical write.",
                           "schema": {"type": "string", "enum": ["true"]}},

@@ -1,14 +1,23 @@
 from __future__ import annotations
 
-from fastapi import APIRouter
+from typing import Annotated
+
+from fastapi import APIRouter, Path, Response
+from fastapi.responses import JSONResponse
 from sqlalchemy.orm import Session
 
 from app.api.deps import CurrentPrincipal, TransactionalRoute
 from app.api.errors import responses
+from app.schemas.admin import FleetList, KeyCreated, KeyIn, KeyList
 from app.schemas.audit import AuditList
+from app.services import admin
 from app.services import audit as service
+from app.services.context import ServiceContext
 
-from ._common import Limit, SeqCursor
+from ._common import Limit, SeqCursor, no_content
+
+KeyId = Annotated[str, Path(max_length=64, description="The key's id (key_...).",
+                            examples=["key_0123456789abcdef"])]
 
 router = APIRouter(prefix="/v1/admin", tags=["admin"], route_class=TransactionalRoute)
 
@@ -19,7 +28,39 @@ def list_audit(
     limit: Limit = 50,
     cursor: SeqCursor = None,
 ) -> AuditList:
-    """The audit log of admin actions of every fleet, newest first (admin): who (the key),
-    what (user.delete, model.reset, model.export, model.import, model.rebuild, key.create,
-    key.revoke), when."""
+    """The audit log, newest first: who (the key), what (user.delete, model.reset,
+    model.export, model.import, model.rebuild, key.create, key.revoke), when. Admins read every
+    fleet's entries, a fleet's staff its own."""
     return service.list_audit(session, principal, limit=limit, cursor=cursor)
+
+
+@router.post("/keys", status_code=201, response_model=KeyCreated,
+             responses=responses(403, 415))
+def create_key(body: KeyIn, session: Session, principal: CurrentPrincipal) -> JSONResponse:
+    """Make an API key (admin); its secret is in this answer only."""
+    made = admin.add_key(session, principal, body)
+    return JSONResponse(made.model_dump(mode="json"), status_code=201,
+                        headers={"Cache-Control": "no-store"})
+
+
+@router.get("/keys", response_model=KeyList, responses=responses(403))
+def list_keys(session: Session, principal: CurrentPrincipal) -> KeyList:
+    """Every API key, without secrets (admin)."""
+    return admin.keys(session, principal)
+
+
+@router.delete("/keys/{key_id}", status_code=204, response_class=Response,
+               responses=responses(403, 404))
+def revoke_key(key_id: KeyId, session: Session, ctx: ServiceContext,
+               principal: CurrentPrincipal) -> Response:
+    """Revoke a key (admin): its requests get 401 from now on. Revoking a revoked key changes
+    nothing (204 again)."""
+    admin.remove_key(session, ctx, principal, key_id)
+    return no_content()
+
+
+@router.get("/fleets", response_model=FleetList, responses=responses(403))
+def list_fleets(session: Session, principal: CurrentPrincipal) -> FleetList:
+    """The fleets with users or live keys, with their counts of users, keys and episodes
+    (admin)."""
+    return admin.fleets(session, principal)

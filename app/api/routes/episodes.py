@@ -20,18 +20,18 @@ from app.schemas.episodes import (
 from app.services import episodes as service
 from app.services.context import ServiceContext
 
-from ._common import REPLAY_HEADER, EpisodeId, Limit, SeqCursor, UserId, written
+from ._common import REPLAY_HEADER, EpisodeId, Fleet, Limit, SeqCursor, UserId, written
 
 router = APIRouter(tags=["episodes"], route_class=TransactionalRoute)
 
 
-def _count(request: Request, body: dict[str, object] | None, replay: bool) -> None:
-    if replay or not body:
+def _count(request: Request, result: service.Written) -> None:
+    if result.replay or not result.body:
         return
     metrics: Metrics = request.app.state.metrics
-    decision = body.get("decision")
+    decision = result.body.get("decision")
     if isinstance(decision, dict):
-        metrics.decisions.labels(decision["action"]["kind"]).inc()
+        metrics.decisions.labels(result.fleet or "", decision["action"]["kind"]).inc()
 
 
 @router.post(
@@ -42,10 +42,11 @@ def _count(request: Request, body: dict[str, object] | None, replay: bool) -> No
 )
 @inline
 def start_episode(user_id: UserId, body: EpisodeIn, request: Request, session: Session,
-                  ctx: ServiceContext, principal: CurrentPrincipal) -> Response:
+                  ctx: ServiceContext, principal: CurrentPrincipal,
+                  fleet: Fleet = None) -> Response:
     """An event happened near this user: open an episode and get the robot's first action."""
-    result = service.start_episode(session, ctx, principal, user_id, body)
-    _count(request, result.body, result.replay)
+    result = service.start_episode(session, ctx, principal, user_id, body, fleet=fleet)
+    _count(request, result)
     return written(result)
 
 
@@ -64,8 +65,8 @@ def report_outcome(episode_id: EpisodeId, body: OutcomeIn, request: Request,
     result = service.report_outcome(session, ctx, principal, episode_id, body)
     if not result.replay and result.kind is not None:
         metrics: Metrics = request.app.state.metrics
-        metrics.outcomes.labels(result.kind, body.response).inc()
-    _count(request, result.body, result.replay)
+        metrics.outcomes.labels(result.fleet or "", result.kind, body.response).inc()
+    _count(request, result)
     return written(result)
 
 
@@ -92,6 +93,8 @@ def list_episodes(
     user_id: UserId, session: Session, ctx: ServiceContext, principal: CurrentPrincipal,
     limit: Limit = 50,
     cursor: SeqCursor = None,
+    fleet: Fleet = None,
 ) -> EpisodeList:
     """A user's episodes, newest first, without traces."""
-    return service.list_episodes(session, ctx, principal, user_id, limit=limit, cursor=cursor)
+    return service.list_episodes(session, ctx, principal, user_id, limit=limit, cursor=cursor,
+                                 fleet=fleet)

@@ -11,7 +11,7 @@ from app.schemas.models import ModelOut, StatsOut
 from app.services import models as service
 from app.services.context import ServiceContext
 
-from ._common import Last, UserId, no_content
+from ._common import Fleet, Last, UserId, no_content
 
 router = APIRouter(prefix="/v1/users/{user_id}", tags=["models"],
                    route_class=TransactionalRoute)
@@ -22,36 +22,38 @@ def get_model(
     user_id: UserId, session: Session, ctx: ServiceContext, principal: CurrentPrincipal,
     time_slot: Annotated[str | None, Query(max_length=64)] = None,
     situation: Annotated[str | None, Query(max_length=64)] = None,
+    fleet: Fleet = None,
 ) -> ModelOut:
     """What the learner believes now, per context, state and action."""
     return service.model_view(session, ctx, principal, user_id, time_slot=time_slot,
-                              situation=situation)
+                              situation=situation, fleet=fleet)
 
 
 @router.get("/stats", response_model=StatsOut, responses=responses(404))
 def get_stats(
     user_id: UserId, session: Session, principal: CurrentPrincipal,
-    last: Last = None,
+    last: Last = None, fleet: Fleet = None,
 ) -> StatsOut:
     """The paper's metrics over the user's last N episodes (all by default)."""
-    return service.stats(session, principal, user_id, last=last)
+    return service.stats(session, principal, user_id, last=last, fleet=fleet)
 
 
 @router.delete("/model", status_code=204, response_class=Response,
                responses=responses(403, 404))
 def reset_model(user_id: UserId, session: Session, ctx: ServiceContext,
-                principal: CurrentPrincipal) -> Response:
-    """Forget what was learned, keep the history (admin)."""
-    service.reset_model(session, ctx, principal, user_id)
+                principal: CurrentPrincipal, fleet: Fleet = None) -> Response:
+    """Forget what was learned, keep the history (staff of the fleet, admin)."""
+    service.reset_model(session, ctx, principal, user_id, fleet=fleet)
     return no_content()
 
 
 @router.get("/model/export", responses=responses(403, 404))
-@writes  # an export is an admin action: it leaves an audit entry
+@writes  # an export leaves an audit entry
 def export_model(user_id: UserId, session: Session, ctx: ServiceContext,
-                 principal: CurrentPrincipal) -> dict[str, Any]:
-    """The model as a self-describing document that PUT /model accepts back (admin)."""
-    return service.export_model(session, ctx, principal, user_id)
+                 principal: CurrentPrincipal, fleet: Fleet = None) -> dict[str, Any]:
+    """The model as a self-describing document that PUT /model accepts back (staff of the
+    fleet, admin)."""
+    return service.export_model(session, ctx, principal, user_id, fleet=fleet)
 
 
 @router.put("/model", response_model=ModelOut, responses=responses(403, 404, 415))
@@ -67,7 +69,8 @@ def import_model(
                                          "encoding": "zlib+base64", "data": "..."}},
                    "pending": []}],
     )],
+    fleet: Fleet = None,
 ) -> ModelOut:
-    """Replace the model with an exported document (admin); 422 for another format or
-    mission."""
-    return service.import_model(session, ctx, principal, user_id, doc)
+    """Replace the model with an exported document (staff of the fleet, admin); 422 for
+    another format or mission."""
+    return service.import_model(session, ctx, principal, user_id, doc, fleet=fleet)

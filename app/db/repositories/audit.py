@@ -40,9 +40,12 @@ def add(session: Session, entry: AuditRow) -> None:
         fleet=entry.fleet, detail=entry.detail))
 
 
-def list_page(session: Session, *, before_id: int | None, limit: int) -> list[AuditRow]:
-    """Newest first."""
+def list_page(session: Session, *, before_id: int | None, limit: int,
+              fleet: str | None = None) -> list[AuditRow]:
+    """Newest first; of one fleet's users and keys, or of every fleet (``None``)."""
     stmt = select(*_COLS).order_by(_audit.c.id.desc()).limit(limit)
     if before_id is not None:
         stmt = stmt.where(_audit.c.id < before_id)
+    if fleet is not None:
+        stmt = stmt.where(_audit.c.fleet == fleet)
     return [AuditRow(*row) for row in conn(session).execute(stmt)]

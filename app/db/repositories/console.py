@@ -42,8 +42,8 @@ def _matching(stmt: _S, *, fleet: str | None, text: str | None) -> _S:
 def search_users(
     session: Session, *, fleet: str | None, text: str | None, offset: int, limit: int
 ) -> list[UserRow]:
-    stmt = select(*columns(table(User), UserRow)).order_by(User.user_id).offset(offset) \
-        .limit(limit)
+    stmt = select(*columns(table(User), UserRow)).order_by(User.fleet, User.user_id) \
+        .offset(offset).limit(limit)
     return [UserRow(*row) for row in conn(session).execute(_matching(stmt, fleet=fleet,
                                                                       text=text))]
 
@@ -53,39 +53,39 @@ def count_users(session: Session, *, fleet: str | None, text: str | None) -> int
     return int(conn(session).execute(_matching(stmt, fleet=fleet, text=text)).scalar() or 0)
 
 
-def recent_activity(session: Session, user_ids: Sequence[str], *, window: int
-                    ) -> dict[str, Activity]:
-    """Per user: counts over the episodes with ``seq`` in the last ``window`` (the user's own
-    1-based index, so the unique (user_id, seq) index serves the range), and the time of the
-    latest episode's last change (opened or closed)."""
-    if not user_ids:
+def recent_activity(session: Session, user_pks: Sequence[int], *, window: int
+                    ) -> dict[int, Activity]:
+    """Per user (by its number): counts over the episodes with ``seq`` in the last ``window``
+    (the user's own 1-based index, so the unique (user_pk, seq) index serves the range), and
+    the time of the latest episode's last change (opened or closed)."""
+    if not user_pks:
         return {}
     mission = Episode.interaction_class != "none"
     counts = conn(session).execute(
-        select(Episode.user_id, func.count(),
+        select(Episode.user_pk, func.count(),
                func.sum(case((mission, 1), else_=0)),
                func.sum(case((Episode.success, 1), else_=0)))
-        .join(User, User.user_id == Episode.user_id)
-        .where(Episode.user_id.in_(user_ids), Episode.seq > User.episode_count - window)
-        .group_by(Episode.user_id)
+        .join(User, User.id == Episode.user_pk)
+        .where(Episode.user_pk.in_(user_pks), Episode.seq > User.episode_count - window)
+        .group_by(Episode.user_pk)
     ).all()
     latest = conn(session).execute(
-        select(Episode.user_id, Episode.created_at, Episode.closed_at)
-        .join(User, User.user_id == Episode.user_id)
-        .where(Episode.user_id.in_(user_ids), Episode.seq == User.episode_count)
+        select(Episode.user_pk, Episode.created_at, Episode.closed_at)
+        .join(User, User.id == Episode.user_pk)
+        .where(Episode.user_pk.in_(user_pks), Episode.seq == User.episode_count)
     ).all()
     last_at = {uid: max(t for t in (created, closed) if t is not None)
                for uid, created, closed in latest}
     out = {uid: Activity(int(n), int(m or 0), int(s or 0), last_at.get(uid))
            for uid, n, m, s in counts}
-    return {uid: out.get(uid, Activity(0, 0, 0, None)) for uid in user_ids}
+    return {uid: out.get(uid, Activity(0, 0, 0, None)) for uid in user_pks}
 
 
-def latest_episode_in_context(session: Session, user_id: str, context: int) -> str | None:
+def latest_episode_in_context(session: Session, user_pk: int, context: int) -> str | None:
     """Id of the user's most recent episode in ``context``, if any."""
     stmt = (
         select(Episode.id)
-        .where(Episode.user_id == user_id, Episode.context == context)
+        .where(Episode.user_pk == user_pk, Episode.context == context)
         .order_by(Episode.seq.desc())
         .limit(1)
     )

@@ -22,7 +22,7 @@ __all__ = ["DecisionRow", "EpisodeRow", "FeedbackRow", "MetricRow", "add_feedbac
 @dataclass(slots=True)
 class EpisodeRow:
     id: str
-    user_id: str
+    user_pk: int
     seq: int  # the user's 1-based episode index
     learner_episode: int  # seq + the model's episode offset
     event_id: str
@@ -116,14 +116,14 @@ _LATEST = (select(func.max(_decisions.c.position))
            .correlate(_episodes).scalar_subquery())
 _FOR_OUTCOME = Prepared(
     select(*_EPISODE_COLS, *columns(_models, ModelRow), *_DECISION_COLS)
-    .join(_models, _models.c.user_id == _episodes.c.user_id)
+    .join(_models, _models.c.user_pk == _episodes.c.user_pk)
     .outerjoin(_decisions, and_(_decisions.c.episode_id == _episodes.c.id,
                                 _decisions.c.position == _LATEST))
     .where(_episodes.c.id == bindparam("episode_id"))
 )
 _GET = select(*_EPISODE_COLS).where(_episodes.c.id == bindparam("episode_id"))
-_OWNER = (select(_episodes.c.user_id, _users.c.fleet)
-          .join(_users, _users.c.user_id == _episodes.c.user_id)
+_OWNER = (select(_users.c.id, _users.c.fleet, _users.c.user_id)
+          .join(_users, _users.c.id == _episodes.c.user_pk)
           .where(_episodes.c.id == bindparam("episode_id")))
 _DECISION = Prepared(select(*_DECISION_COLS).where(
     _decisions.c.id == bindparam("decision_id"),
@@ -131,7 +131,7 @@ _DECISION = Prepared(select(*_DECISION_COLS).where(
 _DECISIONS = (select(*_DECISION_COLS).where(_decisions.c.episode_id == bindparam("episode_id"))
               .order_by(_decisions.c.position))
 _BY_EVENT = Prepared(select(_episodes.c.request_hash, _episodes.c.response).where(
-    _episodes.c.user_id == bindparam("user_id"), _episodes.c.event_id == bindparam("event_id")))
+    _episodes.c.user_pk == bindparam("user_pk"), _episodes.c.event_id == bindparam("event_id")))
 _FEEDBACK_COLS = columns(_feedback, FeedbackRow)
 _FEEDBACK = select(*_FEEDBACK_COLS).where(_feedback.c.episode_id == bindparam("episode_id"),
                                           _feedback.c.feedback_id == bindparam("feedback_id"))
@@ -164,16 +164,16 @@ def get(session: Session, episode_id: str) -> EpisodeRow | None:
     return record(EpisodeRow, conn(session).execute(_GET, {"episode_id": episode_id}).first())
 
 
-def owner(session: Session, episode_id: str) -> tuple[str, str] | None:
-    """(user_id, fleet) of an episode, without loading it."""
+def owner(session: Session, episode_id: str) -> tuple[int, str, str] | None:
+    """(user pk, fleet, user id) of an episode's user, without loading the episode."""
     row = conn(session).execute(_OWNER, {"episode_id": episode_id}).first()
-    return None if row is None else (row[0], row[1])
+    return None if row is None else (row[0], row[1], row[2])
 
 
-def by_event(session: Session, user_id: str, event_id: str
+def by_event(session: Session, user_pk: int, event_id: str
              ) -> tuple[str, dict[str, Any]] | None:
     """(request hash, stored response) of the episode an event opened, if any."""
-    row = _BY_EVENT.first(session, {"user_id": user_id, "event_id": event_id})
+    row = _BY_EVENT.first(session, {"user_pk": user_pk, "event_id": event_id})
     return None if row is None else (row[0], row[1])
 
 
@@ -219,22 +219,22 @@ def add_feedback(session: Session, row: FeedbackRow) -> None:
     conn(session).execute(_INSERT_FEEDBACK, [values(row, names(FeedbackRow))])
 
 
-def list_page(session: Session, user_id: str, *, before_seq: int | None, limit: int
+def list_page(session: Session, user_pk: int, *, before_seq: int | None, limit: int
               ) -> list[EpisodeRow]:
     """A user's episodes, newest first, before ``before_seq``."""
-    stmt = (select(*_EPISODE_COLS).where(_episodes.c.user_id == user_id)
+    stmt = (select(*_EPISODE_COLS).where(_episodes.c.user_pk == user_pk)
             .order_by(_episodes.c.seq.desc()).limit(limit))
     if before_seq is not None:
         stmt = stmt.where(_episodes.c.seq < before_seq)
     return [EpisodeRow(*row) for row in conn(session).execute(stmt)]
 
 
-def metric_rows(session: Session, user_id: str, *, last: int | None) -> list[MetricRow]:
+def metric_rows(session: Session, user_pk: int, *, last: int | None) -> list[MetricRow]:
     """The figures of the user's last ``last`` episodes (all: ``None``), oldest first."""
     stmt = (
         select(_episodes.c.seq, _episodes.c.initiated, _episodes.c.interaction_class,
                _episodes.c.success, _episodes.c.queries, _episodes.c.total_reward)
-        .where(_episodes.c.user_id == user_id).order_by(_episodes.c.seq.desc())
+        .where(_episodes.c.user_pk == user_pk).order_by(_episodes.c.seq.desc())
     )
     if last is not None:
         stmt = stmt.limit(last)
@@ -242,14 +242,14 @@ def metric_rows(session: Session, user_id: str, *, last: int | None) -> list[Met
     return rows[::-1]
 
 
-def decisions_for_rebuild(session: Session, user_id: str, version: int
+def decisions_for_rebuild(session: Session, user_pk: int, version: int
                           ) -> list[tuple[DecisionRow, int, int]]:
     """Drawn decisions of the user from model ``version`` on, in draw order: (decision,
     context, learner's episode index)."""
     stmt = (
         select(*_DECISION_COLS, _episodes.c.context, _episodes.c.learner_episode)
         .join(_episodes, _episodes.c.id == _decisions.c.episode_id)
-        .where(_episodes.c.user_id == user_id, _decisions.c.draw.is_not(None),
+        .where(_episodes.c.user_pk == user_pk, _decisions.c.draw.is_not(None),
                _decisions.c.model_version >= version)
         .order_by(_decisions.c.draw)
     )

@@ -5,13 +5,13 @@ from __future__ import annotations
 import datetime as dt
 from dataclasses import dataclass
 
-from sqlalchemy import bindparam, insert, select, update
+from sqlalchemy import bindparam, func, insert, select, update
 from sqlalchemy.orm import Session
 
 from ..models import ApiKey
 from ._rows import columns, conn, names, record, table, values
 
-__all__ = ["KeyRow", "add", "by_hash", "get", "list_all", "revoke"]
+__all__ = ["KeyRow", "add", "by_hash", "get", "list_all", "live_counts", "revoke"]
 
 
 @dataclass(slots=True)
@@ -50,6 +50,13 @@ def list_all(session: Session, *, fleet: str | None = None) -> list[KeyRow]:
     if fleet is not None:
         stmt = stmt.where(_keys.c.fleet == fleet)
     return [KeyRow(*row) for row in conn(session).execute(stmt)]
+
+
+def live_counts(session: Session) -> dict[str, int]:
+    """Keys not revoked, per fleet."""
+    stmt = (select(_keys.c.fleet, func.count()).where(_keys.c.revoked_at.is_(None))
+            .group_by(_keys.c.fleet))
+    return {fleet: int(n) for fleet, n in conn(session).execute(stmt)}
 
 
 def revoke(session: Session, key_id: str, at: dt.datetime) -> None:

@@ -20,7 +20,7 @@ from ..models import LearnerModel, Sample
 from ._rows import Prepared, columns, conn, names, record, table
 
 __all__ = ["ModelRow", "SampleRow", "add_samples", "advance", "base_state", "has_transition",
-           "head", "replace", "samples_since", "snapshot"]
+           "head", "replace", "samples_since", "snapshot", "store_snapshot"]
 
 
 @dataclass(slots=True)
@@ -39,7 +39,7 @@ class SampleRow:
     (``kind`` "feedback", ``next_state`` None). ``version`` is the model version its write
     produced; the samples of one version were one ``update`` (or ``feedback``) call."""
 
-    user_id: str
+    user_pk: int
     version: int
     kind: str
     episode: int
@@ -54,54 +54,61 @@ class SampleRow:
 _models = table(LearnerModel)
 _samples = table(Sample)
 _HEAD = Prepared(select(*columns(_models, ModelRow))
-                 .where(_models.c.user_id == bindparam("user_id")))
-_SNAPSHOT = Prepared(select(_models.c.state).where(_models.c.user_id == bindparam("user_id")))
-_ADVANCE = Prepared(update(_models).where(_models.c.user_id == bindparam("b_user_id")),
+                 .where(_models.c.user_pk == bindparam("user_pk")))
+_SNAPSHOT = Prepared(select(_models.c.state).where(_models.c.user_pk == bindparam("user_pk")))
+_ADVANCE = Prepared(update(_models).where(_models.c.user_pk == bindparam("b_user_pk")),
                     keyed=True)
 _INSERT_SAMPLES = Prepared(insert(_samples), keyed=True)
 _SAMPLE_NAMES = names(SampleRow)
 _SINCE = Prepared(select(*columns(_samples, SampleRow))
-                  .where(_samples.c.user_id == bindparam("user_id"),
+                  .where(_samples.c.user_pk == bindparam("user_pk"),
                          _samples.c.version > bindparam("version"))
                   .order_by(_samples.c.version, _samples.c.id))
 
 
-def head(session: Session, user_id: str) -> ModelRow | None:
-    return record(ModelRow, _HEAD.first(session, {"user_id": user_id}))
+def head(session: Session, user_pk: int) -> ModelRow | None:
+    return record(ModelRow, _HEAD.first(session, {"user_pk": user_pk}))
 
 
-def snapshot(session: Session, user_id: str) -> dict[str, Any]:
+def snapshot(session: Session, user_pk: int) -> dict[str, Any]:
     """The stored state document (the learner as of the row's ``state_version``)."""
-    row = _SNAPSHOT.first(session, {"user_id": user_id})
+    row = _SNAPSHOT.first(session, {"user_pk": user_pk})
     if row is None:
-        raise LookupError(f"user {user_id!r} has no model row")
+        raise LookupError(f"user {user_pk} has no model row")
     doc: dict[str, Any] = row[0]
     return doc
 
 
-def base_state(session: Session, user_id: str) -> dict[str, Any] | None:
+def base_state(session: Session, user_pk: int) -> dict[str, Any] | None:
     doc: dict[str, Any] | None = conn(session).execute(
-        select(_models.c.base_state).where(_models.c.user_id == user_id)).scalar_one()
+        select(_models.c.base_state).where(_models.c.user_pk == user_pk)).scalar_one()
     return doc
 
 
-def advance(session: Session, user_id: str, *, version: int, updated_at: dt.datetime,
+def advance(session: Session, user_pk: int, *, version: int, updated_at: dt.datetime,
             state: dict[str, Any] | None = None) -> None:
     """Move the model to ``version``; with ``state``, the snapshot moves there too."""
-    params: dict[str, Any] = {"b_user_id": user_id, "version": version,
+    params: dict[str, Any] = {"b_user_pk": user_pk, "version": version,
                               "updated_at": updated_at}
     if state is not None:
         params["state"], params["state_version"] = state, version
     _ADVANCE.run(session, params)
 
 
-def replace(session: Session, user_id: str, *, version: int, state: dict[str, Any],
+def store_snapshot(session: Session, user_pk: int, *, version: int,
+                   state: dict[str, Any]) -> None:
+    """The learner's state as of ``version`` (the model's own version stays)."""
+    conn(session).execute(update(_models).where(_models.c.user_pk == user_pk).values(
+        state=state, state_version=version))
+
+
+def replace(session: Session, user_pk: int, *, version: int, state: dict[str, Any],
             base_state: dict[str, Any] | None, episode_offset: int,
             updated_at: dt.datetime) -> None:
     """Start the model over at ``version`` from ``state`` (a reset, a new learner, an import:
     ``base_state`` is the imported document, ``None`` for a fresh learner)."""
     _ADVANCE.run(session, {
-        "b_user_id": user_id, "version": version, "state": state, "state_version": version,
+        "b_user_pk": user_pk, "version": version, "state": state, "state_version": version,
         "base_state": base_state, "base_version": version, "episode_offset": episode_offset,
         "updated_at": updated_at})
 
@@ -111,18 +118,18 @@ def add_samples(session: Session, rows: list[SampleRow]) -> None:
                                        for r in rows])
 
 
-def samples_since(session: Session, user_id: str, version: int) -> list[SampleRow]:
+def samples_since(session: Session, user_pk: int, version: int) -> list[SampleRow]:
     """The journal after ``version``, in the order it was taught."""
-    return [SampleRow(*row) for row in _SINCE.all(session, {"user_id": user_id,
+    return [SampleRow(*row) for row in _SINCE.all(session, {"user_pk": user_pk,
                                                             "version": version})]
 
 
-def has_transition(session: Session, user_id: str, *, episode: int, action: int,
+def has_transition(session: Session, user_pk: int, *, episode: int, action: int,
                    after_version: int) -> bool:
     """Whether the model taught after ``after_version`` holds ``action``'s sample of
     ``episode``."""
     stmt = select(_samples.c.id).where(
-        _samples.c.user_id == user_id, _samples.c.episode == episode,
+        _samples.c.user_pk == user_pk, _samples.c.episode == episode,
         _samples.c.action == action, _samples.c.kind == "transition",
         _samples.c.version > after_version,
     ).limit(1)

@@ -6,22 +6,24 @@ import datetime as dt
 from dataclasses import dataclass
 from typing import Any
 
-from sqlalchemy import bindparam, delete, insert, select, update
+from sqlalchemy import bindparam, delete, func, insert, select, tuple_, update
 from sqlalchemy.dialects import postgresql, sqlite
 from sqlalchemy.orm import Session
 
 from ..models import Episode, LearnerModel, User
 from ._rows import Prepared, columns, conn, record, table
 
-__all__ = ["UserRow", "create", "delete_user", "get", "list_page", "lock", "lock_owner",
-           "save_counters", "save_profile"]
+__all__ = ["UserRow", "all_ids", "create", "delete_user", "fleet_counts", "fleets_with", "get",
+           "list_page", "lock", "lock_owner", "save_counters", "save_profile"]
 
 
 @dataclass(slots=True)
 class UserRow:
-    """A user; ``episode_count`` and ``draws`` (decisions drawn: the seed stream's position) are
-    the counters the write path moves."""
+    """A user: ``id`` is the deployment's number for them, ``user_id`` their fleet's id;
+    ``episode_count`` and ``draws`` (decisions drawn: the position in the stream of decision
+    seeds named by ``seed_key``) are the counters the write path moves."""
 
+    id: int
     user_id: str
     fleet: str
     display_name: str | None
@@ -30,29 +32,31 @@ class UserRow:
     created_at: dt.datetime
     episode_count: int
     draws: int
+    seed_key: str
 
 
 _users = table(User)
 _models = table(LearnerModel)
 _episodes = table(Episode)
 _COLS = columns(_users, UserRow)
-_GET = select(*_COLS).where(_users.c.user_id == bindparam("user_id"))
+_GET = select(*_COLS).where(_users.c.fleet == bindparam("fleet"),
+                            _users.c.user_id == bindparam("user_id"))
 # PostgreSQL: the row lock is the per-user lock. SQLite ignores FOR UPDATE: its write
 # transactions are BEGIN IMMEDIATE, which already hold the database's single write lock.
 _LOCK = Prepared(_GET.with_for_update())
-_LOCK_OWNER = Prepared(select(*_COLS).where(_users.c.user_id == select(_episodes.c.user_id).where(
+_LOCK_OWNER = Prepared(select(*_COLS).where(_users.c.id == select(_episodes.c.user_pk).where(
     _episodes.c.id == bindparam("episode_id")).scalar_subquery()).with_for_update())
-_SAVE_COUNTERS = Prepared(update(_users).where(_users.c.user_id == bindparam("b_user_id")),
-                          keyed=True)
+_SAVE_COUNTERS = Prepared(update(_users).where(_users.c.id == bindparam("b_id")), keyed=True)
 
 
-def get(session: Session, user_id: str) -> UserRow | None:
-    return record(UserRow, conn(session).execute(_GET, {"user_id": user_id}).first())
+def get(session: Session, fleet: str, user_id: str) -> UserRow | None:
+    return record(UserRow, conn(session).execute(_GET, {"fleet": fleet,
+                                                        "user_id": user_id}).first())
 
 
-def lock(session: Session, user_id: str) -> UserRow | None:
+def lock(session: Session, fleet: str, user_id: str) -> UserRow | None:
     """The user, locked for the rest of the transaction (``None``: no such user)."""
-    return record(UserRow, _LOCK.first(session, {"user_id": user_id}))
+    return record(UserRow, _LOCK.first(session, {"fleet": fleet, "user_id": user_id}))
 
 
 def lock_owner(session: Session, episode_id: str) -> UserRow | None:
@@ -68,49 +72,73 @@ def lock_owner(session: Session, episode_id: str) -> UserRow | None:
 def create(session: Session, *, user_id: str, fleet: str, algorithm: str,
            params: dict[str, Any], display_name: str | None, state: dict[str, Any],
            now: dt.datetime) -> bool:
-    """Insert the user and its fresh model unless the id exists; True when inserted.
+    """Insert the user and its fresh model unless the fleet has that id; True when inserted.
 
     ``ON CONFLICT DO NOTHING`` makes two robots creating the same user at once safe: one wins,
-    the other sees the winner's row when it locks it.
+    the other sees the winner's row when it locks it. The user's decisions are seeded by
+    ``fleet/user_id`` (the users of the deployment before fleets had ids of their own keep
+    their user id).
     """
     c = conn(session)
     dialect = postgresql if c.dialect.name == "postgresql" else sqlite
     stmt = (
         dialect.insert(_users).values(
             user_id=user_id, fleet=fleet, algorithm=algorithm, params=params,
-            display_name=display_name, created_at=now, episode_count=0, draws=0)
-        .on_conflict_do_nothing(index_elements=["user_id"]).returning(_users.c.user_id)
+            display_name=display_name, created_at=now, episode_count=0, draws=0,
+            seed_key=f"{fleet}/{user_id}")
+        .on_conflict_do_nothing(index_elements=["fleet", "user_id"]).returning(_users.c.id)
     )
-    if c.execute(stmt).first() is None:
+    made = c.execute(stmt).first()
+    if made is None:
         return False
     c.execute(insert(_models).values(
-        user_id=user_id, version=0, state=state, base_state=None, base_version=0,
+        user_pk=made[0], version=0, state=state, base_state=None, base_version=0,
         episode_offset=0, updated_at=now))
     return True
 
 
 def save_counters(session: Session, user: UserRow) -> None:
-    _SAVE_COUNTERS.run(session, {"b_user_id": user.user_id, "episode_count": user.episode_count,
+    _SAVE_COUNTERS.run(session, {"b_id": user.id, "episode_count": user.episode_count,
                                  "draws": user.draws})
 
 
 def save_profile(session: Session, user: UserRow) -> None:
     """Store the display name and the learner's algorithm and parameters."""
-    conn(session).execute(update(_users).where(_users.c.user_id == user.user_id).values(
+    conn(session).execute(update(_users).where(_users.c.id == user.id).values(
         display_name=user.display_name, algorithm=user.algorithm, params=user.params))
 
 
-def list_page(session: Session, *, fleet: str | None, after: str | None, limit: int
-              ) -> list[UserRow]:
-    """Users by id, after ``after``; of one fleet, or of every fleet (``None``)."""
-    stmt = select(*_COLS).order_by(_users.c.user_id).limit(limit)
+def list_page(session: Session, *, fleet: str | None, after: tuple[str, str] | None,
+              limit: int) -> list[UserRow]:
+    """Users of one fleet by user id, or of every fleet (``None``) by fleet and user id; those
+    after ``after`` (fleet, user id)."""
+    stmt = select(*_COLS).order_by(_users.c.fleet, _users.c.user_id).limit(limit)
     if fleet is not None:
         stmt = stmt.where(_users.c.fleet == fleet)
     if after is not None:
-        stmt = stmt.where(_users.c.user_id > after)
+        stmt = stmt.where(tuple_(_users.c.fleet, _users.c.user_id) > tuple_(*after))
     return [UserRow(*row) for row in conn(session).execute(stmt)]
 
 
-def delete_user(session: Session, user_id: str) -> None:
+def delete_user(session: Session, user: UserRow) -> None:
     """The user, its model, history and journal (the foreign keys cascade)."""
-    conn(session).execute(delete(_users).where(_users.c.user_id == user_id))
+    conn(session).execute(delete(_users).where(_users.c.id == user.id))
+
+
+def fleets_with(session: Session, user_id: str) -> list[str]:
+    """The fleets that have a user of this id."""
+    stmt = select(_users.c.fleet).where(_users.c.user_id == user_id).order_by(_users.c.fleet)
+    return [fleet for (fleet,) in conn(session).execute(stmt)]
+
+
+def all_ids(session: Session) -> list[tuple[str, str]]:
+    """(fleet, user id) of every user."""
+    stmt = select(_users.c.fleet, _users.c.user_id).order_by(_users.c.fleet, _users.c.user_id)
+    return [(f, u) for f, u in conn(session).execute(stmt)]
+
+
+def fleet_counts(session: Session) -> dict[str, tuple[int, int]]:
+    """Per fleet that has users: (users, episodes)."""
+    stmt = select(_users.c.fleet, func.count(), func.coalesce(func.sum(_users.c.episode_count),
+                                                               0)).group_by(_users.c.fleet)
+    return {fleet: (int(n), int(e)) for fleet, n, e in conn(session).execute(stmt)}

@@ -19,9 +19,9 @@ from .render import chain_out, probabilities_out, state_name
 __all__ = ["get_trace", "list_episodes"]
 
 
-def _summary(ctx: ServiceContext, ep: EpisodeRow) -> dict[str, Any]:
+def _summary(ctx: ServiceContext, ep: EpisodeRow, user_id: str, fleet: str) -> dict[str, Any]:
     return {
-        "episode_id": ep.id, "user_id": ep.user_id, "event_id": ep.event_id,
+        "episode_id": ep.id, "user_id": user_id, "fleet": fleet, "event_id": ep.event_id,
         "robot_id": ep.robot_id, "status": ep.status,
         "context": {"time_slot": ep.time_slot, "situation": ep.situation},
         "initiator": ep.initiator, "interaction_class": ep.interaction_class,
@@ -34,7 +34,7 @@ def get_trace(session: Session, ctx: ServiceContext, principal: Principal, episo
               ) -> EpisodeTrace:
     owner = repo.owner(session, episode_id)
     ep = repo.get(session, episode_id) if owner is not None else None
-    if owner is None or ep is None or (not principal.is_admin and owner[1] != principal.fleet):
+    if owner is None or ep is None or not principal.sees(owner[1]):
         raise NotFound(f"No episode {episode_id!r} in your fleet.")
     space = ctx.space
     decisions = [
@@ -51,19 +51,21 @@ def get_trace(session: Session, ctx: ServiceContext, principal: Principal, episo
          "received_at": f.received_at}
         for f in repo.feedback_list(session, episode_id)
     ]
-    return EpisodeTrace.model_validate({**_summary(ctx, ep), "decisions": decisions,
+    return EpisodeTrace.model_validate({**_summary(ctx, ep, owner[2], owner[1]),
+                                        "decisions": decisions,
                                         "feedback": feedback})
 
 
 def list_episodes(session: Session, ctx: ServiceContext, principal: Principal, user_id: str, *,
-                  limit: int, cursor: str | None) -> EpisodeList:
-    visible_user(session, principal, user_id)
+                  limit: int, cursor: str | None, fleet: str | None = None) -> EpisodeList:
+    user = visible_user(session, principal, user_id, fleet=fleet)
     before: int | None = None
     if cursor is not None:
         before = position_of(cursor)
         if before is None:
             raise ValidationFailed("cursor is not one this API returned.")
-    rows = repo.list_page(session, user_id, before_seq=before, limit=limit + 1)
-    items = [EpisodeSummary.model_validate(_summary(ctx, ep)) for ep in rows[:limit]]
+    rows = repo.list_page(session, user.id, before_seq=before, limit=limit + 1)
+    items = [EpisodeSummary.model_validate(_summary(ctx, ep, user_id, user.fleet))
+             for ep in rows[:limit]]
     more = len(rows) > limit
     return EpisodeList(items=items, next_cursor=str(rows[limit - 1].seq) if more else None)

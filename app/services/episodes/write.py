@@ -40,7 +40,7 @@ from app.schemas.episodes import EpisodeIn, FeedbackIn, OutcomeIn
 
 from ..context import Principal, ServiceContext, body_hash, rng_for
 from ..learners import load_learner, save_learner, transition_samples
-from ..users import create_user
+from ..users import create_user, fleet_of, no_user
 from . import validate
 from .render import brief, decision_out, state_name
 
@@ -55,6 +55,7 @@ class Written:
     status: int
     replay: bool
     kind: str | None = None  # the answered action's kind (outcomes), for the metrics
+    fleet: str | None = None  # the user's fleet, for the metrics
 
 
 def _new_id(prefix: str) -> str:
@@ -85,7 +86,7 @@ class _Negotiation:
 
     def _draw(self, state: int) -> tuple[Decision, int]:
         draw = self.user.draws
-        rng = rng_for(self.ctx.settings.seed, self.user.user_id, draw)
+        rng = rng_for(self.ctx.settings.seed, self.user.seed_key, draw)
         self.user.draws = draw + 1
         obs = Observation(self.episode.context, state, self.episode.learner_episode)
         return self.learner.select_action(obs, rng), draw
@@ -179,47 +180,60 @@ def _store(session: Session, ctx: ServiceContext, step: _Negotiation, model: Mod
     transitions (journal, version, snapshot when due)."""
     episodes_repo.insert_decisions(session, step.new_rows)
     users_repo.save_counters(session, step.user)
-    save_learner(session, ctx, step.user.user_id, model, step.learner,
-                 transition_samples(step.user.user_id, step.transitions))
+    save_learner(session, ctx, step.user.id, model, step.learner,
+                 transition_samples(step.user.id, step.transitions))
 
 
 def _lock_or_create(session: Session, ctx: ServiceContext, principal: Principal,
-                    user_id: str) -> UserRow:
-    """Lock the user, creating it in the caller's fleet on its first event (404 for another
-    fleet's user)."""
-    user = users_repo.lock(session, user_id)
+                    user_id: str, fleet: str | None) -> UserRow:
+    """Lock the user of the caller's fleet (an admin's: of ``fleet``), creating it on its
+    first event."""
+    in_fleet = fleet_of(principal, fleet, user_id)
+    user = users_repo.lock(session, in_fleet, user_id)
     if user is None:  # once per user: build the fresh learner and its state
-        create_user(session, ctx, principal, user_id)
-        user = users_repo.lock(session, user_id)
-    if user is None or (not principal.is_admin and user.fleet != principal.fleet):
-        raise NotFound(f"No user {user_id!r} in your fleet.")
+        create_user(session, ctx, in_fleet, user_id)
+        user = users_repo.lock(session, in_fleet, user_id)
+    if user is None:
+        raise no_user(user_id)
     return user
 
 
+def _locked_owner(session: Session, principal: Principal, episode_id: str
+                  ) -> tuple[UserRow, EpisodeRow, ModelRow, DecisionRow | None]:
+    """Lock the user of an episode and load the episode, its user's model head and its current
+    decision; another fleet's episode is answered as one that does not exist."""
+    user = users_repo.lock_owner(session, episode_id)
+    loaded = episodes_repo.load_for_outcome(session, episode_id) if user is not None else None
+    if user is None or loaded is None or not principal.sees(user.fleet):
+        raise _not_found_episode(episode_id)
+    return (user, *loaded)
+
+
 def start_episode(
-    session: Session, ctx: ServiceContext, principal: Principal, user_id: str, body: EpisodeIn
+    session: Session, ctx: ServiceContext, principal: Principal, user_id: str, body: EpisodeIn,
+    *, fleet: str | None = None,
 ) -> Written:
     """An event near a user: open an episode and decide the robot's first action."""
     digest = body_hash(body)
     validate.check_episode(ctx.mission, body)
-    user = _lock_or_create(session, ctx, principal, user_id)
-    earlier = episodes_repo.by_event(session, user_id, body.event_id)
+    user = _lock_or_create(session, ctx, principal, user_id, fleet)
+    earlier = episodes_repo.by_event(session, user.id, body.event_id)
     if earlier is not None:
         request_hash, response = earlier
         if request_hash != digest:
             raise Conflict(f"event_id {body.event_id!r} was already used with another body.")
-        return Written(response, 200, True)
+        return Written(response, 200, True, fleet=user.fleet)
 
     slot = ctx.mission.slot_at(body.occurred_at.timetz().replace(tzinfo=None))
     context = ctx.mission.context_index(slot, body.situation)
-    model = models_repo.head(session, user_id)
+    model = models_repo.head(session, user.id)
     if model is None:  # every user is created with its model; only a broken database lacks it
-        raise RuntimeError(f"user {user_id!r} has no model row")
-    learner = load_learner(session, ctx, user_id, model, for_write=True)
+        raise RuntimeError(f"user {user.fleet}/{user_id} has no model row")
+    learner = load_learner(session, ctx, user.id, model, for_write=True)
     user.episode_count += 1
     request = body.request
     episode = EpisodeRow(
-        id=_new_id("ep_"), user_id=user_id, seq=user.episode_count,
+        id=_new_id("ep_"), user_pk=user.id, seq=user.episode_count,
         learner_episode=user.episode_count + model.episode_offset, event_id=body.event_id,
         robot_id=body.robot_id, occurred_at=body.occurred_at.astimezone(dt.UTC),
         time_slot=slot, situation=body.situation, context=context, initiator=body.initiator,
@@ -248,7 +262,7 @@ def start_episode(
     with batch(session):  # writes only: one round trip on PostgreSQL
         episodes_repo.insert_episode(session, episode)  # before its decisions, which refer to it
         _store(session, ctx, step, model)
-    return Written(out, 201, False)
+    return Written(out, 201, False, fleet=user.fleet)
 
 
 def report_outcome(
@@ -256,12 +270,7 @@ def report_outcome(
 ) -> Written:
     """What the person did after the robot's action: reward, learning, the next decision."""
     digest = body_hash(body)
-    user = users_repo.lock_owner(session, episode_id)
-    loaded = episodes_repo.load_for_outcome(session, episode_id) if user is not None else None
-    if user is None or loaded is None or (not principal.is_admin
-                                          and user.fleet != principal.fleet):
-        raise _not_found_episode(episode_id)
-    episode, model, current = loaded
+    user, episode, model, current = _locked_owner(session, principal, episode_id)
     row = current if current is not None and current.id == body.decision_id \
         else episodes_repo.decision(session, episode_id, body.decision_id)
     if row is not None and row.outcome_hash is not None:
@@ -277,7 +286,7 @@ def report_outcome(
         )
     space = ctx.space
     validate.check_outcome(space, row.action, body)
-    learner = load_learner(session, ctx, user.user_id, model, for_write=True)
+    learner = load_learner(session, ctx, user.id, model, for_write=True)
     step = _Negotiation(ctx, user, episode, learner, model.version, position=row.position + 1)
     named = body.response in ("human_request", "answered")
     reward = step.answer(row, response=body.response,
@@ -301,7 +310,7 @@ def report_outcome(
         episodes_repo.save_answer(session, row)
         episodes_repo.save_episode(session, episode)
         _store(session, ctx, step, model)
-    return Written(out, 200, False, space.actions[row.action].kind.value)
+    return Written(out, 200, False, space.actions[row.action].kind.value, user.fleet)
 
 
 def add_feedback(
@@ -310,12 +319,7 @@ def add_feedback(
     """Explicit feedback on an episode, during or after it: it rewards the episode's last
     answered step, in history and (if the model still holds that step) in the model."""
     digest = body_hash(body)
-    user = users_repo.lock_owner(session, episode_id)
-    loaded = episodes_repo.load_for_outcome(session, episode_id) if user is not None else None
-    if user is None or loaded is None or (not principal.is_admin
-                                          and user.fleet != principal.fleet):
-        raise _not_found_episode(episode_id)
-    episode, model, _ = loaded
+    user, episode, model, _ = _locked_owner(session, principal, episode_id)
     earlier = episodes_repo.feedback(session, episode_id, body.feedback_id)
     if earlier is not None:
         if earlier.request_hash != digest:
@@ -330,15 +334,15 @@ def add_feedback(
     target = answered[-1]
     reward = feedback_reward(ctx.mission.rewards, body.feedback)
     # The model takes it if it learned the step (not if it was reset or replaced since).
-    if models_repo.has_transition(session, user.user_id, episode=episode.learner_episode,
+    if models_repo.has_transition(session, user.id, episode=episode.learner_episode,
                                   action=target.action, after_version=model.base_version):
-        learner = load_learner(session, ctx, user.user_id, model, for_write=True)
-        sample = SampleRow(user.user_id, 0, "feedback", episode.learner_episode,
+        learner = load_learner(session, ctx, user.id, model, for_write=True)
+        sample = SampleRow(user.id, 0, "feedback", episode.learner_episode,
                            episode.context, target.state, target.action, reward, None, 0)
         try:
-            save_learner(session, ctx, user.user_id, model, learner, [sample])
+            save_learner(session, ctx, user.id, model, learner, [sample])
         except ValueError:  # the learner no longer holds the sample: history keeps it
-            save_learner(session, ctx, user.user_id, model, learner, [])
+            save_learner(session, ctx, user.id, model, learner, [])
     episode.total_reward += reward
     out = {"reward": reward, "episode": brief(ctx.space, episode)}
     episodes_repo.save_episode(session, episode)

@@ -1,0 +1,320 @@
+"""The migration to fleets with ids of their own, on a database filled by the release before it.
+
+The previous release (the commit before the one that added this migration) is taken from git
+and served as it was: `attune serve` of that code, on a fresh database, filled through its HTTP
+API with what a deployment holds (two fleets' keys, users with history, explicit feedback, a
+reset in the middle of a history, an imported model, admin actions in the audit log). Then this
+code upgrades the database, and every row, every model version and every figure must be as it
+was, every user's model must rebuild identically (its past decisions redrawn from the same
+seeds), the service must go on serving them, and the downgrade must work while user ids are
+still unique across fleets (and say which ids are not, when they are not).
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import os
+import signal
+import subprocess
+import sys
+import tarfile
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import httpx
+import pytest
+from alembic import command
+from fastapi.testclient import TestClient
+from sqlalchemy import create_engine, text
+
+from app.db import migrate
+from app.main import create_app
+from app.services.context import ServiceContext
+from app.services.models import rebuild_model
+from app.settings import Settings
+from tests.live import free_port, fresh_database
+
+pytestmark = [pytest.mark.slow]
+
+REPO = Path(__file__).resolve().parents[2]
+MIGRATION = "migrations/versions/2026-11-30-1200_fleets_are_tenants.py"
+BEFORE = "5b7e1c2d9a40"  # the revision the previous release ends at
+USER_TABLES = ("learner_models", "episodes", "samples")
+
+
+def _git(*args: str) -> str:
+    return subprocess.run(["git", *args], cwd=REPO, capture_output=True, text=True,
+                          check=True).stdout.strip()
+
+
+def _previous_release() -> str:
+    """The commit before the one that added this migration (HEAD while it is not committed)."""
+    added = _git("log", "--diff-filter=A", "--format=%H", "--", MIGRATION).splitlines()
+    return f"{added[-1]}^" if added else "HEAD"
+
+
+@pytest.fixture(scope="module")
+def old_code(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The previous release's ``app`` and ``migrations``, as git has them."""
+    folder = tmp_path_factory.mktemp("previous-release")
+    archive = folder / "release.tar"
+    subprocess.run(["git", "archive", "--format=tar", "-o", str(archive), _previous_release(),
+                    "app", "migrations"], cwd=REPO, check=True)
+    with tarfile.open(archive) as tar:
+        tar.extractall(folder, filter="data")
+    head = migrate.head_revision()
+    assert head != BEFORE
+    assert (folder / "migrations" / "versions").is_dir()
+    return folder
+
+
+class OldService:
+    """``attune serve`` of the previous release, on ``url`` (its own code first on the path)."""
+
+    def __init__(self, code: Path, url: str, log: Path) -> None:
+        self.code, self.url, self.log = code, url, log
+        self.port = free_port()
+        self.base = f"http://127.0.0.1:{self.port}"
+        self.env = {**os.environ, "ATTUNE_DATABASE_URL": url, "ATTUNE_SEED": "0",
+                    "ATTUNE_LOG_LEVEL": "warning", "PYTHONPATH": str(code)}
+        self.process: subprocess.Popen[bytes] | None = None
+
+    def attune(self, *args: str) -> str:
+        done = subprocess.run(
+            [sys.executable, "-c", "import sys; from app.cli import main; "
+             "sys.argv[0] = 'attune'; main()", *args],
+            cwd=self.code, env=self.env, capture_output=True, text=True, timeout=120,
+            check=False)
+        assert done.returncode == 0, done.stderr
+        return done.stdout
+
+    def __enter__(self) -> OldService:
+        with open(self.log, "wb") as out:
+            self.process = subprocess.Popen(
+                [sys.executable, "-c", "import sys; from app.cli import main; "
+                 "sys.argv[0] = 'attune'; main()", "serve", "--port", str(self.port)],
+                cwd=self.code, env=self.env, stdout=out, stderr=subprocess.STDOUT,
+                start_new_session=True)
+        deadline = time.monotonic() + 90
+        while True:
+            assert self.process.poll() is None, self.log.read_text()
+            try:
+                if httpx.get(f"{self.base}/readyz", timeout=2).status_code == 200:
+                    return self
+            except httpx.TransportError:
+                pass
+            assert time.monotonic() < deadline, self.log.read_text()
+            time.sleep(0.2)
+
+    def __exit__(self, *exc: object) -> None:
+        assert self.process is not None
+        os.killpg(self.process.pid, signal.SIGTERM)
+        self.process.wait(timeout=30)
+
+
+DETAIL = {"ProvideDrink": "tea", "BriefInformation": "news", "ArrangeSchedule": "today_agenda"}
+SITUATIONS = ("arriving", "working", "stretching")
+
+
+def _play(api: httpx.Client, user: str, event: str, n: int) -> str:
+    """One episode of ``user`` to its end, as a cooperative person; its id."""
+    hour = (7, 12, 15, 19)[n % 4]
+    started = api.post(f"/v1/users/{user}/episodes", json={
+        "event_id": event, "occurred_at": f"2026-11-{1 + n % 28:02d}T{hour:02d}:10:00+08:00",
+        "situation": SITUATIONS[n % 3], "initiator": "robot", "robot_id": "r1"})
+    assert started.status_code == 201, started.text
+    episode = started.json()
+    decision = episode["decision"]
+    while decision is not None:
+        kind = decision["action"]["kind"]
+        body: dict[str, Any] = {"decision_id": decision["decision_id"]}
+        if kind == "pass":
+            body.update(response="human_request", service="ProvideDrink") if n % 3 else \
+                body.update(response="none")
+        elif kind == "query_type":
+            body.update(response="answered", service="BriefInformation")
+        elif kind == "query_detail":
+            body.update(response="answered", detail=DETAIL[decision["action"]["service"]])
+        else:
+            body["response"] = "rejected" if n % 5 == 4 else "accepted"
+        answered = api.post(f"/v1/episodes/{episode['episode_id']}/outcomes", json=body)
+        assert answered.status_code == 200, answered.text
+        decision = answered.json()["decision"]
+    return str(episode["episode_id"])
+
+
+def _fill(old: OldService) -> dict[str, Any]:
+    """What a deployment holds, made through the previous release's API; the names used."""
+    keys = {name: old.attune("keys", "create", "--role", role, "--fleet", fleet).split()[-1]
+            for name, role, fleet in (("robot_a", "robot", "north"), ("robot_b", "robot", "south"),
+                                      ("admin", "admin", "default"))}
+    clients = {name: httpx.Client(base_url=old.base, timeout=30,
+                                  headers={"Authorization": f"Bearer {key}"})
+               for name, key in keys.items()}
+    users = {"north": ["lin", "chen", "room-12"], "south": ["ana", "bo"]}
+    try:
+        n = 0
+        for fleet, ids in users.items():
+            api = clients["robot_a" if fleet == "north" else "robot_b"]
+            for uid in ids:
+                assert api.put(f"/v1/users/{uid}", json={"display_name": uid.title()}
+                               ).status_code == 201
+                for _ in range(9):
+                    episode = _play(api, uid, f"{uid}-e{n}", n)
+                    n += 1
+                    if n % 4 == 0:  # explicit feedback after the episode
+                        assert api.post(f"/v1/episodes/{episode}/feedback", json={
+                            "feedback_id": f"fb-{n}", "feedback": "positive"}).status_code == 200
+        admin = clients["admin"]
+        assert admin.delete("/v1/users/chen/model").status_code == 204  # a reset mid-history
+        for i in range(3):
+            _play(clients["robot_a"], "chen", f"chen-after-{i}", n + i)
+        doc = admin.get("/v1/users/lin/model/export")
+        assert doc.status_code == 200
+        assert admin.put("/v1/users/bo/model", json=doc.json()).status_code == 200  # imported
+        _play(clients["robot_b"], "bo", "bo-after-import", 99)
+        assert admin.put("/v1/users/dts-user", json={
+            "learner": {"algorithm": "dts"}}).status_code == 201
+        for i in range(4):
+            _play(admin, "dts-user", f"dts-{i}", i)
+        old.attune("keys", "revoke", old.attune("keys", "list", "--json").split('"id": "')[1]
+                   .split('"')[0])
+    finally:
+        for c in clients.values():
+            c.close()
+    users["default"] = ["dts-user"]
+    return {"keys": keys, "users": users}
+
+
+def _api_view(api: Any, users: dict[str, list[str]], *, fleet_param: bool) -> dict[str, Any]:
+    """Every figure the API shows of every user: the user, its model, stats, episodes and their
+    traces, and the audit log."""
+    view: dict[str, Any] = {}
+    for fleet, ids in users.items():
+        for uid in ids:
+            q = {"fleet": fleet} if fleet_param else {}
+            user = api.get(f"/v1/users/{uid}", params=q).json()
+            model = api.get(f"/v1/users/{uid}/model", params=q).json()
+            stats = api.get(f"/v1/users/{uid}/stats", params=q).json()
+            episodes = api.get(f"/v1/users/{uid}/episodes", params={**q, "limit": 500}).json()
+            traces = []
+            for ep in episodes["items"]:
+                trace = api.get(f"/v1/episodes/{ep['episode_id']}").json()
+                trace.pop("fleet", None)  # the new release names the fleet in traces
+                traces.append(trace)
+            for ep in episodes["items"]:
+                ep.pop("fleet", None)
+            view[f"{fleet}/{uid}"] = {"user": user, "model": model, "stats": stats,
+                                      "episodes": episodes["items"], "traces": traces}
+    view["audit"] = api.get("/v1/admin/audit", params={"limit": 500}).json()["items"]
+    return view
+
+
+def _rows(url: str, user_key: str) -> dict[str, list[tuple[Any, ...]]]:
+    """Every row of every table, sorted; a user's rows name it by (fleet, user id) instead of
+    the key of the schema in force (``user_key``: ``user_id`` before, ``id`` after), and the
+    users' own key and seed key (new) are left out."""
+    engine = create_engine(url)
+    out: dict[str, list[tuple[Any, ...]]] = {}
+    try:
+        with engine.connect() as conn:
+            owner = {r[0]: (r[1], r[2]) for r in conn.execute(text(
+                f"SELECT {user_key}, fleet, user_id FROM users"))}
+            for table in ("users", *USER_TABLES, "decisions", "feedback", "api_keys",
+                          "audit_log"):
+                result = conn.execute(text(f"SELECT * FROM {table}"))
+                rows = []
+                for row in result.mappings():
+                    d = dict(row)
+                    if table == "users":
+                        d.pop("id", None)
+                        d.pop("seed_key", None)
+                    elif table in USER_TABLES:
+                        d["user"] = owner[d.pop("user_pk" if "user_pk" in d else "user_id")]
+                    rows.append(tuple(sorted((k, _plain(v)) for k, v in d.items())))
+                out[table] = sorted(rows, key=repr)
+    finally:
+        engine.dispose()
+    return out
+
+
+def _plain(value: Any) -> Any:
+    if isinstance(value, dt.datetime):
+        return value.replace(tzinfo=None).isoformat()
+    return value
+
+
+@pytest.fixture(params=["sqlite", "postgresql"])
+def filled(request: pytest.FixtureRequest, old_code: Path, tmp_path: Path
+           ) -> Iterator[tuple[str, dict[str, Any], dict[str, Any], dict[str, Any]]]:
+    """A database at the previous release's head, filled through its API: (url, names, what
+    its API showed, its rows)."""
+    with fresh_database(request.param, tmp_path) as url:
+        url = Settings(database_url=url, _env_file=None).database_url  # type: ignore[call-arg]
+        old = OldService(old_code, url, tmp_path / "old.log")
+        with old:
+            names = _fill(old)
+            admin = httpx.Client(base_url=old.base, timeout=30, headers={
+                "Authorization": f"Bearer {names['keys']['admin']}"})
+            with admin:
+                before = _api_view(admin, names["users"], fleet_param=False)
+        engine = create_engine(url)
+        try:
+            assert migrate.current_revision(engine) == BEFORE
+        finally:
+            engine.dispose()
+        rows = _rows(url, "user_id")
+        yield url, names, before, rows
+
+
+def test_the_upgrade_keeps_every_row_figure_and_decision(
+        filled: tuple[str, dict[str, Any], dict[str, Any], dict[str, Any]]) -> None:
+    url, names, before, rows_before = filled
+    migrate.upgrade(url)
+    assert _rows(url, "id") == rows_before
+
+    settings = Settings(database_url=url, seed=0, _env_file=None)  # type: ignore[call-arg]
+    app = create_app(settings)
+    try:
+        admin_key = names["keys"]["admin"]
+        with TestClient(app, headers={"Authorization": f"Bearer {admin_key}"}) as admin:
+            after = _api_view(admin, names["users"], fleet_param=True)
+            assert after == before
+            # The existing users keep their seeds: every past decision redraws identically.
+            ctx = ServiceContext.from_settings(settings)
+            from app.services import audit as audit_service
+
+            for fleet, ids in names["users"].items():
+                for uid in ids:
+                    with app.state.db.transaction() as session:
+                        report = rebuild_model(session, ctx, audit_service.CLI, uid,
+                                               fleet=fleet)
+                    assert report.identical, (fleet, uid, report.mismatched_decisions)
+                    assert report.decisions > 0
+            # The service goes on: the same robots serve their users; a second fleet may now
+            # have a user of an id the first has.
+            robot_b = {"Authorization": f"Bearer {names['keys']['robot_b']}"}
+            assert admin.put("/v1/users/lin", json={}, headers=robot_b).status_code == 201
+            assert admin.get("/v1/users/lin", headers=robot_b).json()["fleet"] == "south"
+            assert admin.get("/v1/users/lin", params={"fleet": "north"}).json()["episodes"] == \
+                before["north/lin"]["user"]["episodes"]
+    finally:
+        app.state.db.dispose()
+
+    # Down again, while ids are unique across fleets: refused at first, then done.
+    cfg = migrate.alembic_config(url)
+    with pytest.raises(RuntimeError, match=r"lin"):
+        command.downgrade(cfg, BEFORE)
+    app = create_app(settings)
+    try:
+        with TestClient(app, headers={"Authorization": f"Bearer {admin_key}"}) as admin:
+            assert admin.delete("/v1/users/lin", params={"fleet": "south"}).status_code == 204
+    finally:
+        app.state.db.dispose()
+    command.downgrade(cfg, BEFORE)
+    assert _rows(url, "user_id")["episodes"] == rows_before["episodes"]
+    migrate.upgrade(url)
+    assert _rows(url, "id")["samples"] == rows_before["samples"]
+
