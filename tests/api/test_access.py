@@ -26,9 +26,10 @@ from app.main import create_app
 from app.services import auth
 from app.services.auth import list_keys, revoke_key
 from app.settings import Settings
+from tests.support.contract import assert_error
+from tests.support.fixtures import MakeKey, ManualClock
 
-from .conftest import MakeKey, ManualClock
-from .helpers import assert_error, event, start
+from .helpers import event, start
 
 # Every route that needs a key: (method, path, body).
 USER_ROUTES = [

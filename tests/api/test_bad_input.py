@@ -12,35 +12,13 @@ from fastapi.testclient import TestClient
 
 from app.db.session import Database
 from app.services.auth import list_keys, revoke_key
+from tests.support.contract import assert_error
 
 from .helpers import event, start
 
 TEA = {"service": "ProvideDrink", "detail": "tea"}
 LIMIT = 64 * 1024
 SITUATIONS = ("arriving", "working", "stretching", "busy")
-
-
-def assert_error(r: Any, status: int | tuple[int, ...], name: str | None = None
-                 ) -> dict[str, Any]:
-    statuses = status if isinstance(status, tuple) else (status,)
-    assert r.status_code in statuses, r.text
-    assert r.headers["content-type"].startswith("application/json")
-    body: dict[str, Any] = r.json()
-    assert set(body) <= {"error", "detail", "fields", "request_id"}
-    assert body["request_id"] == r.headers["x-request-id"]
-    assert isinstance(body["error"], str)
-    assert body["error"]
-    assert isinstance(body["detail"], str)
-    assert body["detail"]
-    assert "Traceback" not in r.text
-    if name is not None:
-        assert body["error"] == name
-    names = {400: "BadRequest", 401: "Unauthorized", 403: "Forbidden", 404: "NotFound",
-             409: "Conflict", 413: "PayloadTooLarge", 415: "UnsupportedMediaType",
-             422: "ValidationError"}
-    if r.status_code in names:
-        assert body["error"] == names[r.status_code]
-    return body
 
 
 def state(client: TestClient, ep: dict[str, Any]) -> tuple[Any, ...]:

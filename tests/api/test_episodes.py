@@ -11,7 +11,9 @@ from typing import Any
 import pytest
 from fastapi.testclient import TestClient
 
-from .helpers import answer, assert_error, event, start
+from tests.support.contract import assert_error
+
+from .helpers import answer, event, start
 
 EXPECTS = {
     "initiate": ["accepted", "rejected", "terminated"],

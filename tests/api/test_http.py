@@ -12,8 +12,10 @@ import pytest
 from fastapi import FastAPI
 from fastapi.testclient import TestClient
 
-from .conftest import MakeKey
-from .helpers import assert_error, event, start
+from tests.support.contract import assert_error
+from tests.support.fixtures import MakeKey
+
+from .helpers import event, start
 
 TEA = {"service": "ProvideDrink", "detail": "tea"}
 # Headers that differ between two answers to the same request, whatever the method.

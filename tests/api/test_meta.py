@@ -7,6 +7,8 @@ from typing import Any
 import pytest
 from fastapi.testclient import TestClient
 
+from tests.support.contract import assert_error
+
 from .helpers import answer, start
 
 CONTRACT = {
@@ -27,14 +29,6 @@ CONTRACT = {
 OPEN = {"/healthz", "/readyz", "/metrics"}
 ADMIN = {("delete", "/v1/users/{user_id}"), ("delete", "/v1/users/{user_id}/model"),
          ("get", "/v1/users/{user_id}/model/export"), ("put", "/v1/users/{user_id}/model")}
-
-
-def assert_error(r: Any, status: int, name: str) -> None:
-    assert r.status_code == status, r.text
-    body = r.json()
-    assert body["error"] == name
-    assert isinstance(body["detail"], str)
-    assert body["detail"]
 
 
 class TestHealth:

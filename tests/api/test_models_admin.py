@@ -8,7 +8,9 @@ from typing import Any
 import pytest
 from fastapi.testclient import TestClient
 
-from .helpers import answer, assert_error, start
+from tests.support.contract import assert_error
+
+from .helpers import answer, start
 
 TEA = {"service": "ProvideDrink", "detail": "tea"}
 ACTION_KEYS = {"action", "q", "visits", "kept_visits", "since_last", "measure", "p"}

@@ -7,7 +7,9 @@ from typing import Any
 import pytest
 from fastapi.testclient import TestClient
 
-from .helpers import answer, assert_error, start
+from tests.support.contract import assert_error
+
+from .helpers import answer, start
 
 
 class TestPutUser:

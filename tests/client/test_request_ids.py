@@ -12,7 +12,9 @@ import anyio
 import attune_client as a
 import pytest
 
-from tests.live import LiveService, fresh_database
+from tests.support.live import LiveService, fresh_database
+
+pytestmark = pytest.mark.live
 
 
 @pytest.fixture(scope="module")

@@ -28,8 +28,9 @@ from app.learning import office_mission
 from app.main import create_app
 from app.services.context import LearnerCache
 from app.settings import Settings
-from tests.live import LiveService, fresh_database, serving
-from tests.stress.helpers import make_keys
+from tests.support.live import LiveService, fresh_database, make_keys, serving
+
+pytestmark = pytest.mark.live
 
 SETTINGS = hypothesis.settings(
     max_examples=40, deadline=None, derandomize=True, database=None,

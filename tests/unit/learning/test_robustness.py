@@ -28,16 +28,12 @@ from app.learning import (
     learner_from_state,
     load_mission,
     make_learner,
-    office_mission,
     space_for,
 )
 from app.learning.learners import HriLearner
 from app.learning.simulation import UserProfile, event_stream, respond
+from tests.support.office import END, ENGAGED, INITIATE, MISSION, OBS, PASS, S
 
-MISSION = office_mission()
-S = space_for(MISSION)
-OBS, END, ENGAGED = S.OBSERVE, S.END, S.ENGAGED
-INITIATE, PASS = S.INITIATE, S.PASS
 ALGORITHMS = ["hri", "rmax", "qlearning", "dts"]
 
 

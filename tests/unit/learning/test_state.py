@@ -23,14 +23,11 @@ from app.learning import (
     learner_from_state,
     make_learner,
     office_mission,
-    space_for,
 )
 from app.learning.learners import TabularLearner
 from app.learning.simulation import STEP_COLUMNS, random_profile, respond
 from app.learning.state import FORMAT, FORMAT_VERSION, decode_array, encode_array, same_state
-
-MISSION = office_mission()
-S = space_for(MISSION)
+from tests.support.office import MISSION, S
 
 
 def drive(lr: TabularLearner[Any], episodes: int, seed: int, *, own_policy: bool) -> None:
