@@ -12,6 +12,7 @@ import asyncio
 import dataclasses
 import datetime as dt
 import gc
+import hmac
 import warnings
 from collections.abc import Iterator
 from typing import Any
@@ -21,7 +22,9 @@ from fastapi import FastAPI
 from fastapi.testclient import TestClient
 
 from app.api.middleware import InFlightLimitMiddleware, KeyRateLimiter
+from app.db.repositories import keys as keys_repo
 from app.db.session import Database
+from app.errors import Unauthorized
 from app.main import create_app
 from app.services import auth
 from app.services.auth import list_keys, revoke_key
@@ -371,21 +374,21 @@ class TestKeyCheck:
             assert auth.authenticate(session, f"Bearer {secret}").role == "robot"
             [key] = list_keys(session)
             stranger = dataclasses.replace(key, secret_hash="0" * 64)
-            monkeypatch.setattr(auth.repo, "by_hash", lambda *_: stranger)
-            with pytest.raises(auth.Unauthorized):
+            monkeypatch.setattr(keys_repo, "by_hash", lambda *_: stranger)
+            with pytest.raises(Unauthorized):
                 auth.authenticate(session, f"Bearer {secret}")
 
     def test_compared_in_constant_time(self, monkeypatch: pytest.MonkeyPatch, db: Database,
                                        make_key: MakeKey) -> None:
         secret = make_key("robot")
         seen: list[tuple[str, str]] = []
-        real = auth.hmac.compare_digest
+        real = hmac.compare_digest
 
         def spy(a: str, b: str) -> bool:
             seen.append((a, b))
             return real(a, b)
 
-        monkeypatch.setattr(auth.hmac, "compare_digest", spy)
+        monkeypatch.setattr(hmac, "compare_digest", spy)
         with db.transaction() as session:
             auth.authenticate(session, f"Bearer {secret}")
         assert seen == [(auth.hash_secret(secret), auth.hash_secret(secret))]

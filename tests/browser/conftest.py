@@ -17,7 +17,7 @@ from typing import Any
 
 import httpx
 import pytest
-from playwright.sync_api import Browser, Page, Response, sync_playwright
+from playwright.sync_api import Browser, Page, Response, ViewportSize, sync_playwright
 
 from app.db.session import Database
 from app.services.auth import create_key, revoke_key
@@ -35,7 +35,8 @@ CHROMIUM_ARGS = [
     "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
     "--disable-background-networking", "--disable-component-update", "--disable-sync",
 ]
-VIEWPORTS = {"desktop": {"width": 1280, "height": 800}, "tablet": {"width": 800, "height": 1200}}
+VIEWPORTS: dict[str, ViewportSize] = {"desktop": {"width": 1280, "height": 800},
+                                     "tablet": {"width": 800, "height": 1200}}
 
 LIN_NEEDS = {("afternoon", "stretching"): ("ProvideDrink", "tea"),
              ("morning", "arriving"): ("BriefInformation", "news"),

@@ -27,8 +27,9 @@ def live(tmp_path_factory: pytest.TempPathFactory) -> Iterator[LiveService]:
 
 
 def _access_line(service: LiveService, request_id: str) -> dict[str, object]:
-    lines = [json.loads(line) for line in Path(service.log_path).read_text().splitlines()
-             if line.startswith("{")]
+    lines: list[dict[str, object]] = [
+        json.loads(line) for line in Path(service.log_path).read_text().splitlines()
+        if line.startswith("{")]
     [found] = [line for line in lines
                if line["logger"] == "attune.access" and line.get("request_id") == request_id]
     return found

@@ -95,15 +95,15 @@ def test_fleet_against_a_live_service(engine: str, workers: int, tmp_path: Path)
 
         # Every episode was played by a fleet robot and closed; the robots shared the people.
         robots_seen: set[str] = set()
-        headers = {"Authorization": f"Bearer {key}"}
+        auth = {"Authorization": f"Bearer {key}"}
         r = httpx.get(f"{service.url}/v1/users/{user_ids[0]}/episodes", params={"limit": 100},
-                      headers=headers, timeout=30)
+                      headers=auth, timeout=30)
         items = r.json()["items"]
         assert len(items) == EVENTS
         for item in items:
             assert item["status"] == "closed"
             trace = httpx.get(f"{service.url}/v1/episodes/{item['episode_id']}",
-                              headers=headers, timeout=30).json()
+                              headers=auth, timeout=30).json()
             robots_seen.add(trace["robot_id"])
         assert robots_seen <= {f"sim-robot-{i}" for i in range(1, ROBOTS + 1)}
         assert len(robots_seen) > 1
@@ -171,7 +171,9 @@ def test_a_difference_between_service_and_robots_is_reported() -> None:
     found = _differences(service, {**service, "total_reward": 3.5, "queries_per_mission": 0.0})
     assert len(found) == 2
     assert any(line.startswith("total_reward") for line in found)
-    assert not math.isnan(service["total_reward"])
+    total = service["total_reward"]
+    assert total is not None
+    assert not math.isnan(total)
 
 
 @pytest.mark.live

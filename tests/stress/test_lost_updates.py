@@ -11,9 +11,9 @@ import httpx
 import pytest
 from sqlalchemy import create_engine, text
 
-import app.services.episodes.write as episodes_write
 from app.db import migrate
 from app.main import create_app
+from app.services.learners import save_learner
 from app.settings import Settings
 from tests.support.live import LiveService, fresh_database, make_keys, serving
 
@@ -69,7 +69,7 @@ def _in_process_run(url: str, *, clients: int = 8) -> tuple[list[str], Workload,
 
 def test_the_check_reports_a_lost_model_update(monkeypatch: pytest.MonkeyPatch) -> None:
     """Break the update path: every 4th write is acknowledged, but its learning is not saved."""
-    real = episodes_write.save_learner
+    real = save_learner  # what the write path calls
     calls = {"n": 0}
 
     def lossy_save_learner(*args: object, **kwargs: object) -> None:
@@ -78,7 +78,7 @@ def test_the_check_reports_a_lost_model_update(monkeypatch: pytest.MonkeyPatch) 
             return  # the write's transitions never reach the model or the journal
         real(*args, **kwargs)  # type: ignore[arg-type]
 
-    monkeypatch.setattr(episodes_write, "save_learner", lossy_save_learner)
+    monkeypatch.setattr("app.services.episodes.write.save_learner", lossy_save_learner)
     with fresh_database("sqlite") as url:
         findings, _, _ = _in_process_run(url)
     assert calls["n"] >= 8

@@ -201,7 +201,7 @@ class TestMissionInput:
             name="tiny",
             time_slots=[TimeSlot("day", time(0, 0), time(0, 0))],  # type: ignore[arg-type]
             situations=["here"],  # type: ignore[arg-type]
-            services=[Service("Tea", ["green"])],  # type: ignore[arg-type, list-item]
+            services=[Service("Tea", ["green"])],  # type: ignore[arg-type]
         )
         assert isinstance(mission.situations, tuple)
         assert isinstance(mission.services[0].details, tuple)

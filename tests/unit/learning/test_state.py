@@ -272,9 +272,9 @@ def test_same_state_compares_arrays_by_content() -> None:
     assert same_state(original, recompressed)
 
     changed = copy.deepcopy(original)
-    raw = bytearray(zlib.decompress(base64.b64decode(changed["arrays"]["visits"]["data"])))
-    raw[0] ^= 1
-    changed["arrays"]["visits"]["data"] = base64.b64encode(zlib.compress(bytes(raw))).decode()
+    flipped = bytearray(zlib.decompress(base64.b64decode(changed["arrays"]["visits"]["data"])))
+    flipped[0] ^= 1
+    changed["arrays"]["visits"]["data"] = base64.b64encode(zlib.compress(bytes(flipped))).decode()
     assert not same_state(original, changed)
 
     later = copy.deepcopy(original)
