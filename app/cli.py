@@ -2,8 +2,9 @@
 
 One Typer app with a sub-app per area: ``attune experiment ...`` reproduces the paper's
 experiments; ``attune serve``, ``attune db ...``, ``attune keys ...`` and ``attune models ...``
-run and administer the service (``app.commands.service``); ``attune fleet simulate`` plays
-simulated robots and people against a running service (``app.commands.fleet``).
+run and administer the service (``app.commands.serve``, ``db``, ``keys``, ``models``); ``attune
+fleet simulate`` plays simulated robots and people against a running service
+(``app.commands.fleet``).
 """
 
 from __future__ import annotations
@@ -17,15 +18,18 @@ from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
+from app.commands import db as db_commands
 from app.commands import fleet as fleet_commands
-from app.commands import service as service_commands
+from app.commands import keys as keys_commands
+from app.commands import models as models_commands
+from app.commands import serve as serve_command
 from app.commands._extras import require
 from app.commands._output import print_json, stderr_console, stdout_console
 
 if TYPE_CHECKING:  # the commands import these when they run; --help needs none of them
     from rich.console import Console
 
-    from app.learning.experiments import Method, Protocol
+    from app.learning.evaluation import Method, Protocol
 
 __all__ = ["app", "experiment", "main", "version"]
 
@@ -71,10 +75,10 @@ experiment = typer.Typer(
     no_args_is_help=True,
 )
 app.add_typer(experiment, name="experiment")
-app.command("serve")(service_commands.serve)
-app.add_typer(service_commands.db, name="db")
-app.add_typer(service_commands.keys, name="keys")
-app.add_typer(service_commands.models, name="models")
+app.command("serve")(serve_command.serve)
+app.add_typer(db_commands.db, name="db")
+app.add_typer(keys_commands.keys, name="keys")
+app.add_typer(models_commands.models, name="models")
 app.add_typer(fleet_commands.fleet, name="fleet")
 
 SeedsOption = Annotated[
@@ -202,8 +206,9 @@ def paper(
 ) -> None:
     """Run E1/E2, E3 and PA for the paper's methods and write the reports."""
     require("matplotlib", "experiments", "attune experiment")
-    from app.experiments.report import print_table2, write_paper_report
-    from app.learning.experiments import E1E2, E3, PA, PAPER_METHODS
+    from app.experiments.outputs import write_paper_report
+    from app.experiments.text import print_table2
+    from app.learning.evaluation import E1E2, E3, PA, PAPER_METHODS
 
     console = stderr_console()
     results, info = _run(console, PAPER_METHODS, (E1E2, E3, PA), seeds, users, jobs, progress,
@@ -239,8 +244,9 @@ def ablation(
 ) -> None:
     """Run the HRI ablations on E3 and PA and write the reports."""
     require("matplotlib", "experiments", "attune experiment")
-    from app.experiments.report import print_metrics_table, write_ablation_report
-    from app.learning.experiments import ABLATION_METHODS, E3, PA
+    from app.experiments.outputs import write_ablation_report
+    from app.experiments.text import print_metrics_table
+    from app.learning.evaluation import ABLATION_METHODS, E3, PA
 
     console = stderr_console()
     results, info = _run(console, ABLATION_METHODS, (E3, PA), seeds, users, jobs, progress,

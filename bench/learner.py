@@ -34,7 +34,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from app.learning import ALGORITHMS, Observation, Transition, make_learner, office_mission  # noqa: E402
-from app.learning.experiments import _seq, run_user, user_profiles  # noqa: E402
+from app.learning.evaluation import _seq, run_user, user_profiles  # noqa: E402
 from app.learning.simulation import STEP_COLUMNS, event_stream, respond  # noqa: E402
 
 TARGET_MS = 0.5

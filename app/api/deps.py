@@ -21,6 +21,7 @@ from anyio import to_thread
 from fastapi import Depends, Header, Request, Response, params
 from fastapi.concurrency import run_in_threadpool
 from fastapi.routing import APIRoute
+from sqlalchemy.orm import Session
 
 from app import logs
 from app.db.session import Database
@@ -30,7 +31,11 @@ from app.services.context import KeyCache, Principal, ServiceContext
 
 from .middleware import KeyRateLimiter
 
-__all__ = ["CurrentPrincipal", "TransactionalRoute", "principal_of", "writes"]
+__all__ = ["CurrentPrincipal", "RequestSession", "TransactionalRoute", "inline", "principal_of",
+           "writes"]
+
+RequestSession = Session
+"""The annotation of an endpoint's ``session`` parameter (the route class gives it)."""
 
 _WRITES = {"POST", "PUT", "PATCH", "DELETE"}
 _WRITE_MARK = "__attune_writes__"

@@ -1,1 +1,2 @@
-"""Service commands of the ``attune`` CLI: serve, db, keys, models."""
+"""Commands of the ``attune`` CLI, one module per command group: serve, db, keys, models and
+fleet (``_setup`` holds what the service's commands share)."""

@@ -19,9 +19,8 @@ from fastapi import APIRouter, Query, Request, Response
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import HTMLResponse, JSONResponse, RedirectResponse
 from fastapi.templating import Jinja2Templates
-from sqlalchemy.orm import Session
 
-from app.api.deps import TransactionalRoute, writes
+from app.api.deps import RequestSession, TransactionalRoute, writes
 from app.api.errors import validation_detail
 from app.errors import AppError
 from app.schemas.common import CLIENT_ID_PATTERN, MAX_POSITION
@@ -187,7 +186,7 @@ def logout(request: Request, form: FormDep) -> Response:
 # -- users -----------------------------------------------------------------------------------
 @router.get("/users")
 def users_page(
-    request: Request, session: Session, admin: AdminDep,
+    request: Request, session: RequestSession, admin: AdminDep,
     q: Annotated[str | None, Query(max_length=200)] = None,
     page: Annotated[int, Query(ge=1, le=1_000_000)] = 1,
     per_page: Annotated[int, Query(ge=5, le=200)] = 25,
@@ -202,7 +201,7 @@ def users_page(
 
 @router.get("/users/{user_id}")
 def user_page(
-    request: Request, user_id: str, session: Session, ctx: ServiceContext, admin: AdminDep,
+    request: Request, user_id: str, session: RequestSession, ctx: ServiceContext, admin: AdminDep,
     last: Annotated[int, Query(ge=1, le=1_000_000)] = console_service.RECENT_EPISODES,
     done: Annotated[str | None, Query(max_length=32)] = None,
 ) -> HTMLResponse:
@@ -222,7 +221,7 @@ def user_page(
 
 @router.get("/users/{user_id}/why")
 def why_page(
-    request: Request, user_id: str, session: Session, ctx: ServiceContext, admin: AdminDep,
+    request: Request, user_id: str, session: RequestSession, ctx: ServiceContext, admin: AdminDep,
     time_slot: Annotated[str | None, Query(max_length=64)] = None,
     situation: Annotated[str | None, Query(max_length=64)] = None,
 ) -> HTMLResponse:
@@ -248,7 +247,7 @@ def why_page(
 
 @router.get("/users/{user_id}/episodes")
 def episodes_page(
-    request: Request, user_id: str, session: Session, ctx: ServiceContext, admin: AdminDep,
+    request: Request, user_id: str, session: RequestSession, ctx: ServiceContext, admin: AdminDep,
     before: Annotated[int | None, Query(ge=1, le=MAX_POSITION)] = None,
     at: Annotated[int | None, Query(ge=1, le=MAX_POSITION - 1)] = None,
     per_page: Annotated[int, Query(ge=5, le=200)] = 25,
@@ -273,7 +272,7 @@ def episodes_page(
 
 @router.get("/users/{user_id}/episodes/{episode_id}/trace")
 def trace_fragment(
-    request: Request, user_id: str, episode_id: str, session: Session, ctx: ServiceContext,
+    request: Request, user_id: str, episode_id: str, session: RequestSession, ctx: ServiceContext,
     admin: AdminDep,
 ) -> HTMLResponse:
     """One episode's trace, as an HTML fragment for the episode list."""
@@ -290,7 +289,7 @@ def trace_fragment(
 # dependency opens a write transaction for the routes of that name.
 @router.get("/users/{user_id}/export")
 @writes  # an export is an admin action: it leaves an audit entry
-def export_model(user_id: str, session: Session, ctx: ServiceContext,
+def export_model(user_id: str, session: RequestSession, ctx: ServiceContext,
                  admin: AdminDep) -> JSONResponse:
     """Download the model document of GET /v1/users/{id}/model/export."""
     _check_user_id(user_id)
@@ -310,7 +309,7 @@ _ACTIONS = {
 }
 
 
-def _confirm(request: Request, session: Session, admin: Admin, user_id: str,
+def _confirm(request: Request, session: RequestSession, admin: Admin, user_id: str,
              action: str) -> HTMLResponse:
     _check_user_id(user_id)
     user = users_service.get_user(session, admin.principal, user_id)
@@ -322,14 +321,14 @@ def _confirm(request: Request, session: Session, admin: Admin, user_id: str,
 
 
 @router.get("/users/{user_id}/reset")
-def reset_confirm(request: Request, user_id: str, session: Session,
+def reset_confirm(request: Request, user_id: str, session: RequestSession,
                   admin: AdminDep) -> HTMLResponse:
     """Ask before resetting a user's model."""
     return _confirm(request, session, admin, user_id, "reset")
 
 
 @router.post("/users/{user_id}/reset")
-def reset(request: Request, user_id: str, session: Session, ctx: ServiceContext,
+def reset(request: Request, user_id: str, session: RequestSession, ctx: ServiceContext,
           admin: AdminDep, form: FormDep) -> RedirectResponse:
     """Reset the user's model (as DELETE /v1/users/{id}/model), keeping the history."""
     _check_user_id(user_id)
@@ -339,14 +338,14 @@ def reset(request: Request, user_id: str, session: Session, ctx: ServiceContext,
 
 
 @router.get("/users/{user_id}/delete")
-def delete_confirm(request: Request, user_id: str, session: Session,
+def delete_confirm(request: Request, user_id: str, session: RequestSession,
                    admin: AdminDep) -> HTMLResponse:
     """Ask before deleting a user."""
     return _confirm(request, session, admin, user_id, "delete")
 
 
 @router.post("/users/{user_id}/delete")
-def delete(request: Request, user_id: str, session: Session, ctx: ServiceContext,
+def delete(request: Request, user_id: str, session: RequestSession, ctx: ServiceContext,
            admin: AdminDep, form: FormDep) -> RedirectResponse:
     """Delete the user with its history and model (as DELETE /v1/users/{id})."""
     _check_user_id(user_id)

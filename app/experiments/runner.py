@@ -24,7 +24,7 @@ from rich.progress import (
 )
 
 from app.learning import office_mission
-from app.learning.experiments import Method, Protocol, RunResult, run
+from app.learning.evaluation import Method, Protocol, RunResult, run
 
 __all__ = ["Job", "JobError", "default_workers", "jobs_for", "run_job", "run_jobs"]
 

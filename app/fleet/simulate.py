@@ -24,7 +24,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from app.learning import Action, ActionKind, Interaction, Mission, NegotiationSpace
-from app.learning.experiments import episode_metrics
+from app.learning.evaluation import episode_metrics
 from app.learning.negotiation import INTERACTION_CODE, Tally
 from app.learning.simulation import STEP_COLUMNS, UserProfile, drift, event_stream, random_profile
 from app.learning.simulation import respond as person_responds

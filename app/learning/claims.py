@@ -2,7 +2,7 @@
 
 Each check returns a :class:`Claim` with the numbers it was decided on, so a report can say
 plainly which claims our reconstruction reproduces and which it does not. Method labels are
-those of ``experiments.PAPER_METHODS``.
+those of ``evaluation.PAPER_METHODS``.
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .experiments import RunResult, summarize
+from .evaluation import RunResult, summarize
 
 __all__ = ["Claim", "check_claims", "recovery_event"]
 

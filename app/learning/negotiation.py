@@ -19,6 +19,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from enum import StrEnum
 from types import MappingProxyType
+from typing import NamedTuple
 
 from .mission import Rewards
 from .space import ActionKind, NegotiationSpace
@@ -64,8 +65,7 @@ INTERACTION_CODE: Mapping[Interaction, int] = MappingProxyType({
 """Small integer codes of the classes, for tables of many episodes (0 is no interaction)."""
 
 
-@dataclass(frozen=True, slots=True)
-class Outcome:
+class Outcome(NamedTuple):
     """What a response means: the step's reward, the state it leads to, and its signal (the
     polarity of the person's reaction: accepted or answered positive, rejected or terminated
     negative, nothing neutral)."""

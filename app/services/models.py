@@ -15,7 +15,7 @@ from app.db.repositories import users as users_repo
 from app.db.repositories.models import ModelRow
 from app.errors import ValidationFailed
 from app.learning import Observation, StateFormatError, learner_from_state
-from app.learning.experiments import episode_metrics
+from app.learning.evaluation import episode_metrics
 from app.learning.learners import TabularLearner
 from app.learning.negotiation import INTERACTION_CODE
 from app.learning.state import same_state

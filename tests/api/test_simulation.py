@@ -28,7 +28,7 @@ from app.db.models import Decision, Episode
 from app.db.session import Database
 from app.fleet.simulate import state_before
 from app.learning import Action, ActionKind, Transition, office_mission, space_for
-from app.learning.experiments import episode_metrics
+from app.learning.evaluation import episode_metrics
 from app.learning.negotiation import INTERACTION_CODE, interaction_class
 from app.learning.simulation import (
     STEP_COLUMNS,

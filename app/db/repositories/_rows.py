@@ -8,17 +8,41 @@ built once, at import: SQLAlchemy caches their compiled form, and building them 
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from contextlib import contextmanager
 from dataclasses import fields
 from typing import Any, TypeVar
 
 from sqlalchemy import Connection, Dialect, Table
+from sqlalchemy.exc import DBAPIError
 from sqlalchemy.orm import Session
 from sqlalchemy.sql import ClauseElement
 
-__all__ = ["Prepared", "columns", "conn", "names", "record", "table", "values"]
+__all__ = ["Prepared", "batch", "columns", "conn", "names", "record", "table", "values"]
 
 T = TypeVar("T")
+
+
+@contextmanager
+def batch(session: Session) -> Iterator[None]:
+    """Statements whose results nobody reads, sent together: on PostgreSQL in one pipeline
+    (one round trip for all of them, their errors raised at the end of the block); on SQLite,
+    which has no round trips, one after the other as usual."""
+    connection = session.connection()
+    driver: Any = connection.connection.driver_connection
+    dialect = connection.dialect
+    if dialect.name != "postgresql":
+        yield
+        return
+    try:
+        with driver.pipeline():
+            yield
+    except dialect.loaded_dbapi.Error as exc:  # raised when the pipeline syncs
+        lost = dialect.is_disconnect(exc, connection.connection.dbapi_connection, None)
+        if lost:
+            connection.invalidate(exc)
+        raise DBAPIError.instance(None, None, exc, dialect.loaded_dbapi.Error,
+                                  connection_invalidated=lost, dialect=dialect) from exc
 
 
 def conn(session: Session) -> Connection:
@@ -51,7 +75,7 @@ def values(rec: Any, which: tuple[str, ...]) -> dict[str, Any]:
 
 
 _Convert = Callable[[Any], Any] | None
-_DRIVER = "attune_driver"  # session.info: (its transaction, the driver's connection, dialect)
+_DRIVER = "attune_driver"  # session.info: (its transaction, its connection)
 
 
 def _convert(f: _Convert, value: Any) -> Any:
@@ -124,52 +148,54 @@ class Prepared:
             self._compiled[key] = found
         return found[1]
 
-    def _cursor(self, session: Session) -> tuple[Any, Dialect]:
+    def _execute(self, session: Session, params: Mapping[str, Any] | list[Mapping[str, Any]],
+                 fetch: int) -> list[tuple[Any, ...]]:
+        """Run on the session's driver connection; ``fetch``: 0 nothing, 1 the first row, 2
+        every row. A driver error leaves as SQLAlchemy's own (``DataError``, ``IntegrityError``,
+        ``OperationalError``...), and a lost connection is invalidated, as SQLAlchemy does."""
         transaction = session.get_transaction()
         found = session.info.get(_DRIVER)
         if found is None or transaction is None or found[0] is not transaction:
-            connection = session.connection()
-            found = (session.get_transaction(), connection.connection.driver_connection,
-                     connection.dialect)
+            found = (session.get_transaction(), session.connection())
             session.info[_DRIVER] = found
-        cursor = found[1].cursor()  # type: ignore[union-attr]
-        return cursor, found[2]
+        connection: Connection = found[1]
+        dialect = connection.dialect
+        rows: list[Mapping[str, Any]] = params if isinstance(params, list) else [params]
+        compiled = self._for(dialect, rows[0])
+        driver: Any = connection.connection.driver_connection
+        cursor = driver.cursor()
+        try:
+            if isinstance(params, list):
+                cursor.executemany(compiled.sql, [compiled.args(p) for p in rows])
+                return []
+            cursor.execute(compiled.sql, compiled.args(params))
+            if fetch == 0:
+                return []
+            processors = compiled.processors(cursor)
+            if fetch == 1:
+                raw = cursor.fetchone()
+                return [] if raw is None else [compiled.row(processors, raw)]
+            return [compiled.row(processors, raw) for raw in cursor.fetchall()]
+        except dialect.loaded_dbapi.Error as exc:
+            lost = dialect.is_disconnect(exc, connection.connection.dbapi_connection, cursor)
+            if lost:
+                connection.invalidate(exc)
+            raise DBAPIError.instance(compiled.sql, params, exc, dialect.loaded_dbapi.Error,
+                                      connection_invalidated=lost, dialect=dialect) from exc
+        finally:
+            cursor.close()
 
     def first(self, session: Session, params: Mapping[str, Any]) -> tuple[Any, ...] | None:
-        cursor, dialect = self._cursor(session)
-        compiled = self._for(dialect, params)
-        try:
-            cursor.execute(compiled.sql, compiled.args(params))
-            raw = cursor.fetchone()
-            return None if raw is None else compiled.row(compiled.processors(cursor), raw)
-        finally:
-            cursor.close()
+        rows = self._execute(session, params, 1)
+        return rows[0] if rows else None
 
     def all(self, session: Session, params: Mapping[str, Any]) -> list[tuple[Any, ...]]:
-        cursor, dialect = self._cursor(session)
-        compiled = self._for(dialect, params)
-        try:
-            cursor.execute(compiled.sql, compiled.args(params))
-            processors = compiled.processors(cursor)
-            return [compiled.row(processors, raw) for raw in cursor.fetchall()]
-        finally:
-            cursor.close()
+        return self._execute(session, params, 2)
 
     def run(self, session: Session, params: Mapping[str, Any]) -> None:
-        cursor, dialect = self._cursor(session)
-        compiled = self._for(dialect, params)
-        try:
-            cursor.execute(compiled.sql, compiled.args(params))
-        finally:
-            cursor.close()
+        self._execute(session, params, 0)
 
     def run_many(self, session: Session, rows: Iterable[Mapping[str, Any]]) -> None:
-        rows = list(rows)
-        if not rows:
-            return
-        cursor, dialect = self._cursor(session)
-        compiled = self._for(dialect, rows[0])
-        try:
-            cursor.executemany(compiled.sql, [compiled.args(r) for r in rows])
-        finally:
-            cursor.close()
+        many = list(rows)
+        if many:
+            self._execute(session, many, 0)

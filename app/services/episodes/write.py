@@ -16,6 +16,7 @@ from typing import Any
 
 from sqlalchemy.orm import Session
 
+from app.db.repositories import batch
 from app.db.repositories import episodes as episodes_repo
 from app.db.repositories import models as models_repo
 from app.db.repositories import users as users_repo
@@ -244,8 +245,9 @@ def start_episode(
         "decision": decision_out(ctx.space, decision),
     }
     episode.response = out
-    episodes_repo.insert_episode(session, episode)  # before its decisions, which reference it
-    _store(session, ctx, step, model)
+    with batch(session):  # writes only: one round trip on PostgreSQL
+        episodes_repo.insert_episode(session, episode)  # before its decisions, which refer to it
+        _store(session, ctx, step, model)
     return Written(out, 201, False)
 
 
@@ -295,9 +297,10 @@ def report_outcome(
     out = {"reward": reward, "episode": brief(space, episode),
            "decision": decision_out(space, decision) if decision is not None else None}
     row.outcome_hash, row.outcome_response = digest, out
-    episodes_repo.save_answer(session, row)
-    episodes_repo.save_episode(session, episode)
-    _store(session, ctx, step, model)
+    with batch(session):  # writes only: one round trip on PostgreSQL
+        episodes_repo.save_answer(session, row)
+        episodes_repo.save_episode(session, episode)
+        _store(session, ctx, step, model)
     return Written(out, 200, False, space.actions[row.action].kind.value)
 
 

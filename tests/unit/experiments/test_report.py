@@ -14,9 +14,10 @@ import pytest
 from typer.testing import CliRunner
 
 from app.cli import app
-from app.experiments.report import CSV_COLUMNS, cumulative_curve
+from app.experiments.outputs import CSV_COLUMNS
 from app.experiments.runner import Job, jobs_for, run_jobs
-from app.learning.experiments import ABLATION_METHODS, E3, PA, PAPER_METHODS, RunResult
+from app.experiments.statistics import cumulative_curve
+from app.learning.evaluation import ABLATION_METHODS, E3, PA, PAPER_METHODS, RunResult
 
 SEEDS, USERS = 1, 2
 EVENTS = {"e1e2": 100, "e3": 100, "pa": 200}

@@ -13,7 +13,7 @@ import pytest
 
 from app.learning import office_mission
 from app.learning.claims import Claim, check_claims, recovery_event
-from app.learning.experiments import E1E2, E3, PAPER_METHODS, RunResult, run, summarize
+from app.learning.evaluation import E1E2, E3, PAPER_METHODS, RunResult, run, summarize
 
 SEEDS = range(8)
 

@@ -13,7 +13,7 @@ from app.learning import (
     ActionKind,
     Mission,
     Polarity,
-    experiments,
+    evaluation,
 )
 from app.learning.simulation import (
     Need,
@@ -150,7 +150,7 @@ class TestEventStream:
 def test_experiment_methods_share_contexts_and_coin_flips(monkeypatch: pytest.MonkeyPatch
                                                           ) -> None:
     seen: dict[str, list[tuple[np.ndarray, np.ndarray, list[UserProfile]]]] = {}
-    real = experiments.run_user
+    real = evaluation.run_user
 
     def spy(learner: Any, profiles: Any, points: Any, contexts: np.ndarray,
             uniforms: np.ndarray, agent: np.random.Generator) -> dict[str, np.ndarray]:
@@ -158,9 +158,9 @@ def test_experiment_methods_share_contexts_and_coin_flips(monkeypatch: pytest.Mo
             (contexts.copy(), uniforms.copy(), list(profiles)))
         return real(learner, profiles, points, contexts, uniforms, agent)
 
-    monkeypatch.setattr(experiments, "run_user", spy)
-    methods = [experiments.Method("R-MAX", "rmax"), experiments.Method("HRI", "hri")]
-    runs = [experiments.run(m, experiments.E1E2, 11, MISSION, n_users=3) for m in methods]
+    monkeypatch.setattr(evaluation, "run_user", spy)
+    methods = [evaluation.Method("R-MAX", "rmax"), evaluation.Method("HRI", "hri")]
+    runs = [evaluation.run(m, evaluation.E1E2, 11, MISSION, n_users=3) for m in methods]
     assert len(seen["rmax"]) == len(seen["hri"]) == 3
     for (ca, ua, pa), (cb, ub, pb) in zip(seen["rmax"], seen["hri"], strict=True):
         assert np.array_equal(ca, cb)
@@ -168,7 +168,7 @@ def test_experiment_methods_share_contexts_and_coin_flips(monkeypatch: pytest.Mo
         assert pa == pb
     assert not np.array_equal(seen["rmax"][0][0], seen["rmax"][1][0])  # users differ
     # Different protocols draw other streams, but the users' needs are the same.
-    e3 = experiments.run(methods[0], experiments.E3, 11, MISSION, n_users=1)
+    e3 = evaluation.run(methods[0], evaluation.E3, 11, MISSION, n_users=1)
     assert not np.array_equal(seen["rmax"][-1][0], seen["rmax"][0][0])
     assert seen["rmax"][-1][2] == seen["rmax"][0][2]
     assert e3.reward.shape == (1, 100)

@@ -1,4 +1,6 @@
-"""The paper's experiments (docs/method.md §12) as pure, seeded functions.
+"""How the learners are evaluated: the paper's experiments (docs/method.md §12) as pure, seeded
+functions, with the protocols (E1/E2, E3, PA), the methods compared, the per-user run loop and
+the paper's metrics. ``app.experiments`` runs them in parallel and writes the reports.
 
 A *run* is one method on one protocol with one seed: ``n_users`` simulated users, each with a
 fresh learner, each living through the protocol's event stream. Seeds are split so that methods
