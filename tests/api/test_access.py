@@ -83,6 +83,7 @@ def lin(robot: TestClient) -> dict[str, str]:
 ALL_ROUTES = USER_ROUTES + EPISODE_ROUTES + ADMIN_ROUTES + OPEN_ROUTES
 
 
+@pytest.mark.one_engine
 class TestNoKey:
     @pytest.mark.parametrize(("method", "path", "body"), ALL_ROUTES)
     def test_every_route_needs_a_key(self, client: TestClient, lin: dict[str, str],
@@ -168,6 +169,7 @@ class TestKeyCache:
 
 
 class TestRobotOnAdminRoutes:
+    @pytest.mark.one_engine
     @pytest.mark.parametrize(("method", "path", "body"), ADMIN_ROUTES)
     def test_forbidden(self, robot: TestClient, lin: dict[str, str], method: str, path: str,
                        body: Any) -> None:
@@ -240,6 +242,7 @@ def limited_app(settings: Settings, empty_tables: None) -> Iterator[FastAPI]:
     application.state.db.dispose()
 
 
+@pytest.mark.one_engine
 class TestRateLimit:
     def test_429_with_retry_after_per_key(self, limited_app: FastAPI) -> None:
         db: Database = limited_app.state.db
@@ -281,6 +284,7 @@ class TestRateLimit:
         assert "Retry-After" in r429["headers"]
 
 
+@pytest.mark.one_engine
 class TestOverload:
     def test_beyond_the_cap_answers_503_at_once(self) -> None:
         """Two requests held in flight; the third is refused immediately, probes still pass."""
@@ -354,6 +358,7 @@ def _middleware(application: FastAPI, kind: type) -> Any:
     return stack
 
 
+@pytest.mark.one_engine
 class TestBodyLimit:
     def test_413_over_the_limit(self, robot: TestClient) -> None:
         big = {**event("big-1"), "robot_id": "x" * (65 * 1024)}

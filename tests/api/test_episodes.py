@@ -211,12 +211,14 @@ class TestStartEpisode:
                                                         "perform")
             assert all(s["action"]["kind"] != "respond" for s in ep["decision"]["chain"])
 
+    @pytest.mark.one_engine
     def test_request_with_robot_initiator_is_422(self, robot: TestClient) -> None:
         r = robot.post("/v1/users/lin/episodes",
                        json=event("e1", initiator="robot", request=TEA))
         assert_error(r, 422, "ValidationError")
         assert robot.get("/v1/users/lin").status_code == 404
 
+    @pytest.mark.one_engine
     @pytest.mark.parametrize("request_", [
         {"service": "Massage"}, {"service": "ProvideDrink", "detail": "news"},
         {"detail": "tea"}, {"service": "ProvideDrink", "size": "large"},
@@ -318,6 +320,7 @@ class TestReportOutcome:
         for allowed in EXPECTS["initiate"]:
             assert allowed in body["detail"]
 
+    @pytest.mark.one_engine
     def test_unknown_response_word_is_422(self, robot: TestClient) -> None:
         ep = first(robot, "initiate", prefix="i")
         before = snapshot(robot, ep)
@@ -637,6 +640,7 @@ class TestFeedback:
                      404, "NotFound")
         assert snapshot(robot, ep) == before
 
+    @pytest.mark.one_engine
     @pytest.mark.parametrize("body", [
         {"feedback_id": "fb-1", "feedback": "great"},
         {"feedback_id": "fb 1", "feedback": "positive"},

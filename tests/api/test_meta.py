@@ -32,6 +32,7 @@ ADMIN = {("delete", "/v1/users/{user_id}"), ("delete", "/v1/users/{user_id}/mode
 
 
 class TestHealth:
+    @pytest.mark.one_engine
     def test_healthz_needs_no_key(self, client: TestClient) -> None:
         r = client.get("/healthz")
         assert r.status_code == 200
@@ -56,6 +57,7 @@ class TestHealth:
         assert r.json()["detail"].startswith("The database has no schema yet, not ")
         assert "attune db upgrade" in r.json()["detail"]
 
+    @pytest.mark.one_engine
     def test_health_ignores_a_bad_key(self, app: Any) -> None:
         with TestClient(app, headers={"Authorization": "Bearer nope"}) as c:
             assert c.get("/healthz").status_code == 200
@@ -98,6 +100,7 @@ class TestMetrics:
         assert decisions(client.get("/metrics").text) == once
 
 
+@pytest.mark.one_engine
 class TestMission:
     def test_needs_a_key(self, client: TestClient) -> None:
         assert_error(client.get("/v1/mission"), 401, "Unauthorized")
@@ -134,6 +137,7 @@ def _resolve(spec: dict[str, Any], node: dict[str, Any]) -> dict[str, Any]:
     return node
 
 
+@pytest.mark.one_engine
 class TestOpenApi:
     @pytest.fixture
     def spec(self, client: TestClient) -> dict[str, Any]:

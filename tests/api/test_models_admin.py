@@ -113,6 +113,7 @@ class TestGetModel:
         full = model(robot, "lin")
         assert one["contexts"][0] in full["contexts"]
 
+    @pytest.mark.one_engine
     @pytest.mark.parametrize(("query", "names"), [
         ({"time_slot": "dawn"}, ["morning", "noon", "afternoon", "evening"]),
         ({"situation": "sleeping"}, ["arriving", "working", "stretching", "busy"]),
@@ -290,6 +291,7 @@ class TestResetModel:
         served(robot, "lin", "e3")
         assert root(model(robot, "lin"))["pass"]["visits"] == 1
 
+    @pytest.mark.one_engine
     def test_robot_is_403_and_nothing_changes(self, robot: TestClient) -> None:
         served(robot, "lin", "e1")
         before = model(robot, "lin")

@@ -27,6 +27,9 @@ from tests.support.live import serving
 
 from .helpers import event
 
+# Request ids and log lines: the same on both engines.
+pytestmark = pytest.mark.one_engine
+
 FRESH = re.compile(r"^[0-9a-f]{32}$")
 
 

@@ -19,7 +19,7 @@ def _tables(url: str) -> set[str]:
         engine.dispose()
 
 
-def test_upgrade_check_downgrade_upgrade(database_url: str) -> None:
+def test_upgrade_check_downgrade_upgrade(database_url: str, empty_tables: None) -> None:
     cfg = migrate.alembic_config(database_url)
     command.check(cfg)  # raises if the models and the migrated schema differ
     assert _tables(database_url) == set(Base.metadata.tables)
