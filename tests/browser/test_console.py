@@ -23,7 +23,7 @@ from .people import (
     two,
 )
 
-pytestmark = pytest.mark.browser
+pytestmark = [pytest.mark.browser, pytest.mark.xdist_group("browser")]
 
 
 def _text(page: Page, selector: str) -> str:

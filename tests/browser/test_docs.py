@@ -13,7 +13,7 @@ from tests.support.live import LiveService, fresh_database
 
 from .conftest import OUTPUT
 
-pytestmark = pytest.mark.browser
+pytestmark = [pytest.mark.browser, pytest.mark.xdist_group("browser")]
 
 
 @pytest.fixture(scope="module")

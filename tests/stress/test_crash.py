@@ -15,7 +15,7 @@ from tests.support.live import LiveService, fresh_database, make_keys
 from .helpers import create_users, rebuild
 from .history import History, Workload, check_history
 
-pytestmark = pytest.mark.stress
+pytestmark = [pytest.mark.stress, pytest.mark.xdist_group("stress")]
 
 CLIENTS = 32
 KILL_AFTER = 150  # acknowledged writes before the SIGKILL

@@ -20,7 +20,7 @@ from tests.support.live import LiveService, fresh_database, make_keys, serving
 from .helpers import create_users, rebuild
 from .history import Workload, check_history
 
-pytestmark = pytest.mark.stress
+pytestmark = [pytest.mark.stress, pytest.mark.xdist_group("stress")]
 
 CLIENTS = 32
 
