@@ -11,6 +11,7 @@ from typing import Any
 import pytest
 from fastapi.testclient import TestClient
 
+from tests.support import people
 from tests.support.contract import assert_error
 
 from .helpers import answer, event, start
@@ -54,17 +55,8 @@ def first(client: TestClient, kind: str, *, prefix: str, initiator: str = "robot
 
 def positive(decision: dict[str, Any]) -> dict[str, Any]:
     """An outcome body that moves a decision on without ending the episode (if possible)."""
-    kind = decision["action"]["kind"]
-    body: dict[str, Any] = {"decision_id": decision["decision_id"]}
-    if kind == "pass":
-        body.update(response="human_request", service="ProvideDrink")
-    elif kind == "query_type":
-        body.update(response="answered", service="ProvideDrink")
-    elif kind == "query_detail":
-        body.update(response="answered", detail="tea")
-    else:
-        body.update(response="accepted")
-    return body
+    return {"decision_id": decision["decision_id"],
+            **people.answer(decision["action"], picky=False)}
 
 
 def outcome(client: TestClient, episode_id: str, body: dict[str, Any]) -> Any:
