@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import threading
@@ -134,9 +135,16 @@ def rng_for(seed: int, user_id: str, draw: int) -> np.random.Generator:
     Deriving it per decision (instead of carrying a generator's state) lets any worker draw the
     next decision and lets ``attune models rebuild`` redraw every past one.
     """
+    return np.random.Generator(np.random.PCG64(
+        np.random.SeedSequence(seed, spawn_key=(*_seed_words(user_id), draw))))
+
+
+@functools.lru_cache(maxsize=65536)
+def _seed_words(user_id: str) -> tuple[int, int, int, int]:
+    """Four 32-bit words of the SHA-256 of the user id (the user's part of the spawn key)."""
     digest = hashlib.sha256(user_id.encode("utf-8")).digest()
-    words = [int.from_bytes(digest[i : i + 4], "little") for i in range(0, 16, 4)]
-    return np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(*words, draw)))
+    a, b, c, d = (int.from_bytes(digest[i : i + 4], "little") for i in range(0, 16, 4))
+    return a, b, c, d
 
 
 def body_hash(model: BaseModel) -> str:

@@ -8,6 +8,7 @@ built once, at import: SQLAlchemy caches their compiled form, and building them 
 
 from __future__ import annotations
 
+import operator
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import fields
@@ -86,40 +87,54 @@ class _Compiled:
     """One statement compiled for one dialect, with SQLAlchemy's own conversions of its
     parameters and result columns for that dialect."""
 
-    __slots__ = ("sql", "order", "binds", "types", "dialect", "results")
+    __slots__ = ("sql", "order", "getter", "positional", "converts", "binds", "types", "dialect",
+                 "results")
 
     def __init__(self, stmt: ClauseElement, dialect: Dialect, keys: Sequence[str] | None) -> None:
         compiled: Any = stmt.compile(dialect=dialect, column_keys=list(keys) if keys else None)
         self.sql: str = str(compiled)
         procs: dict[str, _Convert] = dict(compiled._bind_processors)
-        # Positional drivers (sqlite3) take a tuple in this order; the others take a dict.
-        self.order: tuple[tuple[str, _Convert], ...] | None = (
-            tuple((name, procs.get(name)) for name in compiled.positiontup)
-            if compiled.positional else None)
         self.binds = procs
+        # Positional drivers (sqlite3) take a tuple in this order; the others take a dict.
+        self.positional: bool = bool(compiled.positional)
+        self.order: tuple[str, ...] = tuple(compiled.positiontup) if self.positional else ()
+        self.getter = operator.itemgetter(*self.order) if len(self.order) > 1 else None
+        self.converts: tuple[tuple[int, Callable[[Any], Any]], ...] = tuple(
+            (i, f) for i, name in enumerate(self.order) if (f := procs.get(name)) is not None)
         self.types = [entry.type for entry in compiled._result_columns]
         self.dialect = dialect
-        self.results: tuple[_Convert, ...] | None = None  # from the first result's description
+        self.results: tuple[tuple[int, Callable[[Any], Any]], ...] | None = None
 
     def args(self, params: Mapping[str, Any]) -> Any:
-        if self.order is not None:
-            return tuple(params[k] if f is None else _convert(f, params[k])
-                         for k, f in self.order)
-        binds = self.binds
-        return {k: _convert(binds.get(k), v) for k, v in params.items()}
+        if not self.positional:
+            binds = self.binds
+            return {k: _convert(binds.get(k), v) for k, v in params.items()}
+        if self.getter is None:
+            values = [params[name] for name in self.order]
+        else:
+            values = list(self.getter(params))
+        for i, f in self.converts:
+            if values[i] is not None:
+                values[i] = f(values[i])
+        return values
 
-    def processors(self, cursor: Any) -> tuple[_Convert, ...]:
-        """The result columns' conversions, which may depend on the driver's column types
-        (PostgreSQL numbers), known once a statement ran."""
+    def processors(self, cursor: Any) -> tuple[tuple[int, Callable[[Any], Any]], ...]:
+        """The result columns that need a conversion, with it: it may depend on the driver's
+        column types (PostgreSQL numbers), known once the statement ran."""
         if self.results is None:
-            self.results = tuple(
-                t._cached_result_processor(self.dialect, d[1])
-                for t, d in zip(self.types, cursor.description, strict=True))
+            found = (t._cached_result_processor(self.dialect, d[1])
+                     for t, d in zip(self.types, cursor.description, strict=True))
+            self.results = tuple((i, f) for i, f in enumerate(found) if f is not None)
         return self.results
 
-    def row(self, processors: tuple[_Convert, ...], raw: Sequence[Any]) -> tuple[Any, ...]:
-        return tuple(v if f is None or v is None else f(v)
-                     for f, v in zip(processors, raw, strict=True))
+    @staticmethod
+    def row(processors: tuple[tuple[int, Callable[[Any], Any]], ...], raw: Sequence[Any]
+            ) -> list[Any]:
+        values = list(raw)
+        for i, f in processors:
+            if values[i] is not None:
+                values[i] = f(values[i])
+        return values
 
 
 class Prepared:
@@ -149,7 +164,7 @@ class Prepared:
         return found[1]
 
     def _execute(self, session: Session, params: Mapping[str, Any] | list[Mapping[str, Any]],
-                 fetch: int) -> list[tuple[Any, ...]]:
+                 fetch: int) -> list[list[Any]]:
         """Run on the session's driver connection; ``fetch``: 0 nothing, 1 the first row, 2
         every row. A driver error leaves as SQLAlchemy's own (``DataError``, ``IntegrityError``,
         ``OperationalError``...), and a lost connection is invalidated, as SQLAlchemy does."""
@@ -185,11 +200,11 @@ class Prepared:
         finally:
             cursor.close()
 
-    def first(self, session: Session, params: Mapping[str, Any]) -> tuple[Any, ...] | None:
+    def first(self, session: Session, params: Mapping[str, Any]) -> list[Any] | None:
         rows = self._execute(session, params, 1)
         return rows[0] if rows else None
 
-    def all(self, session: Session, params: Mapping[str, Any]) -> list[tuple[Any, ...]]:
+    def all(self, session: Session, params: Mapping[str, Any]) -> list[list[Any]]:
         return self._execute(session, params, 2)
 
     def run(self, session: Session, params: Mapping[str, Any]) -> None:
