@@ -28,11 +28,10 @@ import sys
 import tempfile
 import time
 from pathlib import Path
-from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-import httpx2  # noqa: E402
+import httpx  # noqa: E402
 from rich.console import Console  # noqa: E402
 from rich.progress import track  # noqa: E402
 from rich.table import Table  # noqa: E402
@@ -44,7 +43,8 @@ from app.schemas.users import UserIn  # noqa: E402
 from app.services import episodes, users  # noqa: E402
 from app.services.context import Principal, ServiceContext  # noqa: E402
 from app.settings import Settings  # noqa: E402
-from tests.live import LiveService, fresh_database  # noqa: E402
+from tests.support.live import LiveService, fresh_database  # noqa: E402
+from tests.support.people import answer  # noqa: E402
 
 CHROMIUM = "/usr/bin/chromium"
 CHROMIUM_ARGS = [
@@ -60,31 +60,6 @@ NEEDS = {("afternoon", "stretching"): ("ProvideDrink", "tea"),
          ("morning", "working"): ("ArrangeSchedule", "today_agenda")}
 
 out = Console()
-
-
-def _answer(rnd: random.Random, need: tuple[str, str] | None, busy: bool,
-            action: dict[str, Any], decision_id: str) -> OutcomeIn:
-    """A person who wants ``need`` here: accepts offers then, answers truthfully, says no to
-    the wrong service, sometimes asks first; rejects everything while busy."""
-    kind = action["kind"]
-    if kind == "initiate":
-        ok = need is not None and not busy and rnd.random() < 0.95
-        return OutcomeIn(decision_id=decision_id, response="accepted" if ok else "rejected")
-    if kind == "pass":
-        if need is not None and rnd.random() < 0.5:
-            return OutcomeIn(decision_id=decision_id, response="human_request", service=need[0])
-        return OutcomeIn(decision_id=decision_id, response="none")
-    if kind == "query_type":
-        if need is None:
-            return OutcomeIn(decision_id=decision_id, response="terminated")
-        return OutcomeIn(decision_id=decision_id, response="answered", service=need[0])
-    if kind == "query_detail":
-        if need is None or action.get("service") != need[0]:
-            return OutcomeIn(decision_id=decision_id, response="terminated")
-        return OutcomeIn(decision_id=decision_id, response="answered", detail=need[1])
-    right = need is not None and (action.get("service"), action.get("detail")) == need
-    return OutcomeIn(decision_id=decision_id,
-                     response="accepted" if right and rnd.random() < 0.95 else "rejected")
 
 
 def build(database_url: str, n_episodes: int, n_users: int) -> None:
@@ -116,8 +91,9 @@ def build(database_url: str, n_episodes: int, n_users: int) -> None:
                         robot_id="robot7")).body
                     decision = body["decision"]
                     while decision is not None:
-                        outcome = _answer(rnd, need, situation == "busy", decision["action"],
-                                          decision["decision_id"])
+                        outcome = OutcomeIn(decision_id=decision["decision_id"], **answer(
+                            decision["action"], need=need, busy=situation == "busy", rng=rnd,
+                            yes=0.95, asks=0.5))
                         decision = episodes.report_outcome(
                             session, ctx, who, body["episode_id"], outcome).body["decision"]
     finally:
@@ -131,7 +107,7 @@ def _stats(samples: list[float]) -> tuple[float, float, float]:
 def time_server(base: str, key: str, pages: dict[str, str], runs: int
                 ) -> dict[str, list[float]]:
     found: dict[str, list[float]] = {}
-    with httpx2.Client(base_url=base, cookies={"attune_console": key}, timeout=60) as client:
+    with httpx.Client(base_url=base, cookies={"attune_console": key}, timeout=60) as client:
         for name, path in pages.items():
             client.get(path)  # warm-up: the worker's caches, the connection
             found[name] = []
@@ -192,8 +168,8 @@ def main() -> None:
                   f"on {args.engine} in {time.perf_counter() - t:.0f} s.")
         with LiveService(url, log_path=Path(tmp) / "serve.log") as service:
             key = service.create_key("admin", name="bench")
-            with httpx2.Client(base_url=service.url, timeout=60,
-                               headers={"Authorization": f"Bearer {key}"}) as api:
+            with httpx.Client(base_url=service.url, timeout=60,
+                              headers={"Authorization": f"Bearer {key}"}) as api:
                 latest = api.get(f"/v1/users/{USER}/episodes", params={"limit": 1}).json()
             episode_id = latest["items"][0]["episode_id"]
             pages = {

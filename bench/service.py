@@ -358,9 +358,9 @@ def server(kind: str, workers: int, workdir: Path, database_url: str = "",
         if profile is not None:
             profile.mkdir(parents=True, exist_ok=True)
             suffix = {"flamegraph": "svg", "speedscope": "json"}.get(profile_format, "txt")
-            out = profile / f"{Path(database_url.split('?')[0]).name or 'db'}-{port}.{suffix}"
+            graph = profile / f"{Path(database_url.split('?')[0]).name or 'db'}-{port}.{suffix}"
             cmd = [str(Path(sys.executable).with_name("py-spy")), "record", "--subprocesses",
-                   "--rate", "100", "--format", profile_format, "--output", str(out), "--", *cmd]
+                   "--rate", "100", "--format", profile_format, "--output", str(graph), "--", *cmd]
         probe = f"http://127.0.0.1:{port}/readyz"
     else:
         cmd = [sys.executable, __file__, "--serve-reference", str(port), str(workers)]

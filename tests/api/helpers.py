@@ -30,15 +30,3 @@ def answer(client: TestClient, episode_id: str, decision_id: str, response: str,
     assert r.status_code == 200, r.text
     body: dict[str, Any] = r.json()
     return body
-
-
-def assert_error(r: Any, status: int, name: str) -> dict[str, Any]:
-    """The response is the contract's error body with this status and error name."""
-    assert r.status_code == status, r.text
-    body: dict[str, Any] = r.json()
-    assert body["error"] == name
-    assert isinstance(body["detail"], str)
-    assert body["detail"]
-    assert set(body) <= {"error", "detail", "fields", "request_id"}
-    assert body["request_id"] == r.headers["x-request-id"]
-    return body

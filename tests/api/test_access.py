@@ -12,6 +12,7 @@ import asyncio
 import dataclasses
 import datetime as dt
 import gc
+import hmac
 import warnings
 from collections.abc import Iterator
 from typing import Any
@@ -21,14 +22,17 @@ from fastapi import FastAPI
 from fastapi.testclient import TestClient
 
 from app.api.middleware import InFlightLimitMiddleware, KeyRateLimiter
+from app.db.repositories import keys as keys_repo
 from app.db.session import Database
+from app.errors import Unauthorized
 from app.main import create_app
 from app.services import auth
 from app.services.auth import list_keys, revoke_key
 from app.settings import Settings
+from tests.support.contract import assert_error
+from tests.support.fixtures import MakeKey, ManualClock
 
-from .conftest import MakeKey, ManualClock
-from .helpers import assert_error, event, start
+from .helpers import event, start
 
 # Every route that needs a key: (method, path, body).
 USER_ROUTES = [
@@ -79,6 +83,7 @@ def lin(robot: TestClient) -> dict[str, str]:
 ALL_ROUTES = USER_ROUTES + EPISODE_ROUTES + ADMIN_ROUTES + OPEN_ROUTES
 
 
+@pytest.mark.one_engine
 class TestNoKey:
     @pytest.mark.parametrize(("method", "path", "body"), ALL_ROUTES)
     def test_every_route_needs_a_key(self, client: TestClient, lin: dict[str, str],
@@ -164,6 +169,7 @@ class TestKeyCache:
 
 
 class TestRobotOnAdminRoutes:
+    @pytest.mark.one_engine
     @pytest.mark.parametrize(("method", "path", "body"), ADMIN_ROUTES)
     def test_forbidden(self, robot: TestClient, lin: dict[str, str], method: str, path: str,
                        body: Any) -> None:
@@ -236,6 +242,7 @@ def limited_app(settings: Settings, empty_tables: None) -> Iterator[FastAPI]:
     application.state.db.dispose()
 
 
+@pytest.mark.one_engine
 class TestRateLimit:
     def test_429_with_retry_after_per_key(self, limited_app: FastAPI) -> None:
         db: Database = limited_app.state.db
@@ -277,6 +284,7 @@ class TestRateLimit:
         assert "Retry-After" in r429["headers"]
 
 
+@pytest.mark.one_engine
 class TestOverload:
     def test_beyond_the_cap_answers_503_at_once(self) -> None:
         """Two requests held in flight; the third is refused immediately, probes still pass."""
@@ -350,6 +358,7 @@ def _middleware(application: FastAPI, kind: type) -> Any:
     return stack
 
 
+@pytest.mark.one_engine
 class TestBodyLimit:
     def test_413_over_the_limit(self, robot: TestClient) -> None:
         big = {**event("big-1"), "robot_id": "x" * (65 * 1024)}
@@ -370,21 +379,21 @@ class TestKeyCheck:
             assert auth.authenticate(session, f"Bearer {secret}").role == "robot"
             [key] = list_keys(session)
             stranger = dataclasses.replace(key, secret_hash="0" * 64)
-            monkeypatch.setattr(auth.repo, "by_hash", lambda *_: stranger)
-            with pytest.raises(auth.Unauthorized):
+            monkeypatch.setattr(keys_repo, "by_hash", lambda *_: stranger)
+            with pytest.raises(Unauthorized):
                 auth.authenticate(session, f"Bearer {secret}")
 
     def test_compared_in_constant_time(self, monkeypatch: pytest.MonkeyPatch, db: Database,
                                        make_key: MakeKey) -> None:
         secret = make_key("robot")
         seen: list[tuple[str, str]] = []
-        real = auth.hmac.compare_digest
+        real = hmac.compare_digest
 
         def spy(a: str, b: str) -> bool:
             seen.append((a, b))
             return real(a, b)
 
-        monkeypatch.setattr(auth.hmac, "compare_digest", spy)
+        monkeypatch.setattr(hmac, "compare_digest", spy)
         with db.transaction() as session:
             auth.authenticate(session, f"Bearer {secret}")
         assert seen == [(auth.hash_secret(secret), auth.hash_secret(secret))]

@@ -12,35 +12,13 @@ from fastapi.testclient import TestClient
 
 from app.db.session import Database
 from app.services.auth import list_keys, revoke_key
+from tests.support.contract import assert_error
 
 from .helpers import event, start
 
 TEA = {"service": "ProvideDrink", "detail": "tea"}
 LIMIT = 64 * 1024
 SITUATIONS = ("arriving", "working", "stretching", "busy")
-
-
-def assert_error(r: Any, status: int | tuple[int, ...], name: str | None = None
-                 ) -> dict[str, Any]:
-    statuses = status if isinstance(status, tuple) else (status,)
-    assert r.status_code in statuses, r.text
-    assert r.headers["content-type"].startswith("application/json")
-    body: dict[str, Any] = r.json()
-    assert set(body) <= {"error", "detail", "fields", "request_id"}
-    assert body["request_id"] == r.headers["x-request-id"]
-    assert isinstance(body["error"], str)
-    assert body["error"]
-    assert isinstance(body["detail"], str)
-    assert body["detail"]
-    assert "Traceback" not in r.text
-    if name is not None:
-        assert body["error"] == name
-    names = {400: "BadRequest", 401: "Unauthorized", 403: "Forbidden", 404: "NotFound",
-             409: "Conflict", 413: "PayloadTooLarge", 415: "UnsupportedMediaType",
-             422: "ValidationError"}
-    if r.status_code in names:
-        assert body["error"] == names[r.status_code]
-    return body
 
 
 def state(client: TestClient, ep: dict[str, Any]) -> tuple[Any, ...]:
@@ -59,6 +37,7 @@ def ep(robot: TestClient) -> dict[str, Any]:
     return start(robot, "lin", "seed", initiator="human", request=TEA)
 
 
+@pytest.mark.one_engine
 class TestEpisodeBodies:
     def test_unknown_situation_lists_the_situations(self, robot: TestClient,
                                                     ep: dict[str, Any]) -> None:
@@ -145,6 +124,7 @@ class TestEpisodeBodies:
 
 
 class TestOutcomeAndFeedbackBodies:
+    @pytest.mark.one_engine
     @pytest.mark.parametrize("body", [
         {},
         {"response": "accepted"},
@@ -165,6 +145,7 @@ class TestOutcomeAndFeedbackBodies:
         assert_error(r, 422, "ValidationError")
         assert state(robot, ep) == before
 
+    @pytest.mark.one_engine
     def test_malformed_outcome_json(self, robot: TestClient, ep: dict[str, Any]) -> None:
         before = state(robot, ep)
         r = robot.post(f"/v1/episodes/{ep['episode_id']}/outcomes", content=b"{\"decision",
@@ -180,6 +161,7 @@ class TestOutcomeAndFeedbackBodies:
         assert_error(r, (409, 422))
         assert state(robot, ep) == before
 
+    @pytest.mark.one_engine
     @pytest.mark.parametrize("body", [
         {}, {"feedback_id": "f1"}, {"feedback_id": "f1", "feedback": "good"},
         {"feedback_id": "f 1", "feedback": "positive"}, {"feedback_id": None,
@@ -229,6 +211,7 @@ class TestUserBodies:
             assert robot.get("/v1/users/lin").status_code == 404
 
 
+@pytest.mark.one_engine
 class TestBodyLimit:
     def test_content_length_over_the_limit_is_413(self, robot: TestClient,
                                                   ep: dict[str, Any]) -> None:
@@ -280,6 +263,7 @@ BAD_USER_IDS = ["a%20b", "x" * 129, "%C3%BC", "a%2Fb", "a%00b", "%22%3B--", "a*b
 
 
 class TestPathIds:
+    @pytest.mark.one_engine
     @pytest.mark.parametrize("uid", BAD_USER_IDS)
     def test_bad_user_ids_are_422(self, admin: TestClient, uid: str) -> None:
         routes: list[tuple[str, str, dict[str, Any] | None]] = [
@@ -311,6 +295,7 @@ class TestPathIds:
                                 json={"feedback_id": "f", "feedback": "positive"}), (404, 422))
         assert state(robot, ep) == before
 
+    @pytest.mark.one_engine
     @pytest.mark.parametrize("query", [
         "cursor=AA", "cursor=%C2%B2", "cursor=%00", "cursor=" + "x" * 300, "limit=1e3",
     ])
@@ -318,17 +303,20 @@ class TestPathIds:
         assert_error(robot.get(f"/v1/users?{query}"), 422, "ValidationError")
         assert_error(robot.get(f"/v1/users/lin/episodes?{query}"), 422, "ValidationError")
 
+    @pytest.mark.one_engine
     @pytest.mark.parametrize("query", ["time_slot=dawn", "situation=sleeping",
                                        "time_slot=%00", "situation=" + "x" * 100])
     def test_bad_model_filters(self, robot: TestClient, ep: dict[str, Any], query: str) -> None:
         assert_error(robot.get(f"/v1/users/lin/model?{query}"), 422, "ValidationError")
 
+    @pytest.mark.one_engine
     @pytest.mark.parametrize("query", ["last=0", "last=-3", "last=many"])
     def test_bad_stats_queries(self, robot: TestClient, ep: dict[str, Any], query: str) -> None:
         assert_error(robot.get(f"/v1/users/lin/stats?{query}"), 422, "ValidationError")
 
 
 class TestAuth:
+    @pytest.mark.one_engine
     @pytest.mark.parametrize("headers", [
         {}, {"Authorization": "Bearer att_nope"}, {"Authorization": "Basic xyz"},
         {"Authorization": "Bearer"}, {"Authorization": "Bearer "}, {"Authorization": "att_x"},
@@ -356,6 +344,7 @@ class TestAuth:
                 assert_error(anon.request(method, path, json=body), 401, "Unauthorized")
         assert state(robot, ep) == before
 
+    @pytest.mark.one_engine
     def test_401_on_episode_routes(self, client: TestClient, robot: TestClient,
                                    ep: dict[str, Any]) -> None:
         before = state(robot, ep)
@@ -368,6 +357,7 @@ class TestAuth:
             "feedback_id": "f", "feedback": "positive"}), 401, "Unauthorized")
         assert state(robot, ep) == before
 
+    @pytest.mark.one_engine
     def test_the_scheme_is_case_insensitive(self, app: FastAPI, make_key: Any) -> None:
         key = make_key("robot")
         with TestClient(app, headers={"Authorization": f"bearer {key}"}) as c:
@@ -395,6 +385,7 @@ class TestAuth:
             assert state(robot, ep) == before
         assert robot.get("/v1/users/lin").status_code == 200  # other keys still work
 
+    @pytest.mark.one_engine
     @pytest.mark.parametrize(("method", "path"), [
         ("DELETE", "/v1/users/lin"), ("DELETE", "/v1/users/lin/model"),
         ("GET", "/v1/users/lin/model/export"), ("PUT", "/v1/users/lin/model"),
@@ -407,6 +398,7 @@ class TestAuth:
         assert state(robot, ep) == before
 
 
+@pytest.mark.one_engine
 class TestUnknownRoutes:
     @pytest.mark.parametrize(("method", "path"), [
         ("GET", "/nope"), ("GET", "/v1/nope"), ("GET", "/v2/users"), ("POST", "/v1/things"),

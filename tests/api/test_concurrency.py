@@ -20,7 +20,7 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
 
-import httpx2
+import httpx
 from fastapi import FastAPI
 from sqlalchemy import func, select
 from typer.testing import CliRunner
@@ -28,13 +28,12 @@ from typer.testing import CliRunner
 from app import cli
 from app.db.models import Decision, Episode
 from app.db.session import Database
-from app.learning import office_mission
 from app.settings import Settings
-from tests.live import serving
+from tests.support import people
+from tests.support.fixtures import MakeKey
+from tests.support.live import serving
+from tests.support.office import MISSION
 
-from .conftest import MakeKey
-
-MISSION = office_mission()
 USERS = ("conc-a", "conc-b")
 PER_USER = 30
 THREADS = 8
@@ -60,13 +59,13 @@ class Record:
 
 class Robot:
     def __init__(self, base_url: str, key: str, seed: int, deadline: float) -> None:
-        self.http = httpx2.Client(base_url=base_url, timeout=60.0,
-                                  headers={"Authorization": f"Bearer {key}"})
+        self.http = httpx.Client(base_url=base_url, timeout=60.0,
+                                 headers={"Authorization": f"Bearer {key}"})
         self.rng = random.Random(seed)
         self.deadline = deadline
         self.rec = Record()
 
-    def post(self, url: str, body: dict[str, Any]) -> httpx2.Response:
+    def post(self, url: str, body: dict[str, Any]) -> httpx.Response:
         assert time.monotonic() < self.deadline, "past the deadline"
         r = self.http.post(url, json=body)
         self.rec.statuses.append((url, r.status_code, r.text if r.status_code >= 500 else ""))
@@ -91,27 +90,10 @@ class Robot:
         return first
 
     def respond(self, decision: dict[str, Any]) -> dict[str, Any]:
-        """Seeded answers that always run the episode to its end."""
-        action = decision["action"]
-        kind = action["kind"]
-        body: dict[str, Any] = {"decision_id": decision["decision_id"]}
-        if kind == "initiate":
-            body["response"] = "accepted"
-        elif kind == "pass":
-            if self.rng.random() < 0.5:
-                body.update(response="human_request", service="ProvideDrink")
-                if self.rng.random() < 0.5:
-                    body["detail"] = "tea"
-            else:
-                body["response"] = "none"
-        elif kind == "query_type":
-            body.update(response="answered", service="BriefInformation")
-        elif kind == "query_detail":
-            body.update(response="answered",
-                        detail=MISSION.service(action["service"]).details[0])
-        else:  # perform
-            body["response"] = "accepted" if self.rng.random() < 0.8 else "rejected"
-        return body
+        """Seeded answers of a cooperative person that always run the episode to its end."""
+        return {"decision_id": decision["decision_id"],
+                **people.answer(decision["action"], picky=False, rng=self.rng, asks=0.5,
+                                precise=0.5)}
 
     def episode(self, user_id: str, k: int) -> None:
         slot = list(SLOT_TIMES)[k % len(SLOT_TIMES)]
@@ -183,8 +165,8 @@ def test_concurrent_robots_with_retries_and_conflicts(
     deadline = began + DEADLINE_S
     with serving(app) as base_url:
         initial = {}
-        with httpx2.Client(base_url=base_url, timeout=60.0,
-                           headers={"Authorization": f"Bearer {keys[0]}"}) as http:
+        with httpx.Client(base_url=base_url, timeout=60.0,
+                          headers={"Authorization": f"Bearer {keys[0]}"}) as http:
             for user_id in USERS:
                 assert http.put(f"/v1/users/{user_id}", json={}).status_code == 201
                 initial[user_id] = http.get(f"/v1/users/{user_id}/model").json()["version"]
@@ -194,8 +176,8 @@ def test_concurrent_robots_with_retries_and_conflicts(
             records = [f.result(timeout=max(1.0, deadline - time.monotonic()))
                        for f in futures]
         driven = time.monotonic() - began
-        with httpx2.Client(base_url=base_url, timeout=60.0,
-                           headers={"Authorization": f"Bearer {keys[0]}"}) as http:
+        with httpx.Client(base_url=base_url, timeout=60.0,
+                          headers={"Authorization": f"Bearer {keys[0]}"}) as http:
             views = {}
             for user_id in USERS:
                 traces = []

@@ -12,8 +12,10 @@ import pytest
 from fastapi import FastAPI
 from fastapi.testclient import TestClient
 
-from .conftest import MakeKey
-from .helpers import assert_error, event, start
+from tests.support.contract import assert_error
+from tests.support.fixtures import MakeKey
+
+from .helpers import event, start
 
 TEA = {"service": "ProvideDrink", "detail": "tea"}
 # Headers that differ between two answers to the same request, whatever the method.
@@ -53,6 +55,7 @@ OTHER_PAGES = ["/docs", "/redoc", "/openapi.json", "/static/docs/redoc/LICENSE",
                "/admin/static/console.css"]
 
 
+@pytest.mark.one_engine
 class TestHead:
     def test_every_get_of_the_api_answers_head_as_its_get(
             self, app: FastAPI, admin: TestClient, world: dict[str, str]) -> None:
@@ -95,6 +98,7 @@ class TestHead:
             assert "head" not in item
 
 
+@pytest.mark.one_engine
 class TestAllow:
     def test_options_on_a_user_lists_every_method(self, robot: TestClient) -> None:
         r = robot.options("/v1/users/lin")
@@ -141,6 +145,7 @@ def _routes_with_bodies(episode_id: str) -> list[tuple[str, str, dict[str, Any]]
     ]
 
 
+@pytest.mark.one_engine
 class TestContentType:
     @pytest.mark.parametrize("how", ["text/plain", "form", "multipart", "none", "xml"])
     def test_a_body_that_is_not_json_is_415_and_changes_nothing(
@@ -217,6 +222,7 @@ OUT_OF_RANGE = ["{low_1}", "{high1}", "9223372036854775807", "922337203685477580
 
 
 class TestIntegerQueries:
+    @pytest.mark.one_engine
     def test_every_integer_query_parameter_is_bounded_in_the_schema(
             self, app: FastAPI) -> None:
         found = []
@@ -234,6 +240,7 @@ class TestIntegerQueries:
         expected = {(p.replace("lin", "{user_id}"), n, lo, hi) for p, n, lo, hi in BOUNDED}
         assert set(found) == expected
 
+    @pytest.mark.one_engine
     @pytest.mark.parametrize(("path", "name", "low", "high"), BOUNDED)
     def test_out_of_range_is_422_naming_the_parameter_and_its_range(
             self, admin: TestClient, world: dict[str, str], engine_name: str, path: str,
@@ -281,6 +288,7 @@ class TestIntegerQueries:
 
 
 class TestCursors:
+    @pytest.mark.one_engine
     def test_the_schema_says_a_cursor_is_opaque(self, app: FastAPI) -> None:
         seen = 0
         for path, item in app.openapi()["paths"].items():
@@ -296,6 +304,7 @@ class TestCursors:
                     assert "422" in op["responses"], path
         assert seen == 3
 
+    @pytest.mark.one_engine
     @pytest.mark.parametrize(("path", "cursor"), [
         ("/v1/users", "AA"), ("/v1/users", "not*base64"),
         ("/v1/users/lin/episodes", "abc"), ("/v1/users/lin/episodes", "1" * 19),
@@ -322,6 +331,7 @@ class TestCursors:
         assert r.json()["items"][0]["user_id"] == "b"
 
 
+@pytest.mark.one_engine
 class TestDocs:
     @pytest.mark.parametrize("page", ["/docs", "/redoc"])
     def test_pages_load_nothing_from_elsewhere(self, client: TestClient, page: str) -> None:

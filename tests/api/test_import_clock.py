@@ -12,6 +12,7 @@ from app.cli import app as cli
 from app.db.models import Episode
 from app.db.session import Database
 from app.settings import Settings
+from tests.support import people
 
 from .helpers import answer, start
 
@@ -20,11 +21,9 @@ def _play(robot: TestClient, user: str, n: int, prefix: str) -> None:
     for i in range(n):
         ep = start(robot, user, f"{prefix}{i}")
         decision = ep["decision"]
-        while decision is not None:
-            kind = decision["action"]["kind"]
-            response = {"initiate": "rejected", "pass": "none"}.get(kind, "terminated")
-            decision = answer(robot, ep["episode_id"], decision["decision_id"], response)[
-                "decision"]
+        while decision is not None:  # a person who wants nothing
+            decision = answer(robot, ep["episode_id"], decision["decision_id"],
+                              **people.answer(decision["action"], need=None))["decision"]
 
 
 def test_imported_model_keeps_its_clock(robot: TestClient, admin: TestClient, db: Database,

@@ -7,6 +7,8 @@ from typing import Any
 import pytest
 from fastapi.testclient import TestClient
 
+from tests.support.contract import assert_error
+
 from .helpers import answer, start
 
 CONTRACT = {
@@ -29,15 +31,8 @@ ADMIN = {("delete", "/v1/users/{user_id}"), ("delete", "/v1/users/{user_id}/mode
          ("get", "/v1/users/{user_id}/model/export"), ("put", "/v1/users/{user_id}/model")}
 
 
-def assert_error(r: Any, status: int, name: str) -> None:
-    assert r.status_code == status, r.text
-    body = r.json()
-    assert body["error"] == name
-    assert isinstance(body["detail"], str)
-    assert body["detail"]
-
-
 class TestHealth:
+    @pytest.mark.one_engine
     def test_healthz_needs_no_key(self, client: TestClient) -> None:
         r = client.get("/healthz")
         assert r.status_code == 200
@@ -62,6 +57,7 @@ class TestHealth:
         assert r.json()["detail"].startswith("The database has no schema yet, not ")
         assert "attune db upgrade" in r.json()["detail"]
 
+    @pytest.mark.one_engine
     def test_health_ignores_a_bad_key(self, app: Any) -> None:
         with TestClient(app, headers={"Authorization": "Bearer nope"}) as c:
             assert c.get("/healthz").status_code == 200
@@ -104,6 +100,7 @@ class TestMetrics:
         assert decisions(client.get("/metrics").text) == once
 
 
+@pytest.mark.one_engine
 class TestMission:
     def test_needs_a_key(self, client: TestClient) -> None:
         assert_error(client.get("/v1/mission"), 401, "Unauthorized")
@@ -140,6 +137,7 @@ def _resolve(spec: dict[str, Any], node: dict[str, Any]) -> dict[str, Any]:
     return node
 
 
+@pytest.mark.one_engine
 class TestOpenApi:
     @pytest.fixture
     def spec(self, client: TestClient) -> dict[str, Any]:

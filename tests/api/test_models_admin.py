@@ -8,7 +8,9 @@ from typing import Any
 import pytest
 from fastapi.testclient import TestClient
 
-from .helpers import answer, assert_error, start
+from tests.support.contract import assert_error
+
+from .helpers import answer, start
 
 TEA = {"service": "ProvideDrink", "detail": "tea"}
 ACTION_KEYS = {"action", "q", "visits", "kept_visits", "since_last", "measure", "p"}
@@ -111,6 +113,7 @@ class TestGetModel:
         full = model(robot, "lin")
         assert one["contexts"][0] in full["contexts"]
 
+    @pytest.mark.one_engine
     @pytest.mark.parametrize(("query", "names"), [
         ({"time_slot": "dawn"}, ["morning", "noon", "afternoon", "evening"]),
         ({"situation": "sleeping"}, ["arriving", "working", "stretching", "busy"]),
@@ -288,6 +291,7 @@ class TestResetModel:
         served(robot, "lin", "e3")
         assert root(model(robot, "lin"))["pass"]["visits"] == 1
 
+    @pytest.mark.one_engine
     def test_robot_is_403_and_nothing_changes(self, robot: TestClient) -> None:
         served(robot, "lin", "e1")
         before = model(robot, "lin")

@@ -11,7 +11,7 @@ import sys
 from collections.abc import Iterator
 from typing import Any
 
-import httpx2
+import httpx
 import pytest
 from fastapi import FastAPI
 from fastapi.testclient import TestClient
@@ -22,9 +22,13 @@ from app.db.session import Database
 from app.main import create_app
 from app.services.auth import create_key
 from app.settings import Settings
-from tests.live import serving
+from tests.support.contract import assert_error
+from tests.support.live import serving
 
-from .helpers import assert_error, event
+from .helpers import event
+
+# Request ids and log lines: the same on both engines.
+pytestmark = pytest.mark.one_engine
 
 FRESH = re.compile(r"^[0-9a-f]{32}$")
 
@@ -261,8 +265,8 @@ class TestUnhandledError:
             uvicorn_log = logging.getLogger("uvicorn.error")
             uvicorn_log.addHandler(handler)
             try:
-                r = httpx2.get(f"{url}/test/boom", headers={"X-Request-ID": "served"},
-                               timeout=10)
+                r = httpx.get(f"{url}/test/boom", headers={"X-Request-ID": "served"},
+                              timeout=10)
             finally:
                 uvicorn_log.removeHandler(handler)
         assert r.status_code == 500

@@ -7,7 +7,9 @@ from typing import Any
 import pytest
 from fastapi.testclient import TestClient
 
-from .helpers import answer, assert_error, start
+from tests.support.contract import assert_error
+
+from .helpers import answer, start
 
 
 class TestPutUser:
@@ -155,6 +157,7 @@ class TestPutUser:
                    for a in s["actions"])
         assert robot.get(f"/v1/episodes/{ep['episode_id']}").status_code == 200
 
+    @pytest.mark.one_engine
     def test_extra_fields_are_422(self, robot: TestClient) -> None:
         r = robot.put("/v1/users/lin", json={"display_name": "A", "age": 3})
         assert_error(r, 422, "ValidationError")
@@ -255,17 +258,20 @@ class TestListUsers:
         every = {u["user_id"]: u["fleet"] for u in admin.get("/v1/users").json()["items"]}
         assert every == {"mine": "default", "theirs": "other"}
 
+    @pytest.mark.one_engine
     @pytest.mark.parametrize("query", ["limit=0", "limit=-1", "limit=abc", "limit=100000",
                                        "cursor=%25%25%25"])
     def test_bad_paging_is_422(self, robot: TestClient, query: str) -> None:
         robot.put("/v1/users/a")
         assert_error(robot.get(f"/v1/users?{query}"), 422, "ValidationError")
 
+    @pytest.mark.one_engine
     def test_needs_a_key(self, client: TestClient) -> None:
         assert_error(client.get("/v1/users"), 401, "Unauthorized")
 
 
 class TestDeleteUser:
+    @pytest.mark.one_engine
     def test_robot_is_403_and_nothing_changes(self, robot: TestClient) -> None:
         start(robot, "lin", "e1")
         before = robot.get("/v1/users/lin").json()

@@ -15,14 +15,14 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import httpx2
+import httpx
 import pytest
-from playwright.sync_api import Browser, Page, Response, sync_playwright
+from playwright.sync_api import Browser, Page, Response, ViewportSize, sync_playwright
 
 from app.db.session import Database
 from app.services.auth import create_key, revoke_key
 from app.settings import Settings
-from tests.live import LiveService, fresh_database
+from tests.support.live import LiveService, fresh_database
 
 from .people import Person, play
 
@@ -35,7 +35,8 @@ CHROMIUM_ARGS = [
     "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
     "--disable-background-networking", "--disable-component-update", "--disable-sync",
 ]
-VIEWPORTS = {"desktop": {"width": 1280, "height": 800}, "tablet": {"width": 800, "height": 1200}}
+VIEWPORTS: dict[str, ViewportSize] = {"desktop": {"width": 1280, "height": 800},
+                                     "tablet": {"width": 800, "height": 1200}}
 
 LIN_NEEDS = {("afternoon", "stretching"): ("ProvideDrink", "tea"),
              ("morning", "arriving"): ("BriefInformation", "news"),
@@ -54,7 +55,7 @@ class Site:
     admin_key: str
     robot_key: str
     service: LiveService
-    api: httpx2.Client
+    api: httpx.Client
     database: Database
 
     def get(self, path: str, **params: Any) -> Any:
@@ -72,7 +73,7 @@ class Site:
             revoke_key(session, key_id)
 
 
-def _seed(client: httpx2.Client) -> None:
+def _seed(client: httpx.Client) -> None:
     def put(user_id: str, **body: Any) -> None:
         r = client.put(f"/v1/users/{user_id}", json=body)
         assert r.status_code in (200, 201), r.text
@@ -100,11 +101,11 @@ def site(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Site]:
         with database.transaction() as session:
             _, admin_key = create_key(session, role="admin", name="console-tests")
             _, robot_key = create_key(session, role="robot", name="robot7")
-        with httpx2.Client(base_url=service.url, timeout=30,
-                           headers={"Authorization": f"Bearer {robot_key}"}) as robot:
+        with httpx.Client(base_url=service.url, timeout=30,
+                          headers={"Authorization": f"Bearer {robot_key}"}) as robot:
             _seed(robot)
-        with httpx2.Client(base_url=service.url, timeout=30,
-                           headers={"Authorization": f"Bearer {admin_key}"}) as api:
+        with httpx.Client(base_url=service.url, timeout=30,
+                          headers={"Authorization": f"Bearer {admin_key}"}) as api:
             yield Site(service.url, admin_key, robot_key, service, api, database)
         database.dispose()
 

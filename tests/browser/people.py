@@ -8,7 +8,9 @@ import random
 from dataclasses import dataclass, field
 from typing import Any
 
-import httpx2
+import httpx
+
+from tests.support import people
 
 HOURS = {"morning": 9, "noon": 12, "afternoon": 15, "evening": 19}  # local hours inside each slot
 SITUATIONS = ("arriving", "working", "stretching", "busy")
@@ -32,31 +34,11 @@ class Person:
         return self.rnd.choice(sorted(HOURS)), self.rnd.choice(SITUATIONS)
 
     def respond(self, context: tuple[str, str], action: dict[str, Any]) -> dict[str, Any]:
-        need = self.needs.get(context)
-        kind, busy = action["kind"], context[1] == "busy"
-        if kind == "initiate":
-            return {"response": "accepted" if need and not busy and self.rnd.random() < 0.95
-                    else "rejected"}
-        if kind == "pass":
-            if need and self.rnd.random() < 0.5:
-                return {"response": "human_request", "service": need[0]}
-            return {"response": "none"}
-        if kind == "query_type":
-            return ({"response": "answered", "service": need[0]} if need
-                    else {"response": "terminated"})
-        if kind == "query_detail":
-            if need and action.get("service") == need[0]:
-                return {"response": "answered", "detail": need[1]}
-            return {"response": "terminated"}
-        right = need is not None and (action.get("service"), action.get("detail")) == need
-        out: dict[str, Any] = {"response": "accepted" if right and self.rnd.random() < 0.95
-                               else "rejected"}
-        if right and self.rnd.random() < 0.3:
-            out["feedback"] = "positive"
-        return out
+        return people.answer(action, need=self.needs.get(context), busy=context[1] == "busy",
+                             rng=self.rnd, yes=0.95, asks=0.5, smiles=0.3)
 
 
-def play(client: httpx2.Client, user_id: str, person: Person, episodes: int, *,
+def play(client: httpx.Client, user_id: str, person: Person, episodes: int, *,
          prefix: str) -> None:
     """Run ``episodes`` events of ``person`` through the API, each until it closes."""
     for n in range(episodes):

@@ -7,7 +7,8 @@ import json
 import re
 from typing import Any
 
-import httpx2
+import httpx
+import pytest
 from playwright.sync_api import Page, expect
 
 from .conftest import Shot, Site, sign_in
@@ -21,6 +22,8 @@ from .people import (
     state_label,
     two,
 )
+
+pytestmark = [pytest.mark.browser, pytest.mark.xdist_group("browser")]
 
 
 def _text(page: Page, selector: str) -> str:
@@ -304,10 +307,10 @@ class TestAdminActions:
         shot(page, "not-found")
 
 
-def _console(site: Site, key: str | None) -> httpx2.Client:
+def _console(site: Site, key: str | None) -> httpx.Client:
     cookies = {"attune_console": key} if key else {}
-    return httpx2.Client(base_url=site.url, cookies=cookies, timeout=30,
-                         follow_redirects=False)
+    return httpx.Client(base_url=site.url, cookies=cookies, timeout=30,
+                        follow_redirects=False)
 
 
 def _token(html: str) -> str:

@@ -79,7 +79,8 @@ class TestExpectation:
         assert e.p_ask == pytest.approx(0.2 + 0.6 * 0.1 + 0.2 * 0.5)
 
     def test_a_tie_is_no_preference_and_never_engaged_is_nothing(self) -> None:
-        rows = {"Drink": [("infer_detail", "tea", 0.5), ("infer_detail", "coffee", 0.5)]}
+        rows: dict[str, list[tuple[str, str | None, float]]] = {
+            "Drink": [("infer_detail", "tea", 0.5), ("infer_detail", "coffee", 0.5)]}
         tie = expectation(_context([("query_type", None, 0.5), ("infer_type", "Drink", 0.5)],
                                    rows))
         assert tie is not None

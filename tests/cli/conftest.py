@@ -1,6 +1,6 @@
-"""Fixtures of the command line's tests: the two-engine databases of ``tests/api`` (every test
-that touches the database runs on SQLite and on PostgreSQL) and a runner of ``attune`` in this
-process, whose output is not a terminal (as in ``attune keys list | cat``)."""
+"""Fixtures of the command line's tests: a runner of ``attune`` in this process, on the shared
+databases (``tests/support/fixtures.py``: every test that touches the database runs on SQLite
+and on PostgreSQL), whose output is not a terminal (as in ``attune keys list | cat``)."""
 
 from __future__ import annotations
 
@@ -10,12 +10,6 @@ import pytest
 from typer.testing import CliRunner, Result
 
 from app.cli import app
-from tests.api import conftest as api
-
-# The two-engine fixtures of the API tests (pytest finds them by these names).
-database_url = api.database_url
-engine_name = api.engine_name
-empty_tables = api.empty_tables
 
 Attune = Callable[..., Result]
 

@@ -1,8 +1,8 @@
 """Fixtures of the client's tests against the real service.
 
-In-process tests reuse the two-engine fixtures of ``tests/api`` (every test runs on SQLite and
-on PostgreSQL) and talk to ``create_app()`` through ``httpx.ASGITransport``; the sync client
-gets the same through ``PortalTransport``.
+In-process tests use the shared app fixtures (``tests/support/fixtures.py``: every test on
+SQLite and on PostgreSQL, unless ``one_engine``) and talk to ``create_app()`` through
+``httpx.ASGITransport``; the sync client gets the same through ``PortalTransport``.
 """
 
 from __future__ import annotations
@@ -18,17 +18,7 @@ from attune_client import AsyncClient, Client
 from attune_client._retry import Backoff
 from fastapi import FastAPI
 
-from tests.api import conftest as api
-
-# The two-engine fixtures of the API tests (pytest finds them by these names).
-database_url = api.database_url
-settings = api.settings
-engine_name = api.engine_name
-empty_tables = api.empty_tables
-app = api.app
-db = api.db
-make_key = api.make_key
-MakeKey = api.MakeKey
+from tests.support.fixtures import MakeKey
 
 BASE_URL = "http://attune.test"
 

@@ -42,25 +42,12 @@ from attune_client import (
 )
 from attune_client._retry import Backoff
 
+from tests.client.helpers import answer  # the repository's root is on the path (editable install)
+
 USERS = ("ana", "ben", "cy")
 SMILES = 2  # feedback a person gives while the robot waits for an outcome to be delivered
 LATE = 3  # late feedback a person may give on an earlier episode while the robot is offline
-DETAILS = {"ProvideDrink": "tea", "BriefInformation": "news", "ArrangeSchedule": "today_agenda"}
 EVENT_TIME = dt.datetime.fromisoformat("2026-11-22T15:10:00+08:00")
-
-
-def respond(decision: Decision, n: int) -> dict[str, Any]:
-    kind = decision.action.kind
-    if kind == "pass":
-        return {"response": "none"} if n % 3 == 1 else {"response": "human_request",
-                                                       "service": "ProvideDrink"}
-    if kind == "query_type":
-        return {"response": "answered", "service": "BriefInformation"}
-    if kind == "query_detail":
-        return {"response": "answered", "detail": DETAILS[decision.action.service or ""]}
-    if kind == "initiate" and n % 5 == 4:
-        return {"response": "rejected"}
-    return {"response": "accepted"}
 
 
 class Robot:
@@ -209,7 +196,7 @@ class Robot:
                 decision = Decision.model_validate(person["decision"])
                 self.act("outcome", user, episode_id=person["episode_id"],
                          decision_id=decision.decision_id,
-                         **respond(decision, person["event"] + person["step"]))
+                         **answer(decision, person["event"] + person["step"]))
             elif person["waiting"] is not None:
                 if person["smiles"] < SMILES:
                     self.act("feedback", user, episode_id=person["episode_id"],

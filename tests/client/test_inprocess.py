@@ -12,7 +12,9 @@ import httpx
 import pytest
 from fastapi import FastAPI
 
-from .conftest import BASE_URL, MakeKey, PortalTransport, SwitchTransport, fast
+from tests.support.fixtures import MakeKey
+
+from .conftest import BASE_URL, PortalTransport, SwitchTransport, fast
 from .helpers import EVENT_TIME, answer, occurred
 
 pytestmark = pytest.mark.anyio

@@ -18,9 +18,11 @@ import pytest
 from app.db.session import Database
 from app.services.auth import create_key
 from app.settings import Settings
-from tests.live import LiveService, fresh_database
+from tests.support.live import LiveService, fresh_database
 
 from .helpers import EVENT_TIME, answer
+
+pytestmark = pytest.mark.live
 
 ROBOT = Path(__file__).with_name("robot.py")
 

@@ -17,7 +17,9 @@ from pathlib import Path
 import httpx
 import pytest
 
-from tests.live import LiveService, fresh_database
+from tests.support.live import LiveService, fresh_database
+
+pytestmark = pytest.mark.live
 
 README = Path(__file__).resolve().parents[2] / "clients" / "python" / "README.md"
 BLOCK = re.compile(r"^```python\n(.*?)^```$", re.DOTALL | re.MULTILINE)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import re
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -12,7 +13,9 @@ import anyio
 import attune_client as a
 import pytest
 
-from tests.live import LiveService, fresh_database
+from tests.support.live import LiveService, fresh_database
+
+pytestmark = pytest.mark.live
 
 
 @pytest.fixture(scope="module")
@@ -25,11 +28,20 @@ def live(tmp_path_factory: pytest.TempPathFactory) -> Iterator[LiveService]:
 
 
 def _access_line(service: LiveService, request_id: str) -> dict[str, object]:
-    lines = [json.loads(line) for line in Path(service.log_path).read_text().splitlines()
-             if line.startswith("{")]
-    [found] = [line for line in lines
-               if line["logger"] == "attune.access" and line.get("request_id") == request_id]
-    return found
+    """The service's one access line of the request. The worker writes it once the response
+    has gone, so the client may see the response first: wait for the line (at most 10 s)."""
+    deadline = time.monotonic() + 10
+    while True:
+        whole = Path(service.log_path).read_text().split("\n")[:-1]  # not a line in writing
+        lines: list[dict[str, object]] = [json.loads(line) for line in whole
+                                          if line.startswith("{")]
+        found = [line for line in lines
+                 if line["logger"] == "attune.access" and line.get("request_id") == request_id]
+        if found or time.monotonic() > deadline:
+            break
+        time.sleep(0.05)
+    assert len(found) == 1, found
+    return found[0]
 
 
 def test_an_error_carries_the_services_request_id(live: LiveService) -> None:

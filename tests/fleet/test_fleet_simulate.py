@@ -15,7 +15,7 @@ import subprocess
 from pathlib import Path
 from typing import Any
 
-import httpx2
+import httpx
 import numpy as np
 import pytest
 
@@ -23,7 +23,7 @@ from app.commands.fleet import _differences, _fmt
 from app.fleet import make_people, overall_stats
 from app.fleet.simulate import METRICS, occurred_at
 from app.learning import office_mission
-from tests.live import ATTUNE, LiveService, fresh_database
+from tests.support.live import ATTUNE, LiveService, fresh_database
 
 MISSION = office_mission()
 ROBOTS, USERS, EVENTS, CHANGE_AT = 4, 6, 24, 12
@@ -44,13 +44,14 @@ def simulate(service: LiveService, key: str, out: Path, *extra: str, as_json: bo
 def stats_of(service: LiveService, key: str, user_id: str, last: int | None = None
              ) -> dict[str, Any]:
     params = {"last": last} if last else None
-    r = httpx2.get(f"{service.url}/v1/users/{user_id}/stats", params=params,
-                   headers={"Authorization": f"Bearer {key}"}, timeout=30)
+    r = httpx.get(f"{service.url}/v1/users/{user_id}/stats", params=params,
+                  headers={"Authorization": f"Bearer {key}"}, timeout=30)
     assert r.status_code == 200, r.text
     body: dict[str, Any] = r.json()
     return body
 
 
+@pytest.mark.live
 @pytest.mark.parametrize(("engine", "workers"), [("sqlite", 1), ("postgresql", 2)])
 def test_fleet_against_a_live_service(engine: str, workers: int, tmp_path: Path) -> None:
     with fresh_database(engine) as url, LiveService(url, workers=workers) as service:
@@ -94,20 +95,21 @@ def test_fleet_against_a_live_service(engine: str, workers: int, tmp_path: Path)
 
         # Every episode was played by a fleet robot and closed; the robots shared the people.
         robots_seen: set[str] = set()
-        headers = {"Authorization": f"Bearer {key}"}
-        r = httpx2.get(f"{service.url}/v1/users/{user_ids[0]}/episodes", params={"limit": 100},
-                       headers=headers, timeout=30)
+        auth = {"Authorization": f"Bearer {key}"}
+        r = httpx.get(f"{service.url}/v1/users/{user_ids[0]}/episodes", params={"limit": 100},
+                      headers=auth, timeout=30)
         items = r.json()["items"]
         assert len(items) == EVENTS
         for item in items:
             assert item["status"] == "closed"
-            trace = httpx2.get(f"{service.url}/v1/episodes/{item['episode_id']}",
-                               headers=headers, timeout=30).json()
+            trace = httpx.get(f"{service.url}/v1/episodes/{item['episode_id']}",
+                              headers=auth, timeout=30).json()
             robots_seen.add(trace["robot_id"])
         assert robots_seen <= {f"sim-robot-{i}" for i in range(1, ROBOTS + 1)}
         assert len(robots_seen) > 1
 
 
+@pytest.mark.live
 def test_fleet_says_why_it_cannot_start(tmp_path: Path) -> None:
     with fresh_database("sqlite") as url, LiveService(url) as service:
         done = simulate(service, "att_not-a-key", tmp_path)
@@ -169,9 +171,12 @@ def test_a_difference_between_service_and_robots_is_reported() -> None:
     found = _differences(service, {**service, "total_reward": 3.5, "queries_per_mission": 0.0})
     assert len(found) == 2
     assert any(line.startswith("total_reward") for line in found)
-    assert not math.isnan(service["total_reward"])
+    total = service["total_reward"]
+    assert total is not None
+    assert not math.isnan(total)
 
 
+@pytest.mark.live
 def test_a_run_does_not_depend_on_how_many_robots_share_the_people() -> None:
     """Each person's model depends on that person's history only, so with the same people (and
     user ids) the stats are the same whether one robot plays them all or four share them."""

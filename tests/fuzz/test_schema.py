@@ -19,6 +19,7 @@ import hypothesis.errors
 import pytest
 import schemathesis
 from schemathesis import Case, GenerationMode
+from schemathesis.core.result import Ok
 from schemathesis.specs.openapi.schemas import OpenApiSchema
 from sqlalchemy import create_engine
 
@@ -28,8 +29,9 @@ from app.learning import office_mission
 from app.main import create_app
 from app.services.context import LearnerCache
 from app.settings import Settings
-from tests.live import LiveService, fresh_database, serving
-from tests.stress.helpers import make_keys
+from tests.support.live import LiveService, fresh_database, make_keys, serving
+
+pytestmark = pytest.mark.live
 
 SETTINGS = hypothesis.settings(
     max_examples=40, deadline=None, derandomize=True, database=None,
@@ -51,7 +53,7 @@ ANSWERS: dict[str, list[dict[str, Any]]] = {  # two valid answers per kind of de
 
 
 @schemathesis.check
-def contract_error_body(ctx: Any, response: Any, case: Case) -> bool | None:
+def contract_error_body(ctx: Any, response: Any, case: Case[Any]) -> bool | None:
     """Every error is ``{"error": <name>, "detail": <sentence>, "request_id": <its
     X-Request-ID>}`` (plus ``fields`` on 422)."""
     if response.status_code < 400:
@@ -97,12 +99,13 @@ def test_every_operation(api_schema: OpenApiSchema, live: tuple[LiveService, dic
     failures: dict[str, str] = {}
     labels = []
     for result in api_schema.get_all_operations():
+        assert isinstance(result, Ok), result
         operation = result.ok()
         labels.append(operation.label)
 
         @hypothesis.given(case=operation.as_strategy(generation_mode=mode))
         @SETTINGS
-        def fuzz(case: Case) -> None:
+        def fuzz(case: Case[Any]) -> None:
             case.call_and_validate(headers=headers, additional_checks=[contract_error_body],
                                    excluded_checks=excluded)
 
@@ -154,10 +157,10 @@ def test_stateful_robot_flows(fresh_app: tuple[str, str, Any]) -> None:
                         conn.execute(table.delete())
             app.state.ctx.cache = LearnerCache(app.state.settings.model_cache_size)
 
-        def get_call_kwargs(self, case: Case) -> dict[str, Any]:
+        def get_call_kwargs(self, case: Case[Any]) -> dict[str, Any]:
             return {"headers": headers}
 
-        def before_call(self, case: Case) -> None:
+        def before_call(self, case: Case[Any]) -> None:
             # The schema cannot name the mission's situations or say which response a
             # decision expects; map the generated values onto them so that flows get deep.
             body = case.body
@@ -176,7 +179,7 @@ def test_stateful_robot_flows(fresh_app: tuple[str, str, Any]) -> None:
                 if action["kind"] == "query_detail":
                     body["detail"] = MISSION.service(action["service"]).details[0]
 
-        def after_call(self, response: Any, case: Case) -> None:
+        def after_call(self, response: Any, case: Case[Any]) -> None:
             seen[(case.operation.label, response.status_code)] += 1
             try:
                 decision = response.json().get("decision")
@@ -185,7 +188,7 @@ def test_stateful_robot_flows(fresh_app: tuple[str, str, Any]) -> None:
             if isinstance(decision, dict) and "decision_id" in decision:
                 decisions[decision["decision_id"]] = decision["action"]
 
-        def validate_response(self, response: Any, case: Case,
+        def validate_response(self, response: Any, case: Case[Any],
                               additional_checks: Any = None, **kwargs: Any) -> None:
             case.validate_response(response, additional_checks=[contract_error_body],
                                    excluded_checks=excluded, headers=headers)

@@ -20,11 +20,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import httpx2
+import httpx
 import pytest
 import yaml
 
-from tests.live import free_port
+from tests.support.live import free_port
 
 ROOT = Path(__file__).resolve().parents[2]
 DOCKERFILE = ROOT / "docker" / "Dockerfile"
@@ -167,6 +167,7 @@ def _run_build_stage(stage: Stage, root: Path, venv: Path) -> Path:
     return workdir
 
 
+@pytest.mark.live
 def test_the_image_commands_run_here(tmp_path: Path) -> None:
     if shutil.which("uv") is None:
         pytest.fail("uv is needed to run the build stage's commands (./scripts/bootstrap "
@@ -207,9 +208,9 @@ def test_the_image_commands_run_here(tmp_path: Path) -> None:
         while True:
             assert server.poll() is None, log.read_text()
             try:
-                if httpx2.get(f"http://127.0.0.1:{port}/readyz", timeout=2).status_code == 200:
+                if httpx.get(f"http://127.0.0.1:{port}/readyz", timeout=2).status_code == 200:
                     break
-            except httpx2.TransportError:
+            except httpx.TransportError:
                 pass
             assert time.monotonic() < deadline, "the image's CMD did not become ready in 60 s"
             time.sleep(0.2)

@@ -18,14 +18,14 @@ import time
 import venv
 from pathlib import Path
 
-import httpx2
+import httpx
 import pytest
 
-from tests.live import free_port
+from tests.support.live import free_port
 
 ROOT = Path(__file__).resolve().parents[2]
 
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.live, pytest.mark.slow]
 
 
 def _clone(dest: Path) -> Path:
@@ -94,10 +94,10 @@ def test_pip_install_then_serve_from_any_folder(clone: Path, tmp_path: Path) -> 
         while True:
             assert server.poll() is None, log.read_text()
             try:
-                ready = httpx2.get(f"http://127.0.0.1:{port}/readyz", timeout=2)
+                ready = httpx.get(f"http://127.0.0.1:{port}/readyz", timeout=2)
                 if ready.status_code == 200:
                     break
-            except httpx2.TransportError:
+            except httpx.TransportError:
                 pass
             assert time.monotonic() < deadline, "attune serve was not ready in 60 s\n" + \
                 log.read_text()

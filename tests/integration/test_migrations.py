@@ -9,7 +9,6 @@ from app.db import migrate
 from app.db.base import Base
 from app.db.session import Database
 from app.settings import Settings
-from tests.api.conftest import database_url  # noqa: F401  (the two-engine fixture)
 
 
 def _tables(url: str) -> set[str]:
@@ -20,7 +19,7 @@ def _tables(url: str) -> set[str]:
         engine.dispose()
 
 
-def test_upgrade_check_downgrade_upgrade(database_url: str) -> None:  # noqa: F811
+def test_upgrade_check_downgrade_upgrade(database_url: str, empty_tables: None) -> None:
     cfg = migrate.alembic_config(database_url)
     command.check(cfg)  # raises if the models and the migrated schema differ
     assert _tables(database_url) == set(Base.metadata.tables)

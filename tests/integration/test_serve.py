@@ -15,12 +15,14 @@ import time
 from collections.abc import Iterator
 from pathlib import Path
 
-import httpx2
+import httpx
 import pytest
 from sqlalchemy import create_engine, text
 
 from app.db import migrate
-from tests.live import ATTUNE, LiveService, free_port, fresh_database
+from tests.support.live import ATTUNE, LiveService, free_port, fresh_database
+
+pytestmark = pytest.mark.live
 
 REPO = Path(__file__).resolve().parents[2]
 UNKNOWN = "ffffffffffff"  # a schema revision no release of this code has
@@ -227,7 +229,7 @@ def test_a_dead_worker_is_reported_with_its_cause(tmp_path: Path) -> None:
         _wait_for(lambda: said in service.log(), "the supervisor said why", service)
         _wait_for(lambda: len(_workers(service.process.pid)) == 2
                   and victim not in _workers(service.process.pid), "a new worker", service)
-        assert httpx2.get(f"{service.url}/readyz", timeout=10).status_code == 200
+        assert httpx.get(f"{service.url}/readyz", timeout=10).status_code == 200
         assert "Traceback" not in service.log()
 
 
@@ -258,10 +260,10 @@ def test_json_logs_one_object_per_line(tmp_path: Path) -> None:
         with service:
             secret = service.create_key("robot")
             headers = {"Authorization": f"Bearer {secret}", "X-Request-ID": "json-1"}
-            r = httpx2.put(f"{service.url}/v1/users/lin", json={}, headers=headers, timeout=10)
+            r = httpx.put(f"{service.url}/v1/users/lin", json={}, headers=headers, timeout=10)
             assert r.status_code == 201
-            httpx2.head(f"{service.url}/healthz", headers={"X-Request-ID": "json-2"},
-                        timeout=10)
+            httpx.head(f"{service.url}/healthz", headers={"X-Request-ID": "json-2"},
+                       timeout=10)
         raw = (tmp_path / "serve.log").read_text()
     lines = [json.loads(line) for line in raw.splitlines() if line.strip()]
     for line in lines:

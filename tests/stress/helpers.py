@@ -1,29 +1,21 @@
-"""Helpers of the stress and fuzz tests: keys and users made in a live service's database."""
+"""Helpers of the stress tests: users made through the API, and ``models rebuild`` run in this
+process."""
 
 from __future__ import annotations
 
-import json
+from collections.abc import Callable
 from typing import Any
 
-import httpx2
+import httpx
 
 from app.db.session import Database
-from app.services.auth import create_key
+from app.services import audit
+from app.services.context import ServiceContext
+from app.services.models import rebuild_model
 from app.settings import Settings
-from tests.live import LiveService
 
 
-def make_keys(database_url: str, n: int, role: str = "robot") -> list[str]:
-    """``n`` keys, made in-process (much faster than ``attune keys create`` n times)."""
-    db = Database(Settings(database_url=database_url, _env_file=None))  # type: ignore[call-arg]
-    try:
-        with db.transaction() as session:
-            return [create_key(session, role=role, name=f"stress-{i}")[1] for i in range(n)]
-    finally:
-        db.dispose()
-
-
-def create_users(api: httpx2.Client, users: list[str]) -> dict[str, int]:
+def create_users(api: httpx.Client, users: list[str]) -> dict[str, int]:
     """Create the users; their model versions before the run."""
     versions = {}
     for user_id in users:
@@ -33,13 +25,24 @@ def create_users(api: httpx2.Client, users: list[str]) -> dict[str, int]:
     return versions
 
 
-def live_rebuild(service: LiveService) -> Any:
-    def rebuild(user_id: str) -> dict[str, Any]:
-        done = service.attune("models", "rebuild", user_id)
-        lines = [ln for ln in done.stdout.splitlines() if ln.startswith("{")]
-        if not lines:
-            return {"identical": None, "exit": done.returncode, "stderr": done.stderr[-500:]}
-        summary: dict[str, Any] = json.loads(lines[-1])
-        return summary
+def rebuild(database_url: str, seed: int = 0) -> Callable[[str], dict[str, Any]]:
+    """``rebuild(user_id)``: what ``attune models rebuild USER_ID`` does, in this process (the
+    same service function, in one transaction, as the command line's principal) against the
+    service's database and seed; its summary, with the keys of the command's JSON line."""
+    settings = Settings(database_url=database_url, seed=seed, _env_file=None)  # type: ignore[call-arg]
+    ctx = ServiceContext.from_settings(settings)
 
-    return rebuild
+    def run(user_id: str) -> dict[str, Any]:
+        database = Database(settings)
+        try:
+            with database.transaction() as session:
+                report = rebuild_model(session, ctx, audit.CLI, user_id)
+        finally:
+            database.dispose()
+        return {"user_id": user_id, "version": report.version,
+                "writes_replayed": report.writes, "samples_replayed": report.samples,
+                "decisions_redrawn": report.decisions,
+                "mismatched_decisions": report.mismatched_decisions,
+                "identical": report.identical}
+
+    return run

@@ -21,13 +21,13 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-import httpx2
+import httpx
 from sqlalchemy import create_engine, select
 
 from app.db.models import Decision, Episode, Feedback, LearnerModel, Sample, User
-from app.learning import office_mission
+from tests.support import people
+from tests.support.office import MISSION
 
-MISSION = office_mission()
 SLOT_TIMES = ("09:30", "12:15", "15:10", "20:45")
 OTHER_RESPONSE = {"accepted": "rejected", "rejected": "accepted", "terminated": "accepted",
                   "answered": "terminated", "none": "human_request", "human_request": "none"}
@@ -78,15 +78,15 @@ class Robot:
     def __init__(self, workload: Workload, n: int, key: str) -> None:
         self.w, self.n = workload, n
         self.rng = random.Random(workload.seed * 1000 + n)
-        self.http = httpx2.Client(base_url=workload.base_url, timeout=30.0,
-                                  headers={"Authorization": f"Bearer {key}"})
+        self.http = httpx.Client(base_url=workload.base_url, timeout=30.0,
+                                 headers={"Authorization": f"Bearer {key}"})
 
     def close(self) -> None:
         self.http.close()
 
     # -- sending ------------------------------------------------------------------------------
     def _once(self, url: str, body: dict[str, Any], timeout: float | None = None
-              ) -> httpx2.Response:
+              ) -> httpx.Response:
         self.w.gate()
         kwargs: dict[str, Any] = {"json": body}
         if timeout is not None:
@@ -107,7 +107,7 @@ class Robot:
                 break
             try:
                 r = self._once(url, body, timeout=0.005 if short and attempt == 0 else None)
-            except httpx2.TransportError:
+            except httpx.TransportError:
                 with w.history.lock:
                     w.history.unknown.setdefault(key, kind)
                 if w.paused.is_set():
@@ -148,7 +148,7 @@ class Robot:
         if out is not None and self.rng.random() < w.conflict_rate:
             try:
                 r = self._once(url, clash)
-            except (httpx2.TransportError, Paused):
+            except (httpx.TransportError, Paused):
                 return out
             if r.status_code != 409 or r.json().get("error") != "Conflict":
                 w.history.note(f"{kind} {key}: a conflicting resend got {r.status_code} "
@@ -157,28 +157,11 @@ class Robot:
 
     # -- the robot's behaviour ----------------------------------------------------------------
     def answer(self, decision: dict[str, Any]) -> dict[str, Any]:
-        action = decision["action"]
-        kind = action["kind"]
-        body: dict[str, Any] = {"decision_id": decision["decision_id"]}
-        if kind == "initiate":
-            body["response"] = "accepted" if self.rng.random() < 0.85 else "rejected"
-        elif kind == "pass":
-            if self.rng.random() < 0.5:
-                body.update(response="human_request", service="ProvideDrink")
-                if self.rng.random() < 0.5:
-                    body["detail"] = "tea"
-            else:
-                body["response"] = "none"
-        elif kind == "query_type":
-            body.update(response="answered", service="BriefInformation")
-        elif kind == "query_detail":
-            body.update(response="answered",
-                        detail=MISSION.service(action["service"]).details[0])
-        else:
-            body["response"] = "accepted" if self.rng.random() < 0.8 else "rejected"
-        if self.rng.random() < 0.1:
-            body["feedback"] = "positive"
-        return body
+        """A cooperative person: yes four times in five, asks for a drink half the time the
+        robot waits (naming tea half of those), smiles at one service in ten."""
+        return {"decision_id": decision["decision_id"],
+                **people.answer(decision["action"], picky=False, rng=self.rng, yes=0.8,
+                                asks=0.5, precise=0.5, smiles=0.1)}
 
     def episode(self, k: int) -> bool:
         """One event and its negotiation to the end; False when the run must stop."""
@@ -306,7 +289,7 @@ class Snapshot:
     model_view: dict[str, Any]
 
 
-def _snapshot(api: httpx2.Client, database_url: str, user_id: str) -> Snapshot:
+def _snapshot(api: httpx.Client, database_url: str, user_id: str) -> Snapshot:
     engine = create_engine(database_url)
     try:
         with engine.connect() as conn:
@@ -345,15 +328,15 @@ def _snapshot(api: httpx2.Client, database_url: str, user_id: str) -> Snapshot:
     return Snapshot(episodes, decisions, feedback, samples, model, user, traces, view)
 
 
-def check_history(history: History, api: httpx2.Client, database_url: str, users: list[str],
+def check_history(history: History, api: httpx.Client, database_url: str, users: list[str],
                   initial_versions: dict[str, int],
                   rebuild: Callable[[str], dict[str, Any]] | None = None) -> list[str]:
     """Every finding that shows a lost, doubled or inconsistent write; [] when there is none.
 
     ``api`` is an admin client; ``initial_versions`` the model versions before the run;
-    ``rebuild(user_id)`` runs ``attune models rebuild`` and returns its JSON summary. Writes in
-    ``history.unknown`` (in flight when the service died) may or may not be stored; if they
-    are, the same rules hold for them.
+    ``rebuild(user_id)`` runs ``models rebuild`` (``helpers.rebuild``) and returns its summary.
+    Writes in ``history.unknown`` (in flight when the service died) may or may not be stored;
+    if they are, the same rules hold for them.
     """
     findings = [f"during the run: {a}" for a in history.anomalies]
     by_key: dict[str, list[Ack]] = defaultdict(list)
@@ -375,7 +358,7 @@ def check_history(history: History, api: httpx2.Client, database_url: str, users
         if rebuild is not None:
             summary = rebuild(user_id)
             if summary.get("identical") is not True:
-                findings.append(f"{user_id}: `attune models rebuild` does not reproduce the "
+                findings.append(f"{user_id}: `models rebuild` does not reproduce the "
                                 f"stored model: {summary}")
     return findings
 

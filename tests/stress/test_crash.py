@@ -7,13 +7,15 @@ from __future__ import annotations
 
 import time
 
-import httpx2
+import httpx
 import pytest
 
-from tests.live import LiveService, fresh_database
+from tests.support.live import LiveService, fresh_database, make_keys
 
-from .helpers import create_users, live_rebuild, make_keys
+from .helpers import create_users, rebuild
 from .history import History, Workload, check_history
+
+pytestmark = [pytest.mark.stress, pytest.mark.xdist_group("stress")]
 
 CLIENTS = 32
 KILL_AFTER = 150  # acknowledged writes before the SIGKILL
@@ -27,8 +29,8 @@ def test_sigkill_mid_load_loses_nothing_acknowledged(engine: str, workers: int) 
         try:
             keys = make_keys(url, CLIENTS)
             admin_key = make_keys(url, 1, role="admin")[0]
-            with httpx2.Client(base_url=service.url, timeout=60,
-                               headers={"Authorization": f"Bearer {admin_key}"}) as api:
+            with httpx.Client(base_url=service.url, timeout=60,
+                              headers={"Authorization": f"Bearer {admin_key}"}) as api:
                 workload = Workload(service.url, keys, episodes_per_client=8,
                                     lost_response_rate=0.05)
                 initial = create_users(api, workload.all_users)
@@ -46,11 +48,11 @@ def test_sigkill_mid_load_loses_nothing_acknowledged(engine: str, workers: int) 
                                      anomalies=list(workload.history.anomalies),
                                      sent=set(workload.history.sent))
                 at_restart = check_history(before, api, url, workload.all_users, initial,
-                                           rebuild=live_rebuild(service))
+                                           rebuild=rebuild(url))
                 workload.resume()  # robots retry what was in flight, then finish their work
                 workload.join()
                 at_end = check_history(workload.history, api, url, workload.all_users,
-                                       initial, rebuild=live_rebuild(service))
+                                       initial, rebuild=rebuild(url))
         finally:
             service.stop()
     print(f"\n{engine}/{workers}w: killed after {killed_after} acknowledgements with "

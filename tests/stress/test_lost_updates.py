@@ -7,18 +7,20 @@ from __future__ import annotations
 
 import time
 
-import httpx2
+import httpx
 import pytest
 from sqlalchemy import create_engine, text
 
-import app.services.episodes.write as episodes_write
 from app.db import migrate
 from app.main import create_app
+from app.services.learners import save_learner
 from app.settings import Settings
-from tests.live import LiveService, fresh_database, serving
+from tests.support.live import LiveService, fresh_database, make_keys, serving
 
-from .helpers import create_users, live_rebuild, make_keys
+from .helpers import create_users, rebuild
 from .history import Workload, check_history
+
+pytestmark = [pytest.mark.stress, pytest.mark.xdist_group("stress")]
 
 CLIENTS = 32
 
@@ -28,15 +30,15 @@ def test_no_acknowledged_write_lost_or_doubled(engine: str, workers: int) -> Non
     with fresh_database(engine) as url, LiveService(url, workers=workers) as service:
         keys = make_keys(url, CLIENTS)
         admin_key = make_keys(url, 1, role="admin")[0]
-        with httpx2.Client(base_url=service.url, timeout=60,
-                           headers={"Authorization": f"Bearer {admin_key}"}) as api:
+        with httpx.Client(base_url=service.url, timeout=60,
+                          headers={"Authorization": f"Bearer {admin_key}"}) as api:
             workload = Workload(service.url, keys, episodes_per_client=5)
             initial = create_users(api, workload.all_users)
             began = time.monotonic()
             history = workload.run()
             driven = time.monotonic() - began
             findings = check_history(history, api, url, workload.all_users, initial,
-                                     rebuild=live_rebuild(service))
+                                     rebuild=rebuild(url))
     replays = sum(a.replay for a in history.acks)
     print(f"\n{engine}/{workers}w: {len(history.acks)} acknowledgements ({replays} replays) "
           f"from {CLIENTS} robots in {driven:.1f} s")
@@ -53,7 +55,7 @@ def _in_process_run(url: str, *, clients: int = 8) -> tuple[list[str], Workload,
     keys = make_keys(url, clients)
     admin_key = make_keys(url, 1, role="admin")[0]
     try:
-        with serving(app) as base_url, httpx2.Client(
+        with serving(app) as base_url, httpx.Client(
                 base_url=base_url, timeout=60,
                 headers={"Authorization": f"Bearer {admin_key}"}) as api:
             workload = Workload(base_url, keys, episodes_per_client=4, lost_response_rate=0.0)
@@ -67,7 +69,7 @@ def _in_process_run(url: str, *, clients: int = 8) -> tuple[list[str], Workload,
 
 def test_the_check_reports_a_lost_model_update(monkeypatch: pytest.MonkeyPatch) -> None:
     """Break the update path: every 4th write is acknowledged, but its learning is not saved."""
-    real = episodes_write.save_learner
+    real = save_learner  # what the write path calls
     calls = {"n": 0}
 
     def lossy_save_learner(*args: object, **kwargs: object) -> None:
@@ -76,7 +78,7 @@ def test_the_check_reports_a_lost_model_update(monkeypatch: pytest.MonkeyPatch) 
             return  # the write's transitions never reach the model or the journal
         real(*args, **kwargs)  # type: ignore[arg-type]
 
-    monkeypatch.setattr(episodes_write, "save_learner", lossy_save_learner)
+    monkeypatch.setattr("app.services.episodes.write.save_learner", lossy_save_learner)
     with fresh_database("sqlite") as url:
         findings, _, _ = _in_process_run(url)
     assert calls["n"] >= 8
@@ -106,7 +108,7 @@ def test_the_check_reports_a_lost_acknowledged_write() -> None:
         app = create_app(migrate_settings)
         admin_key = make_keys(url, 1, role="admin")[0]
         try:
-            with serving(app) as base_url, httpx2.Client(
+            with serving(app) as base_url, httpx.Client(
                     base_url=base_url, timeout=60,
                     headers={"Authorization": f"Bearer {admin_key}"}) as api:
                 after = check_history(workload.history, api, url, workload.all_users,

@@ -10,39 +10,33 @@ import numpy as np
 import pytest
 
 from app.learning import (
-    Action,
-    ActionKind,
     Observation,
-    Polarity,
     Transition,
     make_learner,
-    office_mission,
-    space_for,
 )
 from app.learning.learners import DtsLearner, QLearner, RmaxLearner, TabularLearner
-
-MISSION = office_mission()
-S = space_for(MISSION)
-OBS, END, ENGAGED = S.OBSERVE, S.END, S.ENGAGED
-INITIATE, PASS = S.INITIATE, S.PASS
-G = 0.9
-VMAX = 60.0
-POS, NEG, NEU = Polarity.POSITIVE, Polarity.NEGATIVE, Polarity.NEUTRAL
-DRINK = "ProvideDrink"
-TK = S.type_known_state(DRINK)
-DK = S.detail_known_state(DRINK, "tea")
-REQ = S.request_state(DRINK)
-
-
-def act(kind: ActionKind, service: str | None = None, detail: str | None = None) -> int:
-    return S.action_index(Action(kind, service, detail))
-
-
-QUERY_TYPE = act(ActionKind.QUERY_TYPE)
-RESPOND = act(ActionKind.RESPOND, DRINK)
-INFER_DRINK = act(ActionKind.INFER_TYPE, DRINK)
-INFER_TEA = act(ActionKind.INFER_DETAIL, DRINK, "tea")
-PERFORM_TEA = act(ActionKind.PERFORM, DRINK, "tea")
+from tests.support.office import (
+    DK,
+    END,
+    ENGAGED,
+    INFER_DRINK,
+    INFER_TEA,
+    INITIATE,
+    MISSION,
+    NEG,
+    NEU,
+    OBS,
+    PASS,
+    PERFORM_TEA,
+    POS,
+    QUERY_TYPE,
+    REQ,
+    RESPOND,
+    TK,
+    VMAX,
+    G,
+    S,
+)
 
 
 def learner(algorithm: str, **params: Any) -> TabularLearner[Any]:

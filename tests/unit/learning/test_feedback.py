@@ -15,28 +15,28 @@ import pytest
 
 from app.learning import (
     ALGORITHMS,
-    Action,
-    ActionKind,
-    Polarity,
     Transition,
     learner_from_state,
     make_learner,
-    office_mission,
-    space_for,
 )
 from app.learning.learners import HriLearner
 from app.learning.state import decode_array
+from tests.support.office import (
+    DK,
+    END,
+    ENGAGED,
+    INFER_TEA,
+    INITIATE,
+    MISSION,
+    NEG,
+    OBS,
+    PERFORM_TEA,
+    POS,
+    QUERY_TYPE,
+    TK,
+    S,
+)
 
-MISSION = office_mission()
-S = space_for(MISSION)
-OBS, END, ENGAGED = S.OBSERVE, S.END, S.ENGAGED
-INITIATE = S.INITIATE
-POS, NEG = Polarity.POSITIVE, Polarity.NEGATIVE
-DRINK, TEA = "ProvideDrink", "tea"
-TK, DK = S.type_known_state(DRINK), S.detail_known_state(DRINK, TEA)
-QUERY_TYPE = S.action_index(Action(ActionKind.QUERY_TYPE))
-INFER_TEA = S.action_index(Action(ActionKind.INFER_DETAIL, DRINK, TEA))
-PERFORM_TEA = S.action_index(Action(ActionKind.PERFORM, DRINK, TEA))
 CONTEXT = 0
 
 

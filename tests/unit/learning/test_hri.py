@@ -14,34 +14,32 @@ import numpy as np
 import pytest
 
 from app.learning import (
-    Action,
     ActionKind,
     Interaction,
     Observation,
-    Polarity,
     Transition,
     make_learner,
-    office_mission,
-    space_for,
 )
 from app.learning.learners import HriLearner
 from app.learning.negotiation import interaction_class
-
-MISSION = office_mission()
-S = space_for(MISSION)
-OBS, END, ENGAGED = S.OBSERVE, S.END, S.ENGAGED
-INITIATE, PASS = S.INITIATE, S.PASS
-G = 0.9
-VMAX = 60.0
-POS, NEG, NEU = Polarity.POSITIVE, Polarity.NEGATIVE, Polarity.NEUTRAL
-DRINK, INFO = "ProvideDrink", "BriefInformation"
-
-
-def act(kind: ActionKind, service: str | None = None, detail: str | None = None) -> int:
-    return S.action_index(Action(kind, service, detail))
-
-
-QUERY_TYPE = act(ActionKind.QUERY_TYPE)
+from tests.support.office import (
+    DRINK,
+    END,
+    ENGAGED,
+    INFO,
+    INITIATE,
+    MISSION,
+    NEG,
+    NEU,
+    OBS,
+    PASS,
+    POS,
+    QUERY_TYPE,
+    VMAX,
+    G,
+    S,
+    act,
+)
 
 
 def hri(**params: Any) -> HriLearner:

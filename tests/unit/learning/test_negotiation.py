@@ -6,9 +6,10 @@ from __future__ import annotations
 
 import itertools
 
+import numpy as np
 import pytest
 
-from app.learning import Action, ActionKind, Interaction, Polarity, office_mission, space_for
+from app.learning import ActionKind, Interaction, Polarity
 from app.learning.negotiation import (
     EXPECTS,
     INTERACTION_CODE,
@@ -20,15 +21,10 @@ from app.learning.negotiation import (
     outcome,
 )
 from app.learning.types import Transition
+from tests.support.office import MISSION, S, act
 
-MISSION = office_mission()
-S = space_for(MISSION)
 R = MISSION.rewards
 VISIBLE = [a for a in range(S.n_actions) if not S.silent[a]]
-
-
-def act(kind: ActionKind, service: str | None = None, detail: str | None = None) -> int:
-    return S.action_index(Action(kind, service, detail))
 
 
 class TestExpects:
@@ -182,7 +178,7 @@ def test_the_simulated_people_answer_by_the_same_rules() -> None:
     for context, action, u in itertools.product(range(MISSION.n_contexts), VISIBLE,
                                                 (0.01, 0.4, 0.99)):
         state = int(S.pair_state[action])
-        reaction = respond(S, profile, context, state, action, [u, u])
+        reaction = respond(S, profile, context, state, action, np.array([u, u]))
         expected = outcome(S, action, reaction.response, service=reaction.service,
                            detail=reaction.detail)
         assert (reaction.reward, reaction.next_state, reaction.signal) == tuple(expected)

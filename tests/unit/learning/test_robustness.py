@@ -28,16 +28,12 @@ from app.learning import (
     learner_from_state,
     load_mission,
     make_learner,
-    office_mission,
     space_for,
 )
 from app.learning.learners import HriLearner
 from app.learning.simulation import UserProfile, event_stream, respond
+from tests.support.office import END, ENGAGED, INITIATE, MISSION, OBS, PASS, S
 
-MISSION = office_mission()
-S = space_for(MISSION)
-OBS, END, ENGAGED = S.OBSERVE, S.END, S.ENGAGED
-INITIATE, PASS = S.INITIATE, S.PASS
 ALGORITHMS = ["hri", "rmax", "qlearning", "dts"]
 
 
@@ -205,7 +201,7 @@ class TestMissionInput:
             name="tiny",
             time_slots=[TimeSlot("day", time(0, 0), time(0, 0))],  # type: ignore[arg-type]
             situations=["here"],  # type: ignore[arg-type]
-            services=[Service("Tea", ["green"])],  # type: ignore[arg-type, list-item]
+            services=[Service("Tea", ["green"])],  # type: ignore[arg-type]
         )
         assert isinstance(mission.situations, tuple)
         assert isinstance(mission.services[0].details, tuple)

@@ -10,13 +10,10 @@ import numpy as np
 import pytest
 
 from app.learning import (
-    Action,
     ActionKind,
     Mission,
     Polarity,
     evaluation,
-    office_mission,
-    space_for,
 )
 from app.learning.simulation import (
     Need,
@@ -26,17 +23,12 @@ from app.learning.simulation import (
     random_profile,
     respond,
 )
+from tests.support.office import MISSION, S, act
 
-MISSION = office_mission()
-S = space_for(MISSION)
 R = MISSION.rewards
 BUSY = {c for c in range(MISSION.n_contexts) if MISSION.context_names(c)[1] == "busy"}
 DRINK, INFO = 0, 1  # service indices of the office mission
 TEA, COFFEE = 0, 1
-
-
-def act(kind: ActionKind, service: str | None = None, detail: str | None = None) -> int:
-    return S.action_index(Action(kind, service, detail))
 
 
 def rng(*words: int) -> np.random.Generator:

@@ -23,14 +23,11 @@ from app.learning import (
     learner_from_state,
     make_learner,
     office_mission,
-    space_for,
 )
 from app.learning.learners import TabularLearner
 from app.learning.simulation import STEP_COLUMNS, random_profile, respond
 from app.learning.state import FORMAT, FORMAT_VERSION, decode_array, encode_array, same_state
-
-MISSION = office_mission()
-S = space_for(MISSION)
+from tests.support.office import MISSION, S
 
 
 def drive(lr: TabularLearner[Any], episodes: int, seed: int, *, own_policy: bool) -> None:
@@ -275,9 +272,9 @@ def test_same_state_compares_arrays_by_content() -> None:
     assert same_state(original, recompressed)
 
     changed = copy.deepcopy(original)
-    raw = bytearray(zlib.decompress(base64.b64decode(changed["arrays"]["visits"]["data"])))
-    raw[0] ^= 1
-    changed["arrays"]["visits"]["data"] = base64.b64encode(zlib.compress(bytes(raw))).decode()
+    flipped = bytearray(zlib.decompress(base64.b64decode(changed["arrays"]["visits"]["data"])))
+    flipped[0] ^= 1
+    changed["arrays"]["visits"]["data"] = base64.b64encode(zlib.compress(bytes(flipped))).decode()
     assert not same_state(original, changed)
 
     later = copy.deepcopy(original)

@@ -6,7 +6,10 @@ for tests that patch the app before serving it.
 ``LiveService`` runs the command line exactly as an operator would (migrations applied at start,
 uvicorn with N workers), on a free port, with its own database. It can be stopped gently, killed
 with SIGKILL, and started again on the same port and database. ``fresh_database(engine)`` gives a
-new SQLite file or a new PostgreSQL database (dropped afterwards), so live runs never collide.
+new SQLite file or a new PostgreSQL database (dropped afterwards), so live runs never collide;
+``make_keys`` puts keys in it.
+
+The benchmarks import this module too (``bench/``, with the repository's root on ``sys.path``).
 """
 
 from __future__ import annotations
@@ -26,10 +29,14 @@ from pathlib import Path
 from types import TracebackType
 from typing import Any
 
-import httpx2
+import httpx
 import psycopg
 import pytest
 import uvicorn
+
+from app.db.session import Database
+from app.services.auth import create_key
+from app.settings import Settings
 
 PG_SERVER = os.environ.get("ATTUNE_TEST_POSTGRES_URL", "postgresql://postgres@127.0.0.1:5432")
 ATTUNE = str(Path(sys.executable).with_name("attune"))
@@ -67,6 +74,37 @@ def serving(app: Any) -> Iterator[str]:
         assert not thread.is_alive(), "uvicorn did not stop"
 
 
+def postgres_url(name: str) -> str:
+    """The URL of database ``name`` on the test server."""
+    return f"{PG_SERVER.rstrip('/')}/{name}"
+
+
+def database_name(kind: str, worker: str | None = None) -> str:
+    """A PostgreSQL database name no other process uses: the kind (``test``, ``live``), the
+    pytest-xdist worker (``gw0``...; ``master`` outside xdist, as xdist's ``worker_id`` says),
+    the process and a random tag."""
+    worker = worker or os.environ.get("PYTEST_XDIST_WORKER", "master")
+    return f"attune_{kind}_{worker}_{os.getpid()}_{secrets.token_hex(4)}"
+
+
+@contextmanager
+def postgres_database(name: str) -> Iterator[str]:
+    """Create database ``name`` on the test server; its URL; dropped afterwards. Fails the test
+    (never skips it) when the server does not answer."""
+    try:
+        admin = psycopg.connect(postgres_url("postgres"), autocommit=True, connect_timeout=5)
+    except psycopg.OperationalError as exc:
+        pytest.fail(f"PostgreSQL at {PG_SERVER} does not answer ({exc}); the tests need it. "
+                    "Start it (.ci/run does) or set ATTUNE_TEST_POSTGRES_URL.", pytrace=False)
+    with admin:
+        admin.execute(f'CREATE DATABASE "{name}"')
+    try:
+        yield postgres_url(name)
+    finally:
+        with psycopg.connect(postgres_url("postgres"), autocommit=True) as admin:
+            admin.execute(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)')
+
+
 @contextmanager
 def fresh_database(engine: str, folder: Path | None = None) -> Iterator[str]:
     """A URL of an empty database of ``engine`` (``sqlite`` or ``postgresql``), removed after."""
@@ -74,19 +112,19 @@ def fresh_database(engine: str, folder: Path | None = None) -> Iterator[str]:
         with tempfile.TemporaryDirectory(dir=folder) as tmp:
             yield f"sqlite:///{Path(tmp) / 'attune.db'}"
         return
-    name = f"attune_live_{os.getpid()}_{secrets.token_hex(4)}"
-    server = PG_SERVER.rstrip("/")
+    with postgres_database(database_name("live")) as url:
+        yield url
+
+
+def make_keys(database_url: str, n: int, role: str = "robot") -> list[str]:
+    """``n`` keys in a service's database, made in this process (much faster than
+    ``attune keys create`` n times)."""
+    db = Database(Settings(database_url=database_url, _env_file=None))  # type: ignore[call-arg]
     try:
-        admin = psycopg.connect(f"{server}/postgres", autocommit=True, connect_timeout=5)
-    except psycopg.OperationalError as exc:
-        pytest.fail(f"PostgreSQL at {PG_SERVER} does not answer ({exc}).", pytrace=False)
-    with admin:
-        admin.execute(f'CREATE DATABASE "{name}"')
-    try:
-        yield f"{server}/{name}"
+        with db.transaction() as session:
+            return [create_key(session, role=role, name=f"test-{role}-{i}")[1] for i in range(n)]
     finally:
-        with psycopg.connect(f"{server}/postgres", autocommit=True) as admin:
-            admin.execute(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)')
+        db.dispose()
 
 
 class LiveService:
@@ -139,9 +177,9 @@ class LiveService:
                 raise AssertionError(f"attune serve exited with {self.process.returncode}:\n"
                                      f"{self.log()}")
             try:
-                if httpx2.get(f"{self.url}/readyz", timeout=2).status_code == 200:
+                if httpx.get(f"{self.url}/readyz", timeout=2).status_code == 200:
                     return
-            except httpx2.TransportError:
+            except httpx.TransportError:
                 pass
             if time.monotonic() > deadline:
                 self.kill()
