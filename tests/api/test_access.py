@@ -186,7 +186,14 @@ class TestRobotOnAdminRoutes:
 
 
 class TestOtherFleet:
-    @pytest.mark.parametrize(("method", "path", "body"), USER_ROUTES + EPISODE_ROUTES)
+    # Routes naming a user or episode of lin's fleet that another fleet cannot reach. PUT of a
+    # user and POST of an episode are missing here: from another fleet they mean that fleet's
+    # own `lin` (TestSameIdsInTwoFleets).
+    ABSENT = [r for r in USER_ROUTES + EPISODE_ROUTES
+              if (r[0], r[1]) not in {("PUT", "/v1/users/{user}"),
+                                      ("POST", "/v1/users/{user}/episodes")}]
+
+    @pytest.mark.parametrize(("method", "path", "body"), ABSENT)
     def test_another_fleets_resources_are_absent(
             self, other_robot: TestClient, robot: TestClient, lin: dict[str, str],
             method: str, path: str, body: Any) -> None:
@@ -206,14 +213,19 @@ class TestOtherFleet:
             absent.json()["detail"].replace("nobody", "X")
 
     @pytest.mark.parametrize(("method", "path", "body"), ADMIN_ROUTES[:4])
-    def test_another_fleets_admin_reads_every_fleet(
+    def test_an_admin_of_any_fleet_reaches_every_fleet(
             self, app: FastAPI, make_key: MakeKey, lin: dict[str, str], method: str,
             path: str, body: Any) -> None:
         with TestClient(app, headers={"Authorization": f"Bearer {make_key('admin', 'other')}"},
                         raise_server_exceptions=False) as other_admin:
+            in_default = {"fleet": "default"}
             if method == "PUT":
-                body = other_admin.get("/v1/users/lin/model/export").json()
-            assert _call(other_admin, method, path, body, lin).status_code in (200, 204)
+                body = other_admin.get("/v1/users/lin/model/export", params=in_default).json()
+            target = path.format(**lin)
+            r = other_admin.request(method, target, json=body, params=in_default)
+            assert r.status_code in (200, 204), r.text
+            # Without ?fleet= an admin means its own key's fleet, where there is no lin.
+            assert_error(other_admin.request(method, target, json=body), 404, "NotFound")
 
     def test_listing_shows_only_the_own_fleet(self, robot: TestClient,
                                               other_robot: TestClient, admin: TestClient,
@@ -225,12 +237,31 @@ class TestOtherFleet:
         assert {u["user_id"] for u in admin.get("/v1/users").json()["items"]} == \
             {"lin", "ming"}
 
-    def test_a_robot_cannot_take_over_another_fleets_user_id(
+    def test_naming_another_fleet_is_answered_as_a_missing_user(
             self, other_robot: TestClient, lin: dict[str, str]) -> None:
-        assert_error(other_robot.post("/v1/users/lin/episodes", json=event("x-1")), 404,
-                     "NotFound")
-        assert_error(other_robot.put("/v1/users/lin", json={"display_name": "x"}), 404,
-                     "NotFound")
+        """Only admins choose a fleet; anyone else naming lin's fleet finds no lin there."""
+        named = other_robot.get("/v1/users/lin", params={"fleet": "default"})
+        absent = other_robot.get("/v1/users/nobody", params={"fleet": "default"})
+        assert_error(named, 404, "NotFound")
+        assert named.json()["detail"].replace("lin", "X") == \
+            absent.json()["detail"].replace("nobody", "X")
+
+
+class TestSameIdsInTwoFleets:
+    def test_another_fleet_makes_its_own_user_of_the_same_id(
+            self, robot: TestClient, other_robot: TestClient, lin: dict[str, str]) -> None:
+        before = robot.get("/v1/users/lin").json()
+        made = other_robot.put("/v1/users/lin", json={"display_name": "Lin of other"})
+        assert made.status_code == 201, made.text
+        assert made.json()["fleet"] == "other"
+        theirs = start(other_robot, "lin", "other-lin-1")
+        assert theirs["episode_id"] != lin["episode"]
+        assert robot.get("/v1/users/lin").json() == before  # the first lin is untouched
+        assert other_robot.get("/v1/users/lin").json()["display_name"] == "Lin of other"
+        assert other_robot.get(f"/v1/episodes/{lin['episode']}").status_code == 404
+        assert robot.get(f"/v1/episodes/{theirs['episode_id']}").status_code == 404
+        ours = robot.get("/v1/users/lin/episodes").json()["items"]
+        assert [e["episode_id"] for e in ours] == [lin["episode"]]
 
 
 # -- abuse limits ------------------------------------------------------------------------------
@@ -474,13 +505,15 @@ class TestAudit:
         from app.db.models import LearnerModel
         from app.services.context import ServiceContext
         from app.services.learners import fresh_learner
+        from tests.support.rows import user_pk
 
         kind = robot.get(f"/v1/episodes/{lin['episode']}").json()["decisions"][0]["action"]
         response = "accepted" if kind["kind"] == "initiate" else "none"
         assert robot.post(f"/v1/episodes/{lin['episode']}/outcomes", json={
             "decision_id": lin["decision"], "response": response}).status_code == 200
         with db.transaction() as session:  # the stored model no longer matches its history
-            session.execute(update(LearnerModel).where(LearnerModel.user_id == "lin").values(
+            session.execute(update(LearnerModel).where(
+                    LearnerModel.user_pk == user_pk(session, "lin")).values(
                 state=fresh_learner(ServiceContext.from_settings(settings), "hri",
                                     None).to_state(), state_version=LearnerModel.version))
         result = CliRunner().invoke(cli.app, ["models", "rebuild", "lin", "--save"], env={

@@ -1,11 +1,13 @@
 """Acceptance: many robots at once, over a real HTTP server, retrying and conflicting.
 
-Eight threads drive 60 episodes of two users (30 each, shuffled so that several threads act for
-the same user at the same time) through uvicorn on a free local port. Every 5th write is sent
-twice (a robot's retry), and one write in ten is followed by a conflicting body under the same
-client id. Afterwards every acknowledged write must be stored exactly once, every retry must
-have been an identical replay, every conflict a 409, nothing a 5xx, and each user's model must
-equal what its history teaches (visit counts, and ``attune models rebuild``).
+Eight threads drive 80 episodes of two users in each of two fleets that use the same user ids
+and the same event ids (20 per user, shuffled so that several threads act for the same user, and
+for both fleets' users of the same id, at the same time) through uvicorn on a free local port.
+Every 5th write is sent twice (a robot's retry), and one write in ten is followed by a
+conflicting body under the same client id. Afterwards every acknowledged write must be stored
+exactly once, every retry must have been an identical replay, every conflict a 409, nothing a
+5xx, nothing of one fleet's user visible in the other's, and each user's model must equal what
+its history teaches (visit counts, and ``attune models rebuild``).
 """
 
 from __future__ import annotations
@@ -26,22 +28,27 @@ from sqlalchemy import func, select
 from typer.testing import CliRunner
 
 from app import cli
-from app.db.models import Decision, Episode
+from app.db.models import Decision, Episode, User
 from app.db.session import Database
 from app.settings import Settings
 from tests.support import people
 from tests.support.fixtures import MakeKey
 from tests.support.live import serving
 from tests.support.office import MISSION
+from tests.support.rows import user_pk
 
+FLEETS = ("default", "east")
 USERS = ("conc-a", "conc-b")
-PER_USER = 30
+PER_USER = 20
 THREADS = 8
 DEADLINE_S = 150.0  # the whole run; each request may also wait out the SQLite busy timeout
 SLOT_TIMES = {"morning": "09:30", "noon": "12:15", "afternoon": "15:10", "evening": "20:45"}
 SITUATIONS = MISSION.situations
 OTHER_RESPONSE = {"accepted": "rejected", "rejected": "accepted", "terminated": "accepted",
                   "answered": "terminated", "none": "human_request", "human_request": "none"}
+
+
+Who = tuple[str, str]  # (fleet, user id)
 
 
 @dataclass
@@ -52,15 +59,21 @@ class Record:
     statuses: list[tuple[str, int, str]] = field(default_factory=list)  # (url, status, body)
     replays: list[tuple[dict[str, Any], int, str | None, Any]] = field(default_factory=list)
     conflicts: list[tuple[int, Any]] = field(default_factory=list)
-    episodes: dict[str, list[str]] = field(default_factory=dict)  # user -> episode ids
-    decisions: dict[str, list[str]] = field(default_factory=dict)  # user -> decision ids seen
-    answered: dict[str, dict[str, str]] = field(default_factory=dict)  # decision id -> response
+    # Keyed by (fleet, user id):
+    episodes: dict[Who, list[str]] = field(default_factory=dict)  # episode ids
+    decisions: dict[Who, list[str]] = field(default_factory=dict)  # decision ids seen
+    answered: dict[Who, dict[str, str]] = field(default_factory=dict)  # decision id -> response
 
 
 class Robot:
-    def __init__(self, base_url: str, key: str, seed: int, deadline: float) -> None:
-        self.http = httpx.Client(base_url=base_url, timeout=60.0,
-                                 headers={"Authorization": f"Bearer {key}"})
+    """One thread: a robot of each fleet (one key per fleet), taking turns."""
+
+    def __init__(self, base_url: str, keys: dict[str, str], seed: int,
+                 deadline: float) -> None:
+        self.https = {fleet: httpx.Client(base_url=base_url, timeout=60.0,
+                                          headers={"Authorization": f"Bearer {key}"})
+                      for fleet, key in keys.items()}
+        self.http = self.https[FLEETS[0]]
         self.rng = random.Random(seed)
         self.deadline = deadline
         self.rec = Record()
@@ -95,7 +108,9 @@ class Robot:
                 **people.answer(decision["action"], picky=False, rng=self.rng, asks=0.5,
                                 precise=0.5)}
 
-    def episode(self, user_id: str, k: int) -> None:
+    def episode(self, fleet: str, user_id: str, k: int) -> None:
+        self.http = self.https[fleet]
+        who = (fleet, user_id)
         slot = list(SLOT_TIMES)[k % len(SLOT_TIMES)]
         situation = SITUATIONS[k % len(SITUATIONS)]
         body = {"event_id": f"{user_id}-{k:03d}",
@@ -106,9 +121,9 @@ class Robot:
         ep = self.write(f"/v1/users/{user_id}/episodes", body, other, 201)
         assert ep["context"] == {"time_slot": slot, "situation": situation}
         episode_id = ep["episode_id"]
-        self.rec.episodes.setdefault(user_id, []).append(episode_id)
-        seen = self.rec.decisions.setdefault(user_id, [])
-        answered = self.rec.answered.setdefault(user_id, {})
+        self.rec.episodes.setdefault(who, []).append(episode_id)
+        seen = self.rec.decisions.setdefault(who, [])
+        answered = self.rec.answered.setdefault(who, {})
         decision = ep["decision"]
         for _ in range(6):  # an episode has at most four visible steps
             if decision is None:
@@ -126,21 +141,22 @@ class Robot:
         raise AssertionError(f"episode {episode_id} did not end within 6 steps")
 
 
-def run_robot(base_url: str, key: str, seed: int, jobs: list[tuple[str, int]],
-              deadline: float) -> Record:
-    robot = Robot(base_url, key, seed, deadline)
+def run_robot(base_url: str, keys: dict[str, str], seed: int,
+              jobs: list[tuple[str, str, int]], deadline: float) -> Record:
+    robot = Robot(base_url, keys, seed, deadline)
     try:
-        for user_id, k in jobs:
-            robot.episode(user_id, k)
+        for fleet, user_id, k in jobs:
+            robot.episode(fleet, user_id, k)
     finally:
-        robot.http.close()
+        for http in robot.https.values():
+            http.close()
     return robot.rec
 
 
-def rebuild(settings: Settings, user_id: str) -> tuple[int, dict[str, Any]]:
-    """``attune models rebuild USER_ID``: (exit code, its JSON summary line)."""
+def rebuild(settings: Settings, fleet: str, user_id: str) -> tuple[int, dict[str, Any]]:
+    """``attune models rebuild USER_ID --fleet FLEET``: (exit code, its JSON summary line)."""
     result = CliRunner().invoke(
-        cli.app, ["models", "rebuild", user_id],
+        cli.app, ["models", "rebuild", user_id, "--fleet", fleet],
         env={"ATTUNE_DATABASE_URL": settings.database_url, "ATTUNE_SEED": "0"},
     )
     with warnings.catch_warnings():  # the command leaves its connections to the collector
@@ -155,42 +171,53 @@ def rebuild(settings: Settings, user_id: str) -> tuple[int, dict[str, Any]]:
 def test_concurrent_robots_with_retries_and_conflicts(
         app: FastAPI, db: Database, make_key: MakeKey, settings: Settings,
         engine_name: str) -> None:
-    jobs = [(user, k) for user in USERS for k in range(PER_USER)]
+    everyone = [(fleet, user) for fleet in FLEETS for user in USERS]
+    jobs = [(fleet, user, k) for fleet, user in everyone for k in range(PER_USER)]
     random.Random(2026).shuffle(jobs)
     per_thread = [jobs[t::THREADS] for t in range(THREADS)]
-    # Several threads act for each user at the same time.
-    assert all({u for u, _ in chunk} == set(USERS) for chunk in per_thread)
-    keys = [make_key("robot") for _ in range(THREADS)]
+    # Several threads act for each user, and every thread for both fleets.
+    assert all(sum(who in {(f, u) for f, u, _ in chunk} for chunk in per_thread) >= THREADS // 2
+               for who in everyone)
+    assert all({f for f, _, _ in chunk} == set(FLEETS) for chunk in per_thread)
+    keys = [{fleet: make_key("robot", fleet) for fleet in FLEETS} for _ in range(THREADS)]
     began = time.monotonic()
     deadline = began + DEADLINE_S
     with serving(app) as base_url:
         initial = {}
-        with httpx.Client(base_url=base_url, timeout=60.0,
-                          headers={"Authorization": f"Bearer {keys[0]}"}) as http:
-            for user_id in USERS:
-                assert http.put(f"/v1/users/{user_id}", json={}).status_code == 201
-                initial[user_id] = http.get(f"/v1/users/{user_id}/model").json()["version"]
+        for fleet, user_id in everyone:
+            with httpx.Client(base_url=base_url, timeout=60.0,
+                              headers={"Authorization": f"Bearer {keys[0][fleet]}"}) as http:
+                made = http.put(f"/v1/users/{user_id}", json={})
+                assert made.status_code == 201, made.text
+                assert made.json()["fleet"] == fleet
+                initial[fleet, user_id] = \
+                    http.get(f"/v1/users/{user_id}/model").json()["version"]
         with ThreadPoolExecutor(max_workers=THREADS) as pool:
             futures = [pool.submit(run_robot, base_url, keys[t], t, per_thread[t], deadline)
                        for t in range(THREADS)]
             records = [f.result(timeout=max(1.0, deadline - time.monotonic()))
                        for f in futures]
         driven = time.monotonic() - began
-        with httpx.Client(base_url=base_url, timeout=60.0,
-                          headers={"Authorization": f"Bearer {keys[0]}"}) as http:
-            views = {}
-            for user_id in USERS:
+        views = {}
+        for fleet, user_id in everyone:
+            elsewhere, = set(FLEETS) - {fleet}
+            with httpx.Client(base_url=base_url, timeout=60.0,
+                              headers={"Authorization": f"Bearer {keys[0][fleet]}"}) as http, \
+                    httpx.Client(base_url=base_url, timeout=60.0, headers={
+                        "Authorization": f"Bearer {keys[0][elsewhere]}"}) as other:
                 traces = []
                 for rec in records:
-                    for episode_id in rec.episodes.get(user_id, []):
+                    for episode_id in rec.episodes.get((fleet, user_id), []):
                         r = http.get(f"/v1/episodes/{episode_id}")
                         assert r.status_code == 200, r.text
                         traces.append(r.json())
+                        # The other fleet's robot finds no such episode.
+                        assert other.get(f"/v1/episodes/{episode_id}").status_code == 404
                 user = http.get(f"/v1/users/{user_id}")
                 model = http.get(f"/v1/users/{user_id}/model")
                 stats = http.get(f"/v1/users/{user_id}/stats")
                 assert user.status_code == model.status_code == stats.status_code == 200
-                views[user_id] = (traces, user.json(), model.json(), stats.json())
+                views[fleet, user_id] = (traces, user.json(), model.json(), stats.json())
     print(f"\n{engine_name}: {sum(r.writes for r in records)} acknowledged writes, "
           f"{sum(len(r.statuses) for r in records)} requests by {THREADS} threads in "
           f"{driven:.1f} s")
@@ -212,19 +239,23 @@ def test_concurrent_robots_with_retries_and_conflicts(
         assert body["error"] == "Conflict"
         assert body["detail"]
 
-    for user_id in USERS:
-        episode_ids = [e for rec in records for e in rec.episodes.get(user_id, [])]
-        decision_ids = [d for rec in records for d in rec.decisions.get(user_id, [])]
+    with db.transaction(write=False) as s:
+        assert s.scalar(select(func.count()).select_from(User)) == len(everyone)
+    for fleet, user_id in everyone:
+        who = (fleet, user_id)
+        episode_ids = [e for rec in records for e in rec.episodes.get(who, [])]
+        decision_ids = [d for rec in records for d in rec.decisions.get(who, [])]
         answered = {d: resp for rec in records
-                    for d, resp in rec.answered.get(user_id, {}).items()}
+                    for d, resp in rec.answered.get(who, {}).items()}
         assert len(episode_ids) == len(set(episode_ids)) == PER_USER
         assert len(decision_ids) == len(set(decision_ids)) == len(answered)
         with db.transaction(write=False) as s:
-            stored_eps = s.scalars(select(Episode).where(Episode.user_id == user_id)).all()
+            pk = user_pk(s, user_id, fleet)
+            stored_eps = s.scalars(select(Episode).where(Episode.user_pk == pk)).all()
             stored = s.scalars(select(Decision).join(Episode, Episode.id == Decision.episode_id)
-                               .where(Episode.user_id == user_id)).all()
+                               .where(Episode.user_pk == pk)).all()
             count = s.scalar(select(func.count()).select_from(Episode)
-                             .where(Episode.user_id == user_id))
+                             .where(Episode.user_pk == pk))
             # Stored exactly once, and what was stored is the acknowledged body, not a conflict.
             assert count == PER_USER
             assert sorted(e.id for e in stored_eps) == sorted(episode_ids)
@@ -236,7 +267,7 @@ def test_concurrent_robots_with_retries_and_conflicts(
             assert draws == list(range(len(stored)))  # one draw each, none lost or doubled
             silent = sum(len(d.chain) for d in stored)
 
-        traces, user, model, stats = views[user_id]
+        traces, user, model, stats = views[who]
         assert user["episodes"] == PER_USER
         assert model["episodes"] == PER_USER
         assert stats["episodes"] == PER_USER
@@ -249,9 +280,9 @@ def test_concurrent_robots_with_retries_and_conflicts(
         assert visits == trace_answered + trace_silent
         # One model change per acknowledged outcome (an episode's start from OBSERVE teaches
         # nothing: its first decision has no silent steps); replays and conflicts change nothing.
-        assert model["version"] == initial[user_id] + len(answered)
+        assert model["version"] == initial[who] + len(answered)
 
-        code, summary = rebuild(settings, user_id)
+        code, summary = rebuild(settings, fleet, user_id)
         assert summary["identical"] is True, summary
         assert code == 0, summary
         assert summary["decisions_redrawn"] == len(decision_ids)

@@ -221,12 +221,17 @@ class TestStartEpisode:
         assert_error(r, 422, "ValidationError")
         assert robot.get("/v1/users/lin").status_code == 404
 
-    def test_another_fleets_user_is_404(self, robot: TestClient,
-                                        other_robot: TestClient) -> None:
+    def test_the_same_user_id_in_another_fleet_is_another_person(
+            self, robot: TestClient, other_robot: TestClient) -> None:
         other_robot.put("/v1/users/far")
+        theirs = start(other_robot, "far", "e1")
         before = other_robot.get("/v1/users/far").json()
-        assert_error(robot.post("/v1/users/far/episodes", json=event("e1")), 404, "NotFound")
+        ours = start(robot, "far", "e1")  # the same event id: each fleet's far has its own
+        assert ours["episode_id"] != theirs["episode_id"]
+        assert "Idempotent-Replay" not in robot.post("/v1/users/far/episodes",
+                                                     json=event("e2")).headers
         assert other_robot.get("/v1/users/far").json() == before
+        assert robot.get("/v1/users/far").json()["episodes"] == 2
 
     def test_event_ids_are_per_user(self, robot: TestClient) -> None:
         a = start(robot, "a", "e1")

@@ -108,7 +108,7 @@ class TestAllow:
 
     def test_every_405_of_the_api_lists_the_methods_of_its_path(
             self, app: FastAPI, robot: TestClient) -> None:
-        ids = {"user_id": "lin", "episode_id": "ep_x"}
+        ids = {"user_id": "lin", "episode_id": "ep_x", "key_id": "key_x"}
         for template, item in app.openapi()["paths"].items():
             methods = {m.upper() for m in item}
             if "GET" in methods:
@@ -142,6 +142,7 @@ def _routes_with_bodies(episode_id: str) -> list[tuple[str, str, dict[str, Any]]
         ("POST", f"/v1/episodes/{episode_id}/feedback",
          {"feedback_id": "f", "feedback": "positive"}),
         ("PUT", "/v1/users/lin/model", {"format": "attune.learner-state"}),
+        ("POST", "/v1/admin/keys", {"role": "robot", "fleet": "default", "name": "r"}),
     ]
 
 
@@ -206,7 +207,7 @@ class TestContentType:
                     assert "415" in op["responses"], (method, path)
                 else:
                     assert "415" not in op["responses"], (method, path)
-        assert seen == 5
+        assert seen == 6
 
 
 # (path, parameter, lowest, highest): every integer query parameter of the API.

@@ -13,6 +13,7 @@ from app.db.models import Episode
 from app.db.session import Database
 from app.settings import Settings
 from tests.support import people
+from tests.support.rows import user_pk
 
 from .helpers import answer, start
 
@@ -38,7 +39,8 @@ def test_imported_model_keeps_its_clock(robot: TestClient, admin: TestClient, db
 
     _play(robot, "newcomer", 3, "m")
     with db.transaction(write=False) as session:
-        rows = session.query(Episode).filter_by(user_id="newcomer").order_by(Episode.seq).all()
+        rows = session.query(Episode).filter_by(user_pk=user_pk(session, "newcomer")) \
+            .order_by(Episode.seq).all()
         learner_index = [(e.seq, e.learner_episode) for e in rows]
     assert [s for s, _ in learner_index] == [1, 2, 3, 4, 5]
     assert [e for _, e in learner_index][2:] == [13, 14, 15]  # after the 12 imported episodes

@@ -39,6 +39,7 @@ from app.learning.simulation import (
     respond,
 )
 from app.settings import Settings
+from tests.support.rows import user_pk
 
 MISSION = office_mission()
 SPACE = space_for(MISSION)
@@ -291,7 +292,7 @@ def stored_steps(db: Database, user_id: str) -> tuple[int, int, int]:
     """(decisions, answered decisions, silent chain steps) stored for the user."""
     with db.transaction(write=False) as s:
         rows = s.scalars(select(Decision).join(Episode, Episode.id == Decision.episode_id)
-                         .where(Episode.user_id == user_id)).all()
+                         .where(Episode.user_pk == user_pk(s, user_id))).all()
         return (len(rows), sum(d.response is not None for d in rows),
                 sum(len(d.chain) for d in rows))
 

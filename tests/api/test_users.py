@@ -163,12 +163,15 @@ class TestPutUser:
         assert_error(r, 422, "ValidationError")
         assert robot.get("/v1/users/lin").status_code == 404
 
-    def test_another_fleets_user_is_not_taken_over(self, robot: TestClient,
-                                                   other_robot: TestClient) -> None:
+    def test_another_fleet_makes_its_own_user_of_the_same_id(
+            self, robot: TestClient, other_robot: TestClient) -> None:
         robot.put("/v1/users/lin", json={"display_name": "A"})
         before = robot.get("/v1/users/lin").json()
         r = other_robot.put("/v1/users/lin", json={"display_name": "B"})
-        assert_error(r, 404, "NotFound")
+        assert r.status_code == 201, r.text
+        assert (r.json()["fleet"], r.json()["display_name"]) == ("other", "B")
+        assert robot.get("/v1/users/lin").json() == before
+        assert other_robot.put("/v1/users/lin", json={"display_name": "B2"}).status_code == 200
         assert robot.get("/v1/users/lin").json() == before
 
 
@@ -194,9 +197,18 @@ class TestGetUser:
 
     def test_admin_reads_every_fleet(self, other_robot: TestClient, admin: TestClient) -> None:
         other_robot.put("/v1/users/far")
-        r = admin.get("/v1/users/far")
+        r = admin.get("/v1/users/far", params={"fleet": "other"})
         assert r.status_code == 200
         assert r.json()["fleet"] == "other"
+        # Without ?fleet= the admin's own fleet is meant, where there is no far.
+        assert_error(admin.get("/v1/users/far"), 404, "NotFound")
+
+    def test_only_admins_name_a_fleet(self, robot: TestClient,
+                                      other_robot: TestClient) -> None:
+        other_robot.put("/v1/users/far")
+        assert_error(robot.get("/v1/users/far", params={"fleet": "other"}), 404, "NotFound")
+        assert robot.get("/v1/users/nobody", params={"fleet": "default"}).status_code == 404
+        assert other_robot.get("/v1/users/far", params={"fleet": "other"}).status_code == 200
 
 
 class TestListUsers:
@@ -304,5 +316,5 @@ class TestDeleteUser:
     def test_other_fleet_admin_sees_all(self, other_robot: TestClient,
                                         admin: TestClient) -> None:
         other_robot.put("/v1/users/far")
-        assert admin.delete("/v1/users/far").status_code == 204
+        assert admin.delete("/v1/users/far", params={"fleet": "other"}).status_code == 204
         assert_error(other_robot.get("/v1/users/far"), 404, "NotFound")

@@ -34,7 +34,7 @@ from app.main import create_app
 from app.services.context import ServiceContext
 from app.services.models import rebuild_model
 from app.settings import Settings
-from tests.live import free_port, fresh_database
+from tests.support.live import free_port, fresh_database
 
 pytestmark = [pytest.mark.slow]
 

@@ -296,7 +296,8 @@ def _snapshot(api: httpx.Client, database_url: str, user_id: str) -> Snapshot:
             from sqlalchemy.orm import Session
 
             with Session(bind=conn) as s:
-                episodes = list(s.scalars(select(Episode).where(Episode.user_id == user_id)
+                user = s.scalars(select(User).where(User.user_id == user_id)).one()
+                episodes = list(s.scalars(select(Episode).where(Episode.user_pk == user.id)
                                           .order_by(Episode.seq)))
                 ids = [e.id for e in episodes]
                 decisions = list(s.scalars(select(Decision).where(Decision.episode_id.in_(ids))
@@ -304,11 +305,10 @@ def _snapshot(api: httpx.Client, database_url: str, user_id: str) -> Snapshot:
                                  ) if ids else []
                 feedback = list(s.scalars(select(Feedback).where(Feedback.episode_id.in_(ids)))
                                 ) if ids else []
-                samples = list(s.scalars(select(Sample).where(Sample.user_id == user_id)
+                samples = list(s.scalars(select(Sample).where(Sample.user_pk == user.id)
                                          .order_by(Sample.version, Sample.id)))
                 model = s.scalars(select(LearnerModel)
-                                  .where(LearnerModel.user_id == user_id)).one()
-                user = s.scalars(select(User).where(User.user_id == user_id)).one()
+                                  .where(LearnerModel.user_pk == user.id)).one()
     finally:
         engine.dispose()
     traces = {}
