@@ -289,14 +289,15 @@ class Snapshot:
     model_view: dict[str, Any]
 
 
-def _snapshot(api: httpx.Client, database_url: str, user_id: str) -> Snapshot:
+def _snapshot(api: httpx.Client, database_url: str, user_id: str, fleet: str) -> Snapshot:
     engine = create_engine(database_url)
     try:
         with engine.connect() as conn:
             from sqlalchemy.orm import Session
 
             with Session(bind=conn) as s:
-                user = s.scalars(select(User).where(User.user_id == user_id)).one()
+                user = s.scalars(select(User).where(User.fleet == fleet,
+                                                    User.user_id == user_id)).one()
                 episodes = list(s.scalars(select(Episode).where(Episode.user_pk == user.id)
                                           .order_by(Episode.seq)))
                 ids = [e.id for e in episodes]
@@ -315,7 +316,8 @@ def _snapshot(api: httpx.Client, database_url: str, user_id: str) -> Snapshot:
     cursor: str | None = None
     listed: list[str] = []
     for _ in range(1000):  # pages of the API's own listing
-        params: dict[str, Any] = {"limit": 500, **({"cursor": cursor} if cursor else {})}
+        params: dict[str, Any] = {"limit": 500, "fleet": fleet,
+                                  **({"cursor": cursor} if cursor else {})}
         page = api.get(f"/v1/users/{user_id}/episodes", params=params).json()
         listed += [item["episode_id"] for item in page["items"]]
         cursor = page["next_cursor"]
@@ -324,16 +326,18 @@ def _snapshot(api: httpx.Client, database_url: str, user_id: str) -> Snapshot:
     for episode_id in listed:
         r = api.get(f"/v1/episodes/{episode_id}")
         traces[episode_id] = r.json() if r.status_code == 200 else {"status_code": r.status_code}
-    view = api.get(f"/v1/users/{user_id}/model").json()
+    view = api.get(f"/v1/users/{user_id}/model", params={"fleet": fleet}).json()
     return Snapshot(episodes, decisions, feedback, samples, model, user, traces, view)
 
 
 def check_history(history: History, api: httpx.Client, database_url: str, users: list[str],
                   initial_versions: dict[str, int],
-                  rebuild: Callable[[str], dict[str, Any]] | None = None) -> list[str]:
+                  rebuild: Callable[[str], dict[str, Any]] | None = None,
+                  fleet: str = "default") -> list[str]:
     """Every finding that shows a lost, doubled or inconsistent write; [] when there is none.
 
-    ``api`` is an admin client; ``initial_versions`` the model versions before the run;
+    ``users`` are of ``fleet``, the fleet of the history's robots; ``api`` is an admin
+    client; ``initial_versions`` the model versions before the run;
     ``rebuild(user_id)`` runs ``models rebuild`` (``helpers.rebuild``) and returns its summary.
     Writes in ``history.unknown`` (in flight when the service died) may or may not be stored;
     if they are, the same rules hold for them.
@@ -353,7 +357,7 @@ def check_history(history: History, api: httpx.Client, database_url: str, users:
                             "times (more than one acknowledgement without Idempotent-Replay)")
 
     for user_id in users:
-        snap = _snapshot(api, database_url, user_id)
+        snap = _snapshot(api, database_url, user_id, fleet)
         findings += _check_user(user_id, snap, by_key, history, initial_versions[user_id])
         if rebuild is not None:
             summary = rebuild(user_id)

@@ -116,13 +116,15 @@ def fresh_database(engine: str, folder: Path | None = None) -> Iterator[str]:
         yield url
 
 
-def make_keys(database_url: str, n: int, role: str = "robot") -> list[str]:
-    """``n`` keys in a service's database, made in this process (much faster than
+def make_keys(database_url: str, n: int, role: str = "robot",
+              fleet: str = "default") -> list[str]:
+    """``n`` keys of ``fleet`` in a service's database, made in this process (much faster than
     ``attune keys create`` n times)."""
     db = Database(Settings(database_url=database_url, _env_file=None))  # type: ignore[call-arg]
     try:
         with db.transaction() as session:
-            return [create_key(session, role=role, name=f"test-{role}-{i}")[1] for i in range(n)]
+            return [create_key(session, role=role, fleet=fleet, name=f"test-{role}-{i}")[1]
+                    for i in range(n)]
     finally:
         db.dispose()
 
