@@ -1,0 +1,644 @@
+"""The access matrix: every route of the API and of the console x every kind of caller, on both
+engines (docs/api.md, "Keys, roles and fleets"; docs/console.md).
+
+The world of every test, made through the API: fleets ``fleet-a`` and ``fleet-b`` each have a
+user ``lin`` (the same id, two people) with an answered episode that has feedback and an open
+episode with its current decision, each made with its fleet's robot key; ``fleet-a`` also has
+``only-a``. The callers (the matrix's columns): no key, a revoked (admin) key, the robot and the
+staff key of each fleet, and an admin key (fleet ``default``). Paths name A's resources: a user
+route's ``{user_id}`` is ``lin``, which robot and staff keys of either fleet find in their own
+fleet, and the admin key names ``fleet-a`` with ``?fleet=`` (the ``{q}`` of a path); an episode
+route's ``{episode_id}`` is an episode of A's ``lin``.
+
+- ``MATRIX``: one row per route (method, path, body, the status of each caller). A route the app
+  serves without a row, or a row without a route, fails ``test_every_route_has_a_row``. Every
+  cell checks the status and the contract's error body (or the console's error page), and that
+  the fleet the caller did not address is unchanged; a write that succeeded changed the
+  addressed fleet's ``lin``.
+- ``PROBES``: another fleet's user or episode is answered exactly as an id that never existed:
+  same status, same body once the two ids are swapped for one placeholder.
+- Then: each fleet acts on its own ``lin``; the admin's ``?fleet=``; the console's sign-in; the
+  audit log and the lists, per fleet.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from typing import Any
+
+import httpx
+import pytest
+from fastapi import FastAPI
+from fastapi.routing import iter_route_contexts
+from fastapi.testclient import TestClient
+
+from app.console.auth import COOKIE, csrf_token
+from tests.support.contract import assert_error
+from tests.support.fixtures import MakeKey
+
+from .helpers import event
+
+A, B = "fleet-a", "fleet-b"
+PRINCIPALS = ("none", "revoked", "robot_a", "robot_b", "staff_a", "staff_b", "admin")
+# role and fleet of each caller's key ("none" has no key)
+KEYS = {"revoked": ("admin", "default"), "robot_a": ("robot", A), "robot_b": ("robot", B),
+        "staff_a": ("staff", A), "staff_b": ("staff", B), "admin": ("admin", "default")}
+# The fleet whose ``lin`` a caller addresses: its own; the admin names fleet-a (``{q}``).
+HOME = {"robot_a": A, "staff_a": A, "admin": A, "robot_b": B, "staff_b": B}
+ADMIN_Q = f"?fleet={A}"
+NEVER_EPISODE = "ep_" + "0" * 32  # an episode id that never existed
+EXPORT = "{export}"  # a body: the export document of the caller's fleet's lin (A's for others)
+LOGIN, CSRF = "login", "csrf"  # console forms: the caller's key; the page's CSRF token
+
+Expect = tuple[int, int, int, int, int, int, int]  # one status per PRINCIPALS
+
+
+@dataclass(frozen=True)
+class Row:
+    """One route: its method and path (placeholders ``{user_id}``, ``{episode_id}``,
+    ``{open_episode_id}``, ``{key_id}``, ``{q}``), a body, the status for each caller."""
+
+    method: str
+    path: str
+    expect: Expect
+    json: Any = None
+    form: str | None = None
+    writes: bool = False  # a success changes the addressed fleet's lin
+    route: str | None = None  # the app's path, when ``path`` does not spell it
+    bugs: dict[str, str] = field(default_factory=dict)  # caller -> why the cell is xfail
+
+    @property
+    def key(self) -> tuple[str, str]:
+        return self.method, self.route or self.path.replace("{q}", "")
+
+
+OUTCOME = {"decision_id": "{decision_id}", "response": "{response}"}
+FEEDBACK = {"feedback_id": "matrix-fb", "feedback": "positive"}
+NEW_KEY = {"role": "robot", "fleet": A, "name": "matrix"}
+
+# The whole matrix at a glance.
+#   none / revoked: no key, a revoked key; rA rB sA sB: robot and staff of fleet-a / fleet-b;
+#   adm: admin (with ?fleet=fleet-a where {q} is).
+U = "/v1/users/{user_id}"
+C = "/admin/users/{user_id}"
+MATRIX: list[Row] = [
+    #    method    path                                  none  rev   rA   rB   sA   sB  adm
+    Row("GET",    "/healthz",                           (200, 200, 200, 200, 200, 200, 200)),
+    Row("GET",    "/readyz",                            (200, 200, 200, 200, 200, 200, 200)),
+    Row("GET",    "/metrics",                           (200, 200, 200, 200, 200, 200, 200)),
+    Row("GET",    "/v1/mission",                        (401, 401, 200, 200, 200, 200, 200)),
+    Row("GET",    "/v1/users{q}",                       (401, 401, 200, 200, 200, 200, 200)),
+    Row("GET",    U + "{q}",                            (401, 401, 200, 200, 200, 200, 200)),
+    Row("PUT",    U + "{q}",                            (401, 401, 200, 200, 200, 200, 200),
+        json={"display_name": "Renamed"}, writes=True),
+    Row("DELETE", U + "{q}",                            (401, 401, 403, 403, 204, 204, 204),
+        writes=True),
+    Row("POST",   U + "/episodes{q}",                   (401, 401, 201, 201, 201, 201, 201),
+        json=event("matrix-1"), writes=True),
+    Row("GET",    U + "/episodes{q}",                   (401, 401, 200, 200, 200, 200, 200)),
+    Row("GET",    U + "/model{q}",                      (401, 401, 200, 200, 200, 200, 200)),
+    Row("GET",    U + "/stats{q}",                      (401, 401, 200, 200, 200, 200, 200)),
+    Row("DELETE", U + "/model{q}",                      (401, 401, 403, 403, 204, 204, 204),
+        writes=True),
+    Row("GET",    U + "/model/export{q}",               (401, 401, 403, 403, 200, 200, 200)),
+    Row("PUT",    U + "/model{q}",                      (401, 401, 403, 403, 200, 200, 200),
+        json=EXPORT, writes=True),
+    Row("POST",   "/v1/episodes/{open_episode_id}/outcomes",
+                                                        (401, 401, 200, 404, 200, 404, 200),
+        json=OUTCOME, writes=True, route="/v1/episodes/{episode_id}/outcomes"),
+    Row("POST",   "/v1/episodes/{episode_id}/feedback", (401, 401, 200, 404, 200, 404, 200),
+        json=FEEDBACK, writes=True),
+    Row("GET",    "/v1/episodes/{episode_id}",          (401, 401, 200, 404, 200, 404, 200)),
+    Row("GET",    "/v1/admin/audit",                    (401, 401, 403, 403, 200, 200, 200)),
+    Row("POST",   "/v1/admin/keys",                     (401, 401, 403, 403, 403, 403, 201),
+        json=NEW_KEY),
+    Row("GET",    "/v1/admin/keys",                     (401, 401, 403, 403, 403, 403, 200)),
+    Row("DELETE", "/v1/admin/keys/{key_id}",            (401, 401, 403, 403, 403, 403, 204)),
+    Row("GET",    "/v1/admin/fleets",                   (401, 401, 403, 403, 403, 403, 200)),
+    # The console: a cookie holding the key (staff and admin get it by signing in; robot and
+    # revoked keys, refused there, send one made by hand). "none": no cookie, so the pages
+    # send the browser to the login form (303).
+    Row("GET",    "/admin",                             (303, 303, 303, 303, 303, 303, 303)),
+    Row("GET",    "/admin/login",                       (200, 200, 200, 200, 200, 200, 200)),
+    Row("POST",   "/admin/login",                       (401, 401, 403, 403, 303, 303, 303),
+        form=LOGIN),
+    Row("POST",   "/admin/logout",                      (303, 303, 303, 303, 303, 303, 303),
+        form=CSRF),
+    Row("GET",    "/admin/users",                       (303, 401, 403, 403, 200, 200, 200)),
+    Row("GET",    C + "{q}",                            (303, 401, 403, 403, 200, 200, 200)),
+    Row("GET",    C + "/why{q}",                        (303, 401, 403, 403, 200, 200, 200)),
+    Row("GET",    C + "/episodes{q}",                   (303, 401, 403, 403, 200, 200, 200)),
+    Row("GET",    C + "/episodes/{episode_id}/trace{q}",
+                                                        (303, 401, 403, 403, 200, 404, 200)),
+    Row("GET",    C + "/export{q}",                     (303, 401, 403, 403, 200, 200, 200)),
+    Row("GET",    C + "/reset{q}",                      (303, 401, 403, 403, 200, 200, 200)),
+    Row("POST",   C + "/reset{q}",                      (303, 401, 403, 403, 303, 303, 303),
+        form=CSRF, writes=True),
+    Row("GET",    C + "/delete{q}",                     (303, 401, 403, 403, 200, 200, 200)),
+    Row("POST",   C + "/delete{q}",                     (303, 401, 403, 403, 303, 303, 303),
+        form=CSRF, writes=True),
+    Row("GET",    "/admin/nowhere",                     (404, 404, 404, 404, 404, 404, 404),
+        route="/admin/{rest:path}"),
+]
+# Served to anyone, key or not: the schema, its two pages and the static files.
+OPEN = {
+    ("GET", "/openapi.json"): "/openapi.json",
+    ("GET", "/docs"): "/docs",
+    ("GET", "/redoc"): "/redoc",
+    ("MOUNT", "/static/docs"): "/static/docs/redoc/LICENSE",
+    ("MOUNT", "/admin/static"): "/admin/static/console.css",
+}
+
+
+# -- the world ---------------------------------------------------------------------------------
+@dataclass
+class Fleet:
+    episode: str  # answered, with feedback
+    open_episode: str  # open, with its current decision
+    decision: str
+    response: str  # one the current decision expects
+    export: dict[str, Any]
+
+
+@dataclass
+class World:
+    client: TestClient
+    secrets: dict[str, str]
+    victim: str  # the id of a key nobody uses, for DELETE /v1/admin/keys
+    fleets: dict[str, Fleet]
+    cookies: dict[str, str | None] = field(default_factory=dict)
+    tokens: dict[str, str] = field(default_factory=dict)
+
+    def secret(self, who: str) -> str | None:
+        return self.secrets.get(who)
+
+    def fill(self, value: Any, who: str) -> Any:
+        """A path or body with the world's ids, as ``who`` sends it."""
+        if value == EXPORT:
+            return self.fleets[HOME.get(who, A)].export
+        if isinstance(value, dict):
+            return {k: self.fill(v, who) for k, v in value.items()}
+        if not isinstance(value, str):
+            return value
+        a = self.fleets[A]
+        ids = {"user_id": "lin", "episode_id": a.episode, "open_episode_id": a.open_episode,
+               "decision_id": a.decision, "response": a.response, "key_id": self.victim,
+               "q": ADMIN_Q if who == "admin" else ""}
+        return re.sub(r"\{(\w+)\}", lambda m: ids[m.group(1)], value)
+
+    def cookie(self, who: str) -> str | None:
+        """The console cookie of ``who``: what signing in set for staff and admin keys; the
+        key itself, by hand, for keys the sign-in refuses."""
+        if who not in self.cookies:
+            secret = self.secret(who)
+            if secret is not None and KEYS[who][0] in ("staff", "admin") and who != "revoked":
+                r = send(self, "POST", "/admin/login", who, form={"key": secret})
+                assert r.status_code == 303, (who, r.status_code, r.text)
+                assert r.cookies.get(COOKIE) == secret
+            self.cookies[who] = secret
+        return self.cookies[who]
+
+    def csrf(self, who: str) -> str:
+        """The CSRF token of ``who``'s console pages (as its own key would make it when the
+        pages refuse it: the refusal must then be for the key, not the token)."""
+        secret = self.secret(who)
+        if secret is None:
+            return ""
+        if who not in self.tokens:
+            page = send(self, "GET", "/admin/users", who)
+            found = re.search(r'name="csrf" value="([0-9a-f]{64})"', page.text)
+            if page.status_code == 200:
+                assert found, "no CSRF token in the page"
+                assert found.group(1) == csrf_token(secret)
+            self.tokens[who] = found.group(1) if found else csrf_token(secret)
+        return self.tokens[who]
+
+    def snapshot(self) -> dict[str, Any]:
+        """What each fleet's users look like (read with the admin key)."""
+        out: dict[str, Any] = {}
+        for fleet in (A, B):
+            seen: dict[str, Any] = {}
+            users = ("lin", "only-a") if fleet == A else ("lin",)
+            for user in users:
+                for tail in ("", "/model", "/stats", "/episodes"):
+                    r = send(self, "GET", f"/v1/users/{user}{tail}?fleet={fleet}", "admin")
+                    seen[user + tail] = r.json() if r.status_code == 200 else r.status_code
+            out[fleet] = seen
+        return out
+
+
+def send(world: World, method: str, path: str, who: str, *, json: Any = None,
+         form: dict[str, str] | None = None) -> httpx.Response:
+    """One request as ``who``: its key in the Authorization header for the API, in the console's
+    cookie for the console (no key or cookie for "none")."""
+    client = world.client
+    client.cookies.clear()  # only the cookie given here, never one a sign-in left in the jar
+    headers: dict[str, str] = {}
+    if path.startswith("/admin"):
+        if path != "/admin/login" and who in KEYS:
+            cookie = world.cookie(who)
+            if cookie is not None:
+                headers["Cookie"] = f"{COOKIE}={cookie}"
+    elif who in KEYS:
+        headers["Authorization"] = f"Bearer {world.secrets[who]}"
+    r: httpx.Response
+    if form is not None:
+        r = client.request(method, path, data=form, headers=headers)
+    elif json is not None:
+        r = client.request(method, path, json=json, headers=headers)
+    else:
+        r = client.request(method, path, headers=headers)
+    return r
+
+
+def _ok(r: httpx.Response, status: int) -> dict[str, Any]:
+    assert r.status_code == status, (r.request.method, str(r.request.url), r.status_code, r.text)
+    body: dict[str, Any] = r.json()
+    return body
+
+
+def _answer(expects: list[str]) -> str:
+    """A response the decision expects that needs no service or detail."""
+    for response in ("none", "rejected", "terminated"):
+        if response in expects:
+            return response
+    raise AssertionError(f"no simple response in {expects}")
+
+
+@pytest.fixture
+def world(app: FastAPI, make_key: MakeKey) -> Iterator[World]:
+    secrets = {who: make_key(role, fleet, who) for who, (role, fleet) in KEYS.items()}
+    make_key("robot", A, "victim")
+    with TestClient(app, raise_server_exceptions=False, follow_redirects=False) as client:
+        w = World(client, secrets, "", {})
+        ids = {k["name"]: k["key_id"] for k in
+               _ok(send(w, "GET", "/v1/admin/keys", "admin"), 200)["items"]}
+        w.victim = ids["victim"]
+        # Used once (the worker keeps it in its key cache), then revoked over HTTP: it stops
+        # at once.
+        assert send(w, "GET", "/v1/mission", "revoked").status_code == 200
+        assert send(w, "DELETE", f"/v1/admin/keys/{ids['revoked']}", "admin").status_code == 204
+        for fleet, robot, staff in ((A, "robot_a", "staff_a"), (B, "robot_b", "staff_b")):
+            _ok(send(w, "PUT", "/v1/users/lin", robot, json={"display_name": f"Lin of {fleet}"}),
+                201)
+            first = _ok(send(w, "POST", "/v1/users/lin/episodes", robot,
+                             json=event("lin-1")), 201)
+            episode, decision = first["episode_id"], first["decision"]
+            _ok(send(w, "POST", f"/v1/episodes/{episode}/outcomes", robot, json={
+                "decision_id": decision["decision_id"],
+                "response": _answer(decision["expects"])}), 200)
+            _ok(send(w, "POST", f"/v1/episodes/{episode}/feedback", robot,
+                     json={"feedback_id": "fb-1", "feedback": "positive"}), 200)
+            second = _ok(send(w, "POST", "/v1/users/lin/episodes", robot,
+                              json=event("lin-2", "working")), 201)
+            export = _ok(send(w, "GET", "/v1/users/lin/model/export", staff), 200)
+            w.fleets[fleet] = Fleet(episode, second["episode_id"],
+                                    second["decision"]["decision_id"],
+                                    _answer(second["decision"]["expects"]), export)
+        _ok(send(w, "POST", "/v1/users/only-a/episodes", "robot_a", json=event("only-1")), 201)
+        yield w
+
+
+# -- every route has a row -----------------------------------------------------------------------
+def _served(app: FastAPI) -> set[tuple[str, str]]:
+    served: set[tuple[str, str]] = set()
+    for route in iter_route_contexts(app.routes):
+        path = route.path
+        assert path is not None, route
+        if route.methods is None:  # a mounted app (static files)
+            served.add(("MOUNT", path))
+        else:
+            served |= {(method, path) for method in route.methods if method != "HEAD"}
+    return served
+
+
+@pytest.mark.one_engine
+def test_every_route_has_a_row(app: FastAPI) -> None:
+    rows = [row.key for row in MATRIX]
+    assert len(rows) == len(set(rows)), "a route has two rows"
+    served = _served(app)
+    assert len(served) >= len(MATRIX)
+    assert sorted(served - set(rows) - set(OPEN)) == [], "routes without a row in MATRIX"
+    assert sorted(set(rows) - served) == [], "rows of MATRIX without a route"
+    assert sorted(set(OPEN) - served) == [], "OPEN lists a route the app does not serve"
+
+
+def test_open_routes_answer_anyone(world: World) -> None:
+    for path in OPEN.values():
+        for who in PRINCIPALS:
+            r = send(world, "GET", path, who)
+            assert r.status_code == 200, (path, who, r.status_code)
+
+
+# -- the matrix ----------------------------------------------------------------------------------
+def _cells() -> Iterator[Any]:
+    for row in MATRIX:
+        for who, status in zip(PRINCIPALS, row.expect, strict=True):
+            marks = ([pytest.mark.xfail(strict=True, reason=row.bugs[who])]
+                     if who in row.bugs else [])
+            yield pytest.param(row, who, status, id=f"{row.method} {row.path} {who}",
+                               marks=marks)
+
+
+def _check_console(r: httpx.Response, row: Row, who: str, status: int) -> None:
+    if status == 303:
+        location = r.headers["location"]
+        if who == "none" and row.path.startswith("/admin/users"):
+            assert location.startswith("/admin/login?next=/admin/users"), location
+        else:
+            assert not location.startswith("/admin/login?next="), location
+    elif status >= 400:
+        assert r.headers["content-type"].startswith("text/html")
+        assert f'data-status="{status}"' in r.text
+        assert "Lin of" not in r.text  # a refusal shows no one's data
+    elif row.path.endswith("/export{q}"):
+        assert r.json()["format"] == "attune.learner-state"
+    else:
+        assert r.headers["content-type"].startswith("text/html")
+
+
+@pytest.mark.parametrize(("row", "who", "status"), list(_cells()))
+def test_matrix(world: World, row: Row, who: str, status: int) -> None:
+    before = world.snapshot()
+    path = world.fill(row.path, who)
+    form: dict[str, str] | None = None
+    if row.form == LOGIN:
+        form = {"key": world.secret(who) or ""}
+    elif row.form == CSRF:
+        form = {"csrf": world.csrf(who)}
+    r = send(world, row.method, path, who, json=world.fill(row.json, who), form=form)
+    assert r.status_code == status, f"{row.method} {path} as {who}: {r.status_code} {r.text}"
+    if row.path.startswith("/admin"):
+        _check_console(r, row, who, status)
+    elif status >= 400:
+        assert_error(r, status)
+    after = world.snapshot()
+    done = r.status_code < 300 or (
+        r.status_code == 303 and not r.headers["location"].startswith("/admin/login"))
+    addressed = HOME.get(who)
+    for fleet in (A, B):
+        if row.writes and done and fleet == addressed:
+            assert after[fleet] != before[fleet], f"{fleet} unchanged by {row.method} {path}"
+        else:
+            assert after[fleet] == before[fleet], f"{fleet} changed by {row.method} {path}"
+
+
+# -- another fleet's user or episode: exactly an id that never existed ----------------------------
+@dataclass(frozen=True)
+class Probe:
+    method: str
+    hidden: str  # a path naming A's user or episode (from fleet B)
+    absent: str  # the same path with an id that never existed
+    expect: tuple[int, int]  # robot_b, staff_b
+    json: Any = None
+    form: bool = False  # a console POST with the page's CSRF token
+    creates: bool = False  # both create B's own user: compare what is not an id
+    bugs: dict[str, str] = field(default_factory=dict)
+
+
+EP, NEVER = "{episode_id}", NEVER_EPISODE
+OPEN_EP = "{open_episode_id}"
+ONLY, NOBODY = "/v1/users/only-a", "/v1/users/nobody"
+PROBES: list[Probe] = [
+    #      method    hidden                          absent                     rB   sB
+    Probe("GET",    ONLY,                           NOBODY,                    (404, 404)),
+    Probe("GET",    ONLY + "/episodes",             NOBODY + "/episodes",      (404, 404)),
+    Probe("GET",    ONLY + "/model",                NOBODY + "/model",         (404, 404)),
+    Probe("GET",    ONLY + "/stats",                NOBODY + "/stats",         (404, 404)),
+    Probe("DELETE", ONLY,                           NOBODY,                    (403, 404)),
+    Probe("DELETE", ONLY + "/model",                NOBODY + "/model",         (403, 404)),
+    Probe("GET",    ONLY + "/model/export",         NOBODY + "/model/export",  (403, 404)),
+    Probe("PUT",    ONLY + "/model",                NOBODY + "/model",         (403, 404),
+          json=EXPORT),
+    Probe("PUT",    ONLY,                           NOBODY,                    (201, 201),
+          json={"display_name": "Someone"}, creates=True),
+    Probe("POST",   ONLY + "/episodes",             NOBODY + "/episodes",      (201, 201),
+          json=event("probe-1"), creates=True),
+    Probe("GET",    f"/v1/users/lin?fleet={A}",     "/v1/users/lin?fleet=nofleet", (404, 404)),
+    Probe("GET",    f"/v1/users/lin?fleet={A}",     NOBODY,                    (404, 404)),
+    Probe("GET",    f"/v1/users?fleet={A}",         "/v1/users?fleet=nofleet", (404, 404)),
+    Probe("GET",    f"/v1/episodes/{EP}",           f"/v1/episodes/{NEVER}",   (404, 404)),
+    Probe("POST",   f"/v1/episodes/{OPEN_EP}/outcomes", f"/v1/episodes/{NEVER}/outcomes",
+          (404, 404), json=OUTCOME),
+    Probe("POST",   f"/v1/episodes/{EP}/feedback",  f"/v1/episodes/{NEVER}/feedback",
+          (404, 404), json=FEEDBACK),
+]
+CONSOLE_ONLY, CONSOLE_NOBODY = "/admin/users/only-a", "/admin/users/nobody"
+# Staff of B on A's users in the console (robot keys get 403 on every console page).
+CONSOLE_PROBES: list[Probe] = [
+    Probe("GET", CONSOLE_ONLY + tail, CONSOLE_NOBODY + tail, (403, 404))
+    for tail in ("", "/why", "/episodes", "/export", "/reset", "/delete")
+] + [
+    Probe("POST", CONSOLE_ONLY + tail, CONSOLE_NOBODY + tail, (403, 404), form=True)
+    for tail in ("/reset", "/delete")
+] + [
+    Probe("GET", f"/admin/users/lin?fleet={A}", "/admin/users/lin?fleet=nofleet", (403, 404)),
+    Probe("GET", f"/admin/users/lin/episodes/{EP}/trace",
+          f"/admin/users/lin/episodes/{NEVER}/trace", (403, 404)),
+]
+
+
+def _ids(world: World, hidden: str, absent: str) -> list[tuple[str, str]]:
+    """The (hidden, absent) ids a probe's two paths differ by, and so may its two answers."""
+    a = world.fleets[A]
+    pairs = [("lin", "nobody"), ("only-a", "nobody"), (a.episode, NEVER),
+             (a.open_episode, NEVER), (A, "nofleet")]
+    return [(one, two) for one, two in pairs if one in hidden and two in absent]
+
+
+def _same(value: Any, hidden: str, absent: str) -> Any:
+    """``value`` with ``hidden`` and ``absent`` replaced by one placeholder, and what changes
+    from one request to the next (request ids) left out."""
+    if isinstance(value, dict):
+        return {k: _same(v, hidden, absent) for k, v in value.items() if k != "request_id"}
+    if isinstance(value, list):
+        return [_same(v, hidden, absent) for v in value]
+    if isinstance(value, str):
+        return value.replace(hidden, "<id>").replace(absent, "<id>")
+    return value
+
+
+def _created(body: dict[str, Any]) -> dict[str, Any]:
+    """A new user's or episode's answer without what differs from one id to another (the time,
+    the server's ids, the drawn action)."""
+    out = {k: v for k, v in body.items() if k not in ("created_at", "episode_id", "user_id")}
+    if isinstance(out.get("decision"), dict):
+        out["decision"] = {k: v for k, v in out["decision"].items()
+                           if k not in ("decision_id", "action", "expects")}
+    return out
+
+
+def _probe_cells() -> Iterator[Any]:
+    for probes, callers in ((PROBES, ("robot_b", "staff_b")), (CONSOLE_PROBES, ("staff_b",))):
+        for probe in probes:
+            for who in callers:
+                status = probe.expect[0 if who == "robot_b" else 1]
+                marks = ([pytest.mark.xfail(strict=True, reason=probe.bugs[who])]
+                         if who in probe.bugs else [])
+                yield pytest.param(probe, who, status,
+                                   id=f"{probe.method} {probe.hidden} {who}", marks=marks)
+
+
+@pytest.mark.parametrize(("probe", "who", "status"), list(_probe_cells()))
+def test_another_fleets_ids_are_ids_that_never_existed(world: World, probe: Probe, who: str,
+                                                        status: int) -> None:
+    only_a = send(world, "GET", "/v1/users/only-a", "robot_a").json()
+    before_a = world.snapshot()[A]
+    answers = []
+    urls = world.fill(probe.hidden, who), world.fill(probe.absent, who)
+    for url in urls:
+        form = {"csrf": world.csrf(who)} if probe.form else None
+        r = send(world, probe.method, url, who, json=world.fill(probe.json, who), form=form)
+        assert r.status_code == status, f"{probe.method} {url} as {who}: {r.text}"
+        answers.append(r)
+    hidden, absent = answers
+    assert hidden.headers["content-type"] == absent.headers["content-type"]
+    if hidden.headers["content-type"].startswith("application/json"):
+        one, two = hidden.json(), absent.json()
+        if probe.creates:
+            one, two = _created(one), _created(two)
+        else:
+            assert_error(hidden, status)
+    else:
+        one, two = hidden.text, absent.text
+    for a_id, never_id in _ids(world, *urls):
+        one, two = _same(one, a_id, never_id), _same(two, a_id, never_id)
+    assert one == two, f"{probe.method} {probe.hidden} as {who} differs from an absent id"
+    # A's users are as they were; a create made B's own user of that id.
+    assert world.snapshot()[A] == before_a
+    assert send(world, "GET", "/v1/users/only-a", "robot_a").json() == only_a
+    if probe.creates:
+        mine = _ok(send(world, "GET", "/v1/users/only-a", who), 200)
+        assert mine["fleet"] == B
+        assert mine["episodes"] == (1 if probe.method == "POST" else 0)
+        assert mine["display_name"] == (None if probe.method == "POST" else "Someone")
+
+
+# -- the same id, two people ---------------------------------------------------------------------
+def _model(world: World, fleet: str) -> dict[str, Any]:
+    return _ok(send(world, "GET", f"/v1/users/lin/model?fleet={fleet}", "admin"), 200)
+
+
+@pytest.mark.parametrize(("who", "q", "fleet"), [
+    ("staff_a", "", A), ("staff_b", "", B), ("admin", f"?fleet={A}", A),
+    ("admin", f"?fleet={B}", B)])
+def test_a_reset_stays_in_its_fleet(world: World, who: str, q: str, fleet: str) -> None:
+    other = B if fleet == A else A
+    before = world.snapshot()
+    version = _model(world, fleet)["version"]
+    assert send(world, "DELETE", f"/v1/users/lin/model{q}", who).status_code == 204
+    after = world.snapshot()
+    assert _model(world, fleet)["version"] == version + 1
+    assert after[fleet]["lin/episodes"] == before[fleet]["lin/episodes"]  # history kept
+    assert after[other] == before[other]  # the other lin: model, version, stats, history
+
+
+@pytest.mark.parametrize("who", ["robot_a", "robot_b", "staff_a", "staff_b"])
+def test_each_fleet_writes_its_own_lin(world: World, who: str) -> None:
+    fleet = HOME[who]
+    other = B if fleet == A else A
+    before = world.snapshot()
+    mine = _ok(send(world, "GET", "/v1/users/lin", who), 200)
+    assert (mine["fleet"], mine["display_name"]) == (fleet, f"Lin of {fleet}")
+    renamed = _ok(send(world, "PUT", "/v1/users/lin", who, json={"display_name": who}), 200)
+    assert (renamed["fleet"], renamed["display_name"]) == (fleet, who)
+    _ok(send(world, "POST", "/v1/users/lin/episodes", who, json=event(f"{who}-1")), 201)
+    episodes = _ok(send(world, "GET", "/v1/users/lin/episodes", who), 200)["items"]
+    assert len(episodes) == 3
+    assert {e["fleet"] for e in episodes} == {fleet}
+    after = world.snapshot()
+    assert after[fleet]["lin"]["display_name"] == who
+    assert after[fleet]["lin"]["episodes"] == before[fleet]["lin"]["episodes"] + 1
+    assert after[other] == before[other]
+
+
+def test_the_admin_names_the_fleet(world: World) -> None:
+    for fleet in (A, B):
+        lin = _ok(send(world, "GET", f"/v1/users/lin?fleet={fleet}", "admin"), 200)
+        assert (lin["fleet"], lin["display_name"]) == (fleet, f"Lin of {fleet}")
+        trace = _ok(send(world, "GET", f"/v1/episodes/{world.fleets[fleet].episode}",
+                         "admin"), 200)
+        assert (trace["fleet"], trace["user_id"]) == (fleet, "lin")
+    # Without ?fleet: the admin key's own fleet, "default", which has no lin.
+    absent = assert_error(send(world, "GET", "/v1/users/lin", "admin"), 404, "NotFound")
+    nobody = assert_error(send(world, "GET", "/v1/users/nobody", "admin"), 404, "NotFound")
+    assert _same(absent, "'lin'", "'nobody'") == _same(nobody, "'lin'", "'nobody'")
+    before = world.snapshot()
+    made = _ok(send(world, "PUT", "/v1/users/lin", "admin", json={}), 201)
+    assert made["fleet"] == "default"
+    assert world.snapshot() == before
+    listed = _ok(send(world, "GET", "/v1/users", "admin"), 200)["items"]
+    assert [(u["fleet"], u["user_id"]) for u in listed] == [
+        ("default", "lin"), (A, "lin"), (A, "only-a"), (B, "lin")]
+    listed = _ok(send(world, "GET", f"/v1/users?fleet={B}", "admin"), 200)["items"]
+    assert [(u["fleet"], u["user_id"]) for u in listed] == [(B, "lin")]
+    # The keys: revoking one stops it at once.
+    victim = {"Authorization": f"Bearer {world.secrets['robot_a']}"}
+    assert world.client.get("/v1/users/lin", headers=victim).status_code == 200
+    keys = _ok(send(world, "GET", "/v1/admin/keys", "admin"), 200)["items"]
+    [robot_a] = [k["key_id"] for k in keys if k["name"] == "robot_a"]
+    assert send(world, "DELETE", f"/v1/admin/keys/{robot_a}", "admin").status_code == 204
+    assert_error(world.client.get("/v1/users/lin", headers=victim), 401, "Unauthorized")
+    # Robot and staff keys may name their own fleet: the same as not naming it.
+    for who in ("robot_b", "staff_b"):
+        named = _ok(send(world, "GET", f"/v1/users/lin?fleet={B}", who), 200)
+        assert named == _ok(send(world, "GET", "/v1/users/lin", who), 200)
+
+
+def test_lists_and_audit_log_are_per_fleet(world: World) -> None:
+    for who in ("robot_a", "robot_b", "staff_a", "staff_b"):
+        listed = _ok(send(world, "GET", "/v1/users", who), 200)["items"]
+        expected = [(A, "lin"), (A, "only-a")] if HOME[who] == A else [(B, "lin")]
+        assert [(u["fleet"], u["user_id"]) for u in listed] == expected, who
+    assert send(world, "DELETE", "/v1/users/lin/model", "staff_a").status_code == 204
+    for who in ("staff_a", "staff_b"):
+        items = _ok(send(world, "GET", "/v1/admin/audit?limit=500", who), 200)["items"]
+        assert {e["fleet"] for e in items} == {HOME[who]}, who
+        assert ("model.export", "lin") in {(e["action"], e["target"]) for e in items}
+        assert (("model.reset", "lin") in {(e["action"], e["target"]) for e in items}) == \
+            (who == "staff_a")
+    items = _ok(send(world, "GET", "/v1/admin/audit?limit=500", "admin"), 200)["items"]
+    assert {A, B, "default"} <= {e["fleet"] for e in items}
+
+
+# -- the console's sign-in -------------------------------------------------------------------------
+def test_console_sign_in_by_key_kind(world: World) -> None:
+    """docs/console.md and api.md: staff (their fleet) and admin keys sign in; a robot key is
+    refused (403), an unknown or revoked one too (401); a refusal sets no session."""
+    for who, status in (("none", 401), ("revoked", 401), ("robot_a", 403), ("robot_b", 403),
+                        ("staff_a", 303), ("staff_b", 303), ("admin", 303)):
+        secret = world.secret(who) or ""
+        r = send(world, "POST", "/admin/login", who, form={"key": secret})
+        assert r.status_code == status, (who, r.text)
+        set_cookie = r.headers.get("set-cookie", "")
+        if status == 303:
+            assert r.headers["location"] == "/admin/users"
+            assert r.cookies.get(COOKIE) == secret
+            assert "httponly" in set_cookie.lower()
+            assert "samesite=strict" in set_cookie.lower()
+            assert "path=/admin" in set_cookie.lower()
+        else:
+            assert r.cookies.get(COOKIE) is None, who
+            assert secret == "" or secret not in r.text
+    # A console POST needs the token of the signed-in key's own pages: none, or another key's,
+    # is refused (403) and changes nothing.
+    before = world.snapshot()
+    for who, token in (("staff_b", ""), ("staff_b", world.csrf("staff_a")),
+                       ("admin", world.csrf("staff_a"))):
+        q = ADMIN_Q if who == "admin" else ""
+        for action in ("reset", "delete"):
+            r = send(world, "POST", f"/admin/users/lin/{action}{q}", who, form={"csrf": token})
+            assert r.status_code == 403, (who, action, r.status_code)
+    assert world.snapshot() == before
+    # Staff see their fleet's users, the admin every fleet's.
+    for who, shown, hidden in (("staff_a", ["only-a", f"Lin of {A}"], [f"Lin of {B}"]),
+                               ("staff_b", [f"Lin of {B}"], ["only-a", f"Lin of {A}"]),
+                               ("admin", ["only-a", f"Lin of {A}", f"Lin of {B}"], [])):
+        page = send(world, "GET", "/admin/users", who)
+        assert page.status_code == 200, who
+        for text in shown:
+            assert text in page.text, (who, text)
+        for text in hidden:
+            assert text not in page.text, (who, text)
