@@ -243,7 +243,7 @@ class TestEpisodes:
         assert indices[0] == "#35"
         assert indices[-1] == "#11"
         page.click("#newer")
-        page.wait_for_url("**/episodes?per_page=25")
+        page.wait_for_url("**/episodes?fleet=default&per_page=25")
         assert page.locator("details.episode .idx").first.inner_text() == "#60"
         page.fill("#goto", "10")
         page.click("#episodes-card form button[type=submit]")
@@ -274,12 +274,12 @@ class TestAdminActions:
         expect(page.locator("#confirm")).to_contain_text("history (12 episodes) is kept")
         shot(page, "confirm-reset")
         page.click("#cancel")
-        page.wait_for_url(f"**/admin/users/{user_id}")
+        page.wait_for_url(f"**/admin/users/{user_id}?fleet=default")
         assert site.get(f"/v1/users/{user_id}/model")["version"] == before["version"]
 
         page.click("#reset")
         page.click("#confirm-reset")
-        page.wait_for_url(f"**/admin/users/{user_id}?done=reset")
+        page.wait_for_url(f"**/admin/users/{user_id}?fleet=default&done=reset")
         expect(page.locator("#reset-notice")).to_be_visible()
         after = site.get(f"/v1/users/{user_id}/model")
         assert after["version"] == before["version"] + 1

@@ -46,7 +46,7 @@ def get_user(user_id: UserId, session: Session, principal: CurrentPrincipal,
     return service.get_user(session, principal, user_id, fleet=fleet)
 
 
-@router.get("", response_model=UserList, responses=responses())
+@router.get("", response_model=UserList, responses=responses(404))
 def list_users(
     session: Session, principal: CurrentPrincipal,
     limit: Limit = 50,
