@@ -52,6 +52,11 @@ class TabularLearner(Generic[P]):
     algorithm: ClassVar[str]
     params_type: ClassVar[type[Params]]
     _tables: ClassVar[dict[str, tuple[type, str]]] = {}  # name -> (dtype, shape code)
+    # Reward-sum tables and the successor-count table whose sum over M counts their samples
+    # (the sum's code is the count's code without M). When a mission change drops a successor
+    # of a pair, its counts there leave and the sum is scaled to the samples kept, so the mean
+    # reward stays what it was (app.learning.remap).
+    _reward_sums: ClassVar[dict[str, str]] = {}
     MAX_OPEN_EPISODES: ClassVar[int] = 256
     MAX_EPISODE: ClassVar[int] = 2**62  # keeps every episode arithmetic inside int64
 

@@ -44,6 +44,7 @@ class HriLearner(TabularLearner[HriParams]):
         "rho": (np.int8, "CP"),
         "rho_episode": (np.int64, "CP"),
     }
+    _reward_sums: ClassVar[dict[str, str]] = {"rs": "ns"}
     ns: FloatArray
     rs: FloatArray
     rho: np.ndarray

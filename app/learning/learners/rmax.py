@@ -28,6 +28,7 @@ class RmaxLearner(TabularLearner[RmaxParams]):
         "r": (np.float64, "CP"),
         "ns": (np.float64, "CPM"),
     }
+    _reward_sums: ClassVar[dict[str, str]] = {"r": "ns"}
     r: FloatArray
     ns: FloatArray
 
