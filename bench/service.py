@@ -484,21 +484,26 @@ class Data:
         from app.db.models import LearnerModel, User
         from app.db.types import utcnow
         from app.services.learners import fresh_learner
+        from app.services.missions import current_version
 
-        learner = fresh_learner(self.ctx, "hri", None)
+        learner = fresh_learner("hri", None, self.ctx.mission)
         params, state, now = learner.params.to_dict(), learner.to_state(), utcnow()
         chunk = 5000
+        with self.db.transaction() as session:  # the fleet's mission version 1: the default
+            current_version(session, self.ctx, "default", for_new_user=True)
         for lo in range(0, n, chunk):
             ids = [f"{prefix}{i:06d}" for i in range(lo, min(n, lo + chunk))]
             with self.db.transaction() as session:
-                session.execute(insert(User), [
+                made = session.execute(insert(User).returning(User.id), [
                     {"user_id": u, "fleet": "default", "display_name": None, "algorithm": "hri",
-                     "params": params, "created_at": now, "episode_count": 0, "draws": 0}
-                    for u in ids])
+                     "params": params, "created_at": now, "episode_count": 0, "draws": 0,
+                     "seed_key": f"default/{u}"}
+                    for u in ids]).scalars().all()
                 session.execute(insert(LearnerModel), [
-                    {"user_id": u, "version": 0, "state": state, "base_state": None,
-                     "base_version": 0, "episode_offset": 0, "updated_at": now}
-                    for u in ids])
+                    {"user_pk": pk, "version": 0, "state": state, "base_state": None,
+                     "base_version": 0, "episode_offset": 0, "updated_at": now,
+                     "mission_version": 1, "base_mission_version": 1}
+                    for pk in made])
 
     def close(self) -> None:
         self.db.dispose()

@@ -214,8 +214,9 @@ def user_page(
     overall = models_service.stats(session, principal, user_id, last=None, fleet=user.fleet)
     recent = models_service.stats(session, principal, user_id, last=last, fleet=user.fleet)
     xs, ys = views.curve(overall.cumulative_reward)
+    mission = console_service.user_mission(session, ctx, user)
     return _page(request, "user.html", admin, user=user, model=model, tab="model",
-                 heat=views.heatmap(model, ctx.mission), overall=overall, recent=recent,
+                 heat=views.heatmap(model, mission), overall=overall, recent=recent,
                  last=last, chart={"x": xs, "y": ys}, done=done)
 
 
@@ -230,11 +231,12 @@ def why_page(
     _check_user_id(user_id)
     principal = admin.principal
     user = users_service.get_user(session, principal, user_id, fleet=fleet)
+    mission = console_service.user_mission(session, ctx, user)
     if time_slot is None or situation is None:
         latest = episodes_service.list_episodes(session, ctx, principal, user_id, limit=1,
                                                 cursor=None, fleet=user.fleet).items
         slot0, sit0 = ((latest[0].context.time_slot, latest[0].context.situation) if latest
-                       else ctx.mission.context_names(0))
+                       else mission.context_names(0))
         time_slot, situation = time_slot or slot0, situation or sit0
     model = models_service.model_view(session, ctx, principal, user_id, time_slot=time_slot,
                                       situation=situation, fleet=user.fleet)
@@ -244,7 +246,7 @@ def why_page(
                                                     fleet=user.fleet)
     return _page(request, "why.html", admin, user=user, model=model, tab="why",
                  context=context, rows=views.why_rows(context), trace=trace,
-                 mission=ctx.mission, v_max=ctx.mission.v_max)
+                 mission=mission, v_max=mission.v_max)
 
 
 @router.get("/users/{user_id}/episodes")

@@ -22,8 +22,8 @@ from sqlalchemy.orm import Mapped, mapped_column
 from .base import Base
 from .types import LearnerStateType, UTCDateTime, utcnow
 
-__all__ = ["ApiKey", "AuditEntry", "Decision", "Episode", "Feedback", "LearnerModel", "Sample",
-           "User"]
+__all__ = ["ApiKey", "AuditEntry", "Decision", "Episode", "Feedback", "FleetMission",
+           "LearnerModel", "Sample", "User"]
 
 ID = 40  # server-chosen ids: a prefix and 32 hex digits
 CLIENT_ID = 128  # client-chosen ids: ^[A-Za-z0-9._:-]{1,128}$
@@ -66,6 +66,36 @@ class User(Base):
     seed_key: Mapped[str] = mapped_column(String(2 * CLIENT_ID + 1))
 
 
+class FleetMission(Base):
+    """One version of a fleet's mission: the document as set, and how it was set.
+
+    Versions count 1, 2, 3... per fleet and are never changed or removed; the highest is the
+    mission in force. A fleet gets its version 1 (the deployment's default mission) when its
+    first user is created, unless its staff set one before. ``renames`` carried statistics from
+    the previous version; ``change_id`` makes the change idempotent (``request_hash`` and
+    ``response`` answer a repeat).
+    """
+
+    __tablename__ = "fleet_missions"
+    __table_args__ = (
+        UniqueConstraint("fleet", "version"),
+        UniqueConstraint("fleet", "change_id"),
+    )
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)
+    fleet: Mapped[str] = mapped_column(String(CLIENT_ID))
+    version: Mapped[int] = mapped_column(Integer)
+    name: Mapped[str] = mapped_column(String(64))
+    fingerprint: Mapped[str] = mapped_column(String(80))
+    document: Mapped[dict[str, Any]] = mapped_column(JSON)
+    renames: Mapped[dict[str, Any] | None] = mapped_column(JSON)
+    change_id: Mapped[str | None] = mapped_column(String(CLIENT_ID))
+    request_hash: Mapped[str | None] = mapped_column(String(64))
+    response: Mapped[dict[str, Any] | None] = mapped_column(JSON)
+    actor_key_id: Mapped[str | None] = mapped_column(String(ID))  # None: the default
+    created_at: Mapped[dt.datetime] = mapped_column(UTCDateTime(), default=utcnow)
+
+
 class LearnerModel(Base):
     """A user's learner: a snapshot of its state (the learning core's document) and where it
     started from.
@@ -92,6 +122,9 @@ class LearnerModel(Base):
     # more episodes than this user has, and its clock must never run backwards.
     episode_offset: Mapped[int] = mapped_column(Integer, default=0)
     updated_at: Mapped[dt.datetime] = mapped_column(UTCDateTime(), default=utcnow)
+    # The fleet's mission version the learner is laid out for, and the one its base was.
+    mission_version: Mapped[int] = mapped_column(Integer, default=1)
+    base_mission_version: Mapped[int] = mapped_column(Integer, default=1)
 
 
 class Episode(Base):
@@ -127,6 +160,7 @@ class Episode(Base):
     response: Mapped[dict[str, Any]] = mapped_column(JSON)
     created_at: Mapped[dt.datetime] = mapped_column(UTCDateTime(), default=utcnow)
     closed_at: Mapped[dt.datetime | None] = mapped_column(UTCDateTime())
+    mission_version: Mapped[int] = mapped_column(Integer, default=1)  # the fleet's, at start
 
 
 class Decision(Base):
@@ -177,7 +211,8 @@ class Sample(Base):
     """The model's journal: every transition and feedback handed to the learner, in order.
 
     ``version`` is the model version the write produced; the samples of one version were one
-    ``update`` call (``kind`` "transition") or one ``feedback`` call.
+    ``update`` call (``kind`` "transition"), one ``feedback`` call, or one move to another
+    mission version (``kind`` "mission").
     """
 
     __tablename__ = "samples"
@@ -197,6 +232,9 @@ class Sample(Base):
     reward: Mapped[float] = mapped_column(Float)
     next_state: Mapped[int | None] = mapped_column(Integer)
     signal: Mapped[int] = mapped_column(Integer, default=0)
+    # The mission version whose layout the indices refer to. A "mission" sample moves the model
+    # to that version (carrying what still applies) before the next samples are taught.
+    mission_version: Mapped[int] = mapped_column(Integer, default=1)
 
 
 class AuditEntry(Base):

@@ -100,6 +100,9 @@ class EpisodeCreated(BaseModel):
     state: str
     total_reward: float
     decision: DecisionOut | None
+    mission_version: int | None = Field(
+        default=None, description="The fleet's mission version the episode runs under "
+        "(absent in answers stored before missions had versions).")
 
 
 class OutcomeIn(BaseModel):
@@ -119,9 +122,13 @@ class OutcomeIn(BaseModel):
     )
 
 
+EpisodeStatus = Literal["open", "closed", "interrupted"]
+
+
 class EpisodeBrief(BaseModel):
     episode_id: str
-    status: Literal["open", "closed"]
+    status: EpisodeStatus = Field(description="interrupted: closed by a change of the fleet's "
+                                  "mission before it ended; it takes no more outcomes.")
     state: str
     total_reward: float
 
@@ -175,7 +182,7 @@ class EpisodeSummary(BaseModel):
     fleet: str = Field(description="The user's fleet.")
     event_id: str
     robot_id: str | None
-    status: Literal["open", "closed"]
+    status: EpisodeStatus
     context: ContextOut
     initiator: Literal["robot", "human"]
     interaction_class: Literal["I1", "I2", "I3", "none"]
@@ -183,6 +190,7 @@ class EpisodeSummary(BaseModel):
     state: str
     occurred_at: dt.datetime
     index: int = Field(description="1-based position of the episode in the user's history.")
+    mission_version: int = Field(description="The fleet's mission version it ran under.")
 
 
 class EpisodeTrace(EpisodeSummary):

@@ -14,7 +14,11 @@ from dataclasses import dataclass
 from sqlalchemy.orm import Session
 
 from app.db.repositories import console as repo
+from app.db.repositories import models as models_repo
+from app.db.repositories import users as users_repo
+from app.db.repositories.users import UserRow
 from app.errors import ValidationFailed
+from app.learning import Mission
 from app.schemas.episodes import EpisodeTrace
 from app.schemas.users import UserOut
 
@@ -22,7 +26,7 @@ from .context import Principal, ServiceContext
 from .episodes import get_trace
 from .users import user_out, visible_user
 
-__all__ = ["RECENT_EPISODES", "UserActivity", "UserPage", "find_users",
+__all__ = ["RECENT_EPISODES", "UserActivity", "UserPage", "find_users", "user_mission",
            "latest_trace_in_context"]
 
 RECENT_EPISODES = 100  # "recent": the last 100 episodes, the paper's block size (Table II)
@@ -80,6 +84,18 @@ def find_users(
     return UserPage(items=items, total=total, page=page, per_page=per_page)
 
 
+def user_mission(session: Session, ctx: ServiceContext, user: UserOut | UserRow) -> Mission:
+    """The mission version a user's model is laid out for (the fleet's in force)."""
+    pk = user.id if isinstance(user, UserRow) else None
+    if pk is None:
+        found = users_repo.get(session, user.fleet, user.user_id)
+        assert found is not None  # the caller found the user
+        pk = found.id
+    model = models_repo.head(session, pk)
+    assert model is not None  # every user is created with its model
+    return ctx.missions.get(session, user.fleet, model.mission_version).mission
+
+
 def latest_trace_in_context(
     session: Session, ctx: ServiceContext, principal: Principal, user_id: str, *,
     time_slot: str, situation: str, fleet: str | None = None,
@@ -87,8 +103,8 @@ def latest_trace_in_context(
     """The trace of the user's most recent episode in (time slot, situation), if any."""
     user = visible_user(session, principal, user_id, fleet=fleet)
     try:
-        context = ctx.mission.context_index(time_slot, situation)
+        user_mission(session, ctx, user).context_index(time_slot, situation)
     except ValueError as exc:
         raise ValidationFailed(str(exc)) from None
-    episode_id = repo.latest_episode_in_context(session, user.id, context)
+    episode_id = repo.latest_episode_in_context(session, user.id, time_slot, situation)
     return None if episode_id is None else get_trace(session, ctx, principal, episode_id)

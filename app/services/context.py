@@ -1,4 +1,4 @@
-"""What every use case needs besides the session: settings, the mission, and the learner cache."""
+"""What every use case needs besides the session: settings, the missions, and the learner cache."""
 
 from __future__ import annotations
 
@@ -19,6 +19,8 @@ from sqlalchemy.orm import Session
 from app.learning import Mission, NegotiationSpace, load_mission, office_mission, space_for
 from app.learning.learners import TabularLearner
 from app.settings import Settings
+
+from .mission_book import MissionBook
 
 __all__ = ["KeyCache", "LearnerCache", "Principal", "ServiceContext", "after_commit", "body_hash",
            "rng_for"]
@@ -129,11 +131,16 @@ class LearnerCache:
 
 @dataclass
 class ServiceContext:
+    """``mission`` is the deployment's default mission (``ATTUNE_MISSION_PATH`` or the built-in
+    office mission): a fleet gets it as its version 1. Every fleet's own versions are read
+    through ``missions``."""
+
     settings: Settings
     mission: Mission
     space: NegotiationSpace
     cache: LearnerCache
     keys: KeyCache
+    missions: MissionBook
 
     @classmethod
     def from_settings(cls, settings: Settings) -> ServiceContext:
@@ -141,7 +148,7 @@ class ServiceContext:
             load_mission(settings.mission_path) if settings.mission_path else office_mission()
         )
         return cls(settings, mission, space_for(mission), LearnerCache(settings.model_cache_size),
-                   KeyCache(settings.key_cache_seconds))
+                   KeyCache(settings.key_cache_seconds), MissionBook(mission))
 
 
 def rng_for(seed: int, seed_key: str, draw: int) -> np.random.Generator:

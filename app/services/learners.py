@@ -10,7 +10,7 @@ the learner back only once the transaction commits.
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from itertools import groupby
 from typing import Any, Literal
 
@@ -20,39 +20,54 @@ from app.db.repositories import models as repo
 from app.db.repositories.models import ModelRow, SampleRow
 from app.db.types import utcnow
 from app.errors import ValidationFailed
-from app.learning import Polarity, Transition, learner_from_state, make_learner
+from app.learning import Mission, Polarity, Transition, learner_from_state, make_learner
 from app.learning.learners import TabularLearner
 
 from .context import ServiceContext, after_commit
 
-__all__ = ["StartOver", "fresh_learner", "load_learner", "replay", "save_learner",
-           "transition_samples"]
+__all__ = ["Mover", "StartOver", "fresh_learner", "load_learner", "replay", "save_learner",
+           "save_move", "transition_samples"]
 
 StartOver = Literal["fresh", "imported"]
+# Carries a learner from one mission version to another (a "mission" sample in the journal).
+Mover = Callable[[TabularLearner[Any], int, int], TabularLearner[Any]]
 
 
 def fresh_learner(
-    ctx: ServiceContext, algorithm: str, params: dict[str, Any] | None
+    algorithm: str, params: dict[str, Any] | None, mission: Mission
 ) -> TabularLearner[Any]:
     """A new learner, or 422 naming what is wrong with the algorithm or its parameters."""
     try:
-        return make_learner(algorithm, params, ctx.mission)
+        return make_learner(algorithm, params, mission)
     except ValueError as exc:
         raise ValidationFailed(str(exc)) from None
 
 
-def replay(learner: TabularLearner[Any], samples: Iterable[SampleRow]) -> int:
-    """Teach ``learner`` journal entries in order, one call per model version (as they were
-    taught); returns the number of versions replayed."""
+def replay(learner: TabularLearner[Any], samples: Iterable[SampleRow], *,
+           layout: int, move: Mover | None = None) -> tuple[TabularLearner[Any], int, int]:
+    """Teach ``learner`` (laid out for mission version ``layout``) journal entries in order,
+    one call per model version (as they were taught), following the moves to other mission
+    versions with ``move``; returns (the learner, its layout, the number of versions
+    replayed)."""
     writes = 0
-    for _, group in groupby(samples, key=lambda s: s.version):
-        _teach(learner, list(group))
+    for _, grouped in groupby(samples, key=lambda s: s.version):
+        group = list(grouped)
+        if group[0].kind == "mission":
+            target = group[0].mission_version
+            if move is None:
+                raise ValueError(f"version {group[0].version} moves the model to mission "
+                                 f"version {target}, and no mover was given")
+            learner, layout = move(learner, layout, target), target
+        else:
+            _teach(learner, group)
         writes += 1
-    return writes
+    return learner, layout, writes
 
 
 def _teach(learner: TabularLearner[Any], samples: Sequence[SampleRow]) -> None:
     first = samples[0]
+    if first.kind == "mission":
+        raise ValueError("a move to another mission version is not taught; see replay")
     if first.kind == "feedback":
         learner.feedback(first.episode, first.context, first.action, first.reward)
     else:
@@ -66,15 +81,18 @@ def _next_state(sample: SampleRow) -> int:
     return sample.next_state
 
 
-def transition_samples(user_pk: int, transitions: Sequence[Transition]) -> list[SampleRow]:
+def transition_samples(user_pk: int, transitions: Sequence[Transition],
+                       mission_version: int) -> list[SampleRow]:
     """The journal entries of one ``update`` call (the version is set when saved)."""
     return [SampleRow(user_pk, 0, "transition", t.episode, t.context, t.state, t.action,
-                      float(t.reward), t.next_state, int(t.signal)) for t in transitions]
+                      float(t.reward), t.next_state, int(t.signal), mission_version)
+            for t in transitions]
 
 
-def load_learner(session: Session, ctx: ServiceContext, user_pk: int, model: ModelRow, *,
-                 for_write: bool) -> TabularLearner[Any]:
-    """The learner of user ``user_pk`` at ``model.version``.
+def load_learner(session: Session, ctx: ServiceContext, fleet: str, user_pk: int,
+                 model: ModelRow, *, for_write: bool) -> TabularLearner[Any]:
+    """The learner of user ``user_pk`` (of ``fleet``) at ``model.version``, laid out for the
+    model's mission version.
 
     ``for_write``: the caller holds the user's lock and will hand the learner to
     :func:`save_learner`; the worker's cached learner is taken for it (no other request sees it
@@ -84,10 +102,29 @@ def load_learner(session: Session, ctx: ServiceContext, user_pk: int, model: Mod
         cached = ctx.cache.take(user_pk, model.version)
         if cached is not None:
             return cached
-    learner = learner_from_state(repo.snapshot(session, user_pk), ctx.mission)
-    if model.version > model.state_version:
-        replay(learner, repo.samples_since(session, user_pk, model.state_version))
+    mission = ctx.missions.get(session, fleet, model.mission_version).mission
+    learner = learner_from_state(repo.snapshot(session, user_pk), mission)
+    if model.version > model.state_version:  # a move always stores a snapshot: no move here
+        learner, _, _ = replay(learner, repo.samples_since(session, user_pk,
+                                                            model.state_version),
+                               layout=model.mission_version)
     return learner
+
+
+def save_move(session: Session, ctx: ServiceContext, user_pk: int, model: ModelRow,
+              learner: TabularLearner[Any], mission_version: int) -> None:
+    """Store the user's learner carried to ``mission_version``: one version on, journalled as
+    a "mission" sample, with a snapshot (a snapshot is always laid out for the model's mission
+    version)."""
+    model.version += 1
+    model.mission_version = mission_version
+    repo.advance(session, user_pk, version=model.version, updated_at=utcnow(),
+                 state=learner.to_state(), mission_version=mission_version)
+    model.state_version = model.version
+    repo.add_samples(session, [SampleRow(user_pk, model.version, "mission", 0, 0, 0, 0, 0.0,
+                                         None, 0, mission_version)])
+    version = model.version
+    after_commit(session, lambda: ctx.cache.put(user_pk, version, learner))
 
 
 def save_learner(session: Session, ctx: ServiceContext, user_pk: int, model: ModelRow,
@@ -116,7 +153,9 @@ def save_learner(session: Session, ctx: ServiceContext, user_pk: int, model: Mod
         state = learner.to_state()
         repo.replace(session, user_pk, version=model.version, state=state,
                      base_state=state if start_over == "imported" else None,
-                     episode_offset=model.episode_offset, updated_at=utcnow())
+                     episode_offset=model.episode_offset,
+                     mission_version=model.mission_version, updated_at=utcnow())
+        model.base_mission_version = model.mission_version
     elif samples or snapshot:
         if samples:
             _teach(learner, samples)

@@ -24,7 +24,7 @@ from app.learning.types import Interaction
 from app.schemas.common import ActionOut
 from app.schemas.models import ActionBelief, ContextModel, ModelOut, StateModel, StatsOut
 
-from . import audit
+from . import audit, missions
 from .auth import require_manager
 from .context import Principal, ServiceContext, rng_for
 from .episodes import action_out
@@ -51,14 +51,15 @@ def model_view(
     time_slot: str | None, situation: str | None, fleet: str | None = None,
 ) -> ModelOut:
     user = visible_user(session, principal, user_id, fleet=fleet)
-    mission, space = ctx.mission, ctx.space
+    model = _head(session, user)
+    layout = ctx.missions.get(session, user.fleet, model.mission_version)
+    mission, space = layout.mission, layout.space
     if time_slot is not None and time_slot not in [t.name for t in mission.time_slots]:
         raise ValidationFailed(f"time_slot must be one of "
                                f"{', '.join(t.name for t in mission.time_slots)}.")
     if situation is not None and situation not in mission.situations:
         raise ValidationFailed(f"situation must be one of {', '.join(mission.situations)}.")
-    model = _head(session, user)
-    learner = load_learner(session, ctx, user.id, model, for_write=False)
+    learner = load_learner(session, ctx, user.fleet, user.id, model, for_write=False)
     # "if asked now": the next episode; an imported model may have seen more episodes than
     # this user has (learned elsewhere), and its clock must not run backwards
     now = user.episode_count + model.episode_offset + 1
@@ -86,7 +87,8 @@ def model_view(
                                      detail=info.detail, actions=actions))
         contexts.append(ContextModel(time_slot=slot, situation=sit, states=states))
     return ModelOut(user_id=user.user_id, algorithm=user.algorithm, params=dict(user.params),
-                    version=model.version, episodes=user.episode_count, contexts=contexts)
+                    version=model.version, episodes=user.episode_count,
+                    mission_version=model.mission_version, contexts=contexts)
 
 
 def stats(session: Session, principal: Principal, user_id: str, *, last: int | None,
@@ -112,8 +114,9 @@ def reset_model(session: Session, ctx: ServiceContext, principal: Principal, use
     require_manager(principal)
     user = visible_user(session, principal, user_id, fleet=fleet, lock=True)
     model = _head(session, user)
+    mission = ctx.missions.get(session, user.fleet, model.mission_version).mission
     save_learner(session, ctx, user.id, model,
-                 fresh_learner(ctx, user.algorithm, dict(user.params)), start_over="fresh")
+                 fresh_learner(user.algorithm, dict(user.params), mission), start_over="fresh")
     audit.record(session, principal, "model.reset", target=user_id, fleet=user.fleet,
                  detail={"version": model.version})
 
@@ -127,20 +130,17 @@ def export_model(session: Session, ctx: ServiceContext, principal: Principal, us
                  detail={"version": model.version})
     if model.state_version == model.version:  # the stored document is the model: as it is
         return models_repo.snapshot(session, user.id)
-    return load_learner(session, ctx, user.id, model, for_write=False).to_state()
+    return load_learner(session, ctx, user.fleet, user.id, model, for_write=False).to_state()
 
 
 def import_model(session: Session, ctx: ServiceContext, principal: Principal, user_id: str,
                  doc: Any, *, fleet: str | None = None) -> ModelOut:
     require_manager(principal)
     user = visible_user(session, principal, user_id, fleet=fleet, lock=True)
-    try:
-        learner = learner_from_state(doc, ctx.mission)
-    except (StateFormatError, ValueError) as exc:
-        raise ValidationFailed(f"Not a learner state this deployment can load: {exc}") from None
+    model = _head(session, user)
+    learner = _imported(session, ctx, user.fleet, model.mission_version, doc)
     user.algorithm, user.params = learner.algorithm, learner.params.to_dict()
     users_repo.save_profile(session, user)
-    model = _head(session, user)
     save_learner(session, ctx, user.id, model, learner, start_over="imported",
                  episode_offset=max(model.episode_offset,
                                     learner.episodes - user.episode_count))
@@ -148,6 +148,25 @@ def import_model(session: Session, ctx: ServiceContext, principal: Principal, us
                  detail={"algorithm": learner.algorithm, "version": model.version})
     return model_view(session, ctx, principal, user_id, time_slot=None, situation=None,
                       fleet=user.fleet)
+
+
+def _imported(session: Session, ctx: ServiceContext, fleet: str, layout: int, doc: Any
+              ) -> TabularLearner[Any]:
+    """An exported learner state, carried to the fleet's mission version ``layout`` if it was
+    learned under an earlier version of the fleet's mission; or 422."""
+    meta = doc.get("mission") if isinstance(doc, dict) else None
+    fingerprint = meta.get("fingerprint") if isinstance(meta, dict) else None
+    source = layout
+    if isinstance(fingerprint, str):
+        for version in range(layout, 0, -1):
+            if ctx.missions.get(session, fleet, version).mission.fingerprint == fingerprint:
+                source = version
+                break
+    try:
+        learner = learner_from_state(doc, ctx.missions.get(session, fleet, source).mission)
+    except (StateFormatError, ValueError) as exc:
+        raise ValidationFailed(f"Not a learner state this deployment can load: {exc}") from None
+    return missions.move_learner(session, ctx, fleet, learner, source, layout)
 
 
 @dataclass
@@ -172,18 +191,25 @@ def rebuild_model(session: Session, ctx: ServiceContext, principal: Principal, u
     user = visible_user(session, principal, user_id, fleet=fleet, lock=True)
     model = _head(session, user)
     base = models_repo.base_state(session, user.id)
-    learner: TabularLearner[Any] = (learner_from_state(base, ctx.mission) if base
-                                    else fresh_learner(ctx, user.algorithm, dict(user.params)))
+    layout = model.base_mission_version
+    mission = ctx.missions.get(session, user.fleet, layout).mission
+    learner: TabularLearner[Any] = (learner_from_state(base, mission) if base
+                                    else fresh_learner(user.algorithm, dict(user.params), mission))
     samples = models_repo.samples_since(session, user.id, model.base_version)
     report = RebuildReport(user_id, model.version, samples=len(samples))
     taught = 0
 
+    def move(learner: TabularLearner[Any], old: int, new: int) -> TabularLearner[Any]:
+        return missions.move_learner(session, ctx, user.fleet, learner, old, new)
+
     def teach_through(version: int) -> None:
-        nonlocal taught
+        nonlocal taught, learner, layout
         upto = taught
         while upto < len(samples) and samples[upto].version <= version:
             upto += 1
-        report.writes += replay(learner, samples[taught:upto])
+        learner, layout, writes = replay(learner, samples[taught:upto], layout=layout,
+                                         move=move)
+        report.writes += writes
         taught = upto
 
     for decision, context, seq in episodes_repo.decisions_for_rebuild(
@@ -201,7 +227,7 @@ def rebuild_model(session: Session, ctx: ServiceContext, principal: Principal, u
             report.mismatched_decisions.append(decision.id)
     teach_through(model.version)
     report.rebuilt = learner.to_state()
-    stored = load_learner(session, ctx, user.id, model, for_write=False).to_state()
+    stored = load_learner(session, ctx, user.fleet, user.id, model, for_write=False).to_state()
     report.identical = same_state(report.rebuilt, stored) and not report.mismatched_decisions
     if save and not report.identical:
         save_learner(session, ctx, user.id, model, learner, snapshot=True)
@@ -220,7 +246,7 @@ def snapshot_model(session: Session, ctx: ServiceContext, principal: Principal, 
     model = _head(session, user)
     if model.state_version == model.version:
         return False
-    learner = load_learner(session, ctx, user.id, model, for_write=False)
+    learner = load_learner(session, ctx, user.fleet, user.id, model, for_write=False)
     models_repo.store_snapshot(session, user.id, version=model.version,
                                state=learner.to_state())
     return True

@@ -25,6 +25,7 @@ from . import audit
 from .auth import require_manager
 from .context import Principal, ServiceContext
 from .learners import fresh_learner, save_learner
+from .missions import current_version
 
 __all__ = ["create_user", "delete_user", "fleet_of", "get_user", "list_users", "no_user",
            "put_user", "user_out", "visible_user"]
@@ -69,10 +70,12 @@ def create_user(session: Session, ctx: ServiceContext, fleet: str, user_id: str,
     """Create the user in ``fleet`` with a fresh learner, unless the fleet has that id; True
     when created. (Two requests creating the same user at once: one creates it, both go on.)"""
     spec = spec or LearnerSpec()
-    learner = fresh_learner(ctx, spec.algorithm, spec.params)
+    version = current_version(session, ctx, fleet, for_new_user=True)
+    learner = fresh_learner(spec.algorithm, spec.params,
+                            ctx.missions.get(session, fleet, version).mission)
     return repo.create(session, user_id=user_id, fleet=fleet, algorithm=spec.algorithm,
                        params=learner.params.to_dict(), display_name=display_name,
-                       state=learner.to_state(), now=utcnow())
+                       state=learner.to_state(), mission_version=version, now=utcnow())
 
 
 def put_user(
@@ -92,7 +95,11 @@ def put_user(
     if body.display_name is not None:
         user.display_name = body.display_name
     if body.learner is not None:
-        learner = fresh_learner(ctx, body.learner.algorithm, body.learner.params)
+        model = models_repo.head(session, user.id)
+        assert model is not None  # every user is created with its model
+        learner = fresh_learner(body.learner.algorithm, body.learner.params,
+                                ctx.missions.get(session, user.fleet,
+                                                 model.mission_version).mission)
         params = learner.params.to_dict()
         if (body.learner.algorithm, params) != (user.algorithm, dict(user.params)):
             if user.episode_count > 0 and not reset_model:
@@ -101,8 +108,6 @@ def put_user(
                     "forgets what was learned. Repeat with ?reset_model=true to do so."
                 )
             user.algorithm, user.params = body.learner.algorithm, params
-            model = models_repo.head(session, user.id)
-            assert model is not None  # every user is created with its model
             save_learner(session, ctx, user.id, model, learner, start_over="fresh")
     repo.save_profile(session, user)
     return user_out(user), False

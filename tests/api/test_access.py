@@ -514,8 +514,8 @@ class TestAudit:
         with db.transaction() as session:  # the stored model no longer matches its history
             session.execute(update(LearnerModel).where(
                     LearnerModel.user_pk == user_pk(session, "lin")).values(
-                state=fresh_learner(ServiceContext.from_settings(settings), "hri",
-                                    None).to_state(), state_version=LearnerModel.version))
+                state=fresh_learner("hri", None, ServiceContext.from_settings(
+                    settings).mission).to_state(), state_version=LearnerModel.version))
         result = CliRunner().invoke(cli.app, ["models", "rebuild", "lin", "--save"], env={
             "ATTUNE_DATABASE_URL": settings.database_url, "ATTUNE_SEED": "0"})
         with warnings.catch_warnings():  # the command leaves its connections to the collector

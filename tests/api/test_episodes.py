@@ -82,7 +82,8 @@ class TestStartEpisode:
         assert "Idempotent-Replay" not in r.headers
         body = r.json()
         assert set(body) == {"episode_id", "user_id", "status", "context", "state",
-                             "total_reward", "decision"}
+                             "total_reward", "decision", "mission_version"}
+        assert body["mission_version"] == 1  # the fleet's first mission: the default
         assert isinstance(body["episode_id"], str)
         assert body["episode_id"]
         assert body["user_id"] == "lin"

@@ -35,6 +35,7 @@ from fastapi.routing import iter_route_contexts
 from fastapi.testclient import TestClient
 
 from app.console.auth import COOKIE, csrf_token
+from app.learning import office_mission
 from tests.support.contract import assert_error
 from tests.support.fixtures import MakeKey
 
@@ -77,6 +78,11 @@ class Row:
 OUTCOME = {"decision_id": "{decision_id}", "response": "{response}"}
 FEEDBACK = {"feedback_id": "matrix-fb", "feedback": "positive"}
 NEW_KEY = {"role": "robot", "fleet": A, "name": "matrix"}
+# fleet-a's mission with one more detail: every model of fleet-a moves to its version 2.
+COCOA = {"change_id": "matrix-change", "mission": {
+    **office_mission().to_dict(),
+    "services": [{"name": s.name, "details": [*s.details, "cocoa"] if s.name == "ProvideDrink"
+                  else list(s.details)} for s in office_mission().services]}}
 
 # The whole matrix at a glance.
 #   none / revoked: no key, a revoked key; rA rB sA sB: robot and staff of fleet-a / fleet-b;
@@ -117,6 +123,10 @@ MATRIX: list[Row] = [
     Row("GET",    "/v1/admin/keys",                     (401, 401, 403, 403, 403, 403, 200)),
     Row("DELETE", "/v1/admin/keys/{key_id}",            (401, 401, 403, 403, 403, 403, 204)),
     Row("GET",    "/v1/admin/fleets",                   (401, 401, 403, 403, 403, 403, 200)),
+    Row("GET",    f"/v1/admin/fleets/{A}/missions",     (401, 401, 403, 403, 200, 403, 200),
+        route="/v1/admin/fleets/{fleet}/missions"),
+    Row("PUT",    f"/v1/admin/fleets/{A}/mission",      (401, 401, 403, 403, 200, 403, 200),
+        json=COCOA, writes=True, route="/v1/admin/fleets/{fleet}/mission"),
     # The console: a cookie holding the key (staff and admin get it by signing in; robot and
     # revoked keys, refused there, send one made by hand). "none": no cookie, so the pages
     # send the browser to the login form (303).

@@ -36,6 +36,12 @@ Fleet = Annotated[str | None, Query(
     description="The user's fleet, for admin keys (default: the key's own fleet). Robot and "
     "staff keys work in their own fleet: another fleet is answered as a user that does not "
     "exist.")]
+MissionFleet = Annotated[str | None, Query(
+    pattern=CLIENT_ID_PATTERN, examples=["care-home-north"],
+    description="Whose mission, for admin keys (default: the key's own fleet). Other keys may "
+    "name only their own fleet (403 otherwise).")]
+FleetName = Annotated[str, Path(pattern=CLIENT_ID_PATTERN, examples=["care-home-north"],
+                                description="The fleet.")]
 REPLAY_HEADER = {
     "Idempotent-Replay": {"description": "true when this repeats an earlier identical write.",
                           "schema": {"type": "string", "enum": ["true"]}},

@@ -10,11 +10,12 @@ from app.api.deps import CurrentPrincipal, TransactionalRoute
 from app.api.errors import responses
 from app.schemas.admin import FleetList, KeyCreated, KeyIn, KeyList
 from app.schemas.audit import AuditList
-from app.services import admin
+from app.schemas.models import MissionChanged, MissionChangeIn, MissionVersionList
+from app.services import admin, missions
 from app.services import audit as service
 from app.services.context import ServiceContext
 
-from ._common import Limit, SeqCursor, no_content
+from ._common import REPLAY_HEADER, FleetName, Limit, SeqCursor, no_content
 
 KeyId = Annotated[str, Path(max_length=64, description="The key's id (key_...).",
                             examples=["key_0123456789abcdef"])]
@@ -29,8 +30,8 @@ def list_audit(
     cursor: SeqCursor = None,
 ) -> AuditList:
     """The audit log, newest first: who (the key), what (user.delete, model.reset,
-    model.export, model.import, model.rebuild, key.create, key.revoke), when. Admins read every
-    fleet's entries, a fleet's staff its own."""
+    model.export, model.import, model.rebuild, key.create, key.revoke, mission.set), when.
+    Admins read every fleet's entries, a fleet's staff its own."""
     return service.list_audit(session, principal, limit=limit, cursor=cursor)
 
 
@@ -64,3 +65,28 @@ def list_fleets(session: Session, principal: CurrentPrincipal) -> FleetList:
     """The fleets with users or live keys, with their counts of users, keys and episodes
     (admin)."""
     return admin.fleets(session, principal)
+
+
+@router.get("/fleets/{fleet}/missions", response_model=MissionVersionList,
+            responses=responses(403))
+def list_missions(fleet: FleetName, session: Session, ctx: ServiceContext,
+                  principal: CurrentPrincipal) -> MissionVersionList:
+    """Every version of a fleet's mission, newest first (the fleet's staff, admins)."""
+    return MissionVersionList.model_validate(
+        missions.list_missions(session, ctx, principal, fleet))
+
+
+@router.put("/fleets/{fleet}/mission", response_model=MissionChanged,
+            responses={**responses(403, 409, 415), 200: {"headers": REPLAY_HEADER}})
+def set_mission(fleet: FleetName, body: MissionChangeIn, session: Session, ctx: ServiceContext,
+                principal: CurrentPrincipal) -> JSONResponse:
+    """Give a fleet a new mission (the fleet's staff, admins): a new version, and in the same
+    transaction every user's model of the fleet carried to it by names (what exists in both
+    versions keeps what was learned; ``renames`` carries it across a rename), and the fleet's
+    open episodes closed as ``interrupted``. Idempotent on ``change_id``; a mission equal to
+    the one in force changes nothing (``changed`` false). 422 names what is wrong with the
+    mission or the renames."""
+    renames = body.renames.model_dump() if body.renames is not None else None
+    out, replay = missions.set_mission(session, ctx, principal, fleet, change_id=body.change_id,
+                                       mission_doc=body.mission, renames_doc=renames)
+    return JSONResponse(out, headers={"Idempotent-Replay": "true"} if replay else None)

@@ -5,23 +5,30 @@ import logging
 from fastapi import APIRouter, Request, Response
 from fastapi.responses import JSONResponse
 from prometheus_client import CONTENT_TYPE_LATEST
+from sqlalchemy.orm import Session
 
 from app.api.deps import CurrentPrincipal, TransactionalRoute
 from app.api.errors import responses
 from app.api.middleware import error_body
 from app.db import migrate
 from app.db.session import Database
-from app.schemas.models import MissionOut
+from app.schemas.models import FleetMissionOut
+from app.services import missions
 from app.services.context import ServiceContext
+
+from ._common import MissionFleet
 
 router = APIRouter(tags=["service"], route_class=TransactionalRoute)
 log = logging.getLogger("attune.api")
 
 
-@router.get("/v1/mission", response_model=MissionOut, responses=responses())
-def get_mission(ctx: ServiceContext, _: CurrentPrincipal) -> MissionOut:
-    """The mission in force: situations, time slots, services and rewards."""
-    return MissionOut.model_validate(ctx.mission.to_dict())
+@router.get("/v1/mission", response_model=FleetMissionOut, responses=responses(403))
+def get_mission(session: Session, ctx: ServiceContext, principal: CurrentPrincipal,
+                fleet: MissionFleet = None) -> FleetMissionOut:
+    """Your fleet's mission in force (situations, time slots, services, rewards), with its
+    version: what robots negotiate about and what the learners' tables are laid out for."""
+    return FleetMissionOut.model_validate(
+        missions.fleet_mission(session, ctx, principal, fleet))
 
 
 @router.get("/healthz", responses={200: {"content": {"application/json": {

@@ -81,11 +81,14 @@ def recent_activity(session: Session, user_pks: Sequence[int], *, window: int
     return {uid: out.get(uid, Activity(0, 0, 0, None)) for uid in user_pks}
 
 
-def latest_episode_in_context(session: Session, user_pk: int, context: int) -> str | None:
-    """Id of the user's most recent episode in ``context``, if any."""
+def latest_episode_in_context(session: Session, user_pk: int, time_slot: str,
+                              situation: str) -> str | None:
+    """Id of the user's most recent episode in (``time_slot``, ``situation``), if any (by
+    names: the context's number may differ between mission versions)."""
     stmt = (
         select(Episode.id)
-        .where(Episode.user_pk == user_pk, Episode.context == context)
+        .where(Episode.user_pk == user_pk, Episode.time_slot == time_slot,
+               Episode.situation == situation)
         .order_by(Episode.seq.desc())
         .limit(1)
     )

@@ -15,8 +15,9 @@ from .models import ModelRow
 
 __all__ = ["DecisionRow", "EpisodeRow", "FeedbackRow", "MetricRow", "add_feedback",
            "by_event", "decision", "decisions", "decisions_for_rebuild", "feedback",
-           "feedback_list", "get", "insert_decisions", "insert_episode", "list_page",
-           "load_for_outcome", "metric_rows", "owner", "save_answer", "save_episode"]
+           "feedback_list", "get", "insert_decisions", "insert_episode", "interrupt_open",
+           "list_page", "load_for_outcome", "metric_rows", "owner", "save_answer",
+           "save_episode"]
 
 
 @dataclass(slots=True)
@@ -45,6 +46,7 @@ class EpisodeRow:
     response: dict[str, Any]
     created_at: dt.datetime
     closed_at: dt.datetime | None
+    mission_version: int  # the fleet's mission version the episode started (and ends) under
 
 
 @dataclass(slots=True)
@@ -217,6 +219,15 @@ def feedback_list(session: Session, episode_id: str) -> list[FeedbackRow]:
 
 def add_feedback(session: Session, row: FeedbackRow) -> None:
     conn(session).execute(_INSERT_FEEDBACK, [values(row, names(FeedbackRow))])
+
+
+def interrupt_open(session: Session, user_pk: int, *, at: dt.datetime) -> int:
+    """Close the user's open episodes as ``interrupted`` (their mission was replaced); how
+    many."""
+    result = conn(session).execute(
+        update(_episodes).where(_episodes.c.user_pk == user_pk, _episodes.c.status == "open")
+        .values(status="interrupted", closed_at=at))
+    return int(result.rowcount or 0)
 
 
 def list_page(session: Session, user_pk: int, *, before_seq: int | None, limit: int

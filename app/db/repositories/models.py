@@ -31,13 +31,16 @@ class ModelRow:
     base_version: int
     episode_offset: int
     state_version: int
+    mission_version: int  # the fleet's mission version the learner is laid out for
+    base_mission_version: int  # the one its base (fresh or imported) was laid out for
 
 
 @dataclass(slots=True)
 class SampleRow:
     """One journal entry: a transition the learner was taught, or explicit feedback
     (``kind`` "feedback", ``next_state`` None). ``version`` is the model version its write
-    produced; the samples of one version were one ``update`` (or ``feedback``) call."""
+    produced; the samples of one version were one ``update`` (or ``feedback``) call, or one move
+    to another mission version (``kind`` "mission", its indices 0)."""
 
     user_pk: int
     version: int
@@ -49,6 +52,7 @@ class SampleRow:
     reward: float
     next_state: int | None
     signal: int
+    mission_version: int  # the layout its indices refer to; kind "mission": the version moved to
 
 
 _models = table(LearnerModel)
@@ -86,12 +90,15 @@ def base_state(session: Session, user_pk: int) -> dict[str, Any] | None:
 
 
 def advance(session: Session, user_pk: int, *, version: int, updated_at: dt.datetime,
-            state: dict[str, Any] | None = None) -> None:
-    """Move the model to ``version``; with ``state``, the snapshot moves there too."""
+            state: dict[str, Any] | None = None, mission_version: int | None = None) -> None:
+    """Move the model to ``version``; with ``state``, the snapshot moves there too; with
+    ``mission_version``, the model is now laid out for that mission version."""
     params: dict[str, Any] = {"b_user_pk": user_pk, "version": version,
                               "updated_at": updated_at}
     if state is not None:
         params["state"], params["state_version"] = state, version
+    if mission_version is not None:
+        params["mission_version"] = mission_version
     _ADVANCE.run(session, params)
 
 
@@ -103,13 +110,15 @@ def store_snapshot(session: Session, user_pk: int, *, version: int,
 
 
 def replace(session: Session, user_pk: int, *, version: int, state: dict[str, Any],
-            base_state: dict[str, Any] | None, episode_offset: int,
+            base_state: dict[str, Any] | None, episode_offset: int, mission_version: int,
             updated_at: dt.datetime) -> None:
     """Start the model over at ``version`` from ``state`` (a reset, a new learner, an import:
-    ``base_state`` is the imported document, ``None`` for a fresh learner)."""
+    ``base_state`` is the imported document, ``None`` for a fresh learner), laid out for
+    ``mission_version``."""
     _ADVANCE.run(session, {
         "b_user_pk": user_pk, "version": version, "state": state, "state_version": version,
         "base_state": base_state, "base_version": version, "episode_offset": episode_offset,
+        "mission_version": mission_version, "base_mission_version": mission_version,
         "updated_at": updated_at})
 
 

@@ -14,7 +14,7 @@ from ..models import Episode, LearnerModel, User
 from ._rows import Prepared, columns, conn, record, table
 
 __all__ = ["UserRow", "all_ids", "create", "delete_user", "fleet_counts", "fleets_with", "get",
-           "list_page", "lock", "lock_owner", "save_counters", "save_profile"]
+           "list_page", "lock", "lock_fleet", "lock_owner", "save_counters", "save_profile"]
 
 
 @dataclass(slots=True)
@@ -59,6 +59,14 @@ def lock(session: Session, fleet: str, user_id: str) -> UserRow | None:
     return record(UserRow, _LOCK.first(session, {"fleet": fleet, "user_id": user_id}))
 
 
+def lock_fleet(session: Session, fleet: str) -> None:
+    """Lock every user of ``fleet`` for the rest of the transaction, in the order of their
+    numbers (a mission change: no write of the fleet's users runs beside it)."""
+    if conn(session).dialect.name == "postgresql":
+        conn(session).execute(select(_users.c.id).where(_users.c.fleet == fleet)
+                              .order_by(_users.c.id).with_for_update())
+
+
 def lock_owner(session: Session, episode_id: str) -> UserRow | None:
     """The user who owns an episode, locked as by :func:`lock`; ``None`` if no episode.
 
@@ -71,7 +79,7 @@ def lock_owner(session: Session, episode_id: str) -> UserRow | None:
 
 def create(session: Session, *, user_id: str, fleet: str, algorithm: str,
            params: dict[str, Any], display_name: str | None, state: dict[str, Any],
-           now: dt.datetime) -> bool:
+           mission_version: int, now: dt.datetime) -> bool:
     """Insert the user and its fresh model unless the fleet has that id; True when inserted.
 
     ``ON CONFLICT DO NOTHING`` makes two robots creating the same user at once safe: one wins,
@@ -93,7 +101,8 @@ def create(session: Session, *, user_id: str, fleet: str, algorithm: str,
         return False
     c.execute(insert(_models).values(
         user_pk=made[0], version=0, state=state, base_state=None, base_version=0,
-        episode_offset=0, updated_at=now))
+        episode_offset=0, mission_version=mission_version, base_mission_version=mission_version,
+        updated_at=now))
     return True
 
 

@@ -30,6 +30,7 @@ from app.learning import (
     ActionKind,
     Decision,
     Interaction,
+    NegotiationSpace,
     Observation,
     Polarity,
     Transition,
@@ -38,6 +39,7 @@ from app.learning.learners import TabularLearner
 from app.learning.negotiation import Tally, feedback_reward, outcome
 from app.schemas.episodes import EpisodeIn, FeedbackIn, OutcomeIn
 
+from .. import missions
 from ..context import Principal, ServiceContext, body_hash, rng_for
 from ..learners import load_learner, save_learner, transition_samples
 from ..users import create_user, fleet_of, no_user
@@ -71,9 +73,10 @@ class _Negotiation:
     the episode's figures; the caller stores the new decision rows and teaches the learner the
     transitions, in one batch."""
 
-    def __init__(self, ctx: ServiceContext, user: UserRow, episode: EpisodeRow,
-                 learner: TabularLearner[Any], model_version: int, *, position: int) -> None:
-        self.ctx, self.space = ctx, ctx.space
+    def __init__(self, ctx: ServiceContext, space: NegotiationSpace, user: UserRow,
+                 episode: EpisodeRow, learner: TabularLearner[Any], model_version: int, *,
+                 position: int) -> None:
+        self.ctx, self.space = ctx, space
         self.user, self.episode = user, episode
         self.learner, self.model_version = learner, model_version
         self.transitions: list[Transition] = []
@@ -181,7 +184,7 @@ def _store(session: Session, ctx: ServiceContext, step: _Negotiation, model: Mod
     episodes_repo.insert_decisions(session, step.new_rows)
     users_repo.save_counters(session, step.user)
     save_learner(session, ctx, step.user.id, model, step.learner,
-                 transition_samples(step.user.id, step.transitions))
+                 transition_samples(step.user.id, step.transitions, model.mission_version))
 
 
 def _lock_or_create(session: Session, ctx: ServiceContext, principal: Principal,
@@ -209,13 +212,25 @@ def _locked_owner(session: Session, principal: Principal, episode_id: str
     return (user, *loaded)
 
 
+def _carried(session: Session, ctx: ServiceContext, fleet: str, episode: EpisodeRow,
+             target: DecisionRow, layout: int) -> tuple[int, int, int] | None:
+    """(context, state, action) of an answered step in the model's layout (the episode may be
+    of an older mission version); ``None`` if the step no longer exists."""
+    context, state, action = episode.context, target.state, target.action
+    for step in missions.space_map(session, ctx, fleet, episode.mission_version, layout):
+        c, s, a = step.context(context), step.state(state), step.action(action)
+        if c is None or s is None or a is None:
+            return None
+        context, state, action = c, s, a
+    return context, state, action
+
+
 def start_episode(
     session: Session, ctx: ServiceContext, principal: Principal, user_id: str, body: EpisodeIn,
     *, fleet: str | None = None,
 ) -> Written:
     """An event near a user: open an episode and decide the robot's first action."""
     digest = body_hash(body)
-    validate.check_episode(ctx.mission, body)
     user = _lock_or_create(session, ctx, principal, user_id, fleet)
     earlier = episodes_repo.by_event(session, user.id, body.event_id)
     if earlier is not None:
@@ -224,12 +239,15 @@ def start_episode(
             raise Conflict(f"event_id {body.event_id!r} was already used with another body.")
         return Written(response, 200, True, fleet=user.fleet)
 
-    slot = ctx.mission.slot_at(body.occurred_at.timetz().replace(tzinfo=None))
-    context = ctx.mission.context_index(slot, body.situation)
     model = models_repo.head(session, user.id)
     if model is None:  # every user is created with its model; only a broken database lacks it
         raise RuntimeError(f"user {user.fleet}/{user_id} has no model row")
-    learner = load_learner(session, ctx, user.id, model, for_write=True)
+    layout = ctx.missions.get(session, user.fleet, model.mission_version)
+    mission, space = layout.mission, layout.space
+    validate.check_episode(mission, body)
+    slot = mission.slot_at(body.occurred_at.timetz().replace(tzinfo=None))
+    context = mission.context_index(slot, body.situation)
+    learner = load_learner(session, ctx, user.fleet, user.id, model, for_write=True)
     user.episode_count += 1
     request = body.request
     episode = EpisodeRow(
@@ -239,24 +257,25 @@ def start_episode(
         time_slot=slot, situation=body.situation, context=context, initiator=body.initiator,
         request_service=request.service if request else None,
         request_detail=request.detail if request else None,
-        status="open", state=ctx.space.OBSERVE, total_reward=0.0,
+        status="open", state=space.OBSERVE, total_reward=0.0,
         interaction_class=Interaction.NONE.value, initiated=False, success=False, queries=0,
         request_hash=digest, response={}, created_at=utcnow(), closed_at=None,
+        mission_version=model.mission_version,
     )
-    step = _Negotiation(ctx, user, episode, learner, model.version, position=0)
+    step = _Negotiation(ctx, space, user, episode, learner, model.version, position=0)
     if body.initiator == "human":
         service = request.service if request else None
         detail = request.detail if request else None
         root = step.human_root(service, detail)
         decision = step.after_request(int(root.next_state or 0), service, detail)
     else:
-        decision = step.decide(ctx.space.OBSERVE)
+        decision = step.decide(space.OBSERVE)
     step.finish()
     out = {
         "episode_id": episode.id, "user_id": user_id, "status": "open",
         "context": {"time_slot": slot, "situation": body.situation},
-        "state": state_name(ctx.space, episode.state), "total_reward": episode.total_reward,
-        "decision": decision_out(ctx.space, decision),
+        "state": state_name(space, episode.state), "total_reward": episode.total_reward,
+        "decision": decision_out(space, decision), "mission_version": model.mission_version,
     }
     episode.response = out
     with batch(session):  # writes only: one round trip on PostgreSQL
@@ -277,6 +296,9 @@ def report_outcome(
         if row.outcome_hash != digest:
             raise Conflict(f"Decision {body.decision_id!r} already has a different outcome.")
         return Written(row.outcome_response or {}, 200, True)
+    if episode.status == "interrupted":
+        raise Conflict(f"Episode {episode_id!r} was interrupted when its fleet's mission "
+                       "changed; it takes no more outcomes. Start a new episode.")
     if episode.status != "open":
         raise Conflict(f"Episode {episode_id!r} is closed; it takes no more outcomes.")
     if row is None or current is None or row.id != current.id:
@@ -284,10 +306,12 @@ def report_outcome(
             f"Decision {body.decision_id!r} is not the current decision of episode "
             f"{episode_id!r}" + (f" ({current.id})." if current is not None else ".")
         )
-    space = ctx.space
+    # An open episode is always of the model's mission version: a change interrupts them.
+    space = ctx.missions.get(session, user.fleet, episode.mission_version).space
     validate.check_outcome(space, row.action, body)
-    learner = load_learner(session, ctx, user.id, model, for_write=True)
-    step = _Negotiation(ctx, user, episode, learner, model.version, position=row.position + 1)
+    learner = load_learner(session, ctx, user.fleet, user.id, model, for_write=True)
+    step = _Negotiation(ctx, space, user, episode, learner, model.version,
+                        position=row.position + 1)
     named = body.response in ("human_request", "answered")
     reward = step.answer(row, response=body.response,
                          service=body.service if named else row.service,
@@ -332,19 +356,25 @@ def add_feedback(
         raise Conflict(f"Episode {episode_id!r} has no answered step yet; give feedback with "
                        "the outcome (its feedback field) or after it.")
     target = answered[-1]
-    reward = feedback_reward(ctx.mission.rewards, body.feedback)
-    # The model takes it if it learned the step (not if it was reset or replaced since).
-    if models_repo.has_transition(session, user.id, episode=episode.learner_episode,
-                                  action=target.action, after_version=model.base_version):
-        learner = load_learner(session, ctx, user.id, model, for_write=True)
-        sample = SampleRow(user.id, 0, "feedback", episode.learner_episode,
-                           episode.context, target.state, target.action, reward, None, 0)
+    layout = ctx.missions.get(session, user.fleet, model.mission_version)
+    reward = feedback_reward(layout.mission.rewards, body.feedback)
+    # The model takes it if it learned the step (not if it was reset or replaced since) and,
+    # after a mission change, if the step still exists (carried to the model's layout).
+    place = _carried(session, ctx, user.fleet, episode, target, model.mission_version)
+    if place is not None and models_repo.has_transition(
+            session, user.id, episode=episode.learner_episode, action=target.action,
+            after_version=model.base_version):
+        learner = load_learner(session, ctx, user.fleet, user.id, model, for_write=True)
+        context, state, action = place
+        sample = SampleRow(user.id, 0, "feedback", episode.learner_episode, context, state,
+                           action, reward, None, 0, model.mission_version)
         try:
             save_learner(session, ctx, user.id, model, learner, [sample])
         except ValueError:  # the learner no longer holds the sample: history keeps it
             save_learner(session, ctx, user.id, model, learner, [])
     episode.total_reward += reward
-    out = {"reward": reward, "episode": brief(ctx.space, episode)}
+    space = ctx.missions.get(session, user.fleet, episode.mission_version).space
+    out = {"reward": reward, "episode": brief(space, episode)}
     episodes_repo.save_episode(session, episode)
     episodes_repo.add_feedback(session, FeedbackRow(
         episode_id=episode_id, feedback_id=body.feedback_id, feedback=body.feedback,
