@@ -200,12 +200,17 @@ def _api_view(api: Any, users: dict[str, list[str]], *, fleet_param: bool) -> di
             stats = api.get(f"/v1/users/{uid}/stats", params=q).json()
             episodes = api.get(f"/v1/users/{uid}/episodes", params={**q, "limit": 500}).json()
             traces = []
+            # Later releases add fields: the fleet (traces, episodes), the mission version
+            # (episodes, models).
+            model.pop("mission_version", None)
             for ep in episodes["items"]:
                 trace = api.get(f"/v1/episodes/{ep['episode_id']}").json()
-                trace.pop("fleet", None)  # the new release names the fleet in traces
+                trace.pop("fleet", None)
+                trace.pop("mission_version", None)
                 traces.append(trace)
             for ep in episodes["items"]:
                 ep.pop("fleet", None)
+                ep.pop("mission_version", None)
             view[f"{fleet}/{uid}"] = {"user": user, "model": model, "stats": stats,
                                       "episodes": episodes["items"], "traces": traces}
     view["audit"] = api.get("/v1/admin/audit", params={"limit": 500}).json()["items"]
@@ -228,6 +233,8 @@ def _rows(url: str, user_key: str) -> dict[str, list[tuple[Any, ...]]]:
                 rows = []
                 for row in result.mappings():
                     d = dict(row)
+                    for later in ("mission_version", "base_mission_version"):
+                        d.pop(later, None)  # a later release's columns
                     if table == "users":
                         d.pop("id", None)
                         d.pop("seed_key", None)

@@ -20,7 +20,6 @@ action is best; the action is drawn from that distribution.
 
 from __future__ import annotations
 
-import zlib
 from typing import Any, ClassVar
 
 import numpy as np
@@ -156,14 +155,8 @@ class DtsLearner(TabularLearner[DtsParams]):
         return np.clip(q, -v_max, v_max)
 
     def _plan(self, context: int, episode: int, rng: np.random.Generator | None) -> Any:
-        if rng is None:
-            # explain(): a fixed draw, so the view is stable for a given model. Seeded by the
-            # context's names, not its index, so that a mission change that leaves the context
-            # alone (a situation added elsewhere) leaves its view alone too.
-            slot, situation = self.mission.context_names(context)
-            rng = np.random.default_rng(
-                [self.version, zlib.crc32(slot.encode()), zlib.crc32(situation.encode())]
-            )
+        if rng is None:  # explain(): a fixed draw, so the view is stable for a given model
+            rng = np.random.default_rng([self.version, context])
         k = self._params.samples
         mean, sd, alpha, known = self._posterior(context)
         g = rng.standard_gamma(np.broadcast_to(alpha, (k, *alpha.shape)))
