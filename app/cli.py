@@ -21,6 +21,7 @@ import typer
 from app.commands import db as db_commands
 from app.commands import fleet as fleet_commands
 from app.commands import keys as keys_commands
+from app.commands import missions as missions_commands
 from app.commands import models as models_commands
 from app.commands import serve as serve_command
 from app.commands._extras import require
@@ -79,6 +80,7 @@ app.command("serve")(serve_command.serve)
 app.add_typer(db_commands.db, name="db")
 app.add_typer(keys_commands.keys, name="keys")
 app.add_typer(models_commands.models, name="models")
+app.add_typer(missions_commands.missions, name="missions")
 app.add_typer(fleet_commands.fleet, name="fleet")
 
 SeedsOption = Annotated[

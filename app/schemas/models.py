@@ -135,13 +135,6 @@ class MissionChangeIn(BaseModel):
     renames: Renames | None = None
 
 
-class MissionDiffOut(BaseModel):
-    kept: dict[str, list[str]] = {}
-    added: dict[str, list[str]] = {}
-    removed: dict[str, list[str]] = {}
-    renamed: dict[str, dict[str, str]] = {}
-
-
 class MissionChanged(BaseModel):
     fleet: str
     version: int = Field(description="The version in force now.")

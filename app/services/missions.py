@@ -26,7 +26,7 @@ from app.db.repositories import users as users_repo
 from app.db.repositories.missions import MissionRow
 from app.db.repositories.models import ModelRow
 from app.db.types import utcnow
-from app.errors import Conflict, Forbidden, NotFound, ValidationFailed
+from app.errors import Conflict, Forbidden, ValidationFailed
 from app.learning import Mission, MissionError
 from app.learning.learners import TabularLearner
 from app.learning.remap import Renames, SpaceMap, check_renames, diff_missions, remap_learner
@@ -185,38 +185,37 @@ def set_mission(session: Session, ctx: ServiceContext, principal: Principal, fle
             raise Conflict(f"change_id {change_id!r} was already used with another mission.")
         return dict(earlier.response or {}), True
     current = repo.latest_version(session, fleet)
-    old = mission_of(session, ctx, fleet, current or 1)
-    if current is not None:
-        try:
-            check_renames(old.mission, mission, renames)
-        except ValueError as exc:
-            raise ValidationFailed(str(exc)) from None
-    if current is not None and mission.fingerprint == old.mission.fingerprint \
-            and not renames:
+    if current is None:  # the default was the fleet's version 1 until now: stored as such
+        repo.add_first(session, _row(fleet, 1, ctx.missions.default))
+        current = 1
+    old = mission_of(session, ctx, fleet, current)
+    try:
+        check_renames(old.mission, mission, renames)
+    except ValueError as exc:
+        raise ValidationFailed(str(exc)) from None
+    if mission.fingerprint == old.mission.fingerprint and not renames:
         return {"fleet": fleet, "version": current, "previous_version": current,
                 "fingerprint": mission.fingerprint, "changed": False, "users_moved": 0,
                 "episodes_interrupted": 0, "diff": None}, False
-    version = (current or 0) + 1
-    diff = diff_missions(old.mission, mission, renames).to_dict() if current else None
+    version = current + 1
+    diff = diff_missions(old.mission, mission, renames).to_dict()
     moved = interrupted = 0
-    if current is not None:
-        users_repo.lock_fleet(session, fleet)
-        for user_pk in repo.models_behind(session, fleet, version):
-            interrupted += episodes_repo.interrupt_open(session, user_pk, at=utcnow())
-            moved += 1
+    users_repo.lock_fleet(session, fleet)
+    for user_pk in repo.models_behind(session, fleet, version):
+        interrupted += episodes_repo.interrupt_open(session, user_pk, at=utcnow())
+        moved += 1
     out = {"fleet": fleet, "version": version, "previous_version": current,
            "fingerprint": mission.fingerprint, "changed": True, "users_moved": moved,
            "episodes_interrupted": interrupted, "diff": diff}
     repo.add(session, _row(fleet, version, mission, renames=renames, change_id=change_id,
                            request_hash=digest, response=out, actor=principal.key_id))
-    if current is not None:
-        for user_pk in repo.models_behind(session, fleet, version):
-            model = models_repo.head(session, user_pk)
-            assert model is not None  # joined on the model row
-            learner = load_learner(session, ctx, fleet, user_pk, model, for_write=True)
-            moved_learner = move_learner(session, ctx, fleet, learner, model.mission_version,
-                                         version)
-            save_move(session, ctx, user_pk, model, moved_learner, version)
+    for user_pk in repo.models_behind(session, fleet, version):
+        model = models_repo.head(session, user_pk)
+        assert model is not None  # joined on the model row
+        learner = load_learner(session, ctx, fleet, user_pk, model, for_write=True)
+        moved_learner = move_learner(session, ctx, fleet, learner, model.mission_version,
+                                     version)
+        save_move(session, ctx, user_pk, model, moved_learner, version)
     audit.record(session, principal, "mission.set", target=fleet, fleet=fleet,
                  detail={"version": version, "previous_version": current,
                          "users_moved": moved, "episodes_interrupted": interrupted})
@@ -228,6 +227,3 @@ def body_hash_of(change_id: str, mission: Mission, renames: Renames) -> str:
     doc = {"change_id": change_id, "mission": mission.to_dict(), "renames": renames.to_dict()}
     return hashlib.sha256(json.dumps(doc, sort_keys=True).encode()).hexdigest()
 
-
-def not_found_fleet(fleet: str) -> NotFound:
-    return NotFound(f"No fleet {fleet!r}.")
