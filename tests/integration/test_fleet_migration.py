@@ -13,12 +13,6 @@ still unique across fleets (and say which ids are not, when they are not).
 from __future__ import annotations
 
 import datetime as dt
-import os
-import signal
-import subprocess
-import sys
-import tarfile
-import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -34,115 +28,21 @@ from app.main import create_app
 from app.services.context import ServiceContext
 from app.services.models import rebuild_model
 from app.settings import Settings
-from tests.support.live import free_port, fresh_database
+from tests.support.live import fresh_database
+from tests.support.release import OldService, play, previous_release, release_code
 
 pytestmark = [pytest.mark.slow]
 
-REPO = Path(__file__).resolve().parents[2]
 MIGRATION = "migrations/versions/2026-11-30-1200_fleets_are_tenants.py"
 BEFORE = "5b7e1c2d9a40"  # the revision the previous release ends at
 USER_TABLES = ("learner_models", "episodes", "samples")
 
 
-def _git(*args: str) -> str:
-    return subprocess.run(["git", *args], cwd=REPO, capture_output=True, text=True,
-                          check=True).stdout.strip()
-
-
-def _previous_release() -> str:
-    """The commit before the one that added this migration (HEAD while it is not committed)."""
-    added = _git("log", "--diff-filter=A", "--format=%H", "--", MIGRATION).splitlines()
-    return f"{added[-1]}^" if added else "HEAD"
-
-
 @pytest.fixture(scope="module")
 def old_code(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The previous release's ``app`` and ``migrations``, as git has them."""
-    folder = tmp_path_factory.mktemp("previous-release")
-    archive = folder / "release.tar"
-    subprocess.run(["git", "archive", "--format=tar", "-o", str(archive), _previous_release(),
-                    "app", "migrations"], cwd=REPO, check=True)
-    with tarfile.open(archive) as tar:
-        tar.extractall(folder, filter="data")
-    head = migrate.head_revision()
-    assert head != BEFORE
-    assert (folder / "migrations" / "versions").is_dir()
-    return folder
-
-
-class OldService:
-    """``attune serve`` of the previous release, on ``url`` (its own code first on the path)."""
-
-    def __init__(self, code: Path, url: str, log: Path) -> None:
-        self.code, self.url, self.log = code, url, log
-        self.port = free_port()
-        self.base = f"http://127.0.0.1:{self.port}"
-        self.env = {**os.environ, "ATTUNE_DATABASE_URL": url, "ATTUNE_SEED": "0",
-                    "ATTUNE_LOG_LEVEL": "warning", "PYTHONPATH": str(code)}
-        self.process: subprocess.Popen[bytes] | None = None
-
-    def attune(self, *args: str) -> str:
-        done = subprocess.run(
-            [sys.executable, "-c", "import sys; from app.cli import main; "
-             "sys.argv[0] = 'attune'; main()", *args],
-            cwd=self.code, env=self.env, capture_output=True, text=True, timeout=120,
-            check=False)
-        assert done.returncode == 0, done.stderr
-        return done.stdout
-
-    def __enter__(self) -> OldService:
-        with open(self.log, "wb") as out:
-            self.process = subprocess.Popen(
-                [sys.executable, "-c", "import sys; from app.cli import main; "
-                 "sys.argv[0] = 'attune'; main()", "serve", "--port", str(self.port)],
-                cwd=self.code, env=self.env, stdout=out, stderr=subprocess.STDOUT,
-                start_new_session=True)
-        deadline = time.monotonic() + 90
-        while True:
-            assert self.process.poll() is None, self.log.read_text()
-            try:
-                if httpx.get(f"{self.base}/readyz", timeout=2).status_code == 200:
-                    return self
-            except httpx.TransportError:
-                pass
-            assert time.monotonic() < deadline, self.log.read_text()
-            time.sleep(0.2)
-
-    def __exit__(self, *exc: object) -> None:
-        assert self.process is not None
-        os.killpg(self.process.pid, signal.SIGTERM)
-        self.process.wait(timeout=30)
-
-
-DETAIL = {"ProvideDrink": "tea", "BriefInformation": "news", "ArrangeSchedule": "today_agenda"}
-SITUATIONS = ("arriving", "working", "stretching")
-
-
-def _play(api: httpx.Client, user: str, event: str, n: int) -> str:
-    """One episode of ``user`` to its end, as a cooperative person; its id."""
-    hour = (7, 12, 15, 19)[n % 4]
-    started = api.post(f"/v1/users/{user}/episodes", json={
-        "event_id": event, "occurred_at": f"2026-11-{1 + n % 28:02d}T{hour:02d}:10:00+08:00",
-        "situation": SITUATIONS[n % 3], "initiator": "robot", "robot_id": "r1"})
-    assert started.status_code == 201, started.text
-    episode = started.json()
-    decision = episode["decision"]
-    while decision is not None:
-        kind = decision["action"]["kind"]
-        body: dict[str, Any] = {"decision_id": decision["decision_id"]}
-        if kind == "pass":
-            body.update(response="human_request", service="ProvideDrink") if n % 3 else \
-                body.update(response="none")
-        elif kind == "query_type":
-            body.update(response="answered", service="BriefInformation")
-        elif kind == "query_detail":
-            body.update(response="answered", detail=DETAIL[decision["action"]["service"]])
-        else:
-            body["response"] = "rejected" if n % 5 == 4 else "accepted"
-        answered = api.post(f"/v1/episodes/{episode['episode_id']}/outcomes", json=body)
-        assert answered.status_code == 200, answered.text
-        decision = answered.json()["decision"]
-    return str(episode["episode_id"])
+    assert migrate.head_revision() != BEFORE
+    return release_code(previous_release(MIGRATION), tmp_path_factory.mktemp("previous-release"))
 
 
 def _fill(old: OldService) -> dict[str, Any]:
@@ -162,7 +62,7 @@ def _fill(old: OldService) -> dict[str, Any]:
                 assert api.put(f"/v1/users/{uid}", json={"display_name": uid.title()}
                                ).status_code == 201
                 for _ in range(9):
-                    episode = _play(api, uid, f"{uid}-e{n}", n)
+                    episode = play(api, uid, f"{uid}-e{n}", n)
                     n += 1
                     if n % 4 == 0:  # explicit feedback after the episode
                         assert api.post(f"/v1/episodes/{episode}/feedback", json={
@@ -170,15 +70,15 @@ def _fill(old: OldService) -> dict[str, Any]:
         admin = clients["admin"]
         assert admin.delete("/v1/users/chen/model").status_code == 204  # a reset mid-history
         for i in range(3):
-            _play(clients["robot_a"], "chen", f"chen-after-{i}", n + i)
+            play(clients["robot_a"], "chen", f"chen-after-{i}", n + i)
         doc = admin.get("/v1/users/lin/model/export")
         assert doc.status_code == 200
         assert admin.put("/v1/users/bo/model", json=doc.json()).status_code == 200  # imported
-        _play(clients["robot_b"], "bo", "bo-after-import", 99)
+        play(clients["robot_b"], "bo", "bo-after-import", 99)
         assert admin.put("/v1/users/dts-user", json={
             "learner": {"algorithm": "dts"}}).status_code == 201
         for i in range(4):
-            _play(admin, "dts-user", f"dts-{i}", i)
+            play(admin, "dts-user", f"dts-{i}", i)
         old.attune("keys", "revoke", old.attune("keys", "list", "--json").split('"id": "')[1]
                    .split('"')[0])
     finally:

@@ -1,0 +1,259 @@
+"""The migration to missions per fleet, on a database filled by the release before it.
+
+The previous release (the commit before the one that added this migration) is served as it was,
+on a fresh database, and filled through its HTTP API: two fleets with users and history,
+explicit feedback, a reset, an imported model, a DTS user and an episode left open. Then this
+code upgrades the database: every row and every figure the API shows stay as they were, every
+row is marked as belonging to its fleet's mission version 1 (the deployment's mission, stored
+for every fleet with users), every model rebuilds identically, and the service goes on: the
+open episode finishes, and a fleet changes its mission. The upgrade refuses a deployment whose
+models were learned for another mission than the one it is told, and the downgrade works while
+no fleet has changed its mission (and names those that have).
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import json
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import httpx
+import pytest
+from alembic import command
+from fastapi.testclient import TestClient
+from sqlalchemy import create_engine, text
+
+from app.db import migrate
+from app.learning import office_mission
+from app.main import create_app
+from app.services import audit
+from app.services.context import ServiceContext
+from app.services.models import rebuild_model
+from app.settings import Settings
+from tests.support.live import fresh_database
+from tests.support.release import OldService, play, previous_release, release_code
+
+pytestmark = [pytest.mark.slow]
+
+MIGRATION = "migrations/versions/2026-11-30-1500_missions_per_fleet.py"
+BEFORE = "9c1f4e7a2b65"  # the revision the previous release ends at
+TABLES = ("users", "learner_models", "episodes", "samples", "decisions", "feedback", "api_keys",
+          "audit_log")
+NEW_COLUMNS = ("mission_version", "base_mission_version")
+USERS = {"north": ["lin", "chen", "room-12"], "south": ["lin", "bo"]}
+
+
+@pytest.fixture(scope="module")
+def old_code(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    assert migrate.head_revision() != BEFORE
+    # The change began with the learning core's remapping, before its migration was committed.
+    return release_code(previous_release(MIGRATION, "app/learning/remap.py"),
+                        tmp_path_factory.mktemp("previous-release"))
+
+
+def _fill(old: OldService) -> dict[str, Any]:
+    """What a deployment holds, made through the previous release's API."""
+    keys = {name: old.attune("keys", "create", "--role", role, "--fleet", fleet).split()[-1]
+            for name, role, fleet in (("north", "robot", "north"), ("south", "robot", "south"),
+                                      ("admin", "admin", "default"))}
+    clients = {name: httpx.Client(base_url=old.base, timeout=30,
+                                  headers={"Authorization": f"Bearer {key}"})
+               for name, key in keys.items()}
+    try:
+        n = 0
+        for fleet, ids in USERS.items():
+            for uid in ids:
+                for _ in range(6):
+                    episode = play(clients[fleet], uid, f"{uid}-e{n}", n)
+                    n += 1
+                    if n % 4 == 0:
+                        assert clients[fleet].post(f"/v1/episodes/{episode}/feedback", json={
+                            "feedback_id": f"fb-{n}", "feedback": "positive"}).status_code == 200
+        admin = clients["admin"]
+        assert admin.delete("/v1/users/chen/model", params={"fleet": "north"}
+                            ).status_code == 204
+        play(clients["north"], "chen", "chen-after", n)
+        doc = admin.get("/v1/users/lin/model/export", params={"fleet": "north"})
+        assert doc.status_code == 200
+        assert admin.put("/v1/users/bo/model", params={"fleet": "south"},
+                         json=doc.json()).status_code == 200
+        play(clients["south"], "bo", "bo-after-import", 99)
+        assert clients["south"].put("/v1/users/dts", json={
+            "learner": {"algorithm": "dts"}}).status_code == 201
+        for i in range(4):
+            play(clients["south"], "dts", f"dts-{i}", i)
+        opened = clients["north"].post("/v1/users/room-12/episodes", json={
+            "event_id": "left-open", "occurred_at": "2026-11-20T15:10:00+08:00",
+            "situation": "stretching", "initiator": "robot"})
+        assert opened.status_code == 201, opened.text
+    finally:
+        for c in clients.values():
+            c.close()
+    return {"keys": keys, "open": opened.json()}
+
+
+def _rows(url: str) -> dict[str, list[tuple[Any, ...]]]:
+    """Every row of the tables the previous release had, sorted, without the new columns."""
+    engine = create_engine(url)
+    out: dict[str, list[tuple[Any, ...]]] = {}
+    try:
+        with engine.connect() as conn:
+            for table in TABLES:
+                rows = []
+                for row in conn.execute(text(f"SELECT * FROM {table}")).mappings():
+                    d = {k: v for k, v in row.items() if k not in NEW_COLUMNS}
+                    rows.append(tuple(sorted((k, _plain(v)) for k, v in d.items())))
+                out[table] = sorted(rows, key=repr)
+    finally:
+        engine.dispose()
+    return out
+
+
+def _plain(value: Any) -> Any:
+    if isinstance(value, dt.datetime):
+        return value.replace(tzinfo=None).isoformat()
+    return value
+
+
+def _api_view(api: Any) -> dict[str, Any]:
+    """Every figure the API shows of every user (the fields this release adds left out)."""
+    view: dict[str, Any] = {}
+    for fleet, ids in {**USERS, "south": [*USERS["south"], "dts"]}.items():
+        for uid in ids:
+            q = {"fleet": fleet}
+            model = api.get(f"/v1/users/{uid}/model", params=q).json()
+            model.pop("mission_version", None)
+            episodes = api.get(f"/v1/users/{uid}/episodes", params={**q, "limit": 500}).json()
+            traces = [api.get(f"/v1/episodes/{ep['episode_id']}").json()
+                      for ep in episodes["items"]]
+            for item in [*episodes["items"], *traces]:
+                item.pop("mission_version", None)
+            view[f"{fleet}/{uid}"] = {
+                "user": api.get(f"/v1/users/{uid}", params=q).json(), "model": model,
+                "stats": api.get(f"/v1/users/{uid}/stats", params=q).json(),
+                "episodes": episodes["items"], "traces": traces}
+    return view
+
+
+@pytest.fixture(params=["sqlite", "postgresql"])
+def filled(request: pytest.FixtureRequest, old_code: Path, tmp_path: Path
+           ) -> Iterator[tuple[str, dict[str, Any], dict[str, Any], dict[str, Any]]]:
+    """A database at the previous release's head, filled through its API: (url, names, what
+    its API showed, its rows)."""
+    with fresh_database(request.param, tmp_path) as url:
+        url = Settings(database_url=url, _env_file=None).database_url  # type: ignore[call-arg]
+        old = OldService(old_code, url, tmp_path / "old.log")
+        with old:
+            names = _fill(old)
+            with httpx.Client(base_url=old.base, timeout=30, headers={
+                    "Authorization": f"Bearer {names['keys']['admin']}"}) as admin:
+                before = _api_view(admin)
+        engine = create_engine(url)
+        try:
+            assert migrate.current_revision(engine) == BEFORE
+        finally:
+            engine.dispose()
+        yield url, names, before, _rows(url)
+
+
+def _rebuild_all(app: Any, settings: Settings) -> None:
+    ctx = ServiceContext.from_settings(settings)
+    for fleet, ids in {**USERS, "south": [*USERS["south"], "dts"]}.items():
+        for uid in ids:
+            with app.state.db.transaction() as session:
+                report = rebuild_model(session, ctx, audit.CLI, uid, fleet=fleet)
+            assert report.identical, (fleet, uid, report.mismatched_decisions)
+            assert report.decisions > 0
+
+
+def test_the_upgrade_keeps_everything_and_the_service_goes_on(
+        filled: tuple[str, dict[str, Any], dict[str, Any], dict[str, Any]],
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    url, names, before, rows_before = filled
+
+    # Told another mission than the one the models were learned for: refused, nothing changed.
+    other = office_mission().to_dict()
+    other["situations"] = [*other["situations"], "visiting"]
+    (tmp_path / "other.json").write_text(json.dumps(other))
+    monkeypatch.setenv("ATTUNE_MISSION_PATH", str(tmp_path / "other.json"))
+    with pytest.raises(RuntimeError, match=r"north \(3\), south \(3\).*ATTUNE_MISSION_PATH"):
+        migrate.upgrade(url)
+    monkeypatch.delenv("ATTUNE_MISSION_PATH")
+    engine = create_engine(url)
+    try:
+        assert migrate.current_revision(engine) == BEFORE
+    finally:
+        engine.dispose()
+
+    migrate.upgrade(url)
+    assert _rows(url) == rows_before
+    engine = create_engine(url)
+    try:
+        with engine.connect() as conn:
+            stored = conn.execute(text(
+                "SELECT fleet, version, fingerprint FROM fleet_missions ORDER BY fleet")).all()
+            assert [tuple(r) for r in stored] == [
+                ("north", 1, office_mission().fingerprint),
+                ("south", 1, office_mission().fingerprint)]
+            for table in ("learner_models", "episodes", "samples"):
+                assert conn.execute(text(
+                    f"SELECT DISTINCT mission_version FROM {table}")).scalars().all() == [1]
+    finally:
+        engine.dispose()
+
+    settings = Settings(database_url=url, seed=0, _env_file=None)  # type: ignore[call-arg]
+    app = create_app(settings)
+    try:
+        with TestClient(app, headers={
+                "Authorization": f"Bearer {names['keys']['admin']}"}) as admin:
+            assert _api_view(admin) == before
+            _rebuild_all(app, settings)
+            north = {"Authorization": f"Bearer {names['keys']['north']}"}
+            assert admin.get("/v1/mission", headers=north).json()["version"] == 1
+            # The episode left open finishes under its version.
+            opened = names["open"]
+            answer = {"decision_id": opened["decision"]["decision_id"], "response": "none"}
+            if opened["decision"]["action"]["kind"] == "initiate":
+                answer["response"] = "accepted"
+            assert admin.post(f"/v1/episodes/{opened['episode_id']}/outcomes", json=answer,
+                              headers=north).status_code == 200
+            # North changes its mission; south's users do not move.
+            south_models = {uid: admin.get(f"/v1/users/{uid}/model", params={"fleet": "south"})
+                            .json() for uid in ("lin", "bo", "dts")}
+            changed = other | {"services": [
+                {"name": s["name"], "details": [*s["details"], "cocoa"]
+                 if s["name"] == "ProvideDrink" else s["details"]}
+                for s in office_mission().to_dict()["services"]]}
+            r = admin.put("/v1/admin/fleets/north/mission", json={
+                "change_id": "north-menu", "mission": changed})
+            assert r.status_code == 200, r.text
+            assert (r.json()["version"], r.json()["users_moved"]) == (2, 3)
+            assert {uid: admin.get(f"/v1/users/{uid}/model", params={"fleet": "south"}).json()
+                    for uid in ("lin", "bo", "dts")} == south_models
+            _rebuild_all(app, settings)
+    finally:
+        app.state.db.dispose()
+
+    # Down again: refused while north has a version 2, which it names.
+    cfg = migrate.alembic_config(url)
+    with pytest.raises(RuntimeError, match=r"north"):
+        command.downgrade(cfg, BEFORE)
+
+
+def test_the_downgrade_gives_back_the_previous_schema(
+        filled: tuple[str, dict[str, Any], dict[str, Any], dict[str, Any]]) -> None:
+    url, _, _, rows_before = filled
+    migrate.upgrade(url)
+    command.downgrade(migrate.alembic_config(url), BEFORE)
+    assert _rows(url) == rows_before
+    engine = create_engine(url)
+    try:
+        with engine.connect() as conn:
+            columns = conn.execute(text("SELECT * FROM episodes")).keys()
+            assert "mission_version" not in columns
+    finally:
+        engine.dispose()
+    migrate.upgrade(url)
+    assert _rows(url) == rows_before

@@ -1,0 +1,121 @@
+"""The previous release, served as it was, for the migration tests: its ``app`` and
+``migrations`` taken from git (the commit before the one that added a migration), ``attune
+serve`` of that code on a database, and a cooperative person who plays episodes through its
+API."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import tarfile
+import time
+from pathlib import Path
+from typing import Any
+
+import httpx
+
+from tests.support.live import free_port
+
+__all__ = ["REPO", "OldService", "play", "previous_release", "release_code"]
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def _git(*args: str) -> str:
+    return subprocess.run(["git", *args], cwd=REPO, capture_output=True, text=True,
+                          check=True).stdout.strip()
+
+
+def previous_release(*paths: str) -> str:
+    """The commit before the first that added any of ``paths`` (a change's migration and the
+    first files of that change), HEAD while none is committed."""
+    added = _git("log", "--diff-filter=A", "--format=%H", "--", *paths).splitlines()
+    return f"{added[-1]}^" if added else "HEAD"
+
+
+class OldService:
+    """``attune serve`` of the previous release, on ``url`` (its own code first on the path)."""
+
+    def __init__(self, code: Path, url: str, log: Path) -> None:
+        self.code, self.url, self.log = code, url, log
+        self.port = free_port()
+        self.base = f"http://127.0.0.1:{self.port}"
+        self.env = {**os.environ, "ATTUNE_DATABASE_URL": url, "ATTUNE_SEED": "0",
+                    "ATTUNE_LOG_LEVEL": "warning", "PYTHONPATH": str(code)}
+        self.process: subprocess.Popen[bytes] | None = None
+
+    def attune(self, *args: str) -> str:
+        done = subprocess.run(
+            [sys.executable, "-c", "import sys; from app.cli import main; "
+             "sys.argv[0] = 'attune'; main()", *args],
+            cwd=self.code, env=self.env, capture_output=True, text=True, timeout=120,
+            check=False)
+        assert done.returncode == 0, done.stderr
+        return done.stdout
+
+    def __enter__(self) -> OldService:
+        with open(self.log, "wb") as out:
+            self.process = subprocess.Popen(
+                [sys.executable, "-c", "import sys; from app.cli import main; "
+                 "sys.argv[0] = 'attune'; main()", "serve", "--port", str(self.port)],
+                cwd=self.code, env=self.env, stdout=out, stderr=subprocess.STDOUT,
+                start_new_session=True)
+        deadline = time.monotonic() + 90
+        while True:
+            assert self.process.poll() is None, self.log.read_text()
+            try:
+                if httpx.get(f"{self.base}/readyz", timeout=2).status_code == 200:
+                    return self
+            except httpx.TransportError:
+                pass
+            assert time.monotonic() < deadline, self.log.read_text()
+            time.sleep(0.2)
+
+    def __exit__(self, *exc: object) -> None:
+        assert self.process is not None
+        os.killpg(self.process.pid, signal.SIGTERM)
+        self.process.wait(timeout=30)
+
+
+DETAIL = {"ProvideDrink": "tea", "BriefInformation": "news", "ArrangeSchedule": "today_agenda"}
+SITUATIONS = ("arriving", "working", "stretching")
+
+
+def play(api: httpx.Client, user: str, event: str, n: int) -> str:
+    """One episode of ``user`` to its end, as a cooperative person; its id."""
+    hour = (7, 12, 15, 19)[n % 4]
+    started = api.post(f"/v1/users/{user}/episodes", json={
+        "event_id": event, "occurred_at": f"2026-11-{1 + n % 28:02d}T{hour:02d}:10:00+08:00",
+        "situation": SITUATIONS[n % 3], "initiator": "robot", "robot_id": "r1"})
+    assert started.status_code == 201, started.text
+    episode = started.json()
+    decision = episode["decision"]
+    while decision is not None:
+        kind = decision["action"]["kind"]
+        body: dict[str, Any] = {"decision_id": decision["decision_id"]}
+        if kind == "pass":
+            body.update(response="human_request", service="ProvideDrink") if n % 3 else \
+                body.update(response="none")
+        elif kind == "query_type":
+            body.update(response="answered", service="BriefInformation")
+        elif kind == "query_detail":
+            body.update(response="answered", detail=DETAIL[decision["action"]["service"]])
+        else:
+            body["response"] = "rejected" if n % 5 == 4 else "accepted"
+        answered = api.post(f"/v1/episodes/{episode['episode_id']}/outcomes", json=body)
+        assert answered.status_code == 200, answered.text
+        decision = answered.json()["decision"]
+    return str(episode["episode_id"])
+
+
+def release_code(commit: str, folder: Path) -> Path:
+    """``app`` and ``migrations`` of ``commit``, extracted into ``folder``."""
+    archive = folder / "release.tar"
+    subprocess.run(["git", "archive", "--format=tar", "-o", str(archive), commit, "app",
+                    "migrations"], cwd=REPO, check=True)
+    with tarfile.open(archive) as tar:
+        tar.extractall(folder, filter="data")
+    assert (folder / "migrations" / "versions").is_dir()
+    return folder
