@@ -76,16 +76,19 @@ def test_the_page_shows_the_mission_in_plain_words(console: Console) -> None:
     assert not re.search(r'data-situation="working">working <span', text)
     assert '<th scope="row">evening</th><td>18:00</td><td>06:00</td>' in text
     assert "The fleet's first mission." in text
-    assert 'href="/admin/mission' in text and 'aria-current="page">Mission' in text
+    assert 'href="/admin/mission' in text
+    assert 'aria-current="page">Mission' in text
     # The form holds the mission as staff write it.
     assert f'<textarea id="services" name="services" rows="4" spellcheck="false" ' \
            f'aria-describedby="hint-services">{SERVICES}</textarea>' in text
-    assert 'name="time_slots"' in text and "morning 06:00-11:00\nnoon 11:00-14:00" in text
+    assert 'name="time_slots"' in text
+    assert "morning 06:00-11:00\nnoon 11:00-14:00" in text
 
 
 def test_preview_then_apply_adds_a_choice(console: Console) -> None:
     form = console.form(services=COCOA)
-    assert len(form["change_id"]) == 32 and form["base_version"] == "1"
+    assert len(form["change_id"]) == 32
+    assert form["base_version"] == "1"
     preview = console.post(form)
     assert preview.status_code == 200, preview.text
     assert changes(preview, "preview-changes") == ["New choice for ProvideDrink: cocoa."]
@@ -97,7 +100,8 @@ def test_preview_then_apply_adds_a_choice(console: Console) -> None:
     confirm = dict(re.findall(r'<input type="hidden" name="(\w+)" value="([^"]*)"',
                               preview.text.split('id="confirm-form"')[1].split("</form>")[0]))
     confirm = {k: html.unescape(v) for k, v in confirm.items()}
-    assert confirm["step"] == "confirm" and confirm["services"] == COCOA
+    assert confirm["step"] == "confirm"
+    assert confirm["services"] == COCOA
     done = console.post(confirm)
     assert done.status_code == 303, done.text
     assert done.headers["location"] == f"/admin/mission?fleet={FLEET}&done=2"
@@ -203,7 +207,8 @@ def test_stale_and_reused_forms(console: Console) -> None:
     # Nothing typed differs from the mission in force: nothing to apply.
     r = console.post(console.form())
     assert r.status_code == 200
-    assert "Nothing would change" in r.text and 'id="apply"' not in r.text
+    assert "Nothing would change" in r.text
+    assert 'id="apply"' not in r.text
     assert console.robot.get("/v1/mission").json()["version"] == 2
 
 
