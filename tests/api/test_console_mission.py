@@ -32,7 +32,7 @@ class Console:
         self.client, self.robot = client, robot
 
     def page(self, path: str = "/admin/mission") -> httpx.Response:
-        r = self.client.get(path)
+        r: httpx.Response = self.client.get(path)
         assert r.status_code == 200, r.text
         return r
 
@@ -44,7 +44,8 @@ class Console:
         return {**{k: html.unescape(v) for k, v in hidden.items()}, **fields}
 
     def post(self, form: dict[str, str], path: str = "/admin/mission") -> httpx.Response:
-        return self.client.post(path, data=form)
+        r: httpx.Response = self.client.post(path, data=form)
+        return r
 
 
 def errors(r: httpx.Response) -> dict[str, str]:

@@ -87,8 +87,10 @@ COCOA = {"change_id": "matrix-change", "mission": {
 
 # The console's form for the same change: the services as lines, the rest kept as it is.
 MISSION_FORM = {"change_id": "matrix-change", "base_version": "1", "step": "confirm",
-                "services": "\n".join(f"{s['name']}: {', '.join(s['details'])}"
-                                      for s in COCOA["mission"]["services"])}
+                "services": "\n".join(
+                    f"{s.name}: {', '.join(s.details)}"
+                    + (", cocoa" if s.name == "ProvideDrink" else "")
+                    for s in office_mission().services)}
 
 # The whole matrix at a glance.
 #   none / revoked: no key, a revoked key; rA rB sA sB: robot and staff of fleet-a / fleet-b;
