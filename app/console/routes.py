@@ -10,10 +10,11 @@ rate and last activity (``app.services.console``, with the same definitions as `
 from __future__ import annotations
 
 import re
+import secrets
 from collections.abc import Callable, Coroutine
 from pathlib import Path
 from typing import Annotated, Any
-from urllib.parse import quote
+from urllib.parse import quote, urlencode
 
 from fastapi import APIRouter, Query, Request, Response
 from fastapi.exceptions import RequestValidationError
@@ -22,10 +23,13 @@ from fastapi.templating import Jinja2Templates
 
 from app.api.deps import RequestSession, TransactionalRoute, writes
 from app.api.errors import validation_detail
-from app.errors import AppError
+from app.errors import AppError, Conflict, ValidationFailed
+from app.learning import Mission
 from app.schemas.common import CLIENT_ID_PATTERN, MAX_POSITION
+from app.services import admin as admin_service
 from app.services import console as console_service
 from app.services import episodes as episodes_service
+from app.services import missions as missions_service
 from app.services import models as models_service
 from app.services import users as users_service
 from app.services.context import ServiceContext
@@ -45,6 +49,7 @@ from .auth import (
     same_origin,
     sign_in,
 )
+from .mission_form import FIELDS, FormError, MissionForm, changes, field_of, history
 
 __all__ = ["router", "templates"]
 
@@ -195,7 +200,8 @@ def users_page(
     found = console_service.find_users(session, admin.principal, text=q, page=page,
                                        per_page=per_page)
     shown = deleted if deleted and _USER_ID.match(deleted) else None  # only ids: no free text
-    return _page(request, "users.html", admin, found=found, q=q or "", deleted=shown)
+    return _page(request, "users.html", admin, found=found, q=q or "", deleted=shown,
+                 nav="users")
 
 
 @router.get("/users/{user_id}")
@@ -217,7 +223,7 @@ def user_page(
     mission = console_service.user_mission(session, ctx, user)
     return _page(request, "user.html", admin, user=user, model=model, tab="model",
                  heat=views.heatmap(model, mission), overall=overall, recent=recent,
-                 last=last, chart={"x": xs, "y": ys}, done=done)
+                 last=last, chart={"x": xs, "y": ys}, done=done, mission=mission)
 
 
 @router.get("/users/{user_id}/why")
@@ -360,6 +366,105 @@ def delete(request: Request, user_id: str, session: RequestSession, ctx: Service
     check_post(request, admin, form)
     users_service.delete_user(session, ctx, admin.principal, user_id, fleet=fleet)
     return _redirect(f"{COOKIE_PATH}/users?deleted={user_id}")
+
+
+# -- the fleet's mission: what it is, its versions, and a form to change it --------------------
+_CHANGE_ID = re.compile(r"^[A-Za-z0-9_.:-]{1,128}$")
+
+
+def _mission_url(fleet: str, **params: object) -> str:
+    return f"{COOKIE_PATH}/mission?" + urlencode(
+        {"fleet": fleet, **{k: v for k, v in params.items() if v is not None}})
+
+
+def _mission_page(request: Request, session: RequestSession, ctx: ServiceContext, admin: Admin,
+                  fleet: str, *, form: MissionForm | None = None, change_id: str | None = None,
+                  preview: missions_service.ChangePreview | None = None,
+                  done: dict[str, Any] | None = None, status: int = 200) -> HTMLResponse:
+    listed = missions_service.list_missions(session, ctx, admin.principal, fleet)  # may 403
+    versions = history(listed["items"])
+    current = versions[0]
+    fleets = None
+    if admin.principal.is_admin:
+        fleets = sorted({f.fleet for f in admin_service.fleets(session, admin.principal).items}
+                        | {fleet})
+    return _page(request, "mission.html", admin, status, nav="mission", fleet=fleet,
+                 fleets=fleets, current=current, versions=versions,
+                 form=form or MissionForm.of(current.mission),
+                 change_id=change_id or secrets.token_hex(16),
+                 base_version=current.version if current.stored else 0,
+                 preview=preview, done=done, action=_mission_url(fleet), fields=FIELDS,
+                 preview_changes=changes(preview.old, preview.new, preview.diff)
+                 if preview else None)
+
+
+@router.get("/mission")
+def mission_page(
+    request: Request, session: RequestSession, ctx: ServiceContext, admin: AdminDep,
+    fleet: FleetQuery = None,
+    done: Annotated[int | None, Query(ge=1, le=MAX_POSITION)] = None,
+) -> HTMLResponse:
+    """The fleet's mission in plain words, its versions with what each changed, and the form
+    that sets a new one (staff: their fleet; admins: ``?fleet=``)."""
+    name = fleet or admin.principal.fleet
+    result = None
+    if done is not None:
+        result = missions_service.change_result(session, admin.principal, name, done)
+    return _mission_page(request, session, ctx, admin, name, done=result)
+
+
+@router.post("/mission")
+def change_mission(request: Request, session: RequestSession, ctx: ServiceContext,
+                   admin: AdminDep, form: FormDep, fleet: FleetQuery = None) -> Response:
+    """``step=preview``: what the typed mission would change (nothing is stored);
+    ``step=confirm``: store it as the fleet's new version (as PUT
+    /v1/admin/fleets/{fleet}/mission), then back to the mission page. A mistake comes back on
+    the form, next to the field, with what was typed."""
+    check_post(request, admin, form)
+    name = fleet or admin.principal.fleet
+    principal = admin.principal
+    listed = missions_service.list_missions(session, ctx, principal, name)
+    current = Mission.from_dict(listed["items"][0]["mission"])
+    base = listed["current_version"] if listed["items"][0]["stored"] else 0
+    typed = MissionForm.from_fields(form, current)
+    change_id = form.get("change_id", "")
+
+    def again(status: int, where: str, message: str, *, new_id: bool = False) -> HTMLResponse:
+        typed.errors[where] = message
+        return _mission_page(request, session, ctx, admin, name, form=typed, status=status,
+                             change_id=None if new_id else change_id)
+
+    if not _CHANGE_ID.match(change_id):
+        return again(400, "general", "The form is incomplete (its change number is missing). "
+                     "Check what you typed and preview again.", new_id=True)
+    try:
+        mission_doc, renames_doc = typed.documents(current)
+    except FormError as exc:
+        return again(422, exc.field, exc.message)
+    if form.get("step") == "confirm":
+        earlier = missions_service.change_of(session, principal, name, change_id)
+        if earlier is None and form.get("base_version") != str(base):
+            return again(409, "general", f"The mission was changed meanwhile (it is now "
+                         f"version {listed['current_version']}). Check the preview again "
+                         "before applying.")
+        try:
+            out, _ = missions_service.set_mission(session, ctx, principal, name,
+                                                  change_id=change_id, mission_doc=mission_doc,
+                                                  renames_doc=renames_doc)
+        except ValidationFailed as exc:
+            return again(422, *field_of(exc.detail, mission_doc))
+        except Conflict:
+            return again(409, "general", "This form was already used for another change. "
+                         "Check the mission in force below, then preview again.", new_id=True)
+        return _redirect(_mission_url(name, done=out["version"]))
+    try:
+        preview = missions_service.preview_change(session, ctx, principal, name,
+                                                  mission_doc=mission_doc,
+                                                  renames_doc=renames_doc)
+    except ValidationFailed as exc:
+        return again(422, *field_of(exc.detail, mission_doc))
+    return _mission_page(request, session, ctx, admin, name, form=typed, change_id=change_id,
+                         preview=preview)
 
 
 @router.get("/{rest:path}")

@@ -15,6 +15,7 @@ from __future__ import annotations
 import hashlib
 import json
 from collections.abc import Mapping
+from dataclasses import dataclass
 from typing import Any
 
 from sqlalchemy.orm import Session
@@ -29,7 +30,14 @@ from app.db.types import utcnow
 from app.errors import Conflict, Forbidden, ValidationFailed
 from app.learning import Mission, MissionError
 from app.learning.learners import TabularLearner
-from app.learning.remap import Renames, SpaceMap, check_renames, diff_missions, remap_learner
+from app.learning.remap import (
+    MissionDiff,
+    Renames,
+    SpaceMap,
+    check_renames,
+    diff_missions,
+    remap_learner,
+)
 
 from . import audit
 from .auth import require_manager
@@ -37,9 +45,9 @@ from .context import Principal, ServiceContext
 from .learners import load_learner, save_move
 from .mission_book import Stored
 
-__all__ = ["LIMITS", "check_limits", "current_version", "fleet_mission",
-           "list_missions", "mission_of", "move_learner", "parse_mission", "set_mission",
-           "space_map", "user_layout"]
+__all__ = ["LIMITS", "ChangePreview", "change_of", "change_result", "check_limits",
+           "current_version", "fleet_mission", "list_missions", "mission_of", "move_learner",
+           "parse_mission", "preview_change", "set_mission", "space_map", "user_layout"]
 
 # Sizes a mission may have: every user's model holds tables of (contexts x pairs), and pairs
 # grow with the services and details.
@@ -220,6 +228,70 @@ def set_mission(session: Session, ctx: ServiceContext, principal: Principal, fle
                  detail={"version": version, "previous_version": current,
                          "users_moved": moved, "episodes_interrupted": interrupted})
     return out, False
+
+
+@dataclass(frozen=True, slots=True)
+class ChangePreview:
+    """What :func:`set_mission` would do with a mission now, without doing it: the version in
+    force (``old``, ``version``; ``version`` None: none stored yet, the new mission would be
+    version 1), what the change keeps, adds and removes, how many users' models would move and
+    how many open episodes would be interrupted."""
+
+    fleet: str
+    version: int | None
+    old: Mission
+    new: Mission
+    renames: Renames
+    diff: MissionDiff
+    changed: bool
+    users_moved: int
+    episodes_interrupted: int
+
+    @property
+    def next_version(self) -> int:
+        return (self.version or 0) + 1 if self.changed else self.version or 1
+
+
+def preview_change(session: Session, ctx: ServiceContext, principal: Principal, fleet: str, *,
+                   mission_doc: Any, renames_doc: Mapping[str, Any] | None) -> ChangePreview:
+    """The change :func:`set_mission` would make (same checks, same 422 messages), read
+    only."""
+    _check_fleet(principal, fleet)
+    mission = parse_mission(mission_doc)
+    try:
+        renames = Renames.from_dict(renames_doc or {})
+    except ValueError as exc:
+        raise ValidationFailed(str(exc)) from None
+    current = repo.latest_version(session, fleet)
+    old = mission_of(session, ctx, fleet, current or 1).mission
+    try:
+        diff = diff_missions(old, mission, renames)
+    except ValueError as exc:
+        raise ValidationFailed(str(exc)) from None
+    changed = current is None or mission.fingerprint != old.fingerprint or bool(renames)
+    moved = interrupted = 0
+    if current is not None and changed:
+        moved = len(repo.models_behind(session, fleet, current + 1))
+        interrupted = repo.open_episodes(session, fleet)
+    return ChangePreview(fleet, current, old, mission, renames, diff, changed, moved,
+                         interrupted)
+
+
+def change_of(session: Session, principal: Principal, fleet: str, change_id: str
+              ) -> dict[str, Any] | None:
+    """What the change ``change_id`` of the fleet answered, None if it was never made."""
+    _check_fleet(principal, fleet)
+    row = repo.by_change(session, fleet, change_id)
+    return None if row is None else dict(row.response or {})
+
+
+def change_result(session: Session, principal: Principal, fleet: str, version: int
+                  ) -> dict[str, Any] | None:
+    """What the change that made version ``version`` of the fleet's mission answered (users
+    moved, episodes interrupted), None for a version not made by a change."""
+    _check_fleet(principal, fleet)
+    row = repo.get(session, fleet, version)
+    return None if row is None or row.response is None else dict(row.response)
 
 
 def body_hash_of(change_id: str, mission: Mission, renames: Renames) -> str:

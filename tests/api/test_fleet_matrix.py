@@ -52,6 +52,7 @@ ADMIN_Q = f"?fleet={A}"
 NEVER_EPISODE = "ep_" + "0" * 32  # an episode id that never existed
 EXPORT = "{export}"  # a body: the export document of the caller's fleet's lin (A's for others)
 LOGIN, CSRF = "login", "csrf"  # console forms: the caller's key; the page's CSRF token
+MISSION = "mission"  # the mission page's form, applying COCOA's mission, with the CSRF token
 
 Expect = tuple[int, int, int, int, int, int, int]  # one status per PRINCIPALS
 
@@ -83,6 +84,13 @@ COCOA = {"change_id": "matrix-change", "mission": {
     **office_mission().to_dict(),
     "services": [{"name": s.name, "details": [*s.details, "cocoa"] if s.name == "ProvideDrink"
                   else list(s.details)} for s in office_mission().services]}}
+
+# The console's form for the same change: the services as lines, the rest kept as it is.
+MISSION_FORM = {"change_id": "matrix-change", "base_version": "1", "step": "confirm",
+                "services": "\n".join(
+                    f"{s.name}: {', '.join(s.details)}"
+                    + (", cocoa" if s.name == "ProvideDrink" else "")
+                    for s in office_mission().services)}
 
 # The whole matrix at a glance.
 #   none / revoked: no key, a revoked key; rA rB sA sB: robot and staff of fleet-a / fleet-b;
@@ -149,6 +157,9 @@ MATRIX: list[Row] = [
     Row("GET",    C + "/delete{q}",                     (303, 401, 403, 403, 200, 200, 200)),
     Row("POST",   C + "/delete{q}",                     (303, 401, 403, 403, 303, 303, 303),
         form=CSRF, writes=True),
+    Row("GET",    "/admin/mission{q}",                  (303, 401, 403, 403, 200, 200, 200)),
+    Row("POST",   "/admin/mission{q}",                  (303, 401, 403, 403, 303, 303, 303),
+        form=MISSION, writes=True),
     Row("GET",    "/admin/nowhere",                     (404, 404, 404, 404, 404, 404, 404),
         route="/admin/{rest:path}"),
 ]
@@ -355,8 +366,9 @@ def _cells() -> Iterator[Any]:
 def _check_console(r: httpx.Response, row: Row, who: str, status: int) -> None:
     if status == 303:
         location = r.headers["location"]
-        if who == "none" and row.path.startswith("/admin/users"):
-            assert location.startswith("/admin/login?next=/admin/users"), location
+        if who == "none" and row.path.startswith(("/admin/users", "/admin/mission")):
+            path = row.path.split("{q}")[0]
+            assert location.startswith(f"/admin/login?next={path}"), location
         else:
             assert not location.startswith("/admin/login?next="), location
     elif status >= 400:
@@ -378,6 +390,8 @@ def test_matrix(world: World, row: Row, who: str, status: int) -> None:
         form = {"key": world.secret(who) or ""}
     elif row.form == CSRF:
         form = {"csrf": world.csrf(who)}
+    elif row.form == MISSION:
+        form = {"csrf": world.csrf(who), **MISSION_FORM}
     r = send(world, row.method, path, who, json=world.fill(row.json, who), form=form)
     assert r.status_code == status, f"{row.method} {path} as {who}: {r.status_code} {r.text}"
     if row.path.startswith("/admin"):
@@ -445,6 +459,11 @@ CONSOLE_PROBES: list[Probe] = [
     for tail in ("/reset", "/delete")
 ] + [
     Probe("GET", f"/admin/users/lin?fleet={A}", "/admin/users/lin?fleet=nofleet", (403, 404)),
+    # Another fleet's mission, or a fleet that does not exist: refused alike (as the API's
+    # GET /v1/admin/fleets/{fleet}/missions refuses staff of another fleet).
+    Probe("GET", f"/admin/mission?fleet={A}", "/admin/mission?fleet=nofleet", (403, 403)),
+    Probe("POST", f"/admin/mission?fleet={A}", "/admin/mission?fleet=nofleet", (403, 403),
+          form=True),
     Probe("GET", f"/admin/users/lin/episodes/{EP}/trace",
           f"/admin/users/lin/episodes/{NEVER}/trace", (403, 404)),
 ]

@@ -49,7 +49,8 @@ CONSOLE_PAGES = [
     "/admin", "/admin/login", "/admin/users", "/admin/users/{user_id}",
     "/admin/users/{user_id}/why", "/admin/users/{user_id}/episodes",
     "/admin/users/{user_id}/episodes/{episode_id}/trace", "/admin/users/{user_id}/export",
-    "/admin/users/{user_id}/reset", "/admin/users/{user_id}/delete", "/admin/nowhere",
+    "/admin/users/{user_id}/reset", "/admin/users/{user_id}/delete", "/admin/mission",
+    "/admin/nowhere",
 ]
 OTHER_PAGES = ["/docs", "/redoc", "/openapi.json", "/static/docs/redoc/LICENSE",
                "/admin/static/console.css"]

@@ -11,11 +11,11 @@ from sqlalchemy import func, insert, select
 from sqlalchemy.dialects import postgresql, sqlite
 from sqlalchemy.orm import Session
 
-from ..models import FleetMission, LearnerModel, User
+from ..models import Episode, FleetMission, LearnerModel, User
 from ._rows import conn, names, table
 
 __all__ = ["MissionRow", "add", "add_first", "by_change", "get", "latest_version",
-           "list_versions", "lock_latest", "models_behind"]
+           "list_versions", "lock_latest", "models_behind", "open_episodes"]
 
 
 @dataclass(slots=True)
@@ -94,7 +94,7 @@ def list_versions(session: Session, fleet: str) -> list[MissionRow]:
         .order_by(_missions.c.version.desc()))]
 
 
-_users, _models = table(User), table(LearnerModel)
+_users, _models, _episodes = table(User), table(LearnerModel), table(Episode)
 
 
 def models_behind(session: Session, fleet: str, version: int) -> list[int]:
@@ -104,3 +104,11 @@ def models_behind(session: Session, fleet: str, version: int) -> list[int]:
         select(_users.c.id).join(_models, _models.c.user_pk == _users.c.id)
         .where(_users.c.fleet == fleet, _models.c.mission_version < version)
         .order_by(_users.c.id)).scalars())
+
+
+def open_episodes(session: Session, fleet: str) -> int:
+    """How many episodes of ``fleet``'s users are open (a change of mission interrupts them)."""
+    return int(conn(session).execute(
+        select(func.count())
+        .select_from(_episodes.join(_users, _episodes.c.user_pk == _users.c.id))
+        .where(_users.c.fleet == fleet, _episodes.c.status == "open")).scalar_one())
