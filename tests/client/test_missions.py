@@ -31,8 +31,10 @@ def care_home() -> dict[str, Any]:
 
 async def staff_client(app: FastAPI, make_key: MakeKey, fleet: str = "default"
                        ) -> a.AsyncClient:
-    return fast(a.AsyncClient(BASE_URL, make_key("staff", fleet=fleet),
-                              transport=httpx.ASGITransport(app=app)))
+    client = a.AsyncClient(BASE_URL, make_key("staff", fleet=fleet),
+                           transport=httpx.ASGITransport(app=app))
+    fast(client)
+    return client
 
 
 async def test_set_read_and_list_a_fleets_mission(app: FastAPI, make_key: MakeKey,
