@@ -96,7 +96,8 @@ def _plot(path: Path, stats: dict[str, dict[str, Any]], change_at: int | None, t
 @fleet.command("simulate")
 def simulate(
     key: Annotated[str | None, typer.Option(envvar="ATTUNE_KEY", show_default=False,
-                                            help="A robot (or admin) API key (required).")
+                                            help="A robot (or staff or admin) API key "
+                                            "(required; staff or admin with --mission).")
                    ] = None,
     url: Annotated[str, typer.Option(envvar="ATTUNE_URL", help="The service's base URL.")
                    ] = "http://127.0.0.1:8000",
@@ -106,6 +107,14 @@ def simulate(
     change_at: Annotated[int | None, typer.Option(
         show_default=False, help="Event at which every person's needs change (about half of "
         "their rules move), as in the paper's second experiment. Default: no change.")] = None,
+    mission_file: Annotated[Path | None, typer.Option(
+        "--mission", metavar="FILE", show_default=False, dir_okay=False,
+        help="Before simulating, make the mission in FILE (JSON, like "
+        "docs/examples/care-home-mission.json) the mission of the key's fleet, with a change_id "
+        "derived from its content (running again with the same FILE changes nothing); the "
+        "people are then drawn from it. Needs a staff or admin key. Every model of the fleet "
+        "is carried to it and the fleet's open episodes are interrupted. Default: simulate "
+        "the fleet's mission in force.")] = None,
     seed: Annotated[int, typer.Option(help="Seeds the people, their events and reactions.")] = 0,
     learner: Annotated[str, typer.Option(help="The learner the people are created with: hri, "
                                          "dts, rmax or qlearning.")] = "hri",
@@ -126,10 +135,12 @@ def simulate(
     """Simulated robots serve simulated people through the service at --url.
 
     Each robot is a thread with its own client; a person's events are played in order by
-    whichever robot is free. At the end the paper's metrics (interaction rate, success rate,
-    queries per mission, cumulative reward) are read back from the service's stats endpoint,
-    per user and overall, and checked against the robots' own tally. Exit code 1 if they differ
-    or the run failed, 2 if the service cannot be used.
+    whichever robot is free. The people are drawn from the fleet's mission in force, or from
+    the one in --mission FILE, which is set first. At the end the paper's metrics (interaction
+    rate, success rate, queries per mission, cumulative reward) are read back from the
+    service's stats endpoint, per user and overall, and checked against the robots' own
+    tally. Exit code 1 if they differ or the run failed, 2 if the service cannot be used or
+    FILE is not a mission.
     """
     require("attune_client", "fleet", "attune fleet")
     if not key:  # checked here, after the extra: what to install comes first
@@ -150,9 +161,17 @@ def simulate(
     )
 
     from app.fleet.simulate import FleetError, PlayedEpisode, make_people, run_fleet
-    from app.learning import Mission, MissionError, space_for
+    from app.learning import Mission, MissionError, load_mission, space_for
 
     err = stderr_console()
+
+    wanted: dict[str, Any] | None = None
+    if mission_file is not None:
+        try:  # the file is checked here, before anything is sent
+            wanted = load_mission(mission_file).to_dict()
+        except MissionError as exc:
+            err.print(f"[red]--mission:[/red] {exc}")
+            raise typer.Exit(2) from None
 
     prefix = prefix or f"fleet-{seed}-{secrets.token_hex(3)}"
 
@@ -162,7 +181,20 @@ def simulate(
 
     try:
         with client() as setup:
-            mission = Mission.from_dict(setup.mission().model_dump(), source=f"{url}/v1/mission")
+            in_force = setup.mission()
+            if wanted is not None:
+                fleet_name = in_force.fleet or "default"
+                changed = setup.set_mission(fleet_name, wanted)
+                err.print(_mission_change_line(changed, mission_file, fleet_name))
+                in_force = setup.mission()
+                if in_force.fingerprint != changed.fingerprint:
+                    err.print(f"[red]The fleet's mission is not the one in {mission_file}:"
+                              f"[/red] its change_id was used before, for a mission the fleet "
+                              f"had from version {changed.version}. Set it with a new "
+                              f"change_id (PUT /v1/admin/fleets/{fleet_name}/mission), then "
+                              "run without --mission.")
+                    raise typer.Exit(2)
+            mission = Mission.from_dict(in_force.document(), source=f"{url}/v1/mission")
             space = space_for(mission)
             people = make_people(mission, users=users, events=events, change_at=change_at,
                                  seed=seed, prefix=prefix)
@@ -180,6 +212,8 @@ def simulate(
         raise typer.Exit(2) from None
 
     total = users * events
+    err.print(f"Mission {mission.name!r}: {len(mission.situations)} situations, "
+              f"{len(mission.time_slots)} time slots, {len(mission.services)} services.")
     err.print(f"{robots} robots, {users} people ({prefix}-u1..u{users}), {events} events each"
               + (f", needs change at event {change_at}" if change_at is not None else "")
               + f", learner {learner}, seed {seed}, against {url}")
@@ -208,6 +242,19 @@ def simulate(
             late = {p.user_id: reader.get_stats(p.user_id, last=events - change_at).model_dump()
                     for p in people}
     _report(run, stats, late, change_at, events, plot, json_output, learner)
+
+
+def _mission_change_line(changed: Any, path: Path | None, fleet_name: str) -> str:
+    """What setting --mission did, in one line."""
+    if changed.replayed:
+        return (f"The mission in {path} was set before (version {changed.version} of fleet "
+                f"{fleet_name!r}); nothing changed.")
+    if not changed.changed:
+        return (f"Fleet {fleet_name!r} already has the mission in {path} "
+                f"(version {changed.version}).")
+    return (f"Fleet {fleet_name!r} now has the mission in {path}: version {changed.version}, "
+            f"{changed.users_moved} models carried to it, {changed.episodes_interrupted} open "
+            "episodes interrupted.")
 
 
 def _report(run: FleetRun, stats: dict[str, dict[str, Any]],

@@ -6,6 +6,8 @@ pickling and process start-up stay small next to the simulation itself.
 
 from __future__ import annotations
 
+import functools
+import json
 import multiprocessing
 import os
 from collections.abc import Iterable, Mapping, Sequence
@@ -23,7 +25,7 @@ from rich.progress import (
     TimeRemainingColumn,
 )
 
-from app.learning import office_mission
+from app.learning import Mission, office_mission
 from app.learning.evaluation import Method, Protocol, RunResult, run
 
 __all__ = ["Job", "JobError", "default_workers", "jobs_for", "run_job", "run_jobs"]
@@ -38,6 +40,7 @@ class Job:
     seed: int
     n_users: int = 6
     user_params: tuple[tuple[str, float], ...] = ()  # overrides of the simulated users
+    mission: str | None = None  # the mission as canonical JSON; None: the office mission
 
     def describe(self) -> str:
         """A short human-readable name for messages."""
@@ -54,21 +57,31 @@ def jobs_for(
     seeds: int,
     n_users: int = 6,
     user_params: Mapping[str, float] | None = None,
+    mission: Mission | None = None,
 ) -> list[Job]:
-    """Every method x protocol x seed (seeds 0..seeds-1), ordered protocol, method, seed."""
+    """Every method x protocol x seed (seeds 0..seeds-1), ordered protocol, method, seed;
+    the simulated users live in ``mission`` (default: the paper's office mission)."""
     methods, protocols = list(methods), list(protocols)
     overrides = tuple(sorted((user_params or {}).items()))
+    document = None if mission is None else json.dumps(mission.to_dict(), sort_keys=True)
     return [
-        Job(method, protocol, seed, n_users, overrides)
+        Job(method, protocol, seed, n_users, overrides, document)
         for protocol in protocols
         for method in methods
         for seed in range(seeds)
     ]
 
 
+@functools.lru_cache(maxsize=4)
+def _mission(document: str | None) -> Mission:
+    if document is None:
+        return office_mission()
+    return Mission.from_dict(json.loads(document), source="--mission")
+
+
 def run_job(job: Job) -> RunResult:
-    """Do one job; the mission is built here, in the worker, rather than pickled."""
-    return run(job.method, job.protocol, job.seed, office_mission(), n_users=job.n_users,
+    """Do one job; the mission is built here, in the worker (once), from its JSON."""
+    return run(job.method, job.protocol, job.seed, _mission(job.mission), n_users=job.n_users,
                user_params=dict(job.user_params))
 
 

@@ -22,6 +22,7 @@ __all__ = [
     "DEFINITIONS",
     "ablation_markdown",
     "claims_markdown",
+    "mission_note",
     "print_metrics_table",
     "print_table2",
     "table2_markdown",
@@ -115,7 +116,19 @@ def _preamble(summary: Mapping[str, Any]) -> str:
     """How many runs the numbers come from."""
     run = summary["run"]
     runs = f"{_plural(run['seeds'], 'seed')} × {_plural(run['users'], 'simulated user')}"
-    return f"{runs} per method; {SPREAD_LABEL}."
+    return f"{runs} per method; {SPREAD_LABEL}.{mission_note(summary)}"
+
+
+def mission_note(summary: Mapping[str, Any]) -> str:
+    """A sentence naming the mission the simulated users lived in, when it was not the
+    paper's office mission (``--mission FILE``); empty otherwise."""
+    mission = summary.get("run", {}).get("mission")
+    if not mission or mission.get("file") is None:
+        return ""
+    return (f" The simulated users lived in the mission {mission['name']!r} of "
+            f"{mission['file']} ({mission['situations']} situations, {mission['time_slots']} "
+            f"time slots, {mission['services']} services), not the paper's office mission: "
+            "the paper's numbers are not targets for it.")
 
 
 DEFINITIONS = """\

@@ -28,14 +28,17 @@ class FakeService:
 
     ``down`` makes every request fail to connect; ``script`` lists what the next requests get
     instead of an answer (a status, a (status, headers) pair, or a transport error to raise);
-    ``refuse`` maps a report key to the status it always gets. ``applied`` lists the reports
-    that took effect, in order; ``requests`` every request received.
+    ``refuse`` maps a report key to the status it always gets; ``interrupted`` holds the
+    episodes a mission change interrupted (their new outcomes get the service's 409).
+    ``applied`` lists the reports that took effect, in order; ``requests`` every request
+    received.
     """
 
     def __init__(self) -> None:
         self.down = False
         self.script: list[Failure] = []
         self.refuse: dict[str, int] = {}
+        self.interrupted: set[str] = set()
         self.requests: list[httpx.Request] = []
         self.applied: list[tuple[str, str]] = []
         self._answers: dict[tuple[str, str], tuple[bytes, dict[str, Any]]] = {}
@@ -78,6 +81,10 @@ class FakeService:
             status = self.refuse[key]
             return httpx.Response(status, json={"error": "Refused", "detail": f"{key} refused"})
         earlier = self._answers.get((kind, key))
+        if earlier is None and kind == "outcome" and episode_id in self.interrupted:
+            return httpx.Response(409, json={
+                "error": "Conflict", "detail": f"Episode {episode_id!r} was interrupted when "
+                "its fleet's mission changed; it takes no more outcomes. Start a new episode."})
         if earlier is not None:
             if earlier[0] != request.content:
                 return httpx.Response(409, json={"error": "Conflict",

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import datetime as dt
 import json
+import re
 from typing import Any
 
 import attune_client as a
@@ -46,6 +47,13 @@ MISSION = {"name": "office", "situations": ["arriving", "working", "stretching",
            "services": [{"name": "ProvideDrink", "details": ["tea", "coffee", "water"]}],
            "rewards": {"positive": 1.0, "accepted_service": 5.0, "negative": -2.0,
                        "query": -0.5}, "unavailable_situations": ["busy"], "gamma": 0.9}
+FLEET_MISSION = {**MISSION, "fleet": "care", "version": 3,
+                 "fingerprint": "sha256:0123456789abcdef0123456789abcdef"}
+CHANGED = {"fleet": "care", "version": 3, "previous_version": 2,
+           "fingerprint": "sha256:0123456789abcdef0123456789abcdef", "changed": True,
+           "users_moved": 4, "episodes_interrupted": 1,
+           "diff": {"kept": {"situations": ["arriving"]}, "added": {}, "removed": {},
+                    "renamed": {}}}
 
 
 class Recorder:
@@ -259,6 +267,126 @@ class TestRequests:
         mission = make_client(Recorder(200, MISSION)).mission()
         assert mission.services[0].details == ["tea", "coffee", "water"]
         assert mission.unavailable_situations == ["busy"]
+        assert mission.version is None  # a service older than versioned missions
+
+
+class TestMissions:
+    def test_the_fleets_mission_with_its_version(self, make_client: MakeClient) -> None:
+        rec = Recorder(200, FLEET_MISSION)
+        client = make_client(rec)
+        mission = client.mission()
+        assert (rec.last.method, rec.last.url.path) == ("GET", "/v1/mission")
+        assert "fleet" not in rec.last.url.params
+        assert isinstance(mission, a.FleetMission)
+        assert isinstance(mission, a.Mission)  # what mission() returned before
+        assert (mission.fleet, mission.version, mission.fingerprint) == (
+            "care", 3, "sha256:0123456789abcdef0123456789abcdef")
+        assert mission.document() == MISSION  # the mission alone, as set_mission takes it
+        client.mission(fleet="care")
+        assert rec.last.url.params["fleet"] == "care"
+
+    def test_missions_lists_the_versions(self, make_client: MakeClient) -> None:
+        rec = Recorder(200, {"fleet": "care", "current_version": 2, "items": [
+            {"version": 2, "name": "office", "fingerprint": "sha256:b",
+             "created_at": "2026-12-01T08:00:00Z", "change_id": "menu-2",
+             "renames": {"details": {"cha": "tea"}}, "set_by": "key_1", "stored": True,
+             "mission": MISSION},
+            {"version": 1, "name": "office", "fingerprint": "sha256:a", "created_at": None,
+             "change_id": None, "renames": None, "set_by": None, "stored": False,
+             "mission": MISSION}]})
+        versions = make_client(rec).missions("care")
+        assert rec.last.url.path == "/v1/admin/fleets/care/missions"
+        assert versions.current_version == 2
+        newest, first = versions.items
+        assert newest.created_at == dt.datetime(2026, 12, 1, 8, tzinfo=dt.UTC)
+        assert newest.renames == {"details": {"cha": "tea"}}
+        assert newest.mission.services[0].details == ["tea", "coffee", "water"]
+        assert not first.stored
+        assert first.created_at is None
+
+    def test_set_mission(self, make_client: MakeClient) -> None:
+        rec = Recorder(200, CHANGED)
+        client = make_client(rec)
+        changed = client.set_mission("care", MISSION, change_id="menu-3",
+                                     renames={"details": {"cha": "tea"}})
+        assert (rec.last.method, rec.last.url.path) == ("PUT", "/v1/admin/fleets/care/mission")
+        assert rec.sent() == {"change_id": "menu-3", "mission": MISSION,
+                              "renames": {"details": {"cha": "tea"}}}
+        assert changed.changed
+        assert (changed.version, changed.previous_version) == (3, 2)
+        assert changed.users_moved == 4
+        assert changed.episodes_interrupted == 1
+        assert not changed.replayed
+        rec.headers = {"Idempotent-Replay": "true"}
+        assert client.set_mission("care", MISSION, change_id="menu-3").replayed
+
+    def test_the_change_id_is_derived_from_the_content(self, make_client: MakeClient) -> None:
+        rec = Recorder(200, CHANGED)
+        client = make_client(rec)
+        client.set_mission("care", MISSION)
+        first = rec.sent()
+        assert "renames" not in first
+        assert first["change_id"].startswith("mission-")
+        assert re.fullmatch(r"[A-Za-z0-9._:-]{1,128}", first["change_id"])
+        # the same mission, however it is given, is the same change: retries are one change
+        fleet_mission = a.FleetMission.model_validate(FLEET_MISSION)
+        client.set_mission("care", fleet_mission)
+        assert rec.sent() == first  # fleet, version and fingerprint are left out
+        client.set_mission("care", FLEET_MISSION)
+        assert rec.sent() == first
+        assert a.mission_change_id(MISSION) == first["change_id"]
+        # another mission, or other renames, is another change
+        other = {**MISSION, "situations": ["arriving", "working"]}
+        assert a.mission_change_id(other) != first["change_id"]
+        renamed = a.mission_change_id(MISSION, a.MissionRenames(details={"cha": "tea"}))
+        assert renamed != first["change_id"]
+        assert renamed == a.mission_change_id(MISSION, {"details": {"cha": "tea"}})
+        assert a.mission_change_id(MISSION, {}) == first["change_id"]  # no renames at all
+
+    @pytest.mark.parametrize(("status", "cls"), [(403, a.PermissionDeniedError),
+                                                 (409, a.ConflictError),
+                                                 (422, a.UnprocessableEntityError)])
+    def test_errors(self, make_client: MakeClient, status: int,
+                    cls: type[a.APIStatusError], sleeps: list[float]) -> None:
+        rec = Recorder(status, {"error": "Nope", "detail": "mission: situations: bad."})
+        with pytest.raises(cls) as caught:
+            make_client(rec).set_mission("care", MISSION)
+        assert caught.value.detail == "mission: situations: bad."
+        assert len(rec.requests) == 1
+        assert sleeps == []
+
+    def test_a_change_is_retried_as_the_same_change(self, make_client: MakeClient,
+                                                    sleeps: list[float]) -> None:
+        rec = Recorder(503, {"error": "ServiceUnavailable", "detail": "busy"})
+        answers = iter([503, 200])
+
+        def handler(request: httpx.Request) -> httpx.Response:
+            rec.status = next(answers)
+            rec.body = CHANGED if rec.status == 200 else rec.body
+            return rec(request)
+
+        changed = make_client(handler).set_mission("care", MISSION)
+        assert changed.version == 3
+        assert len(sleeps) == 1
+        bodies = [json.loads(r.content) for r in rec.requests]
+        assert bodies[0] == bodies[1]
+
+    def test_a_mission_is_a_mission_or_a_mapping(self, make_client: MakeClient) -> None:
+        with pytest.raises(TypeError, match="mission"):
+            make_client(Recorder(200, CHANGED)).set_mission("care", ["not", "a", "mission"])  # type: ignore[arg-type]
+
+    @pytest.mark.anyio
+    async def test_the_async_client(self, make_async_client: MakeAsyncClient) -> None:
+        rec = Recorder(200, FLEET_MISSION)
+        client = make_async_client(rec)
+        mission = await client.mission(fleet="care")
+        assert mission.version == 3
+        rec.body = {"fleet": "care", "current_version": 1, "items": []}
+        assert (await client.missions("care")).current_version == 1
+        rec.body = CHANGED
+        changed = await client.set_mission("care", mission)
+        assert changed.users_moved == 4
+        assert rec.sent()["change_id"] == a.mission_change_id(MISSION)
 
     def test_health_and_ready(self, make_client: MakeClient) -> None:
         rec = Recorder(200, {"status": "ok"})
@@ -291,6 +419,15 @@ class TestModels:
         odd = decision("dec_9", kind="dance")
         got = a.Decision.model_validate({**odd, "expects": ["applause"]})
         assert got.action.kind == "dance"
+
+    def test_an_interrupted_episode_and_its_mission_version(self) -> None:
+        summary = a.EpisodeSummary.model_validate({**SUMMARY, "status": "interrupted",
+                                                   "mission_version": 2})
+        assert summary.status == "interrupted"
+        assert summary.mission_version == 2
+        started = a.EpisodeStarted.model_validate({**STARTED, "mission_version": 1})
+        assert started.mission_version == 1
+        assert a.EpisodeStarted.model_validate(STARTED).mission_version is None
 
     def test_models_are_values(self) -> None:
         first = a.Action(kind="perform", service="ProvideDrink", detail="tea")

@@ -29,14 +29,16 @@ def test_the_public_api_is_there() -> None:
         "Action", "ActionProbability", "Decision", "Context", "EpisodeStarted", "EpisodeState",
         "OutcomeResult", "FeedbackResult", "User", "UserPage", "EpisodeTrace",
         "EpisodeSummary", "EpisodePage", "ModelView", "Stats", "Mission", "LearnerSpec",
-        "ServiceRequest", "Queued", "PendingReport", "FlushReport",
+        "ServiceRequest", "Queued", "PendingReport", "FlushReport", "FleetMission",
+        "MissionVersion", "MissionVersionList", "MissionChanged", "MissionRenames",
+        "EpisodeInterruptedError", "mission_change_id",
     }
     assert expected <= set(attune_client.__all__)
     methods = {
         "health", "ready", "mission", "put_user", "get_user", "list_users", "iter_users",
         "delete_user", "start_episode", "report_outcome", "send_feedback", "get_episode",
         "list_episodes", "iter_episodes", "get_model", "get_stats", "reset_model",
-        "export_model", "import_model", "flush", "pending",
+        "export_model", "import_model", "flush", "pending", "missions", "set_mission",
     }
     for cls in (attune_client.Client, attune_client.AsyncClient):
         missing = {m for m in methods if not callable(getattr(cls, m, None))}
@@ -51,6 +53,7 @@ def test_the_errors_form_one_hierarchy() -> None:
     assert issubclass(a.APIConnectionError, a.AttuneError)
     assert issubclass(a.ServiceUnavailableError, a.InternalServerError)
     assert issubclass(a.OutboxError, a.AttuneError)
+    assert issubclass(a.EpisodeInterruptedError, a.ConflictError)
     assert not issubclass(a.OutboxError, a.APIStatusError | a.APIConnectionError)
     for cls in (a.BadRequestError, a.AuthenticationError, a.PermissionDeniedError,
                 a.NotFoundError, a.ConflictError, a.PayloadTooLargeError,

@@ -222,6 +222,82 @@ class TestRejection:
         assert [p.key for p, _ in client.flush().delivered] == ["dec_1"]
 
 
+class TestInterruptedEpisodes:
+    """A mission change interrupts open episodes: their outcomes get a 409 for good."""
+
+    def test_sent_directly_it_raises_at_once(self, make_client: MakeClient,
+                                             service: FakeService, outbox_path: Path,
+                                             sleeps: list[float]) -> None:
+        service.interrupted.add("ep_1")
+        client = make_client(outbox=outbox_path)
+        with pytest.raises(a.EpisodeInterruptedError) as caught:
+            outcome(client, 1)
+        assert isinstance(caught.value, a.ConflictError)  # what callers caught before
+        assert caught.value.status_code == 409
+        assert "interrupted" in caught.value.detail
+        assert len(service.posts) == 1  # not retried
+        assert sleeps == []
+        assert client.pending() == []
+
+    def test_queued_it_leaves_the_queue_and_is_reported(self, make_client: MakeClient,
+                                                        service: FakeService,
+                                                        outbox_path: Path) -> None:
+        client = make_client(outbox=outbox_path, max_retries=0)
+        service.down = True
+        for n in (1, 2, 3):
+            outcome(client, n)  # dec_1 and dec_3 on ep_1, dec_2 on ep_0
+        feedback(client, 5)  # feedback on an interrupted episode is still taken
+        service.down = False
+        service.interrupted.add("ep_1")  # the fleet's mission changed meanwhile
+        report = client.flush()
+        assert [p.key for p in report.interrupted] == ["dec_1", "dec_3"]
+        assert [p.key for p, _ in report.rejected] == ["dec_1", "dec_3"]
+        for _, why in report.rejected:
+            assert why.interrupted
+            assert why.status_code == 409
+        assert [p.key for p, _ in report.delivered] == ["dec_2", "fb_5"]
+        assert report.remaining == 0
+        assert client.pending() == []
+        kept = client.rejected()
+        assert [(p.key, why.interrupted) for p, why in kept] == [("dec_1", True),
+                                                                 ("dec_3", True)]
+        # final: never sent again, by flush or by the next call
+        posts = len(service.posts)
+        assert client.flush() == a.FlushReport()
+        client.get_user("lin")
+        assert len(service.posts) == posts
+
+    def test_another_conflict_is_not_an_interruption(self, make_client: MakeClient,
+                                                     service: FakeService,
+                                                     outbox_path: Path) -> None:
+        client = make_client(outbox=outbox_path, max_retries=0)
+        service.down = True
+        outcome(client, 1)
+        service.down = False
+        service.refuse["dec_1"] = 409
+        report = client.flush()
+        [(_, why)] = report.rejected
+        assert not why.interrupted
+        assert report.interrupted == []
+        with pytest.raises(a.ConflictError) as caught:
+            outcome(client, 1)
+        assert not isinstance(caught.value, a.EpisodeInterruptedError)
+
+    @pytest.mark.anyio
+    async def test_the_async_client_too(self, make_async_client: MakeAsyncClient,
+                                        service: FakeService, outbox_path: Path) -> None:
+        client = make_async_client(outbox=outbox_path, max_retries=0)
+        service.down = True
+        await client.report_outcome("ep_1", decision_id="dec_1", response="accepted")
+        service.down = False
+        service.interrupted.add("ep_1")
+        report = await client.flush()
+        assert [p.key for p in report.interrupted] == ["dec_1"]
+        assert await client.pending() == []
+        with pytest.raises(a.EpisodeInterruptedError):
+            await client.report_outcome("ep_1", decision_id="dec_9", response="accepted")
+
+
 class TestDurability:
     def test_the_queue_survives_a_restart(self, make_client: MakeClient, service: FakeService,
                                           outbox_path: Path) -> None:

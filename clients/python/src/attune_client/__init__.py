@@ -8,6 +8,7 @@ with bounded retries and an offline outbox for robots.
                                        occurred_at=now, situation="stretching")
 """
 
+from ._base import mission_change_id
 from ._client import AsyncClient, Client
 from ._constants import DEFAULT_MAX_RETRIES, DEFAULT_TIMEOUT
 from ._exceptions import (
@@ -18,6 +19,7 @@ from ._exceptions import (
     AuthenticationError,
     BadRequestError,
     ConflictError,
+    EpisodeInterruptedError,
     InternalServerError,
     NotFoundError,
     OutboxError,
@@ -40,10 +42,15 @@ from ._models import (
     EpisodeSummary,
     EpisodeTrace,
     FeedbackResult,
+    FleetMission,
     FlushReport,
     LearnerSpec,
     Mission,
+    MissionChanged,
+    MissionRenames,
     MissionService,
+    MissionVersion,
+    MissionVersionList,
     ModelView,
     OutcomeResult,
     PendingReport,
@@ -80,17 +87,24 @@ __all__ = [
     "Decision",
     "DEFAULT_MAX_RETRIES",
     "DEFAULT_TIMEOUT",
+    "EpisodeInterruptedError",
     "EpisodePage",
     "EpisodeStarted",
     "EpisodeState",
     "EpisodeSummary",
     "EpisodeTrace",
     "FeedbackResult",
+    "FleetMission",
     "FlushReport",
     "InternalServerError",
     "LearnerSpec",
     "Mission",
+    "mission_change_id",
+    "MissionChanged",
+    "MissionRenames",
     "MissionService",
+    "MissionVersion",
+    "MissionVersionList",
     "ModelView",
     "NotFoundError",
     "OutboxError",

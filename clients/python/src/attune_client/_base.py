@@ -4,6 +4,7 @@ reading the answers. Only sending (and sleeping) differs between them."""
 from __future__ import annotations
 
 import datetime as dt
+import hashlib
 import json
 import os
 import random
@@ -29,9 +30,13 @@ from ._models import (
     EpisodeStarted,
     EpisodeTrace,
     FeedbackResult,
+    FleetMission,
     FlushReport,
     LearnerSpec,
     Mission,
+    MissionChanged,
+    MissionRenames,
+    MissionVersionList,
     ModelView,
     OutcomeResult,
     PendingReport,
@@ -46,7 +51,7 @@ from ._outbox import Outbox
 from ._retry import Backoff
 from ._version import __version__
 
-__all__ = ["Api", "BaseClient", "Op", "ReportOp"]
+__all__ = ["Api", "BaseClient", "Op", "ReportOp", "mission_change_id"]
 
 T = TypeVar("T")
 M = TypeVar("M", bound=BaseModel)
@@ -134,6 +139,34 @@ def _timestamp(value: dt.datetime | str) -> str:
     return value
 
 
+def _mission_document(mission: Mission | Mapping[str, Any]) -> dict[str, Any]:
+    if isinstance(mission, Mission):
+        return mission.document()
+    if not isinstance(mission, Mapping):
+        raise TypeError("mission must be a Mission or a mapping (the mission document)")
+    return {k: v for k, v in mission.items() if k not in ("fleet", "version", "fingerprint")}
+
+
+def _renames_document(renames: MissionRenames | Mapping[str, Any] | None
+                      ) -> dict[str, Any] | None:
+    if renames is None:
+        return None
+    spec = renames if isinstance(renames, MissionRenames) else MissionRenames.model_validate(
+        dict(renames))
+    doc = {k: v for k, v in spec.model_dump(mode="json").items() if v}
+    return doc or None
+
+
+def mission_change_id(mission: Mission | Mapping[str, Any],
+                      renames: MissionRenames | Mapping[str, Any] | None = None) -> str:
+    """The ``change_id`` ``set_mission`` uses when given none: ``mission-`` and a digest of the
+    mission document (without ``fleet``, ``version`` and ``fingerprint``) and the renames, so
+    that sending the same change again (a retry, a rerun of a script) is the same change."""
+    doc = {"mission": _mission_document(mission), "renames": _renames_document(renames)}
+    canonical = json.dumps(doc, sort_keys=True, separators=(",", ":"), ensure_ascii=False)
+    return "mission-" + hashlib.sha256(canonical.encode()).hexdigest()[:40]
+
+
 def result_parser(kind: ReportKind) -> Callable[[httpx.Response], OutcomeResult | FeedbackResult]:
     if kind == "outcome":
         return _written(OutcomeResult)
@@ -152,8 +185,27 @@ class Api:
         return Op("GET", "/readyz", lambda r: r.status_code == 200, auth=False)
 
     @staticmethod
-    def mission() -> Op[Mission]:
-        return Op("GET", "/v1/mission", _model(Mission))
+    def mission(fleet: str | None) -> Op[FleetMission]:
+        return Op("GET", "/v1/mission", _model(FleetMission),
+                  params={"fleet": fleet} if fleet is not None else None)
+
+    @staticmethod
+    def missions(fleet: str) -> Op[MissionVersionList]:
+        return Op("GET", f"/v1/admin/fleets/{_segment(fleet)}/missions",
+                  _model(MissionVersionList))
+
+    @staticmethod
+    def set_mission(fleet: str, mission: Mission | Mapping[str, Any], change_id: str | None,
+                    renames: MissionRenames | Mapping[str, Any] | None) -> Op[MissionChanged]:
+        body: dict[str, Any] = {
+            "change_id": change_id if change_id is not None else mission_change_id(
+                mission, renames),
+            "mission": _mission_document(mission)}
+        renamed = _renames_document(renames)
+        if renamed is not None:
+            body["renames"] = renamed
+        return Op("PUT", f"/v1/admin/fleets/{_segment(fleet)}/mission",
+                  _written(MissionChanged), body=_json(body))
 
     @staticmethod
     def put_user(user_id: str, display_name: str | None,
@@ -273,8 +325,9 @@ def is_transient(exc: AttuneError) -> bool:
 
 def refusal(exc: AttuneError) -> APIStatusError | None:
     """The error when the service refused the report itself for good (409, 404, 422, 413...),
-    else None. An unusable key (401, 403) is the caller's to fix, not the report's: a report
-    refused for that stays queued."""
+    else None. An outcome of an episode interrupted by a mission change is one
+    (``EpisodeInterruptedError``, a 409): no retry can deliver it. An unusable key (401, 403)
+    is the caller's to fix, not the report's: a report refused for that stays queued."""
     if (isinstance(exc, APIStatusError) and 400 <= exc.status_code < 500
             and not is_transient(exc)
             and not isinstance(exc, AuthenticationError | PermissionDeniedError)):

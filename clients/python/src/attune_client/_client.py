@@ -34,9 +34,13 @@ from ._models import (
     EpisodeSummary,
     EpisodeTrace,
     FeedbackResult,
+    FleetMission,
     FlushReport,
     LearnerSpec,
     Mission,
+    MissionChanged,
+    MissionRenames,
+    MissionVersionList,
     ModelView,
     OutcomeResult,
     PendingReport,
@@ -204,8 +208,11 @@ class Client(BaseClient):
 
         Stops at the first report that still cannot get through (it stays at the head, so the
         order holds). A report the service refuses for good (404, 409, 413, 422...) leaves the
-        queue for the outbox's rejected table. Waits if another process is delivering the same
-        file.
+        queue for the outbox's rejected table and is never sent again. An outcome of an episode
+        that a change of its fleet's mission interrupted is one of those (409,
+        ``Rejection.interrupted``, listed in the report's ``interrupted``): the episode is over,
+        and the person's next event starts a new one. Waits if another process is delivering
+        the same file.
 
         Returns:
             What was delivered (with the service's answers: an outcome's answer holds the next
@@ -252,9 +259,60 @@ class Client(BaseClient):
         except AttuneError:
             return False
 
-    def mission(self) -> Mission:
-        """``GET /v1/mission``: the situations, time slots, services and rewards in force."""
-        return self._call(Api.mission())
+    def mission(self, fleet: str | None = None) -> FleetMission:
+        """``GET /v1/mission``: your fleet's mission in force (situations, time slots,
+        services, rewards), with ``fleet``, ``version`` and ``fingerprint``.
+
+        ``mission.document()`` is the mission alone (what ``set_mission`` takes).
+
+        Args:
+            fleet: another fleet's mission (admin keys only); None: the key's fleet.
+
+        Raises:
+            PermissionDeniedError: ``fleet`` named by a key that is not an admin's.
+        """
+        return self._call(Api.mission(fleet))
+
+    def missions(self, fleet: str) -> MissionVersionList:
+        """``GET /v1/admin/fleets/{fleet}/missions``: every version of a fleet's mission,
+        newest first (the fleet's staff, admins).
+
+        Raises:
+            PermissionDeniedError: a robot key, or staff of another fleet.
+        """
+        return self._call(Api.missions(fleet))
+
+    def set_mission(self, fleet: str, mission: Mission | Mapping[str, Any], *,
+                    change_id: str | None = None,
+                    renames: MissionRenames | Mapping[str, Any] | None = None
+                    ) -> MissionChanged:
+        """``PUT /v1/admin/fleets/{fleet}/mission``: give a fleet a new mission (the fleet's
+        staff, admins).
+
+        Every model of the fleet is carried to the new version by names (what exists in both
+        keeps what was learned) and the fleet's open episodes are closed as ``interrupted``
+        (their pending outcomes get ``EpisodeInterruptedError``). A mission equal to the one
+        in force changes nothing (``changed`` False).
+
+        Args:
+            fleet: whose mission.
+            mission: a ``Mission`` (``fleet``, ``version`` and ``fingerprint`` are left out)
+                or the mission document as a mapping (a mission file's JSON).
+            change_id: makes the change idempotent (``^[A-Za-z0-9._:-]{1,128}$``). None:
+                ``mission_change_id(mission, renames)``, derived from the content, so that a
+                retry or a rerun is the same change (answered with ``replayed`` True). To go
+                back to a mission the fleet had before, pass a new ``change_id``: the derived
+                one would replay the earlier change instead.
+            renames: old names to new (``MissionRenames`` or a mapping of ``time_slots``,
+                ``situations``, ``services``, ``details``) for what was learned to follow.
+
+        Raises:
+            UnprocessableEntityError: the mission or the renames are not valid (``detail``
+                says where).
+            ConflictError: ``change_id`` was used with another mission.
+            PermissionDeniedError: a robot key, or staff of another fleet.
+        """
+        return self._call(Api.set_mission(fleet, mission, change_id, renames))
 
     # -- users ---------------------------------------------------------------------------------
     def put_user(self, user_id: str, *, display_name: str | None = None,
@@ -361,6 +419,9 @@ class Client(BaseClient):
         Raises:
             UnprocessableEntityError: a response the decision does not allow.
             ConflictError: another outcome for that decision, or not the current decision.
+            EpisodeInterruptedError: (a ``ConflictError``) the episode was interrupted when its
+                fleet's mission changed; it takes no more outcomes. Queued, such an outcome
+                is rejected at delivery (``FlushReport.interrupted``), never retried.
             NotFoundError: no such episode.
         """
         return self._report(Api.report_outcome(
@@ -622,9 +683,20 @@ class AsyncClient(BaseClient):
         except AttuneError:
             return False
 
-    async def mission(self) -> Mission:
+    async def mission(self, fleet: str | None = None) -> FleetMission:
         """``GET /v1/mission``; see ``Client.mission``."""
-        return await self._call(Api.mission())
+        return await self._call(Api.mission(fleet))
+
+    async def missions(self, fleet: str) -> MissionVersionList:
+        """``GET /v1/admin/fleets/{fleet}/missions``; see ``Client.missions``."""
+        return await self._call(Api.missions(fleet))
+
+    async def set_mission(self, fleet: str, mission: Mission | Mapping[str, Any], *,
+                          change_id: str | None = None,
+                          renames: MissionRenames | Mapping[str, Any] | None = None
+                          ) -> MissionChanged:
+        """``PUT /v1/admin/fleets/{fleet}/mission``; see ``Client.set_mission``."""
+        return await self._call(Api.set_mission(fleet, mission, change_id, renames))
 
     # -- users ---------------------------------------------------------------------------------
     async def put_user(self, user_id: str, *, display_name: str | None = None,

@@ -14,6 +14,7 @@ from typing import Any
 
 import httpx
 
+from ._models import is_interruption
 from ._retry import parse_retry_after
 
 __all__ = [
@@ -24,6 +25,7 @@ __all__ = [
     "AuthenticationError",
     "BadRequestError",
     "ConflictError",
+    "EpisodeInterruptedError",
     "InternalServerError",
     "NotFoundError",
     "OutboxError",
@@ -125,6 +127,12 @@ class ConflictError(APIStatusError):
     """409: an id reused with another body, or a state that does not allow this write."""
 
 
+class EpisodeInterruptedError(ConflictError):
+    """409 for an outcome: its episode was interrupted when its fleet's mission changed, and
+    takes no more outcomes (for good: retrying cannot help). Start a new episode; the person's
+    model was carried to the new mission."""
+
+
 class PayloadTooLargeError(APIStatusError):
     """413: the request body is over the service's size limit."""
 
@@ -207,5 +215,5 @@ def make_status_error(response: httpx.Response) -> APIStatusError:
             if isinstance(raw_fields, list):
                 fields = [f for f in raw_fields if isinstance(f, dict)]
     message = f"{status} {error}: {detail}"
-    return _status_class(status)(message, response=response, error=error, detail=detail,
-                                 fields=fields, body=body)
+    cls = EpisodeInterruptedError if is_interruption(status, detail) else _status_class(status)
+    return cls(message, response=response, error=error, detail=detail, fields=fields, body=body)

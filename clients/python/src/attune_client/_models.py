@@ -26,10 +26,15 @@ __all__ = [
     "EpisodeSummary",
     "EpisodeTrace",
     "FeedbackResult",
+    "FleetMission",
     "FlushReport",
     "LearnerSpec",
     "Mission",
+    "MissionChanged",
+    "MissionRenames",
     "MissionService",
+    "MissionVersion",
+    "MissionVersionList",
     "ModelView",
     "OutcomeResult",
     "PendingReport",
@@ -45,7 +50,9 @@ __all__ = [
     "UserPage",
 ]
 
-EpisodeStatus = Literal["open", "closed"]
+EpisodeStatus = Literal["open", "closed", "interrupted"]
+"""``interrupted``: the episode was closed by a change of its fleet's mission; it takes no more
+outcomes (one gets ``EpisodeInterruptedError``)."""
 ReportKind = Literal["outcome", "feedback"]
 
 
@@ -97,6 +104,8 @@ class EpisodeStarted(_Model):
     """The answer to an event: the new episode and the robot's first decision.
 
     ``replayed`` is True when the service answered a repeated ``event_id`` (nothing changed).
+    ``mission_version`` is the fleet's mission version the episode runs under (None in answers
+    the service stored before missions had versions).
     """
 
     episode_id: str
@@ -106,6 +115,7 @@ class EpisodeStarted(_Model):
     state: str
     total_reward: float
     decision: Decision | None
+    mission_version: int | None = None
     replayed: bool = False
 
 
@@ -212,6 +222,7 @@ class EpisodeSummary(_Model):
     state: str | None = None
     occurred_at: dt.datetime | None = None
     index: int | None = None
+    mission_version: int | None = None
 
 
 class EpisodeTrace(EpisodeSummary):
@@ -299,7 +310,7 @@ class MissionService(_Model):
 
 
 class Mission(_Model):
-    """The mission in force: situations, time slots, services and rewards."""
+    """A mission: situations, time slots, services and rewards."""
 
     name: str
     situations: list[str]
@@ -308,6 +319,89 @@ class Mission(_Model):
     rewards: dict[str, float]
     unavailable_situations: list[str] = Field(default_factory=list)
     gamma: float | None = None
+
+    def document(self) -> dict[str, Any]:
+        """The mission document alone, as ``set_mission`` takes it and a mission file holds
+        it: without ``fleet``, ``version`` and ``fingerprint`` (which say whose it is and
+        which version, not what it is)."""
+        doc = self.model_dump(mode="json", exclude=set(_PLACE_FIELDS))
+        if doc.get("gamma") is None:
+            doc.pop("gamma", None)
+        return doc
+
+
+_PLACE_FIELDS = ("fleet", "version", "fingerprint")
+
+
+class FleetMission(Mission):
+    """A fleet's mission in force (``GET /v1/mission``), with whose it is and its version.
+
+    ``version`` goes up by one with every change of the fleet's mission; ``fingerprint`` names
+    its contents. The three are None from a service older than versioned missions.
+    """
+
+    fleet: str | None = None
+    version: int | None = None
+    fingerprint: str | None = None
+
+
+class MissionRenames(_Model):
+    """What a mission change carries across a rename, old name to new (what was learned under
+    the old name is kept under the new). A detail is renamed under every service that has it
+    (``{"cha": "tea"}``), or under one (``{"ProvideDrink/cha": "tea"}``)."""
+
+    time_slots: dict[str, str] = Field(default_factory=dict)
+    situations: dict[str, str] = Field(default_factory=dict)
+    services: dict[str, str] = Field(default_factory=dict)
+    details: dict[str, str] = Field(default_factory=dict)
+
+
+class MissionVersion(_Model):
+    """One version of a fleet's mission.
+
+    ``stored`` is False (and ``created_at`` None) for the deployment's default while the fleet
+    has no users yet; ``set_by`` is the key that set it (None for the default); ``renames``
+    what the change carried across a rename from the previous version.
+    """
+
+    version: int
+    name: str
+    fingerprint: str
+    created_at: dt.datetime | None = None
+    change_id: str | None = None
+    renames: dict[str, Any] | None = None
+    set_by: str | None = None
+    stored: bool = True
+    mission: Mission
+
+
+class MissionVersionList(_Model):
+    """Every version of a fleet's mission, newest first."""
+
+    fleet: str
+    current_version: int
+    items: list[MissionVersion]
+
+
+class MissionChanged(_Model):
+    """The answer to a mission change.
+
+    ``changed`` is False when the mission was already in force (no new version). Otherwise
+    ``version`` is the new version, ``users_moved`` counts the models carried to it and
+    ``episodes_interrupted`` the open episodes it closed as ``interrupted``; ``diff`` says what
+    was kept, added, removed and renamed (None for a fleet's first version). ``replayed`` is
+    True when this answers a repeated ``change_id`` (nothing changed now).
+    """
+
+    fleet: str
+    version: int
+    previous_version: int | None = None
+    fingerprint: str
+    changed: bool
+    users_moved: int = 0
+    episodes_interrupted: int = 0
+    diff: dict[str, Any] | None = None
+    replayed: bool = False
 
 
 # -- the outbox ----------------------------------------------------------------------------------
@@ -345,7 +439,11 @@ class PendingReport(_Model):
 
 
 class Rejection(_Model):
-    """Why the service refused a queued report for good (its status and error body)."""
+    """Why the service refused a queued report for good (its status and error body).
+
+    ``interrupted`` is True for an outcome whose episode was interrupted by a change of its
+    fleet's mission: it will never be taken (start a new episode for the person).
+    """
 
     status_code: int
     error: str
@@ -354,16 +452,37 @@ class Rejection(_Model):
     request_id: str | None = None
     rejected_at: dt.datetime
 
+    @property
+    def interrupted(self) -> bool:
+        return is_interruption(self.status_code, self.detail)
+
+
+INTERRUPTED_MARK = "was interrupted when its fleet's mission"
+
+
+def is_interruption(status_code: int, detail: str) -> bool:
+    """True for the service's refusal of an outcome to an episode that a change of its fleet's
+    mission interrupted (409, its detail says so)."""
+    return status_code == 409 and INTERRUPTED_MARK in detail
+
 
 class FlushReport(_Model):
     """What delivering the outbox did.
 
     ``delivered`` pairs each delivered report with the service's answer (for an outcome, the
     next decision of its episode); ``rejected`` pairs each report the service refused for good
-    with the reason (it left the queue); ``remaining`` counts the reports still queued.
+    with the reason (it left the queue), and ``interrupted`` lists those of them that were
+    outcomes of episodes interrupted by a mission change; ``remaining`` counts the reports
+    still queued.
     """
 
     delivered: list[tuple[PendingReport, OutcomeResult | FeedbackResult]] = Field(
         default_factory=list)
     rejected: list[tuple[PendingReport, Rejection]] = Field(default_factory=list)
     remaining: int = 0
+
+    @property
+    def interrupted(self) -> list[PendingReport]:
+        """The rejected outcomes whose episode a change of its fleet's mission interrupted
+        (``Rejection.interrupted``): they left the queue for good; their episodes are over."""
+        return [entry for entry, why in self.rejected if why.interrupted]
