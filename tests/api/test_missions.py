@@ -220,7 +220,7 @@ class TestReadMission:
             other_robot: TestClient) -> None:
         change(admin, office(add_cocoa), fleet="other")
         other = mission(admin, fleet="other")
-        assert (other["fleet"], other["version"]) == ("other", 1)
+        assert (other["fleet"], other["version"]) == ("other", 2)  # 1: the default it had
         assert other["fingerprint"] == fingerprint(office(add_cocoa))
         assert mission(other_robot)["fingerprint"] == other["fingerprint"]
         assert mission(robot, fleet="default")["fingerprint"] == OFFICE.fingerprint
@@ -240,31 +240,34 @@ class TestReadMission:
             assert_error(put_raw(client, doc), 403, "Forbidden")
         assert versions(admin)["items"][0]["stored"] is False  # nothing was changed
         assert versions(staff)["fleet"] == "default"
-        assert change(staff, doc)["version"] == 1
+        assert change(staff, doc)["version"] == 2  # version 1: the default it had
         assert versions(other_staff, "other")["current_version"] == 1
         assert change(other_staff, doc, fleet="other")["fleet"] == "other"
-        assert change(admin, office(add_cocoa, drop_stocks), "c2")["version"] == 2
+        assert change(admin, office(add_cocoa, drop_stocks), "c2")["version"] == 3
         assert change(admin, office(drop_stocks), fleet="third")["fleet"] == "third"
-        assert versions(admin, "third")["current_version"] == 1
+        assert versions(admin, "third")["current_version"] == 2
 
 
 # -- changing it -------------------------------------------------------------------------------
 class TestChangeMission:
-    def test_a_change_before_any_user_is_version_1(self, staff: TestClient,
-                                                   robot: TestClient) -> None:
+    def test_a_change_before_any_user_follows_the_default_as_version_2(
+            self, staff: TestClient, robot: TestClient) -> None:
+        # Version 1 was the default the fleet had (GET /v1/mission said so): it is stored as
+        # such, so a version never changes meaning.
         doc = office(add_cocoa)
         out = change(staff, doc, "first")
-        assert out == {"fleet": "default", "version": 1, "previous_version": None,
-                       "fingerprint": fingerprint(doc), "changed": True, "users_moved": 0,
-                       "episodes_interrupted": 0, "diff": None}
-        [only] = versions(staff)["items"]
-        assert (only["version"], only["stored"], only["change_id"]) == (1, True, "first")
-        assert only["mission"] == doc
+        assert (out["version"], out["previous_version"], out["users_moved"]) == (2, 1, 0)
+        assert "ProvideDrink/cocoa" in out["diff"]["details"]["added"]
+        new, default = versions(staff)["items"]
+        assert (new["version"], new["stored"], new["change_id"]) == (2, True, "first")
+        assert new["mission"] == doc
+        assert (default["version"], default["stored"], default["change_id"]) == (1, True, None)
+        assert default["fingerprint"] == OFFICE.fingerprint
         assert robot.put("/v1/users/lin").status_code == 201
         view = model(robot, "lin")
-        assert view["mission_version"] == 1
+        assert view["mission_version"] == 2
         assert "cocoa" in detail_names(view)
-        assert mission(robot)["version"] == 1
+        assert mission(robot)["version"] == 2
 
     def test_a_change_moves_the_fleets_models(self, robot: TestClient, staff: TestClient
                                               ) -> None:
@@ -354,8 +357,8 @@ class TestChangeMission:
         body = assert_error(put_raw(staff, office(), "v2", renames=renames), 422,
                             "ValidationError")
         assert entry in body["detail"], body["detail"]
-        assert versions(staff)["current_version"] == 1
-        assert model(robot, "lin")["mission_version"] == 1
+        assert versions(staff)["current_version"] == 2
+        assert model(robot, "lin")["mission_version"] == 2
 
     @pytest.mark.one_engine
     @pytest.mark.parametrize("renames", [

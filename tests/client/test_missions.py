@@ -156,6 +156,7 @@ async def test_an_interrupted_outcome_leaves_the_outbox(app: FastAPI, make_key: 
 def test_the_sync_client(portal: PortalTransport, make_key: MakeKey) -> None:
     with fast(a.Client(BASE_URL, make_key("admin"), transport=portal)) as admin:
         changed = admin.set_mission("care", care_home())
-        assert (changed.fleet, changed.version, changed.previous_version) == ("care", 1, None)
+        # Version 1 was the deployment's default, which the fleet had until now.
+        assert (changed.fleet, changed.version, changed.previous_version) == ("care", 2, 1)
         assert admin.missions("care").items[0].name == "care-home"
-        assert admin.mission(fleet="care").version == 1
+        assert admin.mission(fleet="care").version == 2
