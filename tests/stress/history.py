@@ -25,10 +25,12 @@ import httpx
 from sqlalchemy import create_engine, select
 
 from app.db.models import Decision, Episode, Feedback, LearnerModel, Sample, User
+from app.learning import Mission
 from tests.support import people
 from tests.support.office import MISSION
 
 SLOT_TIMES = ("09:30", "12:15", "15:10", "20:45")
+INTERRUPTED: dict[str, Any] = {"interrupted": True}  # what ``Robot.send`` returns for one
 OTHER_RESPONSE = {"accepted": "rejected", "rejected": "accepted", "terminated": "accepted",
                   "answered": "terminated", "none": "human_request", "human_request": "none"}
 
@@ -56,6 +58,8 @@ class History:
     unknown: dict[str, str] = field(default_factory=dict)  # key -> kind
     anomalies: list[str] = field(default_factory=list)
     sent: set[str] = field(default_factory=set)  # every client id ever sent
+    # Outcomes refused because a change of the fleet's mission interrupted their episode.
+    interrupted: set[str] = field(default_factory=set)
     lock: threading.Lock = field(default_factory=threading.Lock)
 
     def ack(self, ack: Ack) -> None:
@@ -121,6 +125,12 @@ class Robot:
             if r.status_code >= 500:
                 w.history.note(f"{kind} {key}: {r.status_code} {r.text[:200]}")
                 continue
+            if r.status_code == 409 and kind == "outcome" and "was interrupted" in r.text:
+                # The fleet's mission changed while the episode was open: it is over.
+                with w.history.lock:
+                    w.history.interrupted.add(key)
+                    w.history.unknown.pop(key, None)
+                return INTERRUPTED
             if r.status_code >= 300:
                 w.history.note(f"{kind} {key}: unexpected {r.status_code} {r.text[:200]}")
                 with w.history.lock:
@@ -161,7 +171,7 @@ class Robot:
         robot waits (naming tea half of those), smiles at one service in ten."""
         return {"decision_id": decision["decision_id"],
                 **people.answer(decision["action"], picky=False, rng=self.rng, yes=0.8,
-                                asks=0.5, precise=0.5, smiles=0.1)}
+                                asks=0.5, precise=0.5, smiles=0.1, mission=self.w.mission)}
 
     def episode(self, k: int) -> bool:
         """One event and its negotiation to the end; False when the run must stop."""
@@ -192,6 +202,8 @@ class Robot:
                              f"/v1/episodes/{episode_id}/outcomes", sent, conflicting)
             if out is None:
                 return False
+            if out is INTERRUPTED:
+                return True  # on to the next event
             decision = out["decision"]
         if self.rng.random() < w.feedback_rate:
             fid = f"c{self.n}-f{k}"
@@ -224,8 +236,9 @@ class Workload:
                  hot_share: float = 0.75, seed: int = 7, budget_s: float = 240.0,
                  duplicate_rate: float = 0.1, conflict_rate: float = 0.1,
                  lost_response_rate: float = 0.1, feedback_rate: float = 0.3,
-                 max_attempts: int = 50) -> None:
+                 max_attempts: int = 50, mission: Mission = MISSION) -> None:
         self.base_url, self.keys = base_url, keys
+        self.mission = mission  # the fleet's, as the robots answer questions under it
         self.episodes_per_client = episodes_per_client
         self.hot_user, self.users, self.hot_share = hot_user, list(users), hot_share
         self.seed, self.deadline = seed, time.monotonic() + budget_s
@@ -449,7 +462,8 @@ def _check_user(user_id: str, snap: Snapshot, by_key: dict[str, list[Ack]], hist
             out.append(f"{user_id}: feedback {key} stored ({n}×) but never acknowledged")
 
     # 5. Model versions: contiguous, one per model-changing write, and as many as the writes
-    #    the robots had acknowledged (plus, at most, those whose answer was lost).
+    #    the robots had acknowledged (plus, at most, those whose answer was lost) and the moves
+    #    to a new version of the fleet's mission (each one version, a "mission" sample).
     versions = sorted({s.version for s in snap.samples})
     if versions != list(range(initial + 1, snap.model.version + 1)):
         missing = sorted(set(range(initial + 1, snap.model.version + 1)) - set(versions))
@@ -464,7 +478,7 @@ def _check_user(user_id: str, snap: Snapshot, by_key: dict[str, list[Ack]], hist
     if snap.model.version - initial != changing:
         out.append(f"{user_id}: model version went {initial} -> {snap.model.version}, but the "
                    f"history holds {changing} model-changing writes")
-    acked_changing = _acked_model_changing(acks)
+    acked_changing = _acked_model_changing(acks) + _moves(snap)
     maybe = sum(1 for k in unknown if k not in by_key)
     if not acked_changing <= snap.model.version - initial <= acked_changing + maybe:
         out.append(f"{user_id}: the robots had {acked_changing} model-changing writes "
@@ -515,7 +529,13 @@ def _model_changing_writes(snap: Snapshot) -> int:
         elif ds and ds[0].chain:
             n += 1
         n += sum(d.response is not None for d in ds)
-    return n + sum(s.kind == "feedback" for s in {s.version: s for s in snap.samples}.values())
+    return n + sum(s.kind in ("feedback", "mission")
+                   for s in {s.version: s for s in snap.samples}.values())
+
+
+def _moves(snap: Snapshot) -> int:
+    """The moves of the user's model to a new version of the fleet's mission."""
+    return len({s.version for s in snap.samples if s.kind == "mission"})
 
 
 def _acked_model_changing(acks: list[Ack]) -> int:

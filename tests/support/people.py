@@ -23,6 +23,8 @@ import random
 from collections.abc import Mapping
 from typing import Any
 
+from app.learning import Mission
+
 from .office import MISSION
 
 Need = tuple[str, str]
@@ -37,8 +39,11 @@ def _fields(action: Any) -> tuple[str, str | None, str | None]:
 
 def answer(action: Any, *, need: Need | None = TEA, rng: random.Random | None = None,
            picky: bool = True, busy: bool = False, yes: float = 1.0, asks: float = 1.0,
-           precise: float = 0.0, smiles: float = 0.0) -> dict[str, Any]:
-    """The outcome fields a person with ``need`` gives to ``action`` (see the module)."""
+           precise: float = 0.0, smiles: float = 0.0, mission: Mission = MISSION
+           ) -> dict[str, Any]:
+    """The outcome fields a person with ``need`` gives to ``action`` (see the module), under
+    ``mission`` (the service's: a non-picky person answers a question with its first
+    detail)."""
 
     def chance(p: float) -> bool:
         if p >= 1.0 or p <= 0.0:
@@ -66,7 +71,7 @@ def answer(action: Any, *, need: Need | None = TEA, rng: random.Random | None = 
             return {"response": "answered", "detail": need[1]}
         if picky or service is None:
             return {"response": "terminated"}
-        return {"response": "answered", "detail": MISSION.service(service).details[0]}
+        return {"response": "answered", "detail": mission.service(service).details[0]}
     right = not picky or (need is not None and (service, detail) == need)
     out = {"response": "accepted" if right and chance(yes) else "rejected"}
     if right and chance(smiles):
