@@ -49,13 +49,14 @@ def test_the_people_are_drawn_from_the_mission_in_the_file(app: FastAPI,
     with serving(app) as url:
         done = simulate(url, staff, "--mission", str(CARE_HOME))
         assert done.returncode == 0, done.stderr
-        assert f"Fleet 'default' now has the mission in {CARE_HOME}: version 1" in done.stderr
+        assert f"Fleet 'default' now has the mission in {CARE_HOME}: version 2" in done.stderr
         assert "Mission 'care-home': 5 situations, 6 time slots, 3 services." in done.stderr
         printed = json.loads(done.stdout)
         assert printed["overall"]["episodes"] == 2 * 6
 
         mission = get(url, robot, "/v1/mission")
-        assert (mission["name"], mission["version"]) == ("care-home", 1)
+        # Version 1 was the deployment's default, which the fleet had until then.
+        assert (mission["name"], mission["version"]) == ("care-home", 2)
         assert mission["fingerprint"] == MISSION.fingerprint
         slots = {s.name for s in MISSION.time_slots}
         for user_id in ("care-u1", "care-u2"):
@@ -64,14 +65,14 @@ def test_the_people_are_drawn_from_the_mission_in_the_file(app: FastAPI,
             for item in items:
                 assert item["context"]["situation"] in MISSION.situations
                 assert item["context"]["time_slot"] in slots
-                assert item["mission_version"] == 1
+                assert item["mission_version"] == 2
 
         # The same file again is the same change: nothing changes, the run goes on.
         again = simulate(url, staff, "--mission", str(CARE_HOME), "--prefix", "care2")
         assert again.returncode == 0, again.stderr
-        assert "was set before (version 1 of fleet 'default'); nothing changed" in again.stderr
+        assert "was set before (version 2 of fleet 'default'); nothing changed" in again.stderr
         versions = get(url, staff, "/v1/admin/fleets/default/missions")
-        assert versions["current_version"] == 1
+        assert versions["current_version"] == 2
 
 
 def test_a_changed_mission_moves_the_fleet_to_a_new_version(app: FastAPI, make_key: MakeKey,
