@@ -367,7 +367,8 @@ def _check_console(r: httpx.Response, row: Row, who: str, status: int) -> None:
     if status == 303:
         location = r.headers["location"]
         if who == "none" and row.path.startswith(("/admin/users", "/admin/mission")):
-            path = row.path.split("{q}")[0]
+            # Back to the page asked for, once signed in (the path's first words, before ids).
+            path = row.path.split("{")[0]
             assert location.startswith(f"/admin/login?next={path}"), location
         else:
             assert not location.startswith("/admin/login?next="), location
