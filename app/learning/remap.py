@@ -21,6 +21,7 @@ plain key. Old names are the old mission's, new names the new mission's.
 
 from __future__ import annotations
 
+import json
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from types import MappingProxyType
@@ -283,6 +284,9 @@ class SpaceMap:
                     columns[p, j] = new._succ_column[p2].get(s2, -1)
         for arr in (contexts, states, actions, columns):
             arr.setflags(write=False)
+        # Flat (source, target) positions of the kept entries, per table shape (``_copy``).
+        self._flat: dict[tuple[str, tuple[int, ...], tuple[int, ...]],
+                         tuple[IntArray, IntArray]] = {}
         self.contexts: IntArray = contexts
         self.states: IntArray = states
         self.actions: IntArray = actions
@@ -376,9 +380,47 @@ def _axis_indices(code: str, smap: SpaceMap, shape_old: tuple[int, ...]
     return blocks
 
 
+def _flat_indices(code: str, smap: SpaceMap, shape_old: tuple[int, ...],
+                  shape_new: tuple[int, ...]) -> tuple[IntArray, IntArray]:
+    """The kept entries of a table of shape code ``code`` as flat positions in the old and the
+    new table, computed once per map and shape (a change moves many learners alike)."""
+    key = (code, shape_old, shape_new)
+    found = smap._flat.get(key)
+    if found is None:
+        src: list[np.ndarray] = [np.empty(0, dtype=np.int64)]
+        dst: list[np.ndarray] = [np.empty(0, dtype=np.int64)]
+        for old_axes, new_axes in _axis_indices(code, smap, shape_old):
+            src.append(np.ravel_multi_index(np.ix_(*old_axes), shape_old).ravel())
+            dst.append(np.ravel_multi_index(np.ix_(*new_axes), shape_new).ravel())
+        found = (np.concatenate(src).astype(np.int64), np.concatenate(dst).astype(np.int64))
+        smap._flat[key] = found
+    return found
+
+
 def _copy(source: np.ndarray, target: np.ndarray, code: str, smap: SpaceMap) -> None:
-    for src, dst in _axis_indices(code, smap, source.shape):
-        target[np.ix_(*dst)] = source[np.ix_(*src)]
+    src, dst = _flat_indices(code, smap, source.shape, target.shape)
+    flat = target.reshape(-1)  # a view: the fresh learner's tables are contiguous
+    if not np.shares_memory(flat, target):
+        raise ValueError("a learner table is not contiguous")
+    flat[dst] = source.reshape(-1)[src]
+
+
+_MAPS: dict[tuple[str, str, str], SpaceMap] = {}  # the maps of the latest changes
+
+
+def _space_map(learner: TabularLearner[Any], new: Mission, renames: Renames | None
+               ) -> SpaceMap:
+    """The map of ``learner``'s mission onto ``new``, shared by the learners of one change
+    (a space depends on its mission only, and a mission is named by its fingerprint)."""
+    key = (learner.mission.fingerprint, new.fingerprint,
+           json.dumps(renames.to_dict() if renames else {}, sort_keys=True))
+    found = _MAPS.get(key)
+    if found is None:
+        found = SpaceMap(learner.space, space_for(new), renames)
+        if len(_MAPS) >= 16:
+            _MAPS.clear()
+        _MAPS[key] = found
+    return found
 
 
 def remap_learner(learner: L, new: Mission, renames: Renames | None = None) -> L:
@@ -393,7 +435,7 @@ def remap_learner(learner: L, new: Mission, renames: Renames | None = None) -> L
     kept (``TabularLearner._reward_sums``), so its mean reward is unchanged. ``learner`` itself
     is not changed. Raises :class:`RenamesError` for renames that cannot apply.
     """
-    smap = SpaceMap(learner.space, space_for(new), renames)
+    smap = _space_map(learner, new, renames)
     fresh = type(learner)(new, learner.params)
     fresh.version = learner.version
     fresh.episodes = learner.episodes
