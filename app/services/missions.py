@@ -174,17 +174,24 @@ def _version_out(row: MissionRow) -> dict[str, Any]:
             "stored": True, "mission": row.document}
 
 
+def _parse_change(principal: Principal, fleet: str, mission_doc: Any,
+                  renames_doc: Mapping[str, Any] | None) -> tuple[Mission, Renames]:
+    """The caller may change ``fleet``'s mission; the mission and renames as validated (422
+    naming what is wrong)."""
+    _check_fleet(principal, fleet)
+    mission = parse_mission(mission_doc)
+    try:
+        return mission, Renames.from_dict(renames_doc or {})
+    except ValueError as exc:
+        raise ValidationFailed(str(exc)) from None
+
+
 def set_mission(session: Session, ctx: ServiceContext, principal: Principal, fleet: str, *,
                 change_id: str, mission_doc: Any, renames_doc: Mapping[str, Any] | None
                 ) -> tuple[dict[str, Any], bool]:
     """Make ``mission_doc`` the fleet's mission: a new version, every model of the fleet moved
     to it in this transaction. (response, replayed). Idempotent on ``change_id``."""
-    _check_fleet(principal, fleet)
-    mission = parse_mission(mission_doc)
-    try:
-        renames = Renames.from_dict(renames_doc or {})
-    except ValueError as exc:
-        raise ValidationFailed(str(exc)) from None
+    mission, renames = _parse_change(principal, fleet, mission_doc, renames_doc)
     digest = body_hash_of(change_id, mission, renames)
     repo.lock_latest(session, fleet)
     earlier = repo.by_change(session, fleet, change_id)
@@ -233,8 +240,8 @@ def set_mission(session: Session, ctx: ServiceContext, principal: Principal, fle
 @dataclass(frozen=True, slots=True)
 class ChangePreview:
     """What :func:`set_mission` would do with a mission now, without doing it: the version in
-    force (``old``, ``version``; ``version`` None: none stored yet, the new mission would be
-    version 1), what the change keeps, adds and removes, how many users' models would move and
+    force (``old``, ``version``; ``version`` None: none stored yet, the default is version 1),
+    what the change keeps, adds and removes, how many users' models would move and
     how many open episodes would be interrupted."""
 
     fleet: str
@@ -249,26 +256,23 @@ class ChangePreview:
 
     @property
     def next_version(self) -> int:
-        return (self.version or 0) + 1 if self.changed else self.version or 1
+        """The version the change would make (a fleet with none stored has the default as its
+        version 1, which the change stores first)."""
+        return (self.version or 1) + 1 if self.changed else self.version or 1
 
 
 def preview_change(session: Session, ctx: ServiceContext, principal: Principal, fleet: str, *,
                    mission_doc: Any, renames_doc: Mapping[str, Any] | None) -> ChangePreview:
     """The change :func:`set_mission` would make (same checks, same 422 messages), read
     only."""
-    _check_fleet(principal, fleet)
-    mission = parse_mission(mission_doc)
-    try:
-        renames = Renames.from_dict(renames_doc or {})
-    except ValueError as exc:
-        raise ValidationFailed(str(exc)) from None
+    mission, renames = _parse_change(principal, fleet, mission_doc, renames_doc)
     current = repo.latest_version(session, fleet)
     old = mission_of(session, ctx, fleet, current or 1).mission
     try:
         diff = diff_missions(old, mission, renames)
     except ValueError as exc:
         raise ValidationFailed(str(exc)) from None
-    changed = current is None or mission.fingerprint != old.fingerprint or bool(renames)
+    changed = mission.fingerprint != old.fingerprint or bool(renames)
     moved = interrupted = 0
     if current is not None and changed:
         moved = len(repo.models_behind(session, fleet, current + 1))

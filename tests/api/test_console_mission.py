@@ -244,3 +244,22 @@ def test_admins_choose_the_fleet(app: FastAPI, make_key: MakeKey, console: Conso
     r = console.client.get("/admin/mission?fleet=default")
     assert r.status_code == 403
     assert 'data-status="403"' in r.text
+
+
+def test_a_fleet_without_users_previews_its_change_as_version_2(app: FastAPI,
+                                                                make_key: MakeKey) -> None:
+    # Version 1 is the default the fleet has until then; the change stores it, then version 2.
+    client = TestClient(app, raise_server_exceptions=False, follow_redirects=False)
+    client.cookies.set("attune_console", make_key("staff", "south"), path="/admin")
+    with client:
+        console = Console(client, client)
+        form = console.form(services=COCOA)
+        assert form["base_version"] == "0"  # nothing stored yet
+        preview = console.post(form)
+        assert preview.status_code == 200, preview.text
+        assert "Apply version 2" in preview.text
+        confirm = dict(re.findall(r'<input type="hidden" name="(\w+)" value="([^"]*)"',
+                                  preview.text.split('id="confirm-form"')[1].split("</form>")[0]))
+        done = console.post({k: html.unescape(v) for k, v in confirm.items()})
+        assert done.status_code == 303, done.text
+        assert done.headers["location"].endswith("&done=2")
