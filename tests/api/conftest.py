@@ -1,6 +1,6 @@
 """The API tests' clients: ``TestClient`` on the app of the shared fixtures
 (``tests/support/fixtures.py``: every test on SQLite and PostgreSQL, unless ``one_engine``),
-without a key or with a robot or admin key."""
+without a key or with a robot, staff or admin key."""
 
 from __future__ import annotations
 
@@ -36,6 +36,20 @@ def robot(app: FastAPI, make_key: MakeKey) -> Iterator[TestClient]:
 def admin(app: FastAPI, make_key: MakeKey) -> Iterator[TestClient]:
     """An admin key of fleet ``default``."""
     with _client(app, make_key("admin", "default")) as c:
+        yield c
+
+
+@pytest.fixture
+def staff(app: FastAPI, make_key: MakeKey) -> Iterator[TestClient]:
+    """A staff key of fleet ``default``."""
+    with _client(app, make_key("staff", "default")) as c:
+        yield c
+
+
+@pytest.fixture
+def other_staff(app: FastAPI, make_key: MakeKey) -> Iterator[TestClient]:
+    """A staff key of fleet ``other``."""
+    with _client(app, make_key("staff", "other")) as c:
         yield c
 
 

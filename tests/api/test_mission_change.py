@@ -19,7 +19,6 @@ from __future__ import annotations
 import copy
 import datetime as dt
 import random
-from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
@@ -32,7 +31,6 @@ from app.learning.learners import TabularLearner
 from app.learning.simulation import UserProfile, event_stream, random_profile
 from app.services import audit as audit_service
 from app.services.models import rebuild_model
-from tests.support.fixtures import MakeKey
 from tests.support.office import MISSION as OFFICE
 from tests.support.people import Need, answer
 
@@ -114,23 +112,6 @@ def same_actions(old: Mission, new: Mission) -> list[Key]:
 
 
 # -- the API -----------------------------------------------------------------------------------
-def _client(app: FastAPI, key: str) -> TestClient:
-    return TestClient(app, headers={"Authorization": f"Bearer {key}"},
-                      raise_server_exceptions=False)
-
-
-@pytest.fixture
-def staff(app: FastAPI, make_key: MakeKey) -> Iterator[TestClient]:
-    with _client(app, make_key("staff", "default")) as c:
-        yield c
-
-
-@pytest.fixture
-def other_staff(app: FastAPI, make_key: MakeKey) -> Iterator[TestClient]:
-    with _client(app, make_key("staff", "other")) as c:
-        yield c
-
-
 def get(client: TestClient, url: str) -> Any:
     r = client.get(url)
     assert r.status_code == 200, (url, r.text)

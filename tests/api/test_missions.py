@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import copy
 import random
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from typing import Any
 
 import pytest
@@ -18,7 +18,6 @@ from app.services import audit as audit_service
 from app.services.missions import LIMITS
 from app.services.models import rebuild_model
 from tests.support.contract import assert_error
-from tests.support.fixtures import MakeKey
 from tests.support.people import Need, answer
 
 from .helpers import EVENT_TIME, start
@@ -58,25 +57,6 @@ def fingerprint(doc: dict[str, Any]) -> str:
 
 
 # -- clients -----------------------------------------------------------------------------------
-def _client(app: FastAPI, key: str) -> TestClient:
-    return TestClient(app, headers={"Authorization": f"Bearer {key}"},
-                      raise_server_exceptions=False)
-
-
-@pytest.fixture
-def staff(app: FastAPI, make_key: MakeKey) -> Iterator[TestClient]:
-    """A staff key of fleet ``default``."""
-    with _client(app, make_key("staff", "default")) as c:
-        yield c
-
-
-@pytest.fixture
-def other_staff(app: FastAPI, make_key: MakeKey) -> Iterator[TestClient]:
-    """A staff key of fleet ``other``."""
-    with _client(app, make_key("staff", "other")) as c:
-        yield c
-
-
 # -- calls -------------------------------------------------------------------------------------
 def change(client: TestClient, doc: dict[str, Any], change_id: str = "c1", *,
            fleet: str = "default", renames: dict[str, Any] | None = None) -> dict[str, Any]:
