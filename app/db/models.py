@@ -22,8 +22,8 @@ from sqlalchemy.orm import Mapped, mapped_column
 from .base import Base
 from .types import LearnerStateType, UTCDateTime, utcnow
 
-__all__ = ["ApiKey", "AuditEntry", "Decision", "Episode", "Feedback", "FleetMission",
-           "LearnerModel", "Sample", "User"]
+__all__ = ["ApiKey", "AuditEntry", "Correction", "Decision", "Episode", "Feedback",
+           "FleetMission", "LearnerModel", "Sample", "User"]
 
 ID = 40  # server-chosen ids: a prefix and 32 hex digits
 CLIENT_ID = 128  # client-chosen ids: ^[A-Za-z0-9._:-]{1,128}$
@@ -161,6 +161,9 @@ class Episode(Base):
     created_at: Mapped[dt.datetime] = mapped_column(UTCDateTime(), default=utcnow)
     closed_at: Mapped[dt.datetime | None] = mapped_column(UTCDateTime())
     mission_version: Mapped[int] = mapped_column(Integer, default=1)  # the fleet's, at start
+    # Minutes east of UTC of the offset ``occurred_at`` came with: the person's local time
+    # (None: stored before offsets were kept; shown in UTC).
+    utc_offset: Mapped[int | None] = mapped_column(Integer)
 
 
 class Decision(Base):
@@ -207,12 +210,43 @@ class Feedback(Base):
     response: Mapped[dict[str, Any]] = mapped_column(JSON)
 
 
+class Correction(Base):
+    """A staff correction of what was learned about a user: in one context, the person
+    ``prefers`` a service and detail, the robot must ``avoid`` a service (or a detail), or must
+    stay ``quiet``. Part of the user's history: the journal holds a "correction" sample when it
+    is made and a "lift" sample when it is lifted (their ``action`` is this row's ``id``), so a
+    rebuild replays it. ``correction_id`` makes the request idempotent (``request_hash`` and
+    ``response`` answer a repeat)."""
+
+    __tablename__ = "corrections"
+    __table_args__ = (UniqueConstraint("user_pk", "correction_id"),)
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)
+    user_pk: Mapped[int] = mapped_column(ForeignKey("users.id", ondelete="CASCADE"))
+    correction_id: Mapped[str] = mapped_column(String(CLIENT_ID))
+    kind: Mapped[str] = mapped_column(String(16))
+    time_slot: Mapped[str] = mapped_column(String(64))
+    situation: Mapped[str] = mapped_column(String(64))
+    service: Mapped[str | None] = mapped_column(String(64))
+    detail: Mapped[str | None] = mapped_column(String(64))
+    note: Mapped[str | None] = mapped_column(String(500))
+    actor_key_id: Mapped[str] = mapped_column(String(ID))
+    created_at: Mapped[dt.datetime] = mapped_column(UTCDateTime(), default=utcnow)
+    model_version: Mapped[int] = mapped_column(Integer)  # the model version it produced
+    lifted_at: Mapped[dt.datetime | None] = mapped_column(UTCDateTime())
+    lifted_by: Mapped[str | None] = mapped_column(String(ID))
+    request_hash: Mapped[str] = mapped_column(String(64))
+    response: Mapped[dict[str, Any]] = mapped_column(JSON)
+
+
 class Sample(Base):
     """The model's journal: every transition and feedback handed to the learner, in order.
 
     ``version`` is the model version the write produced; the samples of one version were one
-    ``update`` call (``kind`` "transition"), one ``feedback`` call, or one move to another
-    mission version (``kind`` "mission").
+    ``update`` call (``kind`` "transition"), one ``feedback`` call, one move to another
+    mission version (``kind`` "mission"), or one staff correction made or lifted (``kind``
+    "correction" or "lift", ``action`` the correction's row id, ``episode`` the learner's
+    episode count then).
     """
 
     __tablename__ = "samples"

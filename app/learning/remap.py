@@ -439,6 +439,7 @@ def remap_learner(learner: L, new: Mission, renames: Renames | None = None) -> L
     fresh = type(learner)(new, learner.params)
     fresh.version = learner.version
     fresh.episodes = learner.episodes
+    fresh.guidance = learner.guidance.copy()  # by names: rules the new mission lacks lie idle
     old_tables = learner._exported()
     new_tables = fresh._exported()
     for name, (source, code) in old_tables.items():

@@ -47,6 +47,7 @@ class EpisodeRow:
     created_at: dt.datetime
     closed_at: dt.datetime | None
     mission_version: int  # the fleet's mission version the episode started (and ends) under
+    utc_offset: int | None = None  # minutes east of UTC that occurred_at came with
 
 
 @dataclass(slots=True)

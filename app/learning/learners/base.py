@@ -16,6 +16,7 @@ from typing import Any, ClassVar, Generic, Self, TypeVar
 import numpy as np
 
 from ..config import Params
+from ..guidance import Guidance, Rule, guidance_from_state
 from ..mission import Mission
 from ..planning import draw
 from ..space import space_for
@@ -75,6 +76,7 @@ class TabularLearner(Generic[P]):
         self.last_ctx: IntArray = np.zeros((C, Pn), dtype=np.int64)
         self._pending: dict[int, list[Transition]] = {}
         self._cache: dict[int, Any] = {}
+        self.guidance = Guidance()  # staff corrections in force (app.learning.guidance)
         for name, (dtype, code) in self._tables.items():
             setattr(self, name, np.zeros(self._shape(code), dtype=dtype))
         self._init_tables()
@@ -146,6 +148,8 @@ class TabularLearner(Generic[P]):
                 action = actions.start
             else:
                 probs = self._policy(plan, obs.context, state, obs.episode)
+                if self.guidance:
+                    probs = self.guidance.adjust(space, obs.context, state, probs)
                 action = actions.start + draw(probs, rng)
             if not space.silent[action]:
                 return Decision(obs.context, state, action, probs, tuple(chain))
@@ -177,6 +181,8 @@ class TabularLearner(Generic[P]):
             self.last[c, a] = max(int(self.last[c, a]), tr.episode)
             self.last_ctx[c, a] = self.visits[c, root].sum()
             self._observe(tr)
+            if self.guidance:
+                self.guidance.observe(self.space, tr)
             rows = self._pending.setdefault(tr.episode, [])
             rows.append(tr)
             if tr.next_state == self.space.END:
@@ -218,6 +224,18 @@ class TabularLearner(Generic[P]):
         self._cache.pop(context, None)
         self.version += 1
 
+    def correct(self, rule: Rule) -> None:
+        """Put a staff correction in force (``app.learning.guidance``); the version goes up by
+        one. ``ValueError`` (nothing changes) if it does not fit the mission."""
+        self.guidance.add(rule, self.mission)
+        self.version += 1
+
+    def lift(self, rule_id: str) -> None:
+        """Take the correction ``rule_id`` out of force; the version goes up by one.
+        ``KeyError`` if there is none of that id."""
+        self.guidance.lift(rule_id)
+        self.version += 1
+
     def explain(self, context: int, episode: int) -> ContextView:
         """What the learner believes in ``context`` if asked now, in episode ``episode``."""
         self._check_observation(Observation(context, 0, episode))
@@ -225,9 +243,13 @@ class TabularLearner(Generic[P]):
         probs = np.empty(self.space.n_actions, dtype=np.float64)
         for s in range(self.space.n_states):
             actions = self.space.actions_of(s)
-            probs[actions.start : actions.stop] = (
-                _ONE if len(actions) == 1 else self._policy(plan, context, s, episode)
-            )
+            if len(actions) == 1:
+                probs[actions.start : actions.stop] = _ONE
+                continue
+            policy = self._policy(plan, context, s, episode)
+            if self.guidance:
+                policy = self.guidance.adjust(self.space, context, s, policy)
+            probs[actions.start : actions.stop] = policy
         return ContextView(
             q=self._q(context).copy(),
             visits=self.visits[context].copy(),
@@ -301,6 +323,7 @@ class TabularLearner(Generic[P]):
                 for rows in self._pending.values()
                 for t in rows
             ],
+            **({"guidance": [r.to_dict() for r in self.guidance.rules]} if self.guidance else {}),
         }
 
     @classmethod
@@ -358,6 +381,7 @@ class TabularLearner(Generic[P]):
             except (TypeError, ValueError, OverflowError):
                 raise StateFormatError(f"pending[{i}] is not a valid transition.") from None
             learner._pending.setdefault(tr.episode, []).append(tr)
+        learner.guidance = guidance_from_state(doc.get("guidance"))
         learner._check_shared_tables()
         learner._check_tables()
         return learner

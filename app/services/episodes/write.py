@@ -64,6 +64,11 @@ def _new_id(prefix: str) -> str:
     return prefix + secrets.token_hex(16)
 
 
+def _offset_minutes(at: dt.datetime) -> int | None:
+    offset = at.utcoffset()
+    return None if offset is None else int(offset.total_seconds() // 60)
+
+
 def _not_found_episode(episode_id: str) -> NotFound:
     return NotFound(f"No episode {episode_id!r} in your fleet.")
 
@@ -260,7 +265,7 @@ def start_episode(
         status="open", state=space.OBSERVE, total_reward=0.0,
         interaction_class=Interaction.NONE.value, initiated=False, success=False, queries=0,
         request_hash=digest, response={}, created_at=utcnow(), closed_at=None,
-        mission_version=model.mission_version,
+        mission_version=model.mission_version, utc_offset=_offset_minutes(body.occurred_at),
     )
     step = _Negotiation(ctx, space, user, episode, learner, model.version, position=0)
     if body.initiator == "human":
