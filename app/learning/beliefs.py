@@ -1,5 +1,5 @@
 """What a person is believed to want in one context, from their own answers: the rule the
-profile speaks from (docs/method.md §11).
+profile speaks from (docs/method.md §14).
 
 Each episode gives at most one *choice* (the most specific service, or service and detail, the
 person took or named: a performed service accepted, a request, an answered question) and what

@@ -1,5 +1,5 @@
 """A person's profile: what Attune believes they want in each context, how sure it is, what the
-robot will do there, and why, in plain words (docs/method.md §11).
+robot will do there, and why, in plain words (docs/method.md §14).
 
 Built from the person's history (their own answers, :mod:`app.learning.beliefs`) and the model
 (what the robot will do is the learner's action distribution as ``GET /model`` reports it, with
@@ -167,8 +167,8 @@ def _robot_will(learner: TabularLearner[Any], c: int, now: int, rules: list[Rule
     offer = float(p[space.INITIATE])
     if offer < 0.5:
         quiet = any(r.kind is RuleKind.QUIET for r in rules if _fits(learner, r))
-        return RobotWill(action="stay_away" if quiet or turned_down else "wait_to_be_asked", service=None, detail=None, asks_first=False,
-                         probability=offer)
+        return RobotWill(action="stay_away" if quiet or turned_down else "wait_to_be_asked",
+                         service=None, detail=None, asks_first=False, probability=offer)
     service = detail = None
     asks = False
     engaged = space.actions_of(space.ENGAGED)

@@ -36,7 +36,8 @@ def make_user(staff: TestClient, user_id: str = "chen") -> None:
 
 
 def play(robot: TestClient, user_id: str, n: int, prefix: str, *, need: Any = people.TEA,
-         picky: bool = True, seed: int = 0, situation: str = SITUATION) -> list[list[dict]]:
+         picky: bool = True, seed: int = 0,
+         situation: str = SITUATION) -> list[list[dict[str, Any]]]:
     """``n`` robot-initiated episodes of a person who wants ``need``; the decisions of each."""
     rng = random.Random(seed)
     out = []
@@ -53,7 +54,7 @@ def play(robot: TestClient, user_id: str, n: int, prefix: str, *, need: Any = pe
     return out
 
 
-def kinds(steps: list[dict]) -> list[tuple[str, str | None, str | None]]:
+def kinds(steps: list[dict[str, Any]]) -> list[tuple[str, str | None, str | None]]:
     return [(d["action"]["kind"], d["action"].get("service"), d["action"].get("detail"))
             for d in steps]
 
@@ -76,7 +77,8 @@ class TestContract:
         assert r.status_code == 201, r.text
         made = r.json()
         assert made["status"] == "in_force"
-        assert made["author"] and made["note"] == "Her daughter says so."
+        assert made["author"]
+        assert made["note"] == "Her daughter says so."
         again = staff.post("/v1/users/chen/corrections",
                            json=correction("c1", note="Her daughter says so."))
         assert again.status_code == 200
@@ -141,7 +143,8 @@ class TestDecisions:
         assert len(direct) >= 27  # at least 90 % of the draws
         profile = robot.get("/v1/users/chen/profile").json()
         cell = _cell(profile)
-        assert cell["wants"] == TEA and cell["source"] == "staff"
+        assert cell["wants"] == TEA
+        assert cell["source"] == "staff"
         assert cell["robot_will"]["action"] == "offer"
         assert cell["robot_will"]["service"] == "ProvideDrink"
         assert cell["robot_will"]["detail"] == "tea"
@@ -164,7 +167,8 @@ class TestDecisions:
                     "query_type":
                 assert a["p"] == 0.0, a
         others = [a["p"] for a in engaged["actions"] if a["p"] > 0]
-        assert others and sum(others) == pytest.approx(1.0)
+        assert others
+        assert sum(others) == pytest.approx(1.0)
 
     def test_avoid_a_detail(self, staff: TestClient, robot: TestClient) -> None:
         make_user(staff)
@@ -198,7 +202,8 @@ class TestDecisions:
         assert after["version"] == before["version"] + 2
         assert _probabilities(after) == _probabilities(before)
         [item] = staff.get("/v1/users/chen/corrections").json()["items"]
-        assert item["status"] == "lifted" and item["lifted_by"]
+        assert item["status"] == "lifted"
+        assert item["lifted_by"]
         audit = staff.get("/v1/admin/audit").json()["items"]
         assert [e["action"] for e in audit].count("correction.lift") == 1
 
@@ -213,7 +218,8 @@ class TestDecisions:
         assert item["overridden_at"] is not None
         cell = _cell(robot.get("/v1/users/chen/profile").json())
         assert cell["source"] != "staff"
-        assert cell["changed"] is not None and cell["changed"]["overrides"] == "tea"
+        assert cell["changed"] is not None
+        assert cell["changed"]["overrides"] == "tea"
         assert cell["changed"]["before"] == TEA
         # the robot no longer brings tea without asking nearly always
         episodes = play(robot, "chen", 10, "w2", need=coffee, seed=1)
@@ -260,7 +266,8 @@ class TestHistory:
         doc["guidance"] = [{"id": "x", "kind": "sometimes", "time_slot": SLOT,
                             "situation": SITUATION}]
         r = staff.put("/v1/users/chen/model", json=doc)
-        assert r.status_code == 422 and "guidance" in r.text
+        assert r.status_code == 422
+        assert "guidance" in r.text
 
 
 def _cell(profile: dict[str, Any], slot: str = SLOT, situation: str = SITUATION
