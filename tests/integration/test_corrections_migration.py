@@ -171,8 +171,9 @@ def _rebuild(url: str, user_id: str) -> dict[str, Any]:
 
 
 def _cell(profile: dict[str, Any]) -> dict[str, Any]:
-    [cell] = [c for c in profile["contexts"]
-              if (c["time_slot"], c["situation"]) == (SLOT, SITUATION)]
+    cells: list[dict[str, Any]] = [c for c in profile["contexts"]
+                                   if (c["time_slot"], c["situation"]) == (SLOT, SITUATION)]
+    [cell] = cells
     return cell
 
 

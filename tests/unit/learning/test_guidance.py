@@ -132,8 +132,9 @@ def renormalised(own: np.ndarray, allowed: list[int], state: int) -> np.ndarray:
     one (uniform over them when the learner gave them nothing)."""
     actions = S.actions_of(state)
     mask = np.array([pr in allowed for pr in actions], dtype=float)
-    out = state_probs(own, state) * mask
-    return out / out.sum() if out.sum() > 0 else mask / mask.sum()
+    out: np.ndarray = state_probs(own, state) * mask
+    total = float(out.sum())
+    return out / total if total > 0 else mask / float(mask.sum())
 
 
 def state_probs(p: np.ndarray, state: int) -> np.ndarray:
