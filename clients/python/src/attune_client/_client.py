@@ -487,15 +487,16 @@ class Client(BaseClient):
         return self._call(Api.get_stats(user_id, last))
 
     def reset_model(self, user_id: str, *, drop_corrections: bool = False) -> None:
-        """``DELETE /v1/users/{user_id}/model`` (admin): forget what was learned, keep the
-        history.
+        """``DELETE /v1/users/{user_id}/model`` (the fleet's staff, admins): forget what was
+        learned, keep the history.
 
         Args:
             drop_corrections: lift the user's staff corrections too (``?corrections=drop``;
                 they are then listed as ``lifted``); by default they stay in force.
 
         Raises:
-            PermissionDeniedError: not an admin key.
+            PermissionDeniedError: a robot key.
+            NotFoundError: no such user in your fleet.
         """
         self._call(Api.reset_model(user_id, drop_corrections))
 
@@ -852,7 +853,7 @@ class AsyncClient(BaseClient):
         return await self._call(Api.get_stats(user_id, last))
 
     async def reset_model(self, user_id: str, *, drop_corrections: bool = False) -> None:
-        """``DELETE /v1/users/{user_id}/model`` (admin); see ``Client.reset_model``."""
+        """``DELETE /v1/users/{user_id}/model``; see ``Client.reset_model``."""
         await self._call(Api.reset_model(user_id, drop_corrections))
 
     async def export_model(self, user_id: str) -> dict[str, Any]:
