@@ -272,8 +272,9 @@ class TestHistory:
 
 def _cell(profile: dict[str, Any], slot: str = SLOT, situation: str = SITUATION
           ) -> dict[str, Any]:
-    [cell] = [c for c in profile["contexts"]
-              if (c["time_slot"], c["situation"]) == (slot, situation)]
+    cells: list[dict[str, Any]] = [c for c in profile["contexts"]
+                                   if (c["time_slot"], c["situation"]) == (slot, situation)]
+    [cell] = cells
     return cell
 
 
