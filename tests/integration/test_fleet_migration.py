@@ -133,7 +133,7 @@ def _rows(url: str, user_key: str) -> dict[str, list[tuple[Any, ...]]]:
                 rows = []
                 for row in result.mappings():
                     d = dict(row)
-                    for later in ("mission_version", "base_mission_version"):
+                    for later in ("mission_version", "base_mission_version", "utc_offset"):
                         d.pop(later, None)  # a later release's columns
                     if table == "users":
                         d.pop("id", None)

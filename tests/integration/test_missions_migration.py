@@ -41,7 +41,7 @@ MIGRATION = "migrations/versions/2026-11-30-1500_missions_per_fleet.py"
 BEFORE = "9c1f4e7a2b65"  # the revision the previous release ends at
 TABLES = ("users", "learner_models", "episodes", "samples", "decisions", "feedback", "api_keys",
           "audit_log")
-NEW_COLUMNS = ("mission_version", "base_mission_version")
+NEW_COLUMNS = ("mission_version", "base_mission_version", "utc_offset")  # this and later releases
 USERS = {"north": ["lin", "chen", "room-12"], "south": ["lin", "bo"]}
 
 
