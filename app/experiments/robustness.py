@@ -240,7 +240,7 @@ def _window_heading(summary: Mapping[str, Any], key: str) -> str:
     w = summary["windows"][key]
     events = w["events"]
     where = "" if events is None else f" ({events[0]}–{events[1]})"
-    return w["label"] + where
+    return f"{w['label']}{where}"
 
 
 def markdown(summary: Mapping[str, Any]) -> str:

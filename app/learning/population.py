@@ -368,7 +368,8 @@ def _with(params: Callable[[np.random.Generator], Mapping[str, float]],
                  ) -> tuple[Person, ...]:
         out = []
         for _ in range(n):
-            profile = replace(random_profile(mission, rng, n_needs=n_needs), **params(rng))
+            profile = replace(random_profile(mission, rng, n_needs=n_needs),
+                              **params(rng))  # type: ignore[arg-type]
             person = _steady(profile, mission, rng, n_events)
             if p_random is not None:
                 person = replace(person, p_random=p_random(rng))

@@ -4,6 +4,7 @@ defining property, common random numbers, and the oracle's policy and reward."""
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 import pytest
@@ -29,8 +30,10 @@ from tests.support.office import INITIATE, MISSION, OBS, PASS, S, act
 
 N_EVENTS = 160
 BUSY = {c for c in range(MISSION.n_contexts) if MISSION.context_names(c)[1] == "busy"}
-LEARNERS = (("R-MAX", "rmax", {}), ("Q-learning", "qlearning", {}),
-            ("HRI τ=0.01", "hri", {"tau": 0.01}), ("DTS", "dts", {}))
+LEARNERS: tuple[tuple[str, str, dict[str, Any]], ...] = (
+    ("R-MAX", "rmax", {}), ("Q-learning", "qlearning", {}), ("HRI τ=0.01", "hri", {"tau": 0.01}),
+    ("DTS", "dts", {}),
+)
 
 
 def rng(*words: int) -> np.random.Generator:
@@ -46,27 +49,32 @@ class TestRegistry:
         assert {"paper", "individual", "home", "abrupt", "gradual", "noisy", "shy", "refusing",
                 "many"} <= set(FAMILIES)
         for name, family in FAMILIES.items():
-            assert isinstance(family, Family) and family.name == name
-            assert family.description and callable(family.generate)
+            assert isinstance(family, Family)
+            assert family.name == name
+            assert family.description
+            assert callable(family.generate)
 
     @pytest.mark.parametrize("name", sorted(FAMILIES))
     def test_every_generator_gives_persons_over_the_events(self, name: str) -> None:
         group = persons(name, n=3, n_events=90)
         assert len(group) == 3
         for person in group:
-            assert person.n_events == 90 and len(person.schedule) == 90
+            assert person.n_events == 90
+            assert len(person.schedule) == 90
             assert set(person.schedule.tolist()) <= set(range(len(person.profiles)))
             assert ((0 <= person.contexts) & (person.contexts < MISSION.n_contexts)).all()
             assert (person.change_at is not None) == FAMILIES[name].changes
             for profile in person.profiles:  # needs in distinct contexts where service is welcome
                 contexts = [n.context for n in profile.needs]
-                assert len(set(contexts)) == len(contexts) and not set(contexts) & BUSY
+                assert len(set(contexts)) == len(contexts)
+                assert not set(contexts) & BUSY
 
     @pytest.mark.parametrize("name", sorted(FAMILIES))
     def test_the_same_seed_gives_the_same_people(self, name: str) -> None:
         a, b = persons(name, seed=3), persons(name, seed=3)
         for x, y in zip(a, b, strict=True):
-            assert x.profiles == y.profiles and x.p_random == y.p_random
+            assert x.profiles == y.profiles
+            assert x.p_random == y.p_random
             assert np.array_equal(x.schedule, y.schedule)
             assert np.array_equal(x.contexts, y.contexts)
         other = persons(name, seed=4)
@@ -90,7 +98,8 @@ class TestSteadyFamilies:
             flips = uniforms_for(rng(seed, 1), person.n_events)
             for e in range(person.n_events):
                 reaction, random = person.respond(S, e, OBS, PASS, flips[e, :4])
-                assert reaction.response is Response.NONE and not random
+                assert reaction.response is Response.NONE
+                assert not random
 
     def test_noisy_answerers_answer_at_random_within_the_bounds(self) -> None:
         shares = []
@@ -104,7 +113,8 @@ class TestSteadyFamilies:
                 sigma = math.sqrt(person.p_random * (1 - person.p_random) / len(flips))
                 assert abs(share - person.p_random) < 4 * sigma
                 shares.append(share)
-        assert NOISE_RANGE[0] - 0.02 < min(shares) and max(shares) < NOISE_RANGE[1] + 0.02
+        assert NOISE_RANGE[0] - 0.02 < min(shares)
+        assert max(shares) < NOISE_RANGE[1] + 0.02
 
     def test_a_random_answer_is_one_the_action_allows(self) -> None:
         person = persons("noisy")[0]
@@ -129,7 +139,8 @@ class TestSteadyFamilies:
         quiet = Person(person.profiles, person.schedule[:1], np.array([no_need]), 1.0)
         for u in np.linspace(0.0, 0.999, 30):
             reaction, random = quiet.respond(S, 0, OBS, PASS, np.array([u, u, 0.0, u]))
-            assert reaction.response is Response.NONE and not random
+            assert reaction.response is Response.NONE
+            assert not random
 
     def test_refusing_people_often_refuse_an_offer(self) -> None:
         for seed in range(3):
