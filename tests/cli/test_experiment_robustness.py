@@ -53,11 +53,11 @@ def test_the_table_has_every_learner_and_family(
             rows = [line for line in lines if f" {learner} " in line]
             assert len(rows) == len(FAMILIES), (learner, rows)
     with (out / "robustness.csv").open(encoding="utf-8") as handle:
-        rows = list(csv.DictReader(handle))
-    cells = {(r["family"], r["learner"], r["window"]): r for r in rows}
-    windows = {r["window"] for r in rows}
+        records = list(csv.DictReader(handle))
+    cells = {(r["family"], r["learner"], r["window"]): r for r in records}
+    windows = {r["window"] for r in records}
     assert windows == {"first20", "before30", "after15", "last30", "all"}
-    assert len(cells) == len(rows) == len(FAMILIES) * len(LEARNERS) * len(windows)
+    assert len(cells) == len(records) == len(FAMILIES) * len(LEARNERS) * len(windows)
     for learner in LEARNERS:
         assert cells[("shy", learner, "after15")]["share_mean"] == ""  # no change: blank
         assert cells[("abrupt", learner, "after15")]["share_mean"] != ""
