@@ -375,6 +375,8 @@ def robustness(
     workers = min(jobs or default_workers(), len(todo))
     default = (seeds, events, persons, families, learners, mission) == (
         suite.DEFAULT_SEEDS, suite.DEFAULT_EVENTS, suite.DEFAULT_PERSONS, None, None, None)
+    if mission is not None:
+        console.print(f"Mission {world.name!r} from {mission}, not the paper's office mission.")
     console.print(
         f"Robustness: {len(chosen)} families × {seeds} seeds × {persons} persons × {events} "
         f"events, {len(methods)} learners and the oracle; {len(todo)} runs on {workers} worker "

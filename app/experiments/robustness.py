@@ -257,6 +257,12 @@ def markdown(summary: Mapping[str, Any]) -> str:
         "there (noted below the table). The oracle knows every need: it initiates, infers "
         "and performs when a need exists and the person is available, and passes otherwise. "
         f"Ran in {run['seconds']:.1f} s on {run['workers']} worker processes.",
+    ]
+    mission = run.get("mission") or {}
+    if mission.get("file"):
+        lines[-1] += (f" The people lived in the mission {mission['name']!r} of {mission['file']}, "
+                      "not in the paper's office mission.")
+    lines += [
         "",
         "| Family | Learner | " + " | ".join(_window_heading(summary, k) for k in keys) + " |",
         "|:---|:---|" + "---:|" * len(keys),

@@ -100,3 +100,13 @@ def test_the_defaults_of_the_command_are_the_suites() -> None:
     defaults = info.callback.__defaults__ or ()
     assert (robustness.DEFAULT_SEEDS, robustness.DEFAULT_EVENTS,
             robustness.DEFAULT_PERSONS) == defaults[:3]
+
+
+def test_another_mission_is_named(tmp_path: Path) -> None:
+    care_home = Path(__file__).resolve().parents[2] / "docs/examples/care-home-mission.json"
+    done = run(tmp_path, "--mission", str(care_home), "--learners", "dts")
+    assert done.exit_code == 0, done.output
+    assert "not the paper's office mission" in done.stderr
+    assert "care-home" in (tmp_path / "robustness.md").read_text(encoding="utf-8")
+    summary = json.loads((tmp_path / "summary.json").read_text(encoding="utf-8"))
+    assert summary["run"]["mission"]["file"] == str(care_home)
