@@ -300,6 +300,118 @@ def ablation(
                         stdout_console(), with_paper=False)
 
 
+def _names(raw: str | None, known: Sequence[str], default: Sequence[str], option: str
+           ) -> list[str]:
+    """A comma-separated list of names out of ``known`` (``default`` when not given), in the
+    order given, without repeats; an unknown name is a usage error naming the known ones."""
+    if raw is None:
+        return list(default)
+    names = list(dict.fromkeys(n.strip() for n in raw.split(",") if n.strip()))
+    unknown = [n for n in names if n not in known]
+    if unknown or not names:
+        raise typer.BadParameter(
+            f"{', '.join(map(repr, unknown)) or 'nothing'}: expected names out of "
+            f"{', '.join(known)}, separated by commas.", param_hint=option)
+    return names
+
+
+@experiment.command(
+    "robustness",
+    help="Run every learner on families of simulated people and print, per family and "
+    "learner, its reward as a share of the oracle's in the windows first 20 events, the 30 "
+    "before the change, the 15 after it, the last 30, and all, with 95% intervals over seeds "
+    "(docs/method.md §12, Robustness).\n\n"
+    "Families: paper (the paper's simulated users, whose routines drift), individual (routines "
+    "and habits drawn per person), home (residents sharing most routines), abrupt (some "
+    "routines switch at the change), gradual (some drift over 40 events), noisy (10-20% of "
+    "answers random), shy (never speak first), refusing (often refuse an offer), many (6-9 "
+    "routines). The windows about the change are blank for families without one. The oracle "
+    "knows every need: it initiates, infers and performs when a need exists and the person is "
+    "available, and passes otherwise; it meets the same events and answers as the learners.\n\n"
+    "Writes into --out: robustness.md (the table), robustness.csv (one row per family, learner "
+    "and window), robustness.png (a heatmap of shares per window) and summary.json (every "
+    "number, per seed too). Prints the elapsed time and whether the default suite met its "
+    "target of under 2 minutes on 2 CPUs.",
+)
+def robustness(
+    seeds: Annotated[int, typer.Option("--seeds", min=2, help="Seeds (0..N-1) per family; the "
+                                       "intervals are over seeds.")] = 8,
+    events: Annotated[int, typer.Option("--events", min=20, help="Events per person; the "
+                                        "changing families change at 5/8 of them (event 101 "
+                                        "of 160).")] = 160,
+    persons: Annotated[int, typer.Option("--persons", min=1, help="Simulated persons per "
+                                         "family and seed (a home's residents).")] = 3,
+    families: Annotated[str | None, typer.Option(
+        "--families", metavar="A,B", show_default=False,
+        help="Families to run, separated by commas (default: all).")] = None,
+    learners: Annotated[str | None, typer.Option(
+        "--learners", metavar="A,B", show_default=False,
+        help="Learners to run, separated by commas, out of rmax, qlearning, hri (τ=0.01), "
+        "hri-0.005 and dts (default: rmax,qlearning,hri,dts).")] = None,
+    out: Annotated[Path, typer.Option("--out", "-o", help="Output folder (created if needed).",
+                                      file_okay=False)] = Path("results/robustness"),
+    jobs: JobsOption = None,
+    mission: MissionOption = None,
+    progress: ProgressOption = True,
+    json_output: Annotated[bool, typer.Option(
+        "--json", help="Print the summary (summary.json) on stdout instead of the table; "
+        "messages and progress go to stderr as always.")] = False,
+) -> None:
+    """Run the robustness suite and write its reports."""
+    require("matplotlib", "experiments", "attune experiment")
+    import json
+
+    from app.experiments import robustness as suite
+    from app.experiments.runner import default_workers, run_tasks
+    from app.learning.population import FAMILIES, change_event
+
+    console = stderr_console()
+    chosen = _names(families, list(FAMILIES), list(FAMILIES), "--families")
+    keys = _names(learners, list(suite.LEARNERS), suite.DEFAULT_LEARNERS, "--learners")
+    methods = [suite.LEARNERS[k] for k in keys]
+    world = _mission(console, mission)
+    document = None if mission is None else json.dumps(world.to_dict(), sort_keys=True)
+    todo = suite.tasks_for(chosen, methods, seeds, persons, events, document)
+    workers = min(jobs or default_workers(), len(todo))
+    default = (seeds, events, persons, families, learners, mission) == (
+        suite.DEFAULT_SEEDS, suite.DEFAULT_EVENTS, suite.DEFAULT_PERSONS, None, None, None)
+    if mission is not None:
+        console.print(f"Mission {world.name!r} from {mission}, not the paper's office mission.")
+    console.print(
+        f"Robustness: {len(chosen)} families × {seeds} seeds × {persons} persons × {events} "
+        f"events, {len(methods)} learners and the oracle; {len(todo)} runs on {workers} worker "
+        f"process{'es' if workers != 1 else ''}.")
+    start = time.perf_counter()
+    runs = run_tasks(suite.run_robust_task, todo, workers, description="Robustness",
+                     console=console, progress=progress, describe=suite.RobustTask.describe)
+    seconds = time.perf_counter() - start
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    verdict = ("met" if seconds < suite.TARGET_SECONDS else "missed") if default else (
+        "not the default suite")
+    console.print(f"Finished {len(runs)} runs in {seconds:.1f} s (target for the default suite "
+                  f"on 2 CPUs: under {suite.TARGET_SECONDS:.0f} s; {verdict}; load average "
+                  f"{load:.2f} on {os.cpu_count() or 1} CPUs).")
+    info = {
+        "seeds": seeds, "persons": persons, "events": events,
+        "change_at_event": change_event(events) + 1, "families": chosen,
+        "learners": {m.label: {"algorithm": m.algorithm, "params": dict(m.params)}
+                     for m in methods},
+        "workers": workers, "seconds": round(seconds, 2), "load_average": round(load, 2),
+        "target_seconds": suite.TARGET_SECONDS, "default_suite": default,
+        "mission": {"name": world.name, "file": None if mission is None else str(mission),
+                    "fingerprint": world.fingerprint},
+    }
+    summary = suite.build_summary(runs, chosen, [m.label for m in methods], events, info)
+    begin = time.perf_counter()
+    files = suite.write_report(summary, out)
+    _written(console, out, files, time.perf_counter() - begin)
+    if json_output:
+        print_json(summary)
+    else:
+        suite.print_table(summary, stdout_console())
+        stdout_console().print(f"Elapsed: {seconds:.1f} s ({verdict}).")
+
+
 def main() -> None:
     """Entry point of the ``attune`` console script."""
     app()

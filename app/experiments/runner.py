@@ -10,9 +10,10 @@ import functools
 import json
 import multiprocessing
 import os
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from concurrent.futures import Future, ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
+from typing import TypeVar
 
 from rich.console import Console
 from rich.progress import (
@@ -28,7 +29,12 @@ from rich.progress import (
 from app.learning import Mission, office_mission
 from app.learning.evaluation import Method, Protocol, RunResult, run
 
-__all__ = ["Job", "JobError", "default_workers", "jobs_for", "run_job", "run_jobs"]
+__all__ = [
+    "Job", "JobError", "default_workers", "jobs_for", "run_job", "run_jobs", "run_tasks",
+]
+
+T = TypeVar("T")
+R = TypeVar("R")
 
 
 @dataclass(frozen=True)
@@ -120,34 +126,60 @@ def run_jobs(
     so that the last jobs to finish are short ones. Workers are started with "spawn", which is
     safe next to the progress bar's refresh thread and warns about nothing.
     """
+    return run_tasks(run_job, jobs, workers, description=description, console=console,
+                     progress=progress, size=lambda job: job.protocol.n_events,
+                     describe=Job.describe)
+
+
+def run_tasks(
+    function: Callable[[T], R],
+    tasks: Sequence[T],
+    workers: int | None = None,
+    *,
+    description: str = "Running",
+    console: Console | None = None,
+    progress: bool = True,
+    size: Callable[[T], float] | None = None,
+    describe: Callable[[T], str] = str,
+) -> list[R]:
+    """``function(task)`` for every task on ``workers`` processes (default: one per CPU), with a
+    progress bar; results in task order. ``function`` must be a module-level function (workers
+    are spawned and import it) and tasks and results must pickle.
+
+    ``workers == 1`` runs in this process, without a pool. Tasks of the largest ``size`` are
+    submitted first, so that the last to finish are short ones. A task that raises stops the
+    whole run with a :class:`JobError` naming it (``describe``).
+    """
     workers = default_workers() if workers is None else workers
     if workers < 1:
         raise ValueError(f"workers must be at least 1, got {workers}.")
-    results: list[RunResult | None] = [None] * len(jobs)
+    results: list[R | None] = [None] * len(tasks)
     with _progress(console, progress) as bar:
-        task = bar.add_task(description, total=len(jobs))
-        if workers == 1 or len(jobs) <= 1:
-            for i, job in enumerate(jobs):
+        task_id = bar.add_task(description, total=len(tasks))
+        if workers == 1 or len(tasks) <= 1:
+            for i, task in enumerate(tasks):
                 try:
-                    results[i] = run_job(job)
+                    results[i] = function(task)
                 except Exception as exc:
-                    raise _failed(job, exc) from exc
-                bar.advance(task)
+                    raise _failed(describe(task), exc) from exc
+                bar.advance(task_id)
         else:
-            order = sorted(range(len(jobs)), key=lambda i: -jobs[i].protocol.n_events)
+            order = list(range(len(tasks)))
+            if size is not None:
+                order.sort(key=lambda i: -size(tasks[i]))
             context = multiprocessing.get_context("spawn")
-            with ProcessPoolExecutor(min(workers, len(jobs)), mp_context=context) as pool:
-                futures: dict[Future[RunResult], int] = {}
+            with ProcessPoolExecutor(min(workers, len(tasks)), mp_context=context) as pool:
+                futures: dict[Future[R], int] = {}
                 try:
                     for i in order:
-                        futures[pool.submit(run_job, jobs[i])] = i
+                        futures[pool.submit(function, tasks[i])] = i
                     for future in as_completed(futures):
                         i = futures[future]
                         try:
                             results[i] = future.result()
                         except Exception as exc:
-                            raise _failed(jobs[i], exc) from exc
-                        bar.advance(task)
+                            raise _failed(describe(tasks[i]), exc) from exc
+                        bar.advance(task_id)
                 except BaseException:
                     for future in futures:
                         future.cancel()
@@ -155,6 +187,6 @@ def run_jobs(
     return [result for result in results if result is not None]
 
 
-def _failed(job: Job, exc: Exception) -> JobError:
-    """The error to raise when ``job`` raised ``exc``."""
-    return JobError(f"Run {job.describe()} failed: {exc!r}")
+def _failed(what: str, exc: Exception) -> JobError:
+    """The error to raise when the run described by ``what`` raised ``exc``."""
+    return JobError(f"Run {what} failed: {exc!r}")

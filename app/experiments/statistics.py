@@ -34,7 +34,9 @@ __all__ = [
     "build_summary",
     "cumulative_curve",
     "group",
+    "mean_ci95",
     "method_order",
+    "t95",
 ]
 
 SPREAD_LABEL = "mean ± std over users × seeds (one sample per simulated user and seed)"
@@ -106,6 +108,41 @@ def group(results: Iterable[RunResult]) -> dict[str, list[RunResult]]:
 def method_order(results: Iterable[RunResult]) -> list[str]:
     """Method labels in the order first seen."""
     return list(dict.fromkeys(res.method for res in results))
+
+
+# Two-sided 95% quantiles of Student's t by degrees of freedom (1-30, then a few beyond).
+_T95 = (12.706, 4.303, 3.182, 2.776, 2.571, 2.447, 2.365, 2.306, 2.262, 2.228, 2.201, 2.179,
+        2.160, 2.145, 2.131, 2.120, 2.110, 2.101, 2.093, 2.086, 2.080, 2.074, 2.069, 2.064,
+        2.060, 2.056, 2.052, 2.048, 2.045, 2.042)
+_T95_BEYOND = ((40, 2.021), (60, 2.000), (120, 1.980))
+
+
+def t95(df: int) -> float:
+    """The two-sided 95% quantile of Student's t with ``df`` degrees of freedom (beyond 30, the
+    value at the largest tabulated df not above it: slightly wide, never narrow)."""
+    if df < 1:
+        raise ValueError(f"df must be at least 1, got {df}.")
+    if df <= len(_T95):
+        return _T95[df - 1]
+    value = _T95[-1]
+    for at, quantile in _T95_BEYOND:
+        if df >= at:
+            value = quantile
+    return value if df < 1000 else 1.960
+
+
+def mean_ci95(values: Sequence[float] | np.ndarray) -> tuple[float, float, float] | None:
+    """Mean and 95% confidence interval of the mean (Student's t) of the finite ``values``;
+    None when there are none. One value gives an interval of zero width around it."""
+    x = np.asarray(values, dtype=np.float64)
+    x = x[np.isfinite(x)]
+    if x.size == 0:
+        return None
+    mean = float(x.mean())
+    if x.size == 1:
+        return mean, mean, mean
+    half = t95(x.size - 1) * float(x.std(ddof=1)) / math.sqrt(x.size)
+    return mean, mean - half, mean + half
 
 
 def _finite(x: float) -> float | None:

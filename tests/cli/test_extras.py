@@ -53,6 +53,16 @@ def test_experiments_without_matplotlib(monkeypatch: pytest.MonkeyPatch, tmp_pat
     assert not (tmp_path / "out").exists()  # stopped before running anything
 
 
+def test_robustness_without_matplotlib(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
+    without(monkeypatch, "matplotlib")
+    done = CliRunner().invoke(app, ["experiment", "robustness", "--seeds", "2", "--jobs", "1",
+                                    "--out", str(tmp_path / "out")])
+    assert done.exit_code == 2
+    assert done.stderr == EXPERIMENTS
+    assert done.stdout == ""
+    assert not (tmp_path / "out").exists()
+
+
 def test_fleet_without_the_client(monkeypatch: pytest.MonkeyPatch) -> None:
     without(monkeypatch, "attune_client")
     done = CliRunner().invoke(app, ["fleet", "simulate", "--key", "att_x", "--url", NOBODY])

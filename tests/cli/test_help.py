@@ -73,7 +73,8 @@ def test_help_of_every_command_imports_nothing_heavy() -> None:
                           timeout=120, check=False)
     assert done.returncode == 0, done.stderr
     report = json.loads(done.stdout)
-    assert {"", "serve", "experiment paper", "experiment ablation", "db upgrade", "keys list",
+    assert {"", "serve", "experiment paper", "experiment ablation", "experiment robustness",
+            "db upgrade", "keys list",
             "keys revoke", "models rebuild", "fleet simulate"} <= set(report["helped"])
     assert report["heavy"] == []
 

@@ -1,0 +1,385 @@
+"""The robustness suite (``attune experiment robustness``, docs/method.md §12, "Robustness"):
+every learner on families of simulated people, each learner's reward as a share of the
+oracle's in windows of events, with 95% intervals over seeds; the table, the CSV and the plot.
+
+One task is one family with one seed: its persons meet the oracle and every learner, on the same
+events and coin flips (``app.learning.population.run_family``).
+
+*Share.* For a seed, a learner's share in a window is the sum of its rewards over the window's
+events of all the seed's persons, divided by the oracle's sum over the same events. When the
+oracle's sum is below :data:`MIN_ORACLE_REWARD` (nothing to earn there), the share of that seed
+is undefined and left out; the tables say how many seeds each cell stands on.
+
+*Interval.* Mean of the per-seed shares ± Student's t (95%, seeds − 1 degrees of freedom) times
+their standard error.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from app.learning.evaluation import Method
+from app.learning.population import DEFAULT_EVENTS, FAMILIES, FamilyRun, change_event, run_family
+
+from .runner import _mission
+from .statistics import mean_ci95
+
+if TYPE_CHECKING:
+    from rich.console import Console
+
+__all__ = [
+    "CSV_COLUMNS",
+    "DEFAULT_EVENTS",
+    "DEFAULT_LEARNERS",
+    "DEFAULT_PERSONS",
+    "DEFAULT_SEEDS",
+    "LEARNERS",
+    "MIN_ORACLE_REWARD",
+    "TARGET_SECONDS",
+    "WINDOWS",
+    "RobustTask",
+    "Window",
+    "build_summary",
+    "markdown",
+    "plot_shares",
+    "print_table",
+    "run_robust_task",
+    "tasks_for",
+    "window_range",
+    "write_csv",
+    "write_report",
+]
+
+DEFAULT_SEEDS = 8
+DEFAULT_PERSONS = 3
+TARGET_SECONDS = 120.0  # the default suite must finish within this on 2 cores
+MIN_ORACLE_REWARD = 1.0  # below this, the oracle earned (about) nothing: no share
+
+LEARNERS: Mapping[str, Method] = {
+    "rmax": Method("R-MAX", "rmax"),
+    "qlearning": Method("Q-learning", "qlearning"),
+    "hri": Method("HRI τ=0.01", "hri", {"tau": 0.01}),
+    "hri-0.005": Method("HRI τ=0.005", "hri", {"tau": 0.005}),
+    "dts": Method("DTS", "dts"),
+}
+"""The learners the suite can run, by the name ``--learners`` takes."""
+DEFAULT_LEARNERS = ("rmax", "qlearning", "hri", "dts")
+
+
+@dataclass(frozen=True)
+class Window:
+    """A window of events: ``key`` (for files), ``label`` (for people)."""
+
+    key: str
+    label: str
+    needs_change: bool
+
+
+WINDOWS = (
+    Window("first20", "first 20", False),
+    Window("before30", "30 before the change", True),
+    Window("after15", "15 after the change", True),
+    Window("last30", "last 30", False),
+    Window("all", "all", False),
+)
+
+
+def window_range(window: Window, n_events: int, change_at: int | None
+                 ) -> tuple[int, int] | None:
+    """Events ``start:stop`` (0-based, half-open) of ``window``; None when it does not apply
+    (a window about the change in a family without one, or no event in it)."""
+    if window.needs_change and change_at is None:
+        return None
+    if window.key == "first20":
+        start, stop = 0, 20
+    elif window.key == "before30":
+        assert change_at is not None
+        start, stop = change_at - 30, change_at
+    elif window.key == "after15":
+        assert change_at is not None
+        start, stop = change_at, change_at + 15
+    elif window.key == "last30":
+        start, stop = n_events - 30, n_events
+    else:
+        start, stop = 0, n_events
+    start, stop = max(0, start), min(n_events, stop)
+    return (start, stop) if stop > start else None
+
+
+@dataclass(frozen=True)
+class RobustTask:
+    """One family with one seed, for every learner."""
+
+    family: str
+    seed: int
+    methods: tuple[Method, ...]
+    n_persons: int
+    n_events: int
+    mission: str | None = None  # canonical JSON; None: the office mission
+
+    def describe(self) -> str:
+        return f"{self.family} / seed {self.seed}"
+
+
+def tasks_for(families: Sequence[str], methods: Sequence[Method], seeds: int, n_persons: int,
+              n_events: int, mission: str | None = None) -> list[RobustTask]:
+    """Every family x seed, ordered family, seed."""
+    return [RobustTask(f, s, tuple(methods), n_persons, n_events, mission)
+            for f in families for s in range(seeds)]
+
+
+def run_robust_task(task: RobustTask) -> FamilyRun:
+    """Do one task (in a worker process)."""
+    methods = [(m.label, m.algorithm, dict(m.params)) for m in task.methods]
+    return run_family(FAMILIES[task.family], task.seed, methods, _mission(task.mission),
+                      n_persons=task.n_persons, n_events=task.n_events)
+
+
+# -- the numbers ------------------------------------------------------------------------------
+
+
+def _round(x: float | None, digits: int = 4) -> float | None:
+    return None if x is None or not math.isfinite(x) else round(x, digits)
+
+
+def build_summary(runs: Sequence[FamilyRun], families: Sequence[str], learners: Sequence[str],
+                  n_events: int, run_info: Mapping[str, Any]) -> dict[str, Any]:
+    """Every share as plain JSON data: per family, per learner, per window, the mean share, its
+    95% interval, and the seeds it stands on."""
+    out: dict[str, Any] = {
+        "run": dict(run_info),
+        "learners": list(learners),
+        "windows": {},
+        "share": "learner's reward / oracle's reward over the window's events of a seed's "
+                 "persons; mean over seeds",
+        "interval": "95% CI of the mean over seeds (Student's t)",
+        "min_oracle_reward": MIN_ORACLE_REWARD,
+        "families": {},
+    }
+    change = change_event(n_events)
+    for w in WINDOWS:
+        rng = window_range(w, n_events, change)
+        out["windows"][w.key] = {
+            "label": w.label, "needs_change": w.needs_change,
+            "events": None if rng is None else [rng[0] + 1, rng[1]],
+        }
+    for name in families:
+        family = FAMILIES[name]
+        mine = [r for r in runs if r.family == name]
+        change_at = change if family.changes else None
+        entry: dict[str, Any] = {
+            "description": family.description,
+            "change_at_event": None if change_at is None else change_at + 1,
+            "seeds": len(mine),
+            "oracle_reward_per_event": _round(
+                float(np.mean([r.oracle.mean() for r in mine])) if mine else float("nan")),
+            "learners": {},
+        }
+        for label in learners:
+            cells: dict[str, Any] = {}
+            for w in WINDOWS:
+                rng = window_range(w, n_events, change_at)
+                cells[w.key] = _cell(mine, label, rng)
+            entry["learners"][label] = cells
+        out["families"][name] = entry
+    return out
+
+
+def _cell(runs: Sequence[FamilyRun], label: str, rng: tuple[int, int] | None) -> dict[str, Any]:
+    """One family x learner x window: shares per seed, their mean and interval."""
+    if rng is None:
+        return {"applicable": False, "events": None, "mean": None, "ci95": None,
+                "seeds": 0, "undefined_seeds": 0, "per_seed": []}
+    start, stop = rng
+    shares = []
+    for r in runs:
+        oracle = float(r.oracle[:, start:stop].sum())
+        learner = float(r.learners[label][:, start:stop].sum())
+        shares.append(learner / oracle if oracle >= MIN_ORACLE_REWARD else float("nan"))
+    stats = mean_ci95(shares)
+    undefined = sum(1 for s in shares if not math.isfinite(s))
+    return {
+        "applicable": True,
+        "events": [start + 1, stop],
+        "mean": None if stats is None else _round(stats[0]),
+        "ci95": None if stats is None else [_round(stats[1]), _round(stats[2])],
+        "seeds": len(shares) - undefined,
+        "undefined_seeds": undefined,
+        "per_seed": [_round(s) for s in shares],
+    }
+
+
+# -- text -------------------------------------------------------------------------------------
+
+
+def _pct(cell: Mapping[str, Any]) -> str:
+    """``62% [55, 69]``; blank when the window does not apply, ``—`` when no seed defines it."""
+    if not cell["applicable"]:
+        return ""
+    if cell["mean"] is None:
+        return "—"
+    low, high = cell["ci95"]
+    return f"{_p(cell['mean'])}% [{_p(low)}, {_p(high)}]"
+
+
+def _p(share: float) -> str:
+    """A share as a whole percentage (no ``-0``)."""
+    text = f"{100 * share:.0f}"
+    return "0" if text == "-0" else text
+
+
+def _window_heading(summary: Mapping[str, Any], key: str) -> str:
+    w = summary["windows"][key]
+    events = w["events"]
+    where = "" if events is None else f" ({events[0]}–{events[1]})"
+    return f"{w['label']}{where}"
+
+
+def markdown(summary: Mapping[str, Any]) -> str:
+    """robustness.md: one table, a row per family and learner, a column per window."""
+    run = summary["run"]
+    keys = list(summary["windows"])
+    lines = [
+        "# Robustness: reward as a share of the oracle's",
+        "",
+        f"{run['seeds']} seeds × {run['persons']} persons per family, {run['events']} events "
+        f"per person; the changing families change at event {run['change_at_event']}. Each "
+        "cell: mean share over seeds [95% CI, Student's t]; blank: the family has no change. "
+        f"A seed whose oracle earned less than {MIN_ORACLE_REWARD:g} in a window has no share "
+        "there (noted below the table). The oracle knows every need: it initiates, infers "
+        "and performs when a need exists and the person is available, and passes otherwise. "
+        f"Ran in {run['seconds']:.1f} s on {run['workers']} worker processes.",
+    ]
+    mission = run.get("mission") or {}
+    if mission.get("file"):
+        lines[-1] += (f" The people lived in the mission {mission['name']!r} of {mission['file']}, "
+                      "not in the paper's office mission.")
+    lines += [
+        "",
+        "| Family | Learner | " + " | ".join(_window_heading(summary, k) for k in keys) + " |",
+        "|:---|:---|" + "---:|" * len(keys),
+    ]
+    notes = []
+    for name, fam in summary["families"].items():
+        for i, (label, cells) in enumerate(fam["learners"].items()):
+            first = f"**{name}**" if i == 0 else ""
+            lines.append(f"| {first} | {label} | "
+                         + " | ".join(_pct(cells[k]) for k in keys) + " |")
+            for k in keys:
+                if cells[k]["undefined_seeds"]:
+                    notes.append(f"- {name}, {label}, {summary['windows'][k]['label']}: "
+                                 f"{cells[k]['undefined_seeds']} seed(s) without a share.")
+    lines += ["", "Families (oracle's mean reward per event):", ""]
+    for name, fam in summary["families"].items():
+        reward = fam["oracle_reward_per_event"]
+        lines.append(f"- **{name}** ({'—' if reward is None else f'{reward:.2f}'}): "
+                     f"{fam['description']}.")
+    if notes:
+        lines += ["", "Seeds without a share:", "", *dict.fromkeys(notes)]
+    return "\n".join(lines) + "\n"
+
+
+def print_table(summary: Mapping[str, Any], console: Console) -> None:
+    """The table for the terminal (whole, whatever its width)."""
+    from rich import box
+    from rich.table import Table
+
+    keys = list(summary["windows"])
+    table = Table(title="Robustness: reward as a share of the oracle's (mean [95% CI] over "
+                  "seeds)", box=box.SIMPLE_HEAD, title_justify="left")
+    table.add_column("Family", no_wrap=True)
+    table.add_column("Learner", no_wrap=True)
+    for k in keys:
+        table.add_column(_window_heading(summary, k), justify="right", no_wrap=True)
+    for name, fam in summary["families"].items():
+        for i, (label, cells) in enumerate(fam["learners"].items()):
+            table.add_row(name if i == 0 else "", label, *(_pct(cells[k]) for k in keys),
+                          end_section=i == len(fam["learners"]) - 1)
+    console.print(table, soft_wrap=True, crop=False, overflow="ignore")
+
+
+CSV_COLUMNS = ("family", "learner", "window", "first_event", "last_event", "seeds",
+               "undefined_seeds", "share_mean", "ci95_low", "ci95_high")
+
+
+def write_csv(summary: Mapping[str, Any], path: Path) -> int:
+    """robustness.csv: one row per family x learner x window; blank cells where the window does
+    not apply. Returns the rows written."""
+    rows = 0
+    with path.open("w", newline="", encoding="utf-8") as handle:
+        writer = csv.writer(handle, lineterminator="\n")
+        writer.writerow(CSV_COLUMNS)
+        for name, fam in summary["families"].items():
+            for label, cells in fam["learners"].items():
+                for key, cell in cells.items():
+                    events = cell["events"] or ("", "")
+                    ci = cell["ci95"] or ("", "")
+                    writer.writerow((name, label, key, events[0], events[1],
+                                     cell["seeds"] if cell["applicable"] else "",
+                                     cell["undefined_seeds"] if cell["applicable"] else "",
+                                     "" if cell["mean"] is None else cell["mean"], *ci))
+                    rows += 1
+    return rows
+
+
+def plot_shares(summary: Mapping[str, Any], path: Path) -> None:
+    """robustness.png: one heatmap per window, families x learners, mean share in each cell
+    (grey: the window does not apply)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.colors import Normalize
+    from matplotlib.figure import Figure
+
+    keys = list(summary["windows"])
+    families = list(summary["families"])
+    learners = list(summary["learners"])
+    fig = Figure(figsize=(3.2 * len(keys) + 1.5, 0.45 * len(families) + 2.2), dpi=100,
+                 layout="constrained")
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(1, len(keys), sharey=True, squeeze=False)[0]
+    norm = Normalize(0.0, 1.0)
+    image = None
+    for ax, key in zip(axes, keys, strict=True):
+        grid = np.full((len(families), len(learners)), np.nan)
+        for i, fam in enumerate(families):
+            for j, label in enumerate(learners):
+                mean = summary["families"][fam]["learners"][label][key]["mean"]
+                if mean is not None:
+                    grid[i, j] = mean
+        ax.set_facecolor("0.85")
+        image = ax.imshow(np.ma.masked_invalid(grid), cmap="viridis", norm=norm, aspect="auto")
+        for i in range(len(families)):
+            for j in range(len(learners)):
+                if np.isfinite(grid[i, j]):
+                    ax.text(j, i, _p(grid[i, j]), ha="center", va="center",
+                            fontsize=8, color="white" if grid[i, j] < 0.6 else "black")
+        ax.set_xticks(range(len(learners)), learners, rotation=45, ha="right", fontsize=8)
+        ax.set_yticks(range(len(families)), families, fontsize=9)
+        ax.set_title(_window_heading(summary, key), fontsize=10)
+    if image is not None:
+        fig.colorbar(image, ax=list(axes), shrink=0.8, label="share of the oracle's reward")
+    run = summary["run"]
+    fig.suptitle(f"Reward as a share of the oracle's, % (mean over {run['seeds']} seeds × "
+                 f"{run['persons']} persons; grey: no change in that family)", fontsize=11)
+    fig.savefig(path, format="png")
+
+
+def write_report(summary: Mapping[str, Any], out: Path) -> list[Path]:
+    """Write robustness.md, robustness.csv, robustness.png and summary.json into ``out``."""
+    out.mkdir(parents=True, exist_ok=True)
+    files = [out / n for n in ("robustness.md", "robustness.csv", "robustness.png",
+                               "summary.json")]
+    files[0].write_text(markdown(summary), encoding="utf-8")
+    write_csv(summary, files[1])
+    plot_shares(summary, files[2])
+    files[3].write_text(json.dumps(summary, indent=2, ensure_ascii=False, allow_nan=False)
+                        + "\n", encoding="utf-8")
+    return files
+

@@ -1,0 +1,112 @@
+"""``attune experiment robustness`` on a tiny suite: the files it writes, a table with every
+learner and family, blank windows for a family without a change, --json, and bad names."""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+from typing import Any
+
+import pytest
+from typer.testing import CliRunner, Result
+
+from app.cli import app
+
+FAMILIES = ("abrupt", "shy")
+LEARNERS = ("R-MAX", "Q-learning", "HRI τ=0.01", "DTS")
+FILES = ("robustness.md", "robustness.csv", "robustness.png", "summary.json")
+
+
+def run(out: Path, *extra: str) -> Result:
+    return CliRunner(env={"COLUMNS": "40"}).invoke(app, [
+        "experiment", "robustness", "--seeds", "2", "--events", "40", "--persons", "1",
+        "--families", ",".join(FAMILIES), "--jobs", "1", "--out", str(out), *extra])
+
+
+@pytest.fixture(scope="module")
+def suite(tmp_path_factory: pytest.TempPathFactory) -> tuple[Result, Path, dict[str, Any]]:
+    out = tmp_path_factory.mktemp("robustness")
+    done = run(out)
+    assert done.exit_code == 0, done.output
+    return done, out, json.loads((out / "summary.json").read_text(encoding="utf-8"))
+
+
+def test_writes_the_files(suite: tuple[Result, Path, dict[str, Any]]) -> None:
+    done, out, summary = suite
+    for name in FILES:
+        assert (out / name).stat().st_size > 0, name
+    assert (out / "robustness.png").read_bytes().startswith(b"\x89PNG")
+    assert f"Wrote {len(FILES)} files" in done.stderr
+    assert summary["learners"] == list(LEARNERS)
+    assert list(summary["families"]) == list(FAMILIES)
+
+
+def test_the_table_has_every_learner_and_family(
+        suite: tuple[Result, Path, dict[str, Any]]) -> None:
+    done, out, _ = suite
+    for text in (done.stdout, (out / "robustness.md").read_text(encoding="utf-8")):
+        lines = text.splitlines()
+        for family in FAMILIES:
+            assert any(family in line for line in lines), family
+        for learner in LEARNERS:  # one row per family
+            rows = [line for line in lines if f" {learner} " in line]
+            assert len(rows) == len(FAMILIES), (learner, rows)
+    with (out / "robustness.csv").open(encoding="utf-8") as handle:
+        records = list(csv.DictReader(handle))
+    cells = {(r["family"], r["learner"], r["window"]): r for r in records}
+    windows = {r["window"] for r in records}
+    assert windows == {"first20", "before30", "after15", "last30", "all"}
+    assert len(cells) == len(records) == len(FAMILIES) * len(LEARNERS) * len(windows)
+    for learner in LEARNERS:
+        assert cells[("shy", learner, "after15")]["share_mean"] == ""  # no change: blank
+        assert cells[("abrupt", learner, "after15")]["share_mean"] != ""
+        assert cells[("shy", learner, "all")]["share_mean"] != ""
+
+
+def test_prints_the_time_and_the_target(suite: tuple[Result, Path, dict[str, Any]]) -> None:
+    done, _, summary = suite
+    assert "Finished 4 runs in" in done.stderr
+    assert "not the default suite" in done.stderr
+    assert "Elapsed:" in done.stdout
+    assert summary["run"]["default_suite"] is False
+    assert summary["run"]["seconds"] >= 0
+
+
+def test_json_is_the_summary(tmp_path: Path) -> None:
+    done = run(tmp_path, "--json", "--learners", "qlearning,dts")
+    assert done.exit_code == 0, done.output
+    printed = json.loads(done.stdout)
+    assert printed == json.loads((tmp_path / "summary.json").read_text(encoding="utf-8"))
+    assert printed["learners"] == ["Q-learning", "DTS"]
+
+
+@pytest.mark.parametrize("option", ["--families", "--learners"])
+def test_unknown_names_are_refused(tmp_path: Path, option: str) -> None:
+    done = CliRunner().invoke(app, ["experiment", "robustness", option, "nobody",
+                                    "--out", str(tmp_path)])
+    assert done.exit_code == 2
+    assert "nobody" in done.output
+    assert not (tmp_path / "summary.json").exists()
+
+
+def test_the_defaults_of_the_command_are_the_suites() -> None:
+    from app.experiments import robustness
+
+    command = next(c for c in app.registered_groups if c.name == "experiment").typer_instance
+    assert command is not None
+    info = next(c for c in command.registered_commands if c.name == "robustness")
+    assert info.callback is not None
+    defaults = info.callback.__defaults__ or ()
+    assert (robustness.DEFAULT_SEEDS, robustness.DEFAULT_EVENTS,
+            robustness.DEFAULT_PERSONS) == defaults[:3]
+
+
+def test_another_mission_is_named(tmp_path: Path) -> None:
+    care_home = Path(__file__).resolve().parents[2] / "docs/examples/care-home-mission.json"
+    done = run(tmp_path, "--mission", str(care_home), "--learners", "dts")
+    assert done.exit_code == 0, done.output
+    assert "not the paper's office mission" in done.stderr
+    assert "care-home" in (tmp_path / "robustness.md").read_text(encoding="utf-8")
+    summary = json.loads((tmp_path / "summary.json").read_text(encoding="utf-8"))
+    assert summary["run"]["mission"]["file"] == str(care_home)
