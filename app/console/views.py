@@ -25,10 +25,10 @@ from app.schemas.users import UserOut
 __all__ = [
     "CERTAINTY", "Expectation", "HeatCell", "HeatRow", "ProfileCell", "ProfileRow", "StateRows",
     "action_arg", "action_label", "correction_status", "correction_words", "curve",
-    "episode_words", "expectation", "fmt_aware", "fmt_count", "fmt_local", "fmt_measure", "fmt_offset",
-    "fmt_pct", "fmt_q", "fmt_rate", "fmt_reward", "heat_class", "heatmap", "initiate_p",
-    "learner_summary", "name_words", "profile_grid", "robot_words", "state_label",
-    "state_words", "tenth", "unique_best", "wanted_words", "why_rows",
+    "episode_words", "expectation", "fmt_aware", "fmt_count", "fmt_local", "fmt_measure",
+    "fmt_offset", "fmt_pct", "fmt_q", "fmt_rate", "fmt_reward", "heat_class", "heatmap",
+    "initiate_p", "learner_summary", "name_words", "profile_grid", "robot_words", "state_label",
+    "state_words", "tenth", "unique_best", "user_url", "wanted_words", "why_rows",
 ]
 
 DASH = "—"  # a value the learner has no notion of (or no data yet)
