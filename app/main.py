@@ -21,7 +21,7 @@ from app.api.middleware import (
     MetricsMiddleware,
     RequestContextMiddleware,
 )
-from app.api.routes import admin, episodes, meta, models, users
+from app.api.routes import admin, episodes, meta, models, profile, users
 from app.console import mount_console
 from app.db.session import Database
 from app.services.context import ServiceContext
@@ -84,7 +84,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.metrics = Metrics()
     app.state.limiter = KeyRateLimiter(settings.rate_limit_per_s, settings.rate_limit_burst)
     install_error_handlers(app)
-    for module in (users, episodes, models, meta):
+    for module in (users, episodes, models, profile, meta):
         app.include_router(module.router)
     app.include_router(admin.router)
     install_docs(app)

@@ -18,8 +18,9 @@ What the *person* settles is not overridden: a person who asks for an avoided se
 served, as under ``quiet``. Rules steer the action distributions only: the learner's tables learn
 from what happens exactly as without them, so lifting a rule leaves the learner's own beliefs.
 
-The learner keeps its rules (:class:`Guidance`) in its state document, so they are exported,
-imported, snapshotted and replayed with the rest of the model. Pure: stdlib and numpy.
+The learner keeps its rules (:class:`Guidance`, docs/method.md §15) in its state document,
+so they are exported, imported, snapshotted and replayed with the rest of the model. Pure:
+stdlib and numpy.
 """
 
 from __future__ import annotations

@@ -21,14 +21,17 @@ from app.db.repositories.models import ModelRow, SampleRow
 from app.db.types import utcnow
 from app.errors import ValidationFailed
 from app.learning import Mission, Polarity, Transition, learner_from_state, make_learner
+from app.learning.guidance import Rule
 from app.learning.learners import TabularLearner
 
 from .context import ServiceContext, after_commit
 
-__all__ = ["Mover", "StartOver", "fresh_learner", "load_learner", "replay", "save_learner",
+__all__ = ["Mover", "Rules", "StartOver", "fresh_learner", "load_learner", "replay", "save_learner",
            "save_move", "transition_samples"]
 
 StartOver = Literal["fresh", "imported"]
+# The staff correction a "correction" or "lift" sample of the journal names (app.learning.guidance)
+Rules = Callable[[SampleRow], Rule]
 # Carries a learner from one mission version to another (a "mission" sample in the journal).
 Mover = Callable[[TabularLearner[Any], int, int], TabularLearner[Any]]
 
@@ -44,11 +47,12 @@ def fresh_learner(
 
 
 def replay(learner: TabularLearner[Any], samples: Iterable[SampleRow], *,
-           layout: int, move: Mover | None = None) -> tuple[TabularLearner[Any], int, int]:
+           layout: int, move: Mover | None = None, rules: Rules | None = None,
+           ) -> tuple[TabularLearner[Any], int, int]:
     """Teach ``learner`` (laid out for mission version ``layout``) journal entries in order,
     one call per model version (as they were taught), following the moves to other mission
-    versions with ``move``; returns (the learner, its layout, the number of versions
-    replayed)."""
+    versions with ``move`` and the staff corrections with ``rules``; returns (the learner, its
+    layout, the number of versions replayed)."""
     writes = 0
     for _, grouped in groupby(samples, key=lambda s: s.version):
         group = list(grouped)
@@ -59,16 +63,28 @@ def replay(learner: TabularLearner[Any], samples: Iterable[SampleRow], *,
                                  f"version {target}, and no mover was given")
             learner, layout = move(learner, layout, target), target
         else:
-            _teach(learner, group)
+            _teach(learner, group, rules)
         writes += 1
     return learner, layout, writes
 
 
-def _teach(learner: TabularLearner[Any], samples: Sequence[SampleRow]) -> None:
+def _teach(learner: TabularLearner[Any], samples: Sequence[SampleRow],
+           rules: Rules | None = None) -> None:
     first = samples[0]
     if first.kind == "mission":
         raise ValueError("a move to another mission version is not taught; see replay")
-    if first.kind == "feedback":
+    if first.kind in ("correction", "lift"):
+        if rules is None:
+            raise ValueError(f"version {first.version} is a staff correction, and no rules "
+                             "were given")
+        rule = rules(first)
+        if first.kind == "correction":
+            learner.correct(rule)
+        elif learner.guidance.get(rule.id) is not None:
+            learner.lift(rule.id)
+        else:  # already out of the model (an import or a reset dropped it): a version still
+            learner.version += 1
+    elif first.kind == "feedback":
         learner.feedback(first.episode, first.context, first.action, first.reward)
     else:
         learner.update([Transition(s.episode, s.context, s.state, s.action, s.reward,
@@ -130,13 +146,15 @@ def save_move(session: Session, ctx: ServiceContext, user_pk: int, model: ModelR
 def save_learner(session: Session, ctx: ServiceContext, user_pk: int, model: ModelRow,
                  learner: TabularLearner[Any], samples: Sequence[SampleRow] = (), *,
                  snapshot: bool = False, start_over: StartOver | None = None,
-                 episode_offset: int | None = None) -> None:
+                 episode_offset: int | None = None, rules: Rules | None = None) -> None:
     """Store a write's change of the user's model: one version on.
 
     With ``samples`` (the transitions of one report, or one feedback): teach them to
     ``learner`` and journal them; the learner's state is stored when the snapshot cadence
     (``snapshot_every`` versions) is due, or at once with ``snapshot``. The learner raises
     ``ValueError`` before changing anything if a sample does not fit; then nothing is stored.
+    A staff correction (one "correction" or "lift" sample, taught with ``rules``) is always
+    stored with a snapshot, so loading a model never replays one.
 
     With ``start_over``, the model is replaced by ``learner`` (a reset or a new learner:
     ``"fresh"``; an imported document: ``"imported"``, which becomes the base a rebuild starts
@@ -158,7 +176,8 @@ def save_learner(session: Session, ctx: ServiceContext, user_pk: int, model: Mod
         model.base_mission_version = model.mission_version
     elif samples or snapshot:
         if samples:
-            _teach(learner, samples)
+            _teach(learner, samples, rules)
+            snapshot = snapshot or samples[0].kind in ("correction", "lift")
         model.version += 1
         due = snapshot or model.version - model.state_version >= ctx.settings.snapshot_every
         repo.advance(session, user_pk, version=model.version, updated_at=utcnow(),

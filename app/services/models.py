@@ -24,7 +24,7 @@ from app.learning.types import Interaction
 from app.schemas.common import ActionOut
 from app.schemas.models import ActionBelief, ContextModel, ModelOut, StateModel, StatsOut
 
-from . import audit, missions
+from . import audit, corrections, missions
 from .auth import require_manager
 from .context import Principal, ServiceContext, rng_for
 from .episodes import action_out
@@ -110,15 +110,25 @@ def stats(session: Session, principal: Principal, user_id: str, *, last: int | N
 
 
 def reset_model(session: Session, ctx: ServiceContext, principal: Principal, user_id: str, *,
-                fleet: str | None = None) -> None:
+                fleet: str | None = None, drop_corrections: bool = False) -> None:
+    """Forget what was learned; the staff corrections in force stay, unless
+    ``drop_corrections``."""
     require_manager(principal)
     user = visible_user(session, principal, user_id, fleet=fleet, lock=True)
     model = _head(session, user)
     mission = ctx.missions.get(session, user.fleet, model.mission_version).mission
-    save_learner(session, ctx, user.id, model,
-                 fresh_learner(user.algorithm, dict(user.params), mission), start_over="fresh")
+    fresh = fresh_learner(user.algorithm, dict(user.params), mission)
+    kept = 0
+    if not drop_corrections:
+        old = load_learner(session, ctx, user.fleet, user.id, model, for_write=False)
+        fresh.guidance = old.guidance.copy()
+        kept = len(fresh.guidance)
+    # A fresh learner that keeps corrections is the base a rebuild starts from, as an import is
+    save_learner(session, ctx, user.id, model, fresh,
+                 start_over="imported" if kept else "fresh")
+    corrections.settle_rows(session, principal, user, fresh.guidance)
     audit.record(session, principal, "model.reset", target=user_id, fleet=user.fleet,
-                 detail={"version": model.version})
+                 detail={"version": model.version, "corrections_kept": kept})
 
 
 def export_model(session: Session, ctx: ServiceContext, principal: Principal, user_id: str, *,
@@ -144,6 +154,7 @@ def import_model(session: Session, ctx: ServiceContext, principal: Principal, us
     save_learner(session, ctx, user.id, model, learner, start_over="imported",
                  episode_offset=max(model.episode_offset,
                                     learner.episodes - user.episode_count))
+    corrections.settle_rows(session, principal, user, learner.guidance)
     audit.record(session, principal, "model.import", target=user_id, fleet=user.fleet,
                  detail={"algorithm": learner.algorithm, "version": model.version})
     return model_view(session, ctx, principal, user_id, time_slot=None, situation=None,
@@ -198,6 +209,7 @@ def rebuild_model(session: Session, ctx: ServiceContext, principal: Principal, u
     samples = models_repo.samples_since(session, user.id, model.base_version)
     report = RebuildReport(user_id, model.version, samples=len(samples))
     taught = 0
+    rules = corrections.rules_resolver(session, user.id)
 
     def move(learner: TabularLearner[Any], old: int, new: int) -> TabularLearner[Any]:
         return missions.move_learner(session, ctx, user.fleet, learner, old, new)
@@ -208,7 +220,7 @@ def rebuild_model(session: Session, ctx: ServiceContext, principal: Principal, u
         while upto < len(samples) and samples[upto].version <= version:
             upto += 1
         learner, layout, writes = replay(learner, samples[taught:upto], layout=layout,
-                                         move=move)
+                                         move=move, rules=rules)
         report.writes += writes
         taught = upto
 

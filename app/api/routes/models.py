@@ -1,6 +1,6 @@
 from __future__ import annotations
 
-from typing import Annotated, Any
+from typing import Annotated, Any, Literal
 
 from fastapi import APIRouter, Body, Query, Response
 from sqlalchemy.orm import Session
@@ -40,10 +40,17 @@ def get_stats(
 
 @router.delete("/model", status_code=204, response_class=Response,
                responses=responses(403, 404))
-def reset_model(user_id: UserId, session: Session, ctx: ServiceContext,
-                principal: CurrentPrincipal, fleet: Fleet = None) -> Response:
-    """Forget what was learned, keep the history (staff of the fleet, admin)."""
-    service.reset_model(session, ctx, principal, user_id, fleet=fleet)
+def reset_model(
+    user_id: UserId, session: Session, ctx: ServiceContext, principal: CurrentPrincipal,
+    fleet: Fleet = None,
+    corrections: Annotated[Literal["keep", "drop"], Query(
+        description="The staff corrections in force: kept by default, or dropped too.",
+    )] = "keep",
+) -> Response:
+    """Forget what was learned, keep the history and, unless asked, the staff corrections
+    (staff of the fleet, admin)."""
+    service.reset_model(session, ctx, principal, user_id, fleet=fleet,
+                        drop_corrections=corrections == "drop")
     return no_content()
 
 

@@ -13,10 +13,11 @@ from ..models import Decision, Episode, Feedback, LearnerModel, User
 from ._rows import Prepared, columns, conn, names, record, table, values
 from .models import ModelRow
 
-__all__ = ["DecisionRow", "EpisodeRow", "FeedbackRow", "MetricRow", "add_feedback",
-           "by_event", "decision", "decisions", "decisions_for_rebuild", "feedback",
-           "feedback_list", "get", "insert_decisions", "insert_episode", "interrupt_open",
-           "list_page", "load_for_outcome", "metric_rows", "owner", "save_answer",
+__all__ = ["DecisionRow", "EpisodeRow", "FeedbackRow", "HistoryAnswer", "HistoryEpisode",
+           "MetricRow", "add_feedback", "by_event", "decision", "decisions",
+           "decisions_for_rebuild", "feedback", "feedback_list", "get", "history",
+           "insert_decisions", "insert_episode", "interrupt_open", "list_page", "local_time",
+           "load_for_outcome", "metric_rows", "occurred_at_of", "owner", "save_answer",
            "save_episode"]
 
 
@@ -268,3 +269,65 @@ def decisions_for_rebuild(session: Session, user_pk: int, version: int
     n = len(_DECISION_COLS)
     return [(DecisionRow(*row[:n]), row[n], row[n + 1])
             for row in conn(session).execute(stmt)]
+
+
+@dataclass(slots=True)
+class HistoryEpisode:
+    """An episode as the person's profile reads it."""
+
+    seq: int
+    learner_episode: int
+    time_slot: str
+    situation: str
+    status: str
+    occurred_at: dt.datetime
+    utc_offset: int | None
+    request_service: str | None
+    request_detail: str | None
+    mission_version: int
+
+
+@dataclass(slots=True)
+class HistoryAnswer:
+    """What the person did after one of the robot's decisions (forced ones excluded)."""
+
+    seq: int
+    action: int
+    response: str
+    service: str | None
+    detail: str | None
+
+
+def history(session: Session, user_pk: int
+            ) -> tuple[list[HistoryEpisode], list[HistoryAnswer]]:
+    """Every episode of the user (oldest first) and the person's answers to the robot's own
+    decisions, in order."""
+    c = conn(session)
+    eps = c.execute(
+        select(*[_episodes.c[n] for n in names(HistoryEpisode)])
+        .where(_episodes.c.user_pk == user_pk).order_by(_episodes.c.seq))
+    answers = c.execute(
+        select(_episodes.c.seq, _decisions.c.action, _decisions.c.response,
+               _decisions.c.service, _decisions.c.detail)
+        .join(_episodes, _episodes.c.id == _decisions.c.episode_id)
+        .where(_episodes.c.user_pk == user_pk, _decisions.c.response.is_not(None),
+               _decisions.c.forced.is_(False))
+        .order_by(_episodes.c.seq, _decisions.c.position))
+    return ([HistoryEpisode(*row) for row in eps], [HistoryAnswer(*row) for row in answers])
+
+
+def occurred_at_of(session: Session, user_pk: int, learner_episode: int) -> dt.datetime | None:
+    """When the user's episode of learner index ``learner_episode`` happened, in the local time
+    it was reported in (``None``: no such episode)."""
+    row = conn(session).execute(
+        select(_episodes.c.occurred_at, _episodes.c.utc_offset)
+        .where(_episodes.c.user_pk == user_pk,
+               _episodes.c.learner_episode == learner_episode)).first()
+    return None if row is None else local_time(row[0], row[1])
+
+
+def local_time(at: dt.datetime, utc_offset: int | None) -> dt.datetime:
+    """``at`` in the offset it was reported with (UTC when it was not stored)."""
+    if utc_offset is None:
+        return at.astimezone(dt.UTC)
+    return at.astimezone(dt.timezone(dt.timedelta(minutes=utc_offset)))

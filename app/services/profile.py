@@ -1,0 +1,236 @@
+"""A person's profile: what Attune believes they want in each context, how sure it is, what the
+robot will do there, and why, in plain words (docs/method.md §14).
+
+Built from the person's history (their own answers, :mod:`app.learning.beliefs`) and the model
+(what the robot will do is the learner's action distribution as ``GET /model`` reports it, with
+the staff corrections applied).
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import re
+from collections import defaultdict
+from typing import Any
+
+from sqlalchemy.orm import Session
+
+from app.db.repositories import episodes as episodes_repo
+from app.db.repositories import models as models_repo
+from app.db.repositories.episodes import HistoryAnswer, HistoryEpisode, local_time
+from app.learning import ActionKind, NegotiationSpace
+from app.learning.beliefs import Answer, Belief, EpisodeEvidence, Item, belief, episode_evidence
+from app.learning.guidance import Rule, RuleKind
+from app.learning.learners import TabularLearner
+from app.schemas.profile import (
+    ChangeOut,
+    EvidenceOut,
+    ProfileContext,
+    ProfileOut,
+    RobotWill,
+    Wanted,
+)
+
+from .context import Principal, ServiceContext
+from .corrections import correction_views
+from .learners import load_learner
+from .users import visible_user
+
+__all__ = ["profile_view", "words"]
+
+
+def profile_view(session: Session, ctx: ServiceContext, principal: Principal, user_id: str, *,
+                 fleet: str | None = None) -> ProfileOut:
+    """The profile of ``user_id`` (robots, staff of the fleet, admins)."""
+    user = visible_user(session, principal, user_id, fleet=fleet)
+    model = models_repo.head(session, user.id)
+    if model is None:
+        raise RuntimeError(f"user {user.fleet}/{user.user_id} has no model row")
+    learner = load_learner(session, ctx, user.fleet, user.id, model, for_write=False)
+    mission = learner.mission
+    episodes, answers = episodes_repo.history(session, user.id)
+    by_seq: dict[int, list[HistoryAnswer]] = defaultdict(list)
+    for a in answers:
+        by_seq[a.seq].append(a)
+    per_context: dict[tuple[str, str], list[HistoryEpisode]] = defaultdict(list)
+    for ep in episodes:
+        per_context[(ep.time_slot, ep.situation)].append(ep)
+    spaces: dict[int, NegotiationSpace] = {}
+
+    def space_of(version: int) -> NegotiationSpace:
+        if version not in spaces:
+            spaces[version] = ctx.missions.get(session, user.fleet, version).space
+        return spaces[version]
+
+    corrections = correction_views(session, user, learner, lifted=False)
+    when_of = {ep.learner_episode: local_time(ep.occurred_at, ep.utc_offset) for ep in episodes}
+    now = user.episode_count + model.episode_offset + 1
+    contexts = []
+    for c in range(mission.n_contexts):
+        slot, situation = mission.context_names(c)
+        eps = per_context.get((slot, situation), [])
+        evidence = [
+            episode_evidence(
+                space_of(ep.mission_version), ep.seq,
+                [Answer(a.action, a.response, a.service, a.detail) for a in by_seq[ep.seq]],
+                request=Item(ep.request_service, ep.request_detail)
+                if ep.request_service else None)
+            for ep in eps
+        ]
+        rules = [r for r in learner.guidance.rules
+                 if (r.time_slot, r.situation) == (slot, situation)]
+        contexts.append(_context(
+            learner, c, now, slot, situation, eps, evidence, belief(evidence), rules,
+            when_of, user.display_name))
+    last = episodes[-1] if episodes else None
+    return ProfileOut(
+        user_id=user.user_id, display_name=user.display_name, episodes=len(episodes),
+        open_episodes=sum(ep.status == "open" for ep in episodes),
+        utc_offset=last.utc_offset if last else None, contexts=contexts,
+        corrections=corrections,
+    )
+
+
+def _context(learner: TabularLearner[Any], c: int, now: int, slot: str, situation: str,
+             eps: list[HistoryEpisode], evidence: list[EpisodeEvidence], found: Belief,
+             rules: list[Rule], when_of: dict[int, dt.datetime], name: str | None
+             ) -> ProfileContext:
+    seq_time = {ep.seq: local_time(ep.occurred_at, ep.utc_offset) for ep in eps}
+    wants, certainty, source = found.wants, found.certainty, "person" if found.wants else None
+    change = None
+    if found.change is not None:
+        change = ChangeOut(at=seq_time.get(found.change.seq), episode=found.change.seq,
+                           before=_wanted(found.change.before), now=_wanted(found.change.now))
+    prefers = [r for r in rules if r.kind is RuleKind.PREFERS]
+    standing = [r for r in prefers if r.in_force and _fits(learner, r)]
+    if standing:
+        rule = standing[-1]
+        assert rule.service is not None
+        wants, certainty, source = Item(rule.service, rule.detail), "confident", "staff"
+    else:
+        overridden = [r for r in prefers if r.overridden_at is not None]
+        if overridden:
+            rule = overridden[-1]
+            assert rule.service is not None
+            change = ChangeOut(
+                at=when_of.get(rule.overridden_at or 0), episode=_seq_of(eps, rule, learner),
+                before=Wanted(service=rule.service, detail=rule.detail),
+                now=_wanted(found.wants), overrides=rule.id)
+    turned_down = found.wants is None and any(
+        e.refused_offer for e in [e for e in evidence if e.relevant][-3:])
+    will = _robot_will(learner, c, now, rules, turned_down)
+    ev = EvidenceOut(
+        accepted=sum(e.accepted for e in evidence),
+        refused=sum(e.refused_count for e in evidence),
+        asked_for=sum(e.asked_for for e in evidence),
+        answered=sum(e.answered for e in evidence),
+        last_seen=seq_time[eps[-1].seq] if eps else None,
+        support=found.support if source == "person" else 0,
+        recent=found.recent,
+    )
+    summary = _summary(name, slot, situation, wants, certainty, source, will, ev, change)
+    return ProfileContext(
+        time_slot=slot, situation=situation, episodes=len(eps),
+        open_episodes=sum(ep.status == "open" for ep in eps), wants=_wanted(wants),
+        certainty=certainty,  # type: ignore[arg-type]
+        source=source,  # type: ignore[arg-type]
+        evidence=ev, robot_will=will, summary=summary, changed=change,
+        corrections=[r.id for r in rules],
+    )
+
+
+def _fits(learner: TabularLearner[Any], rule: Rule) -> bool:
+    try:
+        rule.check(learner.mission)
+    except ValueError:
+        return False
+    return True
+
+
+def _seq_of(eps: list[HistoryEpisode], rule: Rule, learner: TabularLearner[Any]) -> int:
+    for ep in eps:
+        if ep.learner_episode == rule.overridden_at:
+            return ep.seq
+    return 0
+
+
+def _wanted(item: Item | None) -> Wanted | None:
+    return None if item is None else Wanted(service=item.service, detail=item.detail)
+
+
+def _robot_will(learner: TabularLearner[Any], c: int, now: int, rules: list[Rule],
+                turned_down: bool) -> RobotWill:
+    """The most likely course of the robot's next decision here, from the learner's action
+    distribution (``explain``, corrections applied)."""
+    space = learner.space
+    p = learner.explain(c, now).probabilities
+    offer = float(p[space.INITIATE])
+    if offer < 0.5:
+        quiet = any(r.kind is RuleKind.QUIET for r in rules if _fits(learner, r))
+        return RobotWill(action="stay_away" if quiet or turned_down else "wait_to_be_asked",
+                         service=None, detail=None, asks_first=False, probability=offer)
+    service = detail = None
+    asks = False
+    engaged = space.actions_of(space.ENGAGED)
+    best = engaged.start + int(p[engaged.start:engaged.stop].argmax())
+    act = space.actions[best]
+    if act.kind is ActionKind.QUERY_TYPE:
+        asks = True
+    else:
+        service = act.service
+        assert service is not None
+        typed = space.actions_of(space.type_known_state(service))
+        pick = space.actions[typed.start + int(p[typed.start:typed.stop].argmax())]
+        if pick.kind is ActionKind.QUERY_DETAIL:
+            asks = True
+        else:
+            detail = pick.detail
+    return RobotWill(action="offer", service=service, detail=detail, asks_first=asks,
+                     probability=offer)
+
+
+_SITUATION_WORDS = {"arriving": "on arrival", "working": "while working",
+                    "stretching": "while stretching", "busy": "while busy"}
+
+
+def words(name: str | None) -> str:
+    """A mission name in words: ``ProvideDrink`` -> "provide drink", ``today_agenda`` ->
+    "today agenda"."""
+    if not name:
+        return ""
+    spaced = re.sub(r"(?<=[a-z0-9])(?=[A-Z])", " ", name).replace("_", " ")
+    return spaced.lower()
+
+
+def _thing(item: Item | Wanted) -> str:
+    return words(item.detail) if item.detail else words(item.service)
+
+
+def _summary(name: str | None, slot: str, situation: str, wants: Item | None, certainty: str,
+             source: str | None, will: RobotWill, ev: EvidenceOut,
+             change: ChangeOut | None) -> str:
+    who = name or "this person"
+    where = f"In the {words(slot)}, {_SITUATION_WORDS.get(situation, 'when ' + words(situation))}"
+    if will.action == "offer":
+        if will.service is None:
+            does = "the robot offers help and asks what is wanted"
+        elif will.asks_first:
+            does = f"the robot offers {words(will.service)} and asks which first"
+        else:
+            does = f"the robot offers {_thing(Item(will.service, will.detail))} without asking"
+    elif will.action == "stay_away":
+        does = "the robot does not approach on its own"
+    else:
+        does = "the robot waits to be asked"
+    if wants is None:
+        said = f"{where}, there is not enough to say yet what {who} wants"
+        if change is not None and change.before is not None:
+            said = (f"{where}, {who} no longer seems to want {_thing(change.before)}")
+        return f"{said}; {does}."
+    if source == "staff":
+        return f"{where}, staff say {who} wants {_thing(wants)}; {does} (staff correction)."
+    usual = "usually wants" if certainty == "confident" else "may want"
+    basis = f"{certainty}: {ev.support} of the last {ev.recent} answers agree"
+    if change is not None and change.before is not None:
+        basis += f"; changed from {_thing(change.before)}"
+    return f"{where}, {who} {usual} {_thing(wants)}; {does} ({basis})."
