@@ -381,9 +381,9 @@ def correction_words(c: CorrectionOut) -> str:
     return "Quiet: the robot does not offer help"
 
 
-def correction_status(c: CorrectionOut) -> str:
+def correction_status(c: CorrectionOut, who: str = "the person") -> str:
     if c.status == "overridden":
-        return "Overridden by the person's own answers"
+        return f"Overridden by {who}'s own answers"
     if c.status == "lifted":
         return "Lifted"
     if c.status == "idle":
@@ -396,6 +396,11 @@ class ProfileCell:
     time_slot: str
     situation: str
     context: ProfileContext | None  # None: the profile does not speak of it (no data at all)
+    staff: tuple[CorrectionOut, ...] = ()  # the staff corrections in force here
+
+    @property
+    def by_staff(self) -> bool:
+        return bool(self.staff) or (self.context is not None and self.context.source == "staff")
 
     @property
     def certainty(self) -> str:
@@ -412,8 +417,14 @@ class ProfileRow:
 def profile_grid(profile: ProfileOut, mission: Mission) -> list[ProfileRow]:
     """Time slots (rows) x situations (columns), in the mission's order."""
     by_context = {(c.time_slot, c.situation): c for c in profile.contexts}
+    in_force = {c.correction_id: c for c in profile.corrections if c.status == "in_force"}
+
+    def cell(slot: str, situation: str) -> ProfileCell:
+        context = by_context.get((slot, situation))
+        staff = () if context is None else tuple(
+            in_force[i] for i in context.corrections if i in in_force)
+        return ProfileCell(slot, situation, context, staff)
+
     return [ProfileRow(slot.name, f"{slot.start:%H:%M}–{slot.end:%H:%M}",
-                       [ProfileCell(slot.name, situation,
-                                    by_context.get((slot.name, situation)))
-                        for situation in mission.situations])
+                       [cell(slot.name, situation) for situation in mission.situations])
             for slot in mission.time_slots]
