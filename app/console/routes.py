@@ -299,6 +299,19 @@ def add_correction(request: Request, user_id: str, session: RequestSession,
     elif service is None:
         return again(422, "Choose what the person prefers." if kind == "prefers"
                      else "Choose what the robot should not offer.")
+    else:
+        offers = {s.name: s.details for s in console_service.user_mission(session, ctx,
+                                                                          user).services}
+        if service not in offers:
+            return again(422, f"The robots of fleet {user.fleet} do not offer "
+                         f"“{views.name_words(service)}” any more: choose another service.")
+        choices = views.or_list([views.name_words(d) for d in offers[service]])
+        if detail is not None and detail not in offers[service]:
+            return again(422, f"“{views.name_words(detail)}” is not a choice of "
+                         f"{views.name_words(service)}: choose {choices}.")
+        if kind == "prefers" and detail is None:
+            return again(422, f"Choose which {views.name_words(service)} the person prefers: "
+                         f"{choices}.")
     try:
         body = CorrectionIn(correction_id=form.get("correction_id", ""), time_slot=time_slot,
                             situation=situation, kind=kind,  # type: ignore[arg-type]

@@ -27,8 +27,8 @@ __all__ = [
     "action_arg", "action_label", "correction_status", "correction_words", "curve",
     "episode_words", "expectation", "fmt_aware", "fmt_count", "fmt_local", "fmt_measure",
     "fmt_offset", "fmt_pct", "fmt_q", "fmt_rate", "fmt_reward", "heat_class", "heatmap",
-    "initiate_p", "learner_summary", "name_words", "profile_grid", "robot_words", "state_label",
-    "state_words", "tenth", "unique_best", "user_url", "wanted_words", "why_rows",
+    "initiate_p", "learner_summary", "name_words", "or_list", "profile_grid", "robot_words",
+    "state_label", "state_words", "tenth", "unique_best", "user_url", "wanted_words", "why_rows",
 ]
 
 DASH = "—"  # a value the learner has no notion of (or no data yet)
@@ -369,6 +369,13 @@ _EPISODE = {
 def episode_words(interaction_class: str, initiator: str | None = None) -> str:
     """What happened in an episode, in words (the engineers' interaction class)."""
     return _EPISODE.get(interaction_class, interaction_class)
+
+
+def or_list(items: Sequence[str]) -> str:
+    """"tea, coffee or water"."""
+    if len(items) <= 1:
+        return "".join(items)
+    return ", ".join(items[:-1]) + f" or {items[-1]}"
 
 
 def correction_words(c: CorrectionOut) -> str:

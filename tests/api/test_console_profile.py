@@ -262,3 +262,28 @@ def test_staff_pages_hold_no_engineers_words(console: Console) -> None:
     why = console.page("/admin/users/lin/why?time_slot=afternoon&situation=stretching").text
     assert "n′" in why
     assert "ΔQ" in why
+
+
+@pytest.mark.parametrize(("fields", "message"), [
+    ({"kind": "prefers", "service": ""}, "Choose what the person prefers."),
+    ({"kind": "prefers", "service": "ProvideDrink", "detail": ""},
+     "Choose which Provide drink the person prefers: tea, coffee or water."),
+    ({"kind": "avoid", "service": "ProvideDrink", "detail": "news"},
+     "“news” is not a choice of Provide drink: choose tea, coffee or water."),
+    ({"kind": "avoid", "service": "Massage"},
+     "The robots of fleet north do not offer “Massage” any more: choose another service."),
+    ({"kind": "sing"}, "Choose what to correct: what the person prefers, what the robot "
+                       "should not offer, or that the robot should stay quiet here."),
+])
+def test_mistakes_come_back_in_words(console: Console, fields: dict[str, str],
+                                     message: str) -> None:
+    where = "/admin/users/lin?time_slot=evening&situation=working"
+    r = console.post("/admin/users/lin/corrections",
+                     console.form(where, "correction-form", note="as typed", **fields))
+    assert r.status_code == 422
+    shown = re.search(r'<p class="field-error" id="correction-error" role="alert">(.*?)</p>',
+                      r.text)
+    assert shown
+    assert html.unescape(shown.group(1)) == message
+    assert ">as typed</textarea>" in r.text
+    assert console.api.get("/v1/users/lin/corrections").json()["items"] == []

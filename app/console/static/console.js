@@ -103,6 +103,15 @@ function correctionForm() {
     if (picked && picked.dataset.service && picked.dataset.service !== service.value) {
       detail.value = "";
     }
+    // "Any" is for "should not offer" only: a preference names one choice.
+    const any = detail.querySelector("#c-detail-any");
+    const prefers = kind && kind.value === "prefers";
+    if (any) any.disabled = prefers;
+    if (prefers && detail.value === "") {
+      const mine = `optgroup[data-service="${CSS.escape(service.value)}"] option`;
+      const first = detail.querySelector(mine);
+      if (first) detail.value = first.value;
+    }
   };
   form.querySelectorAll("input[name=kind]").forEach((r) => r.addEventListener("change", update));
   service.addEventListener("change", update);
