@@ -18,6 +18,7 @@ from sqlalchemy import update
 
 from app.db.models import Episode
 from app.db.session import Database
+from tests.support import people
 from tests.support.fixtures import MakeKey
 
 from .helpers import answer, start
@@ -58,16 +59,9 @@ def _play(robot: TestClient) -> None:
                         occurred_at=f"2026-11-2{n}T15:10:00+08:00")
         decision = episode["decision"]
         while decision is not None:
-            kind = decision["action"]["kind"]
-            if kind == "query_type":
-                out = answer(robot, episode["episode_id"], decision["decision_id"], "answered",
-                             service="ProvideDrink")
-            elif kind == "query_detail":
-                out = answer(robot, episode["episode_id"], decision["decision_id"], "answered",
-                             detail="tea")
-            else:
-                out = answer(robot, episode["episode_id"], decision["decision_id"], "accepted")
-            decision = out["decision"]
+            fields = people.answer(decision["action"], need=people.TEA)
+            decision = answer(robot, episode["episode_id"], decision["decision_id"],
+                              **fields)["decision"]
     start(robot, "lin", "open", situation="working", occurred_at="2026-11-23T09:30:00+08:00")
 
 
@@ -287,3 +281,25 @@ def test_mistakes_come_back_in_words(console: Console, fields: dict[str, str],
     assert html.unescape(shown.group(1)) == message
     assert ">as typed</textarea>" in r.text
     assert console.api.get("/v1/users/lin/corrections").json()["items"] == []
+
+
+def test_a_correction_the_persons_answers_overrode_says_so(console: Console) -> None:
+    where = "/admin/users/lin?time_slot=afternoon&situation=stretching"
+    form = console.form(where, "correction-form", kind="prefers", service="ProvideDrink",
+                        detail="coffee")
+    assert console.post("/admin/users/lin/corrections", form).status_code == 303
+    for n in range(4):  # she keeps wanting tea: coffee is turned down
+        episode = start(console.robot, "lin", f"tea-{n}", situation="stretching",
+                        occurred_at=f"2026-11-25T15:{10 + n:02d}:00+08:00")
+        decision = episode["decision"]
+        while decision is not None:
+            fields = people.answer(decision["action"], need=people.TEA)
+            decision = answer(console.robot, episode["episode_id"], decision["decision_id"],
+                              **fields)["decision"]
+    (made,) = console.api.get("/v1/users/lin/corrections").json()["items"]
+    assert made["status"] == "overridden", made
+    page = console.page(where).text
+    row = page.split('<tr data-correction-id="')[1].split("</tr>")[0]
+    assert 'data-status="overridden"' in '<tr data-correction-id="' + row
+    assert "Overridden by Mrs. Lin&#39;s own answers" in row
+    assert 'id="changed"' in page
