@@ -303,3 +303,19 @@ def test_a_correction_the_persons_answers_overrode_says_so(console: Console) -> 
     assert 'data-status="overridden"' in '<tr data-correction-id="' + row
     assert "Overridden by Mrs. Lin&#39;s own answers" in row
     assert 'id="changed"' in page
+
+
+def test_a_new_person_and_an_unknown_box(console: Console) -> None:
+    assert console.robot.put("/v1/users/new", json={}).status_code == 201
+    page = console.page("/admin/users/new?time_slot=midnight&situation=flying").text
+    assert page.count("Not enough to say yet") == 16 + 1  # the boxes, and the legend
+    assert 'id="evidence-hint"' in page  # no such box: nothing opened
+    assert 'id="no-corrections"' in page
+    assert re.sub(r"\s+", " ", _text(page.split('id="episode-count"')[1].split("</span>")[0])
+                  ).strip().endswith("0 episodes")
+    page = console.page("/admin/users/new?time_slot=noon&situation=busy").text
+    facts = dict(re.findall(r'<dd data-fact="(\w+)">(.*?)</dd>', page, flags=re.S))
+    assert facts["last_seen"] == "never"
+    assert facts["agree"] == "no answer yet"
+    assert console.page("/admin/users/new/details").status_code == 200
+    assert console.page("/admin/users/new/episodes").status_code == 200
