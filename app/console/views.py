@@ -27,8 +27,9 @@ __all__ = [
     "action_arg", "action_label", "correction_status", "correction_words", "curve",
     "episode_words", "expectation", "fmt_aware", "fmt_count", "fmt_local", "fmt_measure",
     "fmt_offset", "fmt_pct", "fmt_q", "fmt_rate", "fmt_reward", "heat_class", "heatmap",
-    "initiate_p", "learner_summary", "name_words", "or_list", "profile_grid", "robot_words",
-    "state_label", "state_words", "tenth", "unique_best", "user_url", "wanted_words", "why_rows",
+    "initiate_p", "learner_summary", "name_words", "or_list", "profile_grid", "response_words",
+    "robot_words", "state_label", "state_words", "tenth", "unique_best", "user_url",
+    "wanted_words", "why_rows",
 ]
 
 DASH = "—"  # a value the learner has no notion of (or no data yet)
@@ -376,6 +377,19 @@ def or_list(items: Sequence[str]) -> str:
     if len(items) <= 1:
         return "".join(items)
     return ", ".join(items[:-1]) + f" or {items[-1]}"
+
+
+_RESPONSE = {
+    "accepted": "accepted", "rejected": "turned it down", "answered": "answered",
+    "human_request": "asked for", "none": "did nothing", "terminated": "ended the talk",
+}
+
+
+def response_words(response: str | None) -> str:
+    """What the person did, in words ("asked for", "turned it down"); None: not yet."""
+    if response is None:
+        return "no answer yet"
+    return _RESPONSE.get(response, response)
 
 
 def correction_words(c: CorrectionOut) -> str:
