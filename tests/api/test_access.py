@@ -42,6 +42,8 @@ USER_ROUTES = [
     ("POST", "/v1/users/{user}/episodes", event("access-1")),
     ("GET", "/v1/users/{user}/model", None),
     ("GET", "/v1/users/{user}/stats", None),
+    ("GET", "/v1/users/{user}/profile", None),
+    ("GET", "/v1/users/{user}/corrections", None),
 ]
 EPISODE_ROUTES = [
     ("GET", "/v1/episodes/{episode}", None),
@@ -55,6 +57,9 @@ ADMIN_ROUTES = [
     ("GET", "/v1/users/{user}/model/export", None),
     ("PUT", "/v1/users/{user}/model", {"format": "attune.learner-state"}),
     ("GET", "/v1/admin/audit", None),
+    ("POST", "/v1/users/{user}/corrections", {"correction_id": "c1", "time_slot": "afternoon",
+                                               "situation": "stretching", "kind": "quiet"}),
+    ("DELETE", "/v1/users/{user}/corrections/c1", None),
 ]
 OPEN_ROUTES = [("GET", "/v1/users", None), ("GET", "/v1/mission", None)]
 

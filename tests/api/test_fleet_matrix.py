@@ -79,6 +79,8 @@ class Row:
 OUTCOME = {"decision_id": "{decision_id}", "response": "{response}"}
 FEEDBACK = {"feedback_id": "matrix-fb", "feedback": "positive"}
 NEW_KEY = {"role": "robot", "fleet": A, "name": "matrix"}
+CORRECTION = {"correction_id": "matrix-c", "time_slot": "afternoon", "situation": "working",
+              "kind": "quiet"}
 # fleet-a's mission with one more detail: every model of fleet-a moves to its version 2.
 COCOA = {"change_id": "matrix-change", "mission": {
     **office_mission().to_dict(),
@@ -119,6 +121,12 @@ MATRIX: list[Row] = [
     Row("GET",    U + "/model/export{q}",               (401, 401, 403, 403, 200, 200, 200)),
     Row("PUT",    U + "/model{q}",                      (401, 401, 403, 403, 200, 200, 200),
         json=EXPORT, writes=True),
+    Row("GET",    U + "/profile{q}",                    (401, 401, 200, 200, 200, 200, 200)),
+    Row("GET",    U + "/corrections{q}",                (401, 401, 200, 200, 200, 200, 200)),
+    Row("POST",   U + "/corrections{q}",                (401, 401, 403, 403, 201, 201, 201),
+        json=CORRECTION, writes=True),
+    Row("DELETE", U + "/corrections/world-c{q}",        (401, 401, 403, 403, 204, 204, 204),
+        writes=True, route=U + "/corrections/{correction_id}"),
     Row("POST",   "/v1/episodes/{open_episode_id}/outcomes",
                                                         (401, 401, 200, 404, 200, 404, 200),
         json=OUTCOME, writes=True, route="/v1/episodes/{episode_id}/outcomes"),
@@ -314,6 +322,9 @@ def world(app: FastAPI, make_key: MakeKey) -> Iterator[World]:
                      json={"feedback_id": "fb-1", "feedback": "positive"}), 200)
             second = _ok(send(w, "POST", "/v1/users/lin/episodes", robot,
                               json=event("lin-2", "working")), 201)
+            _ok(send(w, "POST", "/v1/users/lin/corrections", staff, json={
+                **CORRECTION, "correction_id": "world-c", "kind": "avoid",
+                "service": "BriefInformation"}), 201)
             export = _ok(send(w, "GET", "/v1/users/lin/model/export", staff), 200)
             w.fleets[fleet] = Fleet(episode, second["episode_id"],
                                     second["decision"]["decision_id"],

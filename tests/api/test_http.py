@@ -26,7 +26,8 @@ VOLATILE = {"date", "x-request-id"}
 def world(admin: TestClient) -> dict[str, str]:
     """User ``lin`` with one episode, for the routes that need ids."""
     ep = start(admin, "lin", "e1", initiator="human", request=TEA)
-    return {"user_id": "lin", "episode_id": ep["episode_id"], "fleet": "default"}
+    return {"user_id": "lin", "episode_id": ep["episode_id"], "fleet": "default",
+            "correction_id": "c1"}
 
 
 @pytest.fixture
@@ -109,7 +110,8 @@ class TestAllow:
 
     def test_every_405_of_the_api_lists_the_methods_of_its_path(
             self, app: FastAPI, robot: TestClient) -> None:
-        ids = {"user_id": "lin", "episode_id": "ep_x", "key_id": "key_x", "fleet": "default"}
+        ids = {"user_id": "lin", "episode_id": "ep_x", "key_id": "key_x", "fleet": "default",
+               "correction_id": "c1"}
         for template, item in app.openapi()["paths"].items():
             methods = {m.upper() for m in item}
             if "GET" in methods:
@@ -208,7 +210,7 @@ class TestContentType:
                     assert "415" in op["responses"], (method, path)
                 else:
                     assert "415" not in op["responses"], (method, path)
-        assert seen == 7
+        assert seen == 8  # users, episodes, outcomes, feedback, model, corrections, keys, mission
 
 
 # (path, parameter, lowest, highest): every integer query parameter of the API.
