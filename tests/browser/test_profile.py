@@ -90,6 +90,14 @@ def test_the_grid_says_in_words_and_a_box_opens_its_evidence(
     if "confident" in styles and "tentative" in styles:
         assert styles["confident"] != styles["tentative"]
         assert styles["tentative"][1] == "dashed"
+    # A box under the pointer, or with the keyboard's focus, is said as a sentence.
+    for context in profile["contexts"][:3]:
+        link = _cell(page, context["time_slot"], context["situation"]).locator("a")
+        link.hover()
+        expect(page.locator("#cell-summary")).to_have_text(context["summary"])
+    last = profile["contexts"][-1]
+    _cell(page, last["time_slot"], last["situation"]).locator("a").focus()
+    expect(page.locator("#cell-summary")).to_have_text(last["summary"])
     head = page.locator("#episode-count").inner_text()
     expected = f"{profile['episodes']} episodes"
     if profile["open_episodes"]:

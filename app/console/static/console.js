@@ -118,6 +118,21 @@ function correctionForm() {
   update();
 }
 
+// The profile's boxes: the one under the pointer or the keyboard's focus is said as a sentence
+// under the grid (screen readers read the same sentence inside the box).
+function profileSummaries() {
+  const line = document.getElementById("cell-summary");
+  if (!line) return;
+  const initial = line.textContent;
+  document.querySelectorAll("#profile td.pcell a[data-summary]").forEach((link) => {
+    const show = () => { line.textContent = link.dataset.summary; };
+    link.addEventListener("mouseenter", show);
+    link.addEventListener("focus", show);
+  });
+  const grid = document.getElementById("profile");
+  if (grid) grid.addEventListener("mouseleave", () => { line.textContent = initial; });
+}
+
 // A chosen box of the profile: its evidence section takes the focus, so that a keyboard user
 // lands on it.
 function evidenceFocus() {
@@ -130,5 +145,6 @@ document.addEventListener("DOMContentLoaded", () => {
   traces();
   rewardChart();
   correctionForm();
+  profileSummaries();
   evidenceFocus();
 });
