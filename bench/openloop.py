@@ -65,6 +65,8 @@ class _Connection:
     async def request(self, head: bytes, body: bytes) -> tuple[int, bytes]:
         self.writer.write(head + body)
         status_line = await self.reader.readline()
+        if not status_line:  # the server closed the idle keep-alive connection
+            raise ConnectionResetError("connection closed before the response")
         status = int(status_line.split(b" ", 2)[1])
         length = 0
         while True:
@@ -82,8 +84,8 @@ class _Pool:
         self.host, self.port = host, port
         self.idle: list[_Connection] = []
 
-    async def get(self) -> _Connection:
-        if self.idle:
+    async def get(self, *, fresh: bool = False) -> _Connection:
+        if self.idle and not fresh:
             return self.idle.pop()
         reader, writer = await asyncio.open_connection(self.host, self.port)
         return _Connection(reader, writer)
@@ -133,15 +135,25 @@ async def run_open_loop(url: str, keys: list[str], users: list[str], *, rate: fl
     async def call(pool: _Pool, key: str, path: str, doc: dict[str, Any]
                    ) -> tuple[int, dict[str, Any]]:
         body = json.dumps(doc).encode()
-        connection = await pool.get()
         sent = time.monotonic()
-        try:
-            status, raw = await asyncio.wait_for(
-                connection.request(head("POST", path, key, len(body)), body), timeout)
-        except (TimeoutError, OSError, asyncio.IncompleteReadError, ValueError):
-            connection.writer.close()
-            result.errors += 1
-            return 0, {}
+        for attempt in range(2):
+            connection = await pool.get(fresh=attempt > 0)
+            try:
+                status, raw = await asyncio.wait_for(
+                    connection.request(head("POST", path, key, len(body)), body), timeout)
+                break
+            except ConnectionResetError:
+                # A keep-alive connection the server had closed while idle: send again on a
+                # new one, as HTTP clients do (the request is idempotent on its id).
+                connection.writer.close()
+                if attempt == 0:
+                    continue
+                result.errors += 1
+                return 0, {}
+            except (TimeoutError, OSError, asyncio.IncompleteReadError, ValueError):
+                connection.writer.close()
+                result.errors += 1
+                return 0, {}
         pool.put(connection)
         if sent >= counted_from:
             if status < 300:

@@ -170,7 +170,7 @@ def belief(evidence: Sequence[EpisodeEvidence]) -> Belief:
                 change = Change(relevant[run[0]].seq, current, now)
                 current, since, run = now, run[0], []
     window = relevant[max(since, len(relevant) - WINDOW):]
-    if change is not None and all(e.seq < change.seq for e in relevant[-WINDOW:]):
+    if change is not None and all(e.seq > change.seq for e in relevant[-WINDOW:]):
         change = None
     if current is None:
         return Belief(None, "unknown", 0, len(window), change)

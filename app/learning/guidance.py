@@ -218,6 +218,25 @@ class Guidance:
     def copy(self) -> Guidance:
         return Guidance(replace(r, meta=dict(r.meta)) for r in self._rules.values())
 
+    def renamed(self, renames: Any) -> Guidance:
+        """A copy whose rules use the new names of a mission change's ``renames`` (an
+        :class:`app.learning.remap.Renames`: old name -> new name per kind of name; a detail as
+        ``"Service/detail"`` or alone)."""
+        out = []
+        for r in self._rules.values():
+            detail = r.detail
+            if detail is not None and r.service is not None:
+                detail = renames.details.get(f"{r.service}/{detail}",
+                                             renames.details.get(detail, detail))
+            out.append(replace(
+                r, meta=dict(r.meta),
+                time_slot=renames.time_slots.get(r.time_slot, r.time_slot),
+                situation=renames.situations.get(r.situation, r.situation),
+                service=None if r.service is None else renames.services.get(r.service,
+                                                                            r.service),
+                detail=detail))
+        return Guidance(out)
+
     # -- the person's answers ------------------------------------------------------------------
     def observe(self, space: NegotiationSpace, tr: Transition) -> None:
         """Count the person's answer in ``tr`` for the ``prefers`` rules in force there."""

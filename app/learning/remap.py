@@ -439,7 +439,8 @@ def remap_learner(learner: L, new: Mission, renames: Renames | None = None) -> L
     fresh = type(learner)(new, learner.params)
     fresh.version = learner.version
     fresh.episodes = learner.episodes
-    fresh.guidance = learner.guidance.copy()  # by names: rules the new mission lacks lie idle
+    # By names, renamed as the mission's names were; rules the new mission lacks lie idle.
+    fresh.guidance = learner.guidance.renamed(renames) if renames else learner.guidance.copy()
     old_tables = learner._exported()
     new_tables = fresh._exported()
     for name, (source, code) in old_tables.items():

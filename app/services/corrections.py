@@ -206,10 +206,11 @@ def _out(session: Session, user: UserRow, row: CorrectionRow, guidance: Guidance
     status, overridden_at = _status(session, user, rule, learner)
     if row.lifted_at is not None:
         status = "lifted"
+    names = rule if rule is not None else row  # a mission change may have renamed them
     return CorrectionOut(
         correction_id=row.correction_id, kind=row.kind,  # type: ignore[arg-type]
-        time_slot=row.time_slot, situation=row.situation, service=row.service,
-        detail=row.detail, note=row.note, author=row.actor_key_id, created_at=row.created_at,
+        time_slot=names.time_slot, situation=names.situation, service=names.service,
+        detail=names.detail, note=row.note, author=row.actor_key_id, created_at=row.created_at,
         status=status, overridden_at=overridden_at, lifted_at=row.lifted_at,
         lifted_by=row.lifted_by, model_version=row.model_version,
     )

@@ -81,7 +81,7 @@ def profile_view(session: Session, ctx: ServiceContext, principal: Principal, us
                  if (r.time_slot, r.situation) == (slot, situation)]
         contexts.append(_context(
             learner, c, now, slot, situation, eps, evidence, belief(evidence), rules,
-            when_of, user.display_name))
+            when_of, user.display_name or user.user_id))
     last = episodes[-1] if episodes else None
     return ProfileOut(
         user_id=user.user_id, display_name=user.display_name, episodes=len(episodes),

@@ -272,9 +272,10 @@ class TestHistory:
 
 def _cell(profile: dict[str, Any], slot: str = SLOT, situation: str = SITUATION
           ) -> dict[str, Any]:
-    [cell] = [c for c in profile["contexts"]
-              if (c["time_slot"], c["situation"]) == (slot, situation)]
-    return cell
+    cells: list[dict[str, Any]] = [c for c in profile["contexts"]
+                                   if (c["time_slot"], c["situation"]) == (slot, situation)]
+    assert len(cells) == 1
+    return cells[0]
 
 
 def _probabilities(model: dict[str, Any]) -> list[float]:

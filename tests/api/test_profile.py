@@ -91,3 +91,17 @@ def test_a_change_of_mind_is_reported(staff: TestClient, robot: TestClient) -> N
     assert changed["now"]["detail"] == "coffee"
     assert changed["episode"] == 9
     assert "changed from tea" in cell["summary"]
+
+
+def test_a_change_of_mind_is_reported_while_recent(staff: TestClient,
+                                                   robot: TestClient) -> None:
+    make_user(staff)
+    play(robot, "chen", 8, "tea")
+    play(robot, "chen", 2, "coffee", need=("ProvideDrink", "coffee"), seed=5)
+    assert _cell(robot.get("/v1/users/chen/profile").json())["changed"] is not None
+    # once the episode it began with is no longer among the latest 8 there, it is old news
+    play(robot, "chen", 8, "more-coffee", need=("ProvideDrink", "coffee"), seed=6)
+    cell = _cell(robot.get("/v1/users/chen/profile").json())
+    assert cell["wants"] == {"service": "ProvideDrink", "detail": "coffee"}
+    assert cell["changed"] is None
+    assert "changed from" not in cell["summary"]

@@ -28,7 +28,8 @@ def _summary(session: Session, ctx: ServiceContext, ep: EpisodeRow, user_id: str
         "context": {"time_slot": ep.time_slot, "situation": ep.situation},
         "initiator": ep.initiator, "interaction_class": ep.interaction_class,
         "total_reward": ep.total_reward, "state": state_name(space, ep.state),
-        "occurred_at": ep.occurred_at, "index": ep.seq, "mission_version": ep.mission_version,
+        "occurred_at": repo.local_time(ep.occurred_at, ep.utc_offset), "index": ep.seq,
+        "mission_version": ep.mission_version,
     }
 
 

@@ -55,6 +55,30 @@ CHANGED = {"fleet": "care", "version": 3, "previous_version": 2,
            "diff": {"kept": {"situations": ["arriving"]}, "added": {}, "removed": {},
                     "renamed": {}}}
 
+CORRECTION = {"correction_id": "c-1", "kind": "prefers", "time_slot": "morning",
+              "situation": "arriving", "service": "ProvideDrink", "detail": "coffee",
+              "note": "Her daughter says so.", "author": "key_5aed0c02dbc8f75a",
+              "created_at": "2026-11-30T09:12:03Z", "status": "in_force",
+              "overridden_at": None, "lifted_at": None, "lifted_by": None,
+              "model_version": 42}
+PROFILE = {"user_id": "chen", "display_name": "Mrs. Chen", "episodes": 16, "open_episodes": 1,
+           "utc_offset": 480, "contexts": [{
+               "time_slot": "afternoon", "situation": "stretching", "episodes": 9,
+               "open_episodes": 1, "wants": {"service": "ProvideDrink", "detail": "tea"},
+               "certainty": "confident", "source": "person",
+               "evidence": {"accepted": 7, "refused": 1, "asked_for": 1, "answered": 0,
+                            "last_seen": "2026-11-22T15:10:00+08:00", "support": 7,
+                            "recent": 8},
+               "robot_will": {"action": "offer", "service": "ProvideDrink", "detail": "tea",
+                              "asks_first": False, "probability": 0.97},
+               "summary": "In the afternoon, while stretching, Mrs. Chen usually wants tea.",
+               "changed": {"at": "2026-11-21T15:10:00+08:00", "episode": 7,
+                           "before": {"service": "ProvideDrink", "detail": "coffee"},
+                           "now": {"service": "ProvideDrink", "detail": "tea"},
+                           "by": "person", "overrides": None},
+               "corrections": []}],
+           "corrections": [CORRECTION]}
+
 
 class Recorder:
     """Answers ``(status, body, headers)`` for every request and keeps the requests."""
@@ -263,6 +287,15 @@ class TestRequests:
         assert rec.sent() == document
         assert model.version == 3
 
+    def test_reset_model_keeps_or_drops_corrections(self, make_client: MakeClient) -> None:
+        rec = Recorder(204)
+        client = make_client(rec)
+        client.reset_model("lin")
+        assert "corrections" not in rec.last.url.params
+        client.reset_model("lin", drop_corrections=True)
+        assert (rec.last.method, rec.last.url.path) == ("DELETE", "/v1/users/lin/model")
+        assert dict(rec.last.url.params) == {"corrections": "drop"}
+
     def test_mission(self, make_client: MakeClient) -> None:
         mission = make_client(Recorder(200, MISSION)).mission()
         assert mission.services[0].details == ["tea", "coffee", "water"]
@@ -407,6 +440,90 @@ class TestMissions:
         assert not client.health()
         assert not client.ready()
         assert sleeps == []
+
+
+class TestCorrections:
+    def test_get_profile(self, make_client: MakeClient) -> None:
+        rec = Recorder(200, PROFILE)
+        profile = make_client(rec).get_profile("chen")
+        assert (rec.last.method, rec.last.url.path) == ("GET", "/v1/users/chen/profile")
+        assert isinstance(profile, a.Profile)
+        assert profile.utc_offset == 480
+        cell = profile.context("afternoon", "stretching")
+        assert cell.wants == a.Wanted(service="ProvideDrink", detail="tea")
+        assert cell.certainty == "confident"
+        assert cell.evidence.last_seen == dt.datetime(
+            2026, 11, 22, 15, 10, tzinfo=dt.timezone(dt.timedelta(hours=8)))
+        assert cell.robot_will.probability == 0.97
+        assert cell.changed is not None
+        assert cell.changed.before == a.Wanted(service="ProvideDrink", detail="coffee")
+        assert cell.changed.overrides is None
+        assert [c.correction_id for c in profile.corrections] == ["c-1"]
+        with pytest.raises(KeyError):
+            profile.context("morning", "stretching")
+
+    def test_add_correction(self, make_client: MakeClient) -> None:
+        rec = Recorder(201, CORRECTION)
+        client = make_client(rec)
+        made = client.add_correction("chen", correction_id="c-1", time_slot="morning",
+                                     situation="arriving", kind="prefers",
+                                     service="ProvideDrink", detail="coffee",
+                                     note="Her daughter says so.")
+        assert (rec.last.method, rec.last.url.path) == ("POST", "/v1/users/chen/corrections")
+        assert rec.sent() == {"correction_id": "c-1", "time_slot": "morning",
+                              "situation": "arriving", "kind": "prefers",
+                              "service": "ProvideDrink", "detail": "coffee",
+                              "note": "Her daughter says so."}
+        assert isinstance(made, a.Correction)
+        assert (made.status, made.model_version, made.replayed) == ("in_force", 42, False)
+        rec.status, rec.headers = 200, {"Idempotent-Replay": "true"}
+        again = client.add_correction("chen", correction_id="c-1", time_slot="morning",
+                                      situation="arriving", kind="prefers",
+                                      service="ProvideDrink", detail="coffee",
+                                      note="Her daughter says so.")
+        assert again.replayed
+        assert again.model_dump(exclude={"replayed"}) == made.model_dump(exclude={"replayed"})
+
+    def test_a_quiet_correction_sends_no_service(self, make_client: MakeClient) -> None:
+        rec = Recorder(201, {**CORRECTION, "kind": "quiet", "service": None, "detail": None,
+                             "note": None})
+        make_client(rec).add_correction("chen", correction_id="hush", time_slot="morning",
+                                        situation="arriving", kind="quiet")
+        assert rec.sent() == {"correction_id": "hush", "time_slot": "morning",
+                              "situation": "arriving", "kind": "quiet"}
+
+    def test_list_and_lift(self, make_client: MakeClient) -> None:
+        rec = Recorder(200, {"items": [CORRECTION, {**CORRECTION, "correction_id": "c/2",
+                                                    "status": "lifted",
+                                                    "lifted_at": "2026-11-30T10:00:00Z",
+                                                    "lifted_by": "key_1"}]})
+        client = make_client(rec)
+        listed = client.list_corrections("chen")
+        assert (rec.last.method, rec.last.url.path) == ("GET", "/v1/users/chen/corrections")
+        assert [c.status for c in listed.items] == ["in_force", "lifted"]
+        rec.status, rec.body = 204, None
+        client.lift_correction("chen", "c/2")
+        assert rec.last.method == "DELETE"
+        assert rec.last.url.raw_path == b"/v1/users/chen/corrections/c%2F2"
+
+    @pytest.mark.anyio
+    async def test_the_async_client(self, make_async_client: MakeAsyncClient) -> None:
+        rec = Recorder(200, PROFILE)
+        client = make_async_client(rec)
+        assert (await client.get_profile("chen")).episodes == 16
+        rec.status, rec.body = 201, CORRECTION
+        made = await client.add_correction("chen", correction_id="c-1", time_slot="morning",
+                                           situation="arriving", kind="prefers",
+                                           service="ProvideDrink", detail="coffee")
+        assert made.correction_id == "c-1"
+        assert "note" not in rec.sent()
+        rec.status, rec.body = 200, {"items": [CORRECTION]}
+        assert len((await client.list_corrections("chen")).items) == 1
+        rec.status, rec.body = 204, None
+        await client.lift_correction("chen", "c-1")
+        assert rec.last.url.path == "/v1/users/chen/corrections/c-1"
+        await client.reset_model("chen", drop_corrections=True)
+        assert rec.last.url.params["corrections"] == "drop"
 
 
 class TestModels:

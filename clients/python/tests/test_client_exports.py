@@ -31,7 +31,9 @@ def test_the_public_api_is_there() -> None:
         "EpisodeSummary", "EpisodePage", "ModelView", "Stats", "Mission", "LearnerSpec",
         "ServiceRequest", "Queued", "PendingReport", "FlushReport", "FleetMission",
         "MissionVersion", "MissionVersionList", "MissionChanged", "MissionRenames",
-        "EpisodeInterruptedError", "mission_change_id",
+        "EpisodeInterruptedError", "mission_change_id", "Profile", "ProfileContext",
+        "ProfileEvidence", "ProfileChange", "RobotWill", "Wanted", "Correction",
+        "CorrectionList",
     }
     assert expected <= set(attune_client.__all__)
     methods = {
@@ -39,6 +41,7 @@ def test_the_public_api_is_there() -> None:
         "delete_user", "start_episode", "report_outcome", "send_feedback", "get_episode",
         "list_episodes", "iter_episodes", "get_model", "get_stats", "reset_model",
         "export_model", "import_model", "flush", "pending", "missions", "set_mission",
+        "get_profile", "list_corrections", "add_correction", "lift_correction",
     }
     for cls in (attune_client.Client, attune_client.AsyncClient):
         missing = {m for m in methods if not callable(getattr(cls, m, None))}

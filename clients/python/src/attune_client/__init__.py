@@ -1,5 +1,5 @@
 """Typed client for the Attune v1 API: users, episodes, outcomes, feedback, models and stats,
-with bounded retries and an offline outbox for robots.
+the profile and staff corrections, with bounded retries and an offline outbox for robots.
 
     from attune_client import Client
 
@@ -35,6 +35,8 @@ from ._models import (
     ActionProbability,
     Context,
     ContextBelief,
+    Correction,
+    CorrectionList,
     Decision,
     EpisodePage,
     EpisodeStarted,
@@ -54,8 +56,13 @@ from ._models import (
     ModelView,
     OutcomeResult,
     PendingReport,
+    Profile,
+    ProfileChange,
+    ProfileContext,
+    ProfileEvidence,
     Queued,
     Rejection,
+    RobotWill,
     ServiceRequest,
     StateBelief,
     Stats,
@@ -64,6 +71,7 @@ from ._models import (
     TraceFeedback,
     User,
     UserPage,
+    Wanted,
 )
 from ._version import __title__, __version__
 
@@ -84,6 +92,8 @@ __all__ = [
     "ConflictError",
     "Context",
     "ContextBelief",
+    "Correction",
+    "CorrectionList",
     "Decision",
     "DEFAULT_MAX_RETRIES",
     "DEFAULT_TIMEOUT",
@@ -112,9 +122,14 @@ __all__ = [
     "PayloadTooLargeError",
     "PendingReport",
     "PermissionDeniedError",
+    "Profile",
+    "ProfileChange",
+    "ProfileContext",
+    "ProfileEvidence",
     "Queued",
     "RateLimitError",
     "Rejection",
+    "RobotWill",
     "ServiceRequest",
     "ServiceUnavailableError",
     "StateBelief",
@@ -125,5 +140,6 @@ __all__ = [
     "UnprocessableEntityError",
     "User",
     "UserPage",
+    "Wanted",
 ]
 

@@ -26,6 +26,9 @@ from ._exceptions import (
     PermissionDeniedError,
 )
 from ._models import (
+    Correction,
+    CorrectionKind,
+    CorrectionList,
     EpisodePage,
     EpisodeStarted,
     EpisodeTrace,
@@ -40,6 +43,7 @@ from ._models import (
     ModelView,
     OutcomeResult,
     PendingReport,
+    Profile,
     Rejection,
     ReportKind,
     ServiceRequest,
@@ -294,8 +298,34 @@ class Api:
                   params={"last": last} if last is not None else None)
 
     @staticmethod
-    def reset_model(user_id: str) -> Op[None]:
-        return Op("DELETE", f"/v1/users/{_segment(user_id)}/model", _nothing)
+    def reset_model(user_id: str, drop_corrections: bool = False) -> Op[None]:
+        return Op("DELETE", f"/v1/users/{_segment(user_id)}/model", _nothing,
+                  params={"corrections": "drop"} if drop_corrections else None)
+
+    @staticmethod
+    def get_profile(user_id: str) -> Op[Profile]:
+        return Op("GET", f"/v1/users/{_segment(user_id)}/profile", _model(Profile))
+
+    @staticmethod
+    def list_corrections(user_id: str) -> Op[CorrectionList]:
+        return Op("GET", f"/v1/users/{_segment(user_id)}/corrections", _model(CorrectionList))
+
+    @staticmethod
+    def add_correction(user_id: str, *, correction_id: str, time_slot: str, situation: str,
+                       kind: CorrectionKind | str, service: str | None, detail: str | None,
+                       note: str | None) -> Op[Correction]:
+        body: dict[str, Any] = {"correction_id": correction_id, "time_slot": time_slot,
+                                "situation": situation, "kind": kind}
+        for name, value in (("service", service), ("detail", detail), ("note", note)):
+            if value is not None:
+                body[name] = value
+        return Op("POST", f"/v1/users/{_segment(user_id)}/corrections", _written(Correction),
+                  body=_json(body))
+
+    @staticmethod
+    def lift_correction(user_id: str, correction_id: str) -> Op[None]:
+        return Op("DELETE", f"/v1/users/{_segment(user_id)}/corrections/"
+                  f"{_segment(correction_id)}", _nothing)
 
     @staticmethod
     def export_model(user_id: str) -> Op[dict[str, Any]]:

@@ -29,6 +29,9 @@ from ._base import (
 from ._constants import DEFAULT_MAX_RETRIES, DEFAULT_TIMEOUT
 from ._exceptions import AttuneError, make_status_error
 from ._models import (
+    Correction,
+    CorrectionKind,
+    CorrectionList,
     EpisodePage,
     EpisodeStarted,
     EpisodeSummary,
@@ -44,6 +47,7 @@ from ._models import (
     ModelView,
     OutcomeResult,
     PendingReport,
+    Profile,
     Queued,
     Rejection,
     ServiceRequest,
@@ -482,14 +486,19 @@ class Client(BaseClient):
         mission and rewards over the user's last ``last`` episodes (all when None)."""
         return self._call(Api.get_stats(user_id, last))
 
-    def reset_model(self, user_id: str) -> None:
-        """``DELETE /v1/users/{user_id}/model`` (admin): forget what was learned, keep the
-        history.
+    def reset_model(self, user_id: str, *, drop_corrections: bool = False) -> None:
+        """``DELETE /v1/users/{user_id}/model`` (the fleet's staff, admins): forget what was
+        learned, keep the history.
+
+        Args:
+            drop_corrections: lift the user's staff corrections too (``?corrections=drop``;
+                they are then listed as ``lifted``); by default they stay in force.
 
         Raises:
-            PermissionDeniedError: not an admin key.
+            PermissionDeniedError: a robot key.
+            NotFoundError: no such user in your fleet.
         """
-        self._call(Api.reset_model(user_id))
+        self._call(Api.reset_model(user_id, drop_corrections))
 
     def export_model(self, user_id: str) -> dict[str, Any]:
         """``GET /v1/users/{user_id}/model/export`` (admin): the model as a self-describing
@@ -504,6 +513,65 @@ class Client(BaseClient):
             UnprocessableEntityError: a document of another format or mission.
         """
         return self._call(Api.import_model(user_id, document))
+
+    # -- the profile and staff corrections -------------------------------------------------------
+    def get_profile(self, user_id: str) -> Profile:
+        """``GET /v1/users/{user_id}/profile``: what the person is believed to want in each
+        time slot and situation of the fleet's mission, how certain that is, what the robot
+        will most likely do there, in plain words and in fields (robot keys, the fleet's staff,
+        admins). ``profile.context(time_slot, situation)`` picks one entry.
+
+        Raises:
+            NotFoundError: no such user in your fleet.
+        """
+        return self._call(Api.get_profile(user_id))
+
+    def list_corrections(self, user_id: str) -> CorrectionList:
+        """``GET /v1/users/{user_id}/corrections``: every staff correction of the user, lifted
+        ones too, oldest first.
+
+        Raises:
+            NotFoundError: no such user in your fleet.
+        """
+        return self._call(Api.list_corrections(user_id))
+
+    def add_correction(self, user_id: str, *, correction_id: str, time_slot: str,
+                       situation: str, kind: CorrectionKind | str,
+                       service: str | None = None, detail: str | None = None,
+                       note: str | None = None) -> Correction:
+        """``POST /v1/users/{user_id}/corrections``: correct what was learned about the user
+        in one time slot and situation (the fleet's staff, admins). Idempotent on
+        ``correction_id``: a repeat of the same correction returns it with ``replayed`` True.
+
+        Args:
+            correction_id: your id of the correction (``^[A-Za-z0-9._:-]{1,128}$``).
+            kind: ``prefers`` (needs ``service`` and ``detail``: the robot brings it without
+                asking until the person's own answers contradict it twice in a row),
+                ``avoid`` (needs ``service``, optionally ``detail``: the robot never chooses
+                it there) or ``quiet`` (no service: the robot never initiates there).
+            note: why, for the people who read it later (up to 500 characters).
+
+        Raises:
+            UnprocessableEntityError: an unknown time slot, situation, service or detail, or
+                what ``kind`` needs missing.
+            ConflictError: ``correction_id`` already used for another correction.
+            PermissionDeniedError: a robot key.
+            NotFoundError: no such user in your fleet.
+        """
+        return self._call(Api.add_correction(
+            user_id, correction_id=correction_id, time_slot=time_slot, situation=situation,
+            kind=kind, service=service, detail=detail, note=note))
+
+    def lift_correction(self, user_id: str, correction_id: str) -> None:
+        """``DELETE /v1/users/{user_id}/corrections/{correction_id}``: take a correction out
+        of force (the fleet's staff, admins); the learner's own beliefs decide again. Lifting
+        a lifted correction changes nothing.
+
+        Raises:
+            NotFoundError: no such correction, or no such user in your fleet.
+            PermissionDeniedError: a robot key.
+        """
+        self._call(Api.lift_correction(user_id, correction_id))
 
 
 class AsyncClient(BaseClient):
@@ -784,9 +852,9 @@ class AsyncClient(BaseClient):
         """``GET /v1/users/{user_id}/stats``; see ``Client.get_stats``."""
         return await self._call(Api.get_stats(user_id, last))
 
-    async def reset_model(self, user_id: str) -> None:
-        """``DELETE /v1/users/{user_id}/model`` (admin); see ``Client.reset_model``."""
-        await self._call(Api.reset_model(user_id))
+    async def reset_model(self, user_id: str, *, drop_corrections: bool = False) -> None:
+        """``DELETE /v1/users/{user_id}/model``; see ``Client.reset_model``."""
+        await self._call(Api.reset_model(user_id, drop_corrections))
 
     async def export_model(self, user_id: str) -> dict[str, Any]:
         """``GET /v1/users/{user_id}/model/export`` (admin); see ``Client.export_model``."""
@@ -795,3 +863,26 @@ class AsyncClient(BaseClient):
     async def import_model(self, user_id: str, document: Mapping[str, Any]) -> ModelView:
         """``PUT /v1/users/{user_id}/model`` (admin); see ``Client.import_model``."""
         return await self._call(Api.import_model(user_id, document))
+
+    # -- the profile and staff corrections -------------------------------------------------------
+    async def get_profile(self, user_id: str) -> Profile:
+        """``GET /v1/users/{user_id}/profile``; see ``Client.get_profile``."""
+        return await self._call(Api.get_profile(user_id))
+
+    async def list_corrections(self, user_id: str) -> CorrectionList:
+        """``GET /v1/users/{user_id}/corrections``; see ``Client.list_corrections``."""
+        return await self._call(Api.list_corrections(user_id))
+
+    async def add_correction(self, user_id: str, *, correction_id: str, time_slot: str,
+                             situation: str, kind: CorrectionKind | str,
+                             service: str | None = None, detail: str | None = None,
+                             note: str | None = None) -> Correction:
+        """``POST /v1/users/{user_id}/corrections``; see ``Client.add_correction``."""
+        return await self._call(Api.add_correction(
+            user_id, correction_id=correction_id, time_slot=time_slot, situation=situation,
+            kind=kind, service=service, detail=detail, note=note))
+
+    async def lift_correction(self, user_id: str, correction_id: str) -> None:
+        """``DELETE /v1/users/{user_id}/corrections/{correction_id}``; see
+        ``Client.lift_correction``."""
+        await self._call(Api.lift_correction(user_id, correction_id))

@@ -19,6 +19,9 @@ __all__ = [
     "ActionProbability",
     "Context",
     "ContextBelief",
+    "Correction",
+    "CorrectionKind",
+    "CorrectionList",
     "Decision",
     "EpisodePage",
     "EpisodeStarted",
@@ -38,8 +41,13 @@ __all__ = [
     "ModelView",
     "OutcomeResult",
     "PendingReport",
+    "Profile",
+    "ProfileChange",
+    "ProfileContext",
+    "ProfileEvidence",
     "Queued",
     "Rejection",
+    "RobotWill",
     "ServiceRequest",
     "StateBelief",
     "Stats",
@@ -48,12 +56,19 @@ __all__ = [
     "TraceFeedback",
     "User",
     "UserPage",
+    "Wanted",
 ]
 
 EpisodeStatus = Literal["open", "closed", "interrupted"]
 """``interrupted``: the episode was closed by a change of its fleet's mission; it takes no more
 outcomes (one gets ``EpisodeInterruptedError``)."""
 ReportKind = Literal["outcome", "feedback"]
+CorrectionKind = Literal["prefers", "avoid", "quiet"]
+"""``prefers`` (a service and detail the robot brings without asking, until the person's own
+answers contradict it twice in a row), ``avoid`` (a service, or a service and detail, the robot
+never chooses there), ``quiet`` (the robot never initiates there)."""
+CorrectionStatus = Literal["in_force", "overridden", "lifted", "idle"]
+Certainty = Literal["unknown", "tentative", "confident"]
 
 
 class _Model(BaseModel):
@@ -292,6 +307,128 @@ class Stats(_Model):
     queries_per_mission: float | None
     total_reward: float
     cumulative_reward: list[float]
+
+
+# -- the profile and staff corrections ---------------------------------------------------------
+class Wanted(_Model):
+    """A service, and its detail when known."""
+
+    service: str
+    detail: str | None = None
+
+
+class ProfileEvidence(_Model):
+    """What the person did in one context: services taken (``accepted``), offers, services and
+    questions turned down (``refused``), requests made (``asked_for``), questions answered
+    (``answered``), the latest episode in the person's local time (``last_seen``), and how many
+    of their latest answers there (``recent``, up to 8) agree with what they are believed to
+    want (``support``)."""
+
+    accepted: int
+    refused: int
+    asked_for: int
+    answered: int
+    last_seen: dt.datetime | None = None
+    support: int
+    recent: int
+
+
+class RobotWill(_Model):
+    """What the robot will most likely do when it meets the person in one context:
+    ``offer`` (bringing ``service`` and ``detail``, or asking first when ``asks_first``),
+    ``wait_to_be_asked`` or ``stay_away``; ``probability`` is the chance it offers."""
+
+    action: Literal["offer", "wait_to_be_asked", "stay_away"]
+    service: str | None = None
+    detail: str | None = None
+    asks_first: bool
+    probability: float
+
+
+class ProfileChange(_Model):
+    """The person's recent answers contradict what they wanted ``before``: since ``episode``
+    (the user's episode index; ``at`` in their local time) they want ``now`` (None: they only
+    turned things down). ``overrides`` names the ``prefers`` correction their answers
+    overrode, if any."""
+
+    at: dt.datetime | None = None
+    episode: int
+    before: Wanted | None = None
+    now: Wanted | None = None
+    by: Literal["person"] = "person"
+    overrides: str | None = None
+
+
+class ProfileContext(_Model):
+    """What the person is believed to want in one time slot and situation, in plain words
+    (``summary``) and in fields: ``wants`` (None: nothing yet), its ``certainty`` and
+    ``source`` (``person``: their own answers; ``staff``: a ``prefers`` correction in force)."""
+
+    time_slot: str
+    situation: str
+    episodes: int
+    open_episodes: int
+    wants: Wanted | None = None
+    certainty: Certainty
+    source: Literal["person", "staff"] | None = None
+    evidence: ProfileEvidence
+    robot_will: RobotWill
+    summary: str
+    changed: ProfileChange | None = None
+    corrections: list[str] = Field(default_factory=list)
+
+
+class Correction(_Model):
+    """A staff correction of what was learned about a user, in one time slot and situation.
+
+    ``status``: ``in_force``, ``overridden`` (the person's own answers contradicted a
+    ``prefers``), ``lifted`` (by staff) or ``idle`` (the fleet's mission no longer has its
+    names). ``model_version`` is the model version it produced. ``replayed`` is True when the
+    service answered a repeated ``correction_id`` (nothing changed).
+    """
+
+    correction_id: str
+    kind: CorrectionKind
+    time_slot: str
+    situation: str
+    service: str | None = None
+    detail: str | None = None
+    note: str | None = None
+    author: str
+    created_at: dt.datetime
+    status: CorrectionStatus
+    overridden_at: dt.datetime | None = None
+    lifted_at: dt.datetime | None = None
+    lifted_by: str | None = None
+    model_version: int
+    replayed: bool = False
+
+
+class CorrectionList(_Model):
+    """Every correction of a user, lifted ones too, oldest first."""
+
+    items: list[Correction]
+
+
+class Profile(_Model):
+    """What Attune believes about a person, one entry per (time slot, situation) of the
+    fleet's mission. ``utc_offset`` (minutes east of UTC of the latest event; None: shown in
+    UTC) is the local time it speaks in; ``corrections`` are those in force or overridden."""
+
+    user_id: str
+    display_name: str | None = None
+    episodes: int
+    open_episodes: int
+    utc_offset: int | None = None
+    contexts: list[ProfileContext]
+    corrections: list[Correction] = Field(default_factory=list)
+
+    def context(self, time_slot: str, situation: str) -> ProfileContext:
+        """The entry of one time slot and situation; ``KeyError`` if the mission has none."""
+        for entry in self.contexts:
+            if entry.time_slot == time_slot and entry.situation == situation:
+                return entry
+        raise KeyError(f"no context ({time_slot!r}, {situation!r}) in the profile")
 
 
 class TimeSlot(_Model):

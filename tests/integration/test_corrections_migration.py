@@ -1,0 +1,297 @@
+"""The migration to staff corrections and local times, on a database filled by the release
+before it.
+
+The previous release (the commit before the change's first files) is served as it was, on a
+fresh database, and filled through its HTTP API: users with finished episodes, explicit
+feedback, and an episode left open. Then this code upgrades the database: every row and every
+figure the API shows stay as they were, the existing episodes keep ``utc_offset`` NULL, the
+service starts, the profile of an existing user shows its episodes, corrections can be made,
+and every model rebuilds identically (``attune models rebuild``). The downgrade gives back the
+previous schema while no correction exists, and refuses, saying why, once one does.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import json
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import httpx
+import pytest
+from alembic import command
+from fastapi.testclient import TestClient
+from sqlalchemy import create_engine, inspect, text
+from typer.testing import CliRunner
+
+from app import cli
+from app.db import migrate
+from app.main import create_app
+from app.settings import Settings
+from tests.support.live import fresh_database
+from tests.support.release import OldService, play, previous_release, release_code
+
+pytestmark = [pytest.mark.slow]
+
+MIGRATION = "migrations/versions/2026-11-30-1800_staff_corrections_and_local_times.py"
+BEFORE = "3e8a6d0c4f17"  # the revision the previous release ends at
+AFTER = "5b7d2e9a1c08"
+NEW_COLUMNS = ("utc_offset",)
+USERS = ("lin", "chen", "room-12")
+OPEN_USER = "room-12"
+SLOT, SITUATION = "afternoon", "stretching"  # play(): n % 4 == 2 is 15:10, n % 3 == 2
+
+
+@pytest.fixture(scope="module")
+def old_code(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    assert migrate.head_revision() != BEFORE
+    # The change began with the learning core's guidance rules, in the migration's commit.
+    return release_code(previous_release(MIGRATION, "app/learning/guidance.py",
+                                         "app/learning/beliefs.py"),
+                        tmp_path_factory.mktemp("previous-release"))
+
+
+def _fill(old: OldService) -> dict[str, Any]:
+    """What a deployment holds, made through the previous release's API."""
+    keys = {name: old.attune("keys", "create", "--role", role).split()[-1]
+            for name, role in (("robot", "robot"), ("admin", "admin"))}
+    robot = httpx.Client(base_url=old.base, timeout=30,
+                         headers={"Authorization": f"Bearer {keys['robot']}"})
+    try:
+        n = 0
+        for uid in USERS:
+            for _ in range(6):
+                episode = play(robot, uid, f"{uid}-e{n}", n)
+                n += 1
+                if n % 4 == 0:
+                    assert robot.post(f"/v1/episodes/{episode}/feedback", json={
+                        "feedback_id": f"fb-{n}", "feedback": "positive"}).status_code == 200
+        opened = robot.post(f"/v1/users/{OPEN_USER}/episodes", json={
+            "event_id": "left-open", "occurred_at": "2026-11-20T15:10:00+08:00",
+            "situation": SITUATION, "initiator": "robot"})
+        assert opened.status_code == 201, opened.text
+    finally:
+        robot.close()
+    return {"keys": keys, "open": opened.json(), "episodes": n + 1}
+
+
+def _tables(url: str) -> list[str]:
+    engine = create_engine(url)
+    try:
+        return sorted(t for t in inspect(engine).get_table_names()
+                      if t not in ("alembic_version", "corrections"))
+    finally:
+        engine.dispose()
+
+
+def _rows(url: str, tables: list[str]) -> dict[str, list[tuple[Any, ...]]]:
+    """Every row of the tables the previous release had, sorted, without the new columns."""
+    engine = create_engine(url)
+    out: dict[str, list[tuple[Any, ...]]] = {}
+    try:
+        with engine.connect() as conn:
+            for table in tables:
+                rows = []
+                for row in conn.execute(text(f"SELECT * FROM {table}")).mappings():
+                    d = {k: v for k, v in row.items() if k not in NEW_COLUMNS}
+                    rows.append(tuple(sorted((k, _plain(v)) for k, v in d.items())))
+                out[table] = sorted(rows, key=repr)
+    finally:
+        engine.dispose()
+    return out
+
+
+def _plain(value: Any) -> Any:
+    if isinstance(value, dt.datetime):
+        return value.replace(tzinfo=None).isoformat()
+    return value
+
+
+def _scalars(url: str, sql: str) -> list[Any]:
+    engine = create_engine(url)
+    try:
+        with engine.connect() as conn:
+            return list(conn.execute(text(sql)).scalars().all())
+    finally:
+        engine.dispose()
+
+
+def _revision(url: str) -> str | None:
+    engine = create_engine(url)
+    try:
+        return migrate.current_revision(engine)
+    finally:
+        engine.dispose()
+
+
+def _api_view(api: Any) -> dict[str, Any]:
+    """Every figure the API shows of every user."""
+    view: dict[str, Any] = {}
+    for uid in USERS:
+        episodes = api.get(f"/v1/users/{uid}/episodes", params={"limit": 500}).json()
+        traces = [api.get(f"/v1/episodes/{ep['episode_id']}").json()
+                  for ep in episodes["items"]]
+        view[uid] = {
+            "user": api.get(f"/v1/users/{uid}").json(),
+            "model": api.get(f"/v1/users/{uid}/model").json(),
+            "stats": api.get(f"/v1/users/{uid}/stats").json(),
+            "episodes": episodes["items"], "traces": traces}
+    return view
+
+
+@pytest.fixture(params=["sqlite", "postgresql"])
+def filled(request: pytest.FixtureRequest, old_code: Path, tmp_path: Path
+           ) -> Iterator[tuple[str, dict[str, Any], dict[str, Any], list[str],
+                               dict[str, Any]]]:
+    """A database at the previous release's head, filled through its API: (url, names, what
+    its API showed, its tables, their rows)."""
+    with fresh_database(request.param, tmp_path) as url:
+        url = Settings(database_url=url, _env_file=None).database_url  # type: ignore[call-arg]
+        old = OldService(old_code, url, tmp_path / "old.log")
+        with old:
+            names = _fill(old)
+            with httpx.Client(base_url=old.base, timeout=30, headers={
+                    "Authorization": f"Bearer {names['keys']['admin']}"}) as admin:
+                before = _api_view(admin)
+        assert _revision(url) == BEFORE
+        tables = _tables(url)
+        assert "corrections" not in tables
+        yield url, names, before, tables, _rows(url, tables)
+
+
+def _rebuild(url: str, user_id: str) -> dict[str, Any]:
+    """``attune models rebuild`` of one user: its summary line."""
+    result = CliRunner().invoke(cli.app, ["models", "rebuild", user_id],
+                                env={"ATTUNE_DATABASE_URL": url, "ATTUNE_SEED": "0"})
+    assert result.exit_code == 0, result.output
+    summary: dict[str, Any] = json.loads(
+        next(ln for ln in result.output.splitlines() if ln.startswith("{")))
+    return summary
+
+
+def _cell(profile: dict[str, Any]) -> dict[str, Any]:
+    cells: list[dict[str, Any]] = [c for c in profile["contexts"]
+                                   if (c["time_slot"], c["situation"]) == (SLOT, SITUATION)]
+    [cell] = cells
+    return cell
+
+
+def test_the_upgrade_keeps_everything_and_corrections_can_be_made(
+        filled: tuple[str, dict[str, Any], dict[str, Any], list[str], dict[str, Any]]) -> None:
+    url, names, before, tables, rows_before = filled
+    migrate.upgrade(url)
+    assert _revision(url) == AFTER
+    assert _rows(url, tables) == rows_before
+    assert _scalars(url, "SELECT COUNT(*) FROM episodes") == [names["episodes"]]
+    assert _scalars(url, "SELECT DISTINCT utc_offset FROM episodes") == [None]
+    assert _scalars(url, "SELECT COUNT(*) FROM corrections") == [0]
+
+    settings = Settings(database_url=url, seed=0, _env_file=None)  # type: ignore[call-arg]
+    app = create_app(settings)
+    try:
+        with TestClient(app, headers={
+                "Authorization": f"Bearer {names['keys']['admin']}"}) as admin:
+            assert admin.get("/readyz").status_code == 200
+            assert _api_view(admin) == before
+
+            # The profile of a user whose history predates local times.
+            r = admin.get(f"/v1/users/{OPEN_USER}/profile")
+            assert r.status_code == 200, r.text
+            profile = r.json()
+            listed = admin.get(f"/v1/users/{OPEN_USER}/episodes",
+                               params={"limit": 500}).json()["items"]
+            assert profile["episodes"] == len(listed) == 7
+            assert profile["open_episodes"] == 1
+            assert profile["utc_offset"] is None  # shown in UTC
+            assert sum(c["episodes"] for c in profile["contexts"]) == 7
+            assert sum(c["open_episodes"] for c in profile["contexts"]) == 1
+            assert _cell(profile)["episodes"] >= 1
+            assert profile["corrections"] == []
+            for cell in profile["contexts"]:
+                seen = cell["evidence"]["last_seen"]
+                if seen is not None:
+                    assert dt.datetime.fromisoformat(seen).utcoffset() == dt.timedelta(0)
+
+            # Corrections are made, listed and shown in the profile.
+            made = admin.post(f"/v1/users/{OPEN_USER}/corrections", json={
+                "correction_id": "tea-afternoons", "time_slot": SLOT,
+                "situation": SITUATION, "kind": "prefers", "service": "ProvideDrink",
+                "detail": "tea", "note": "Made after the upgrade."})
+            assert made.status_code == 201, made.text
+            assert made.json()["status"] == "in_force"
+            quiet = admin.post("/v1/users/lin/corrections", json={
+                "correction_id": "hush", "time_slot": "morning", "situation": "working",
+                "kind": "quiet"})
+            assert quiet.status_code == 201, quiet.text
+            assert [c["correction_id"] for c in admin.get(
+                f"/v1/users/{OPEN_USER}/corrections").json()["items"]] == ["tea-afternoons"]
+            profile = admin.get(f"/v1/users/{OPEN_USER}/profile").json()
+            assert [c["correction_id"] for c in profile["corrections"]] == ["tea-afternoons"]
+            assert _cell(profile)["source"] == "staff"
+
+            # The episode left open before the upgrade finishes; a new one carries its offset.
+            robot = TestClient(app, headers={
+                "Authorization": f"Bearer {names['keys']['robot']}"})
+            opened = names["open"]
+            decision = opened["decision"]
+            while decision is not None:
+                body: dict[str, Any] = {"decision_id": decision["decision_id"]}
+                kind = decision["action"]["kind"]
+                if kind in ("initiate", "perform"):
+                    body["response"] = "accepted"
+                elif kind == "query_type":
+                    body.update(response="answered", service="ProvideDrink")
+                elif kind == "query_detail":
+                    body.update(response="answered", detail="tea")
+                else:
+                    body["response"] = "none"
+                r = robot.post(f"/v1/episodes/{opened['episode_id']}/outcomes", json=body)
+                assert r.status_code == 200, r.text
+                decision = r.json()["decision"]
+            play(robot, OPEN_USER, "after-upgrade", 2)
+            profile = admin.get(f"/v1/users/{OPEN_USER}/profile").json()
+            assert profile["episodes"] == 8
+            assert profile["open_episodes"] == 0
+            assert profile["utc_offset"] == 8 * 60
+    finally:
+        app.state.db.dispose()
+
+    assert _scalars(url, "SELECT COUNT(*) FROM episodes WHERE utc_offset IS NULL") == [
+        names["episodes"]]
+    for uid in USERS:
+        summary = _rebuild(url, uid)
+        assert summary["identical"] is True, (uid, summary)
+
+    # Down again: refused while corrections exist, saying so; nothing changed.
+    with pytest.raises(RuntimeError, match=r"2 staff corrections are stored"):
+        command.downgrade(migrate.alembic_config(url), BEFORE)
+    assert _revision(url) == AFTER
+    assert _scalars(url, "SELECT COUNT(*) FROM corrections") == [2]
+
+
+def test_the_downgrade_gives_back_the_previous_schema(
+        filled: tuple[str, dict[str, Any], dict[str, Any], list[str], dict[str, Any]]) -> None:
+    url, _, _, tables, rows_before = filled
+    migrate.upgrade(url)
+    command.downgrade(migrate.alembic_config(url), BEFORE)
+    assert _revision(url) == BEFORE
+    assert _tables(url) == tables
+    assert "corrections" not in _tables_with_new(url)
+    assert _rows(url, tables) == rows_before
+    engine = create_engine(url)
+    try:
+        assert "utc_offset" not in {c["name"] for c in inspect(engine).get_columns("episodes")}
+    finally:
+        engine.dispose()
+    migrate.upgrade(url)
+    assert _revision(url) == AFTER
+    assert _rows(url, tables) == rows_before
+
+
+def _tables_with_new(url: str) -> list[str]:
+    engine = create_engine(url)
+    try:
+        return sorted(inspect(engine).get_table_names())
+    finally:
+        engine.dispose()

@@ -1,0 +1,44 @@
+"""A mission change carries the staff's corrections by name: renamed names follow, removed
+ones leave the rule idle (no effect, no error)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from app.learning import Mission, Renames, make_learner, office_mission, remap_learner
+from app.learning.guidance import Rule, RuleKind
+
+
+def _renamed_mission() -> Mission:
+    doc = office_mission().to_dict()
+    doc["situations"] = ["occupied" if s == "busy" else s for s in doc["situations"]]
+    doc["unavailable_situations"] = ["occupied"]
+    doc["services"] = [{"name": s["name"],
+                        "details": ["green_tea" if d == "tea" else d for d in s["details"]]}
+                       for s in doc["services"]]
+    return Mission.from_dict(doc)
+
+
+def test_renamed_names_follow() -> None:
+    learner = make_learner("hri", None, office_mission())
+    learner.correct(Rule("r", RuleKind.PREFERS, "morning", "busy", "ProvideDrink", "tea"))
+    new = _renamed_mission()
+    moved = remap_learner(learner, new, Renames(situations={"busy": "occupied"},
+                                                details={"tea": "green_tea"}))
+    [rule] = moved.guidance.rules
+    assert (rule.situation, rule.detail) == ("occupied", "green_tea")
+    view = moved.explain(new.context_index("morning", "occupied"), 1)
+    assert view.probabilities[moved.space.INITIATE] >= 0.99
+    # the learner it came from keeps its own names
+    assert learner.guidance.rules[0].situation == "busy"
+
+
+def test_a_removed_name_leaves_the_rule_idle() -> None:
+    learner = make_learner("hri", None, office_mission())
+    fresh = make_learner("hri", None, _renamed_mission())
+    learner.correct(Rule("r", RuleKind.QUIET, "morning", "busy"))
+    moved = remap_learner(learner, _renamed_mission())  # no renames: "busy" is gone
+    assert [r.id for r in moved.guidance.rules] == ["r"]
+    for c in range(moved.space.n_contexts):
+        assert np.array_equal(moved.explain(c, 1).probabilities,
+                              fresh.explain(c, 1).probabilities)
