@@ -469,10 +469,12 @@ def export_model(user_id: str, session: RequestSession, ctx: ServiceContext,
 
 # -- admin actions: a confirmation page, then a POST with the CSRF token ----------------------
 _ACTIONS = {
-    "reset": ("Reset the model",
-              "Forget what was learned about {who}: the model starts over as a fresh "
-              "{algorithm} learner. The history ({episodes} episodes) is kept."),
-    "delete": ("Delete the user",
+    "reset": ("Start learning over",
+              "Forget what was learned about {who}: the robot starts over as with a new person "
+              "(a fresh {algorithm} learner). The history ({episodes} episodes) is kept, and "
+              "so are the staff corrections in force (lift them on the profile first if they "
+              "should go too)."),
+    "delete": ("Delete the person",
                "Remove {who} with the whole history ({episodes} episodes) and the model. This "
                "cannot be undone; export the model first if it may be needed again."),
 }
