@@ -174,7 +174,10 @@ def main() -> None:
             episode_id = latest["items"][0]["episode_id"]
             pages = {
                 "users": "/admin/users",
-                "user model": f"/admin/users/{USER}",
+                "profile": f"/admin/users/{USER}",
+                "profile, a box opened": f"/admin/users/{USER}?time_slot=afternoon"
+                                         "&situation=stretching",
+                "details for engineers": f"/admin/users/{USER}/details",
                 "why this action": f"/admin/users/{USER}/why",
                 "episodes": f"/admin/users/{USER}/episodes",
                 "trace (fragment)": f"/admin/users/{USER}/episodes/{episode_id}/trace",

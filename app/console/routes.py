@@ -2,9 +2,11 @@
 
 Every page reads the services behind the v1 API (``app.services.*``) in the request's own
 transaction (given by the route class), exactly as the API's routes do, so the console adds no
-second source of truth: what a page shows for a user is what ``GET /v1/users/{id}/model``,
-``/stats`` and ``GET /v1/episodes/{id}`` return; the users list adds each user's recent success
-rate and last activity (``app.services.console``, with the same definitions as ``/stats``).
+second source of truth: what a page shows for a user is what ``GET /v1/users/{id}/profile``,
+``/corrections``, ``/model``, ``/stats`` and ``GET /v1/episodes/{id}`` return; the users list adds
+each user's recent success rate and last activity (``app.services.console``, with the same
+definitions as ``/stats``). A correction made on a person's profile is the same call as
+``POST /v1/users/{id}/corrections``, with the signed-in key as its author.
 """
 
 from __future__ import annotations
@@ -20,17 +22,22 @@ from fastapi import APIRouter, Query, Request, Response
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import HTMLResponse, JSONResponse, RedirectResponse
 from fastapi.templating import Jinja2Templates
+from pydantic import ValidationError
 
 from app.api.deps import RequestSession, TransactionalRoute, writes
 from app.api.errors import validation_detail
-from app.errors import AppError, Conflict, ValidationFailed
+from app.errors import AppError, Conflict, NotFound, ValidationFailed
 from app.learning import Mission
 from app.schemas.common import CLIENT_ID_PATTERN, MAX_POSITION
+from app.schemas.profile import CorrectionIn
+from app.schemas.users import UserOut
 from app.services import admin as admin_service
 from app.services import console as console_service
+from app.services import corrections as corrections_service
 from app.services import episodes as episodes_service
 from app.services import missions as missions_service
 from app.services import models as models_service
+from app.services import profile as profile_service
 from app.services import users as users_service
 from app.services.context import ServiceContext
 
@@ -204,14 +211,156 @@ def users_page(
                  nav="users")
 
 
+def _counts(session: RequestSession, user: UserOut) -> dict[str, int]:
+    """The header's episode count: all of the person's episodes, the open ones said apart."""
+    return {"episodes": user.episodes,
+            "open_episodes": console_service.open_episodes(session, user)}
+
+
+_SLOT_NAME = Annotated[str | None, Query(max_length=64)]
+_CORRECTION_KINDS = ("prefers", "avoid", "quiet")
+_CORRECTION_FIELDS = ("kind", "service", "detail", "note")
+
+
+def _profile_page(request: Request, session: RequestSession, ctx: ServiceContext, admin: Admin,
+                  user: UserOut, *, time_slot: str | None, situation: str | None,
+                  done: str | None = None, typed: dict[str, str] | None = None,
+                  error: str | None = None, status: int = 200) -> HTMLResponse:
+    principal = admin.principal
+    profile = profile_service.profile_view(session, ctx, principal, user.user_id,
+                                           fleet=user.fleet)
+    mission = console_service.user_mission(session, ctx, user)
+    grid = views.profile_grid(profile, mission)
+    selected = None
+    if time_slot is not None and situation is not None:
+        selected = next((c for row in grid for c in row.cells
+                         if (c.time_slot, c.situation) == (time_slot, situation)), None)
+    in_force = {c.correction_id: c for c in profile.corrections}
+    here = []
+    if selected is not None and selected.context is not None:
+        here = [in_force[i] for i in selected.context.corrections if i in in_force]
+    return _page(request, "user.html", admin, status, user=user, tab="profile",
+                 profile=profile, grid=grid, selected=selected, here=here, mission=mission,
+                 counts={"episodes": profile.episodes, "open_episodes": profile.open_episodes},
+                 done=done, typed=typed or {}, error=error,
+                 correction_id=secrets.token_hex(16),
+                 mission_version=console_service.mission_version(session, user))
+
+
 @router.get("/users/{user_id}")
 def user_page(
+    request: Request, user_id: str, session: RequestSession, ctx: ServiceContext, admin: AdminDep,
+    time_slot: _SLOT_NAME = None, situation: _SLOT_NAME = None,
+    done: Annotated[str | None, Query(max_length=32)] = None,
+    fleet: FleetQuery = None,
+) -> HTMLResponse:
+    """What the person wants, when, and what the robot will do, in words; a chosen cell
+    (``time_slot`` and ``situation``) shows the evidence and the form that corrects it."""
+    _check_user_id(user_id)
+    user = users_service.get_user(session, admin.principal, user_id, fleet=fleet)
+    return _profile_page(request, session, ctx, admin, user, time_slot=time_slot,
+                         situation=situation, done=done)
+
+
+def _correction_error(exc: ValidationError) -> str:
+    problems = []
+    for err in exc.errors():
+        where = str(err["loc"][-1]) if err["loc"] else "form"
+        problems.append(f"{where}: {err['msg']}")
+    return "The correction could not be read (" + "; ".join(problems) + ")."
+
+
+@router.post("/users/{user_id}/corrections")
+def add_correction(request: Request, user_id: str, session: RequestSession,
+                   ctx: ServiceContext, admin: AdminDep, form: FormDep,
+                   fleet: FleetQuery = None) -> Response:
+    """Correct what was learned about the person in one context (as POST
+    /v1/users/{id}/corrections, with this key as the author), then back to the profile. A
+    mistake comes back on the form, in words, with what was typed."""
+    _check_user_id(user_id)
+    check_post(request, admin, form)
+    user = users_service.get_user(session, admin.principal, user_id, fleet=fleet)
+    time_slot, situation = form.get("time_slot", ""), form.get("situation", "")
+    typed = {k: form.get(k, "") for k in _CORRECTION_FIELDS}
+    kind = typed["kind"]
+    service = typed["service"].strip() or None
+    detail = typed["detail"].strip() or None
+    note = typed["note"].strip() or None
+
+    def again(status: int, message: str) -> HTMLResponse:
+        return _profile_page(request, session, ctx, admin, user, time_slot=time_slot,
+                             situation=situation, typed=typed, error=message, status=status)
+
+    if kind not in _CORRECTION_KINDS:
+        return again(422, "Choose what to correct: what the person prefers, what the robot "
+                     "should not offer, or that the robot should stay quiet here.")
+    if kind == "quiet":
+        service = detail = None
+    elif service is None:
+        return again(422, "Choose what the person prefers." if kind == "prefers"
+                     else "Choose what the robot should not offer.")
+    else:
+        offers = {s.name: s.details for s in console_service.user_mission(session, ctx,
+                                                                          user).services}
+        if service not in offers:
+            return again(422, f"The robots of fleet {user.fleet} do not offer "
+                         f"“{views.name_words(service)}” any more: choose another service.")
+        choices = views.or_list([views.name_words(d) for d in offers[service]])
+        if detail is not None and detail not in offers[service]:
+            return again(422, f"“{views.name_words(detail)}” is not a choice of "
+                         f"{views.name_words(service)}: choose {choices}.")
+        if kind == "prefers" and detail is None:
+            return again(422, f"Choose which {views.name_words(service)} the person prefers: "
+                         f"{choices}.")
+    try:
+        body = CorrectionIn(correction_id=form.get("correction_id", ""), time_slot=time_slot,
+                            situation=situation, kind=kind,  # type: ignore[arg-type]
+                            service=service, detail=detail, note=note)
+    except ValidationError as exc:
+        return again(422, _correction_error(exc))
+    try:
+        corrections_service.add_correction(session, ctx, admin.principal, user_id, body,
+                                           fleet=user.fleet)
+    except ValidationFailed as exc:
+        return again(422, f"The correction was not saved: {exc.detail}")
+    except Conflict:
+        return again(409, "This form was already used for another correction. Check the "
+                     "corrections below, then try again.")
+    return _redirect(views.user_url(user, time_slot=time_slot, situation=situation,
+                                    done="corrected") + "#evidence")
+
+
+@router.post("/users/{user_id}/corrections/{correction_id}/lift")
+def lift_correction(request: Request, user_id: str, correction_id: str,
+                    session: RequestSession, ctx: ServiceContext, admin: AdminDep,
+                    form: FormDep, fleet: FleetQuery = None) -> Response:
+    """Lift a correction (as DELETE /v1/users/{id}/corrections/{correction_id}): the robot
+    goes back to what it learned from the person."""
+    _check_user_id(user_id)
+    check_post(request, admin, form)
+    user = users_service.get_user(session, admin.principal, user_id, fleet=fleet)
+    if not _USER_ID.match(correction_id):
+        raise PageError(404, "Not found", "No such correction.")
+    try:
+        lifted = corrections_service.lift_correction(session, ctx, admin.principal, user_id,
+                                                     correction_id, fleet=user.fleet)
+    except NotFound:
+        raise PageError(404, "Not found", f"{user.display_name or user.user_id} has no "
+                        "correction of that number; it may have been deleted with the "
+                        "person's history.") from None
+    return _redirect(views.user_url(user, time_slot=lifted.time_slot,
+                                    situation=lifted.situation, done="lifted") + "#evidence")
+
+
+@router.get("/users/{user_id}/details")
+def details_page(
     request: Request, user_id: str, session: RequestSession, ctx: ServiceContext, admin: AdminDep,
     last: Annotated[int, Query(ge=1, le=1_000_000)] = console_service.RECENT_EPISODES,
     done: Annotated[str | None, Query(max_length=32)] = None,
     fleet: FleetQuery = None,
 ) -> HTMLResponse:
-    """A user's model at a glance: the heatmap, the paper's metrics, the reward curve."""
+    """Details for engineers: the heatmap of P(initiate), the paper's metrics, the reward
+    curve."""
     _check_user_id(user_id)
     principal = admin.principal
     user = users_service.get_user(session, principal, user_id, fleet=fleet)
@@ -221,9 +370,11 @@ def user_page(
     recent = models_service.stats(session, principal, user_id, last=last, fleet=user.fleet)
     xs, ys = views.curve(overall.cumulative_reward)
     mission = console_service.user_mission(session, ctx, user)
-    return _page(request, "user.html", admin, user=user, model=model, tab="model",
+    return _page(request, "details.html", admin, user=user, model=model, tab="details",
                  heat=views.heatmap(model, mission), overall=overall, recent=recent,
-                 last=last, chart={"x": xs, "y": ys}, done=done, mission=mission)
+                 last=last, chart={"x": xs, "y": ys, "total": overall.total_reward,
+                                   "episodes": overall.episodes},
+                 done=done, mission=mission, counts=_counts(session, user))
 
 
 @router.get("/users/{user_id}/why")
@@ -250,9 +401,11 @@ def why_page(
     trace = console_service.latest_trace_in_context(session, ctx, principal, user_id,
                                                     time_slot=time_slot, situation=situation,
                                                     fleet=user.fleet)
-    return _page(request, "why.html", admin, user=user, model=model, tab="why",
+    return _page(request, "why.html", admin, user=user, model=model, tab="details",
                  context=context, rows=views.why_rows(context), trace=trace,
-                 mission=mission, v_max=mission.v_max)
+                 mission=mission, v_max=mission.v_max, counts=_counts(session, user),
+                 trace_offset=None if trace is None else console_service.episode_offsets(
+                     session, [trace.episode_id]).get(trace.episode_id))
 
 
 @router.get("/users/{user_id}/episodes")
@@ -277,9 +430,11 @@ def episodes_page(
     newer = None
     if newest is not None and newest < user.episodes:
         newer = newest + per_page + 1 if newest + per_page < user.episodes else 0
+    offsets = console_service.episode_offsets(session, [e.episode_id for e in page.items])
     return _page(request, "episodes.html", admin, user=user, tab="episodes", page=page,
-                 per_page=per_page, newer=newer,
-                 older=int(page.next_cursor) if page.next_cursor else None)
+                 per_page=per_page, newer=newer, offsets=offsets,
+                 older=int(page.next_cursor) if page.next_cursor else None,
+                 counts=_counts(session, user))
 
 
 @router.get("/users/{user_id}/episodes/{episode_id}/trace")
@@ -295,7 +450,8 @@ def trace_fragment(
     trace = episodes_service.get_trace(session, ctx, admin.principal, episode_id)
     if trace.user_id != user_id or trace.fleet != user.fleet:
         raise PageError(404, "Not found", f"Episode {episode_id!r} is not {user_id!r}'s.")
-    return _page(request, "_trace.html", admin, trace=trace)
+    offset = console_service.episode_offsets(session, [trace.episode_id]).get(trace.episode_id)
+    return _page(request, "_trace.html", admin, trace=trace, offset=offset)
 
 
 # Named as the API's export route on purpose: an export leaves an audit entry, and the session
@@ -313,10 +469,12 @@ def export_model(user_id: str, session: RequestSession, ctx: ServiceContext,
 
 # -- admin actions: a confirmation page, then a POST with the CSRF token ----------------------
 _ACTIONS = {
-    "reset": ("Reset the model",
-              "Forget what was learned about {who}: the model starts over as a fresh "
-              "{algorithm} learner. The history ({episodes} episodes) is kept."),
-    "delete": ("Delete the user",
+    "reset": ("Start learning over",
+              "Forget what was learned about {who}: the robot starts over as with a new person "
+              "(a fresh {algorithm} learner). The history ({episodes} episodes) is kept, and "
+              "so are the staff corrections in force (lift them on the profile first if they "
+              "should go too)."),
+    "delete": ("Delete the person",
                "Remove {who} with the whole history ({episodes} episodes) and the model. This "
                "cannot be undone; export the model first if it may be needed again."),
 }
@@ -348,7 +506,7 @@ def reset(request: Request, user_id: str, session: RequestSession, ctx: ServiceC
     check_post(request, admin, form)
     user = users_service.get_user(session, admin.principal, user_id, fleet=fleet)
     models_service.reset_model(session, ctx, admin.principal, user_id, fleet=user.fleet)
-    return _redirect(views.user_url(user, done="reset"))
+    return _redirect(views.user_url(user, "/details", done="reset"))
 
 
 @router.get("/users/{user_id}/delete")

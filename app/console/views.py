@@ -1,5 +1,6 @@
-"""What the pages show, derived only from the v1 API's documents (``ModelOut``, ``StatsOut``,
-``EpisodeTrace``): number formats, the heatmap, the "why this action" rows, the reward curve.
+"""What the pages show, derived only from the v1 API's documents (``ProfileOut``, ``ModelOut``,
+``StatsOut``, ``EpisodeTrace``): the profile's words, local times, number formats, the heatmap,
+the "why this action" rows, the reward curve.
 
 Nothing here reads the database or the learner: every number these pieces put on a page is one
 the API returns for the same user, or a product of such numbers (the heatmap's expected service),
@@ -8,7 +9,9 @@ so the console and the API can never disagree.
 
 from __future__ import annotations
 
+import datetime as dt
 import math
+import re
 from collections.abc import Sequence
 from dataclasses import dataclass
 from urllib.parse import quote, urlencode
@@ -16,13 +19,17 @@ from urllib.parse import quote, urlencode
 from app.learning import Mission
 from app.schemas.common import ActionOut
 from app.schemas.models import ActionBelief, ContextModel, ModelOut, StateModel
+from app.schemas.profile import CorrectionOut, ProfileContext, ProfileOut, RobotWill, Wanted
 from app.schemas.users import UserOut
 
 __all__ = [
-    "Expectation", "HeatCell", "HeatRow", "StateRows", "action_arg", "action_label", "curve",
-    "expectation", "fmt_count", "fmt_measure", "fmt_pct", "fmt_q", "fmt_rate", "fmt_reward",
-    "heat_class", "heatmap", "initiate_p", "learner_summary", "state_label", "state_words",
-    "tenth", "unique_best", "why_rows",
+    "CERTAINTY", "Expectation", "HeatCell", "HeatRow", "ProfileCell", "ProfileRow", "StateRows",
+    "action_arg", "action_label", "correction_status", "correction_words", "curve",
+    "episode_words", "expectation", "fmt_aware", "fmt_count", "fmt_local", "fmt_measure",
+    "fmt_offset", "fmt_pct", "fmt_q", "fmt_rate", "fmt_reward", "heat_class", "heatmap",
+    "initiate_p", "learner_summary", "name_words", "or_list", "profile_grid", "response_words",
+    "robot_words", "state_label", "state_words", "tenth", "unique_best", "user_url",
+    "wanted_words", "why_rows",
 ]
 
 DASH = "—"  # a value the learner has no notion of (or no data yet)
@@ -274,3 +281,171 @@ def curve(cumulative: Sequence[float], max_points: int = 4000) -> tuple[list[int
     if xs[0] != 0:
         xs.insert(0, 0)
     return xs, [float(cumulative[i]) for i in xs]
+
+
+# -- local times -----------------------------------------------------------------------------
+def fmt_offset(minutes: int) -> str:
+    """Minutes east of UTC as people write it: 480 -> "UTC+8", 330 -> "UTC+5:30", 0 -> "UTC"."""
+    if minutes == 0:
+        return "UTC"
+    sign = "+" if minutes > 0 else "−"
+    hours, rest = divmod(abs(minutes), 60)
+    return f"UTC{sign}{hours}" + (f":{rest:02d}" if rest else "")
+
+
+def fmt_local(at: dt.datetime | None, offset: int | None) -> str:
+    """A moment in the person's local time, ``offset`` minutes east of UTC, with the offset:
+    "2026-11-01 09:00 (UTC+8)"; without an offset (the robot sent none, or the moment was
+    stored before offsets were kept): in UTC, and said so, "2026-11-01 01:00 UTC"."""
+    if at is None:
+        return DASH
+    if at.tzinfo is None:
+        at = at.replace(tzinfo=dt.UTC)
+    if offset is None:
+        return f"{at.astimezone(dt.UTC):%Y-%m-%d %H:%M} UTC"
+    local = at.astimezone(dt.timezone(dt.timedelta(minutes=offset)))
+    return f"{local:%Y-%m-%d %H:%M} ({fmt_offset(offset)})"
+
+
+def fmt_aware(at: dt.datetime | None) -> str:
+    """A moment already in the person's local time (its own offset): "2026-11-01 09:00
+    (UTC+8)"."""
+    if at is None:
+        return DASH
+    offset = at.utcoffset()
+    return fmt_local(at, 0 if offset is None else int(offset.total_seconds() // 60))
+
+
+# -- the profile, in the staff's words -------------------------------------------------------
+_CAMEL = re.compile(r"(?<=[a-z0-9])(?=[A-Z])")
+
+
+def name_words(name: str | None) -> str:
+    """A mission name as words: "ProvideDrink" -> "Provide drink", "today_agenda" -> "today
+    agenda"."""
+    if not name:
+        return ""
+    words = _CAMEL.sub(" ", name).replace("_", " ").split()
+    if not words:
+        return name
+    first, rest = words[0], [w.lower() if not w.isupper() else w for w in words[1:]]
+    return " ".join([first, *rest])
+
+
+def wanted_words(wanted: Wanted | None, *, service: str | None = None,
+                 detail: str | None = None) -> str:
+    """"Provide drink (tea)"; the service alone when no detail is known."""
+    if wanted is not None:
+        service, detail = wanted.service, wanted.detail
+    if not service:
+        return "Nothing in particular"
+    return name_words(service) + (f" ({name_words(detail)})" if detail else "")
+
+
+def robot_words(will: RobotWill) -> str:
+    """What the robot will do, in a few words."""
+    if will.action == "stay_away":
+        return "Stays away"
+    if will.action == "wait_to_be_asked":
+        return "Waits to be asked"
+    if will.asks_first or not will.service:
+        return "Offers help and asks what first"
+    return "Offers it without asking"
+
+
+CERTAINTY = {
+    "confident": "Confident",
+    "tentative": "Tentative: still learning",
+    "unknown": "Not enough to say yet",
+}
+
+_EPISODE = {
+    "I1": "Asked for help",
+    "I2": "Accepted the offer",
+    "I3": "Turned the offer down",
+    "none": "No conversation",
+}
+
+
+def episode_words(interaction_class: str, initiator: str | None = None) -> str:
+    """What happened in an episode, in words (the engineers' interaction class)."""
+    return _EPISODE.get(interaction_class, interaction_class)
+
+
+def or_list(items: Sequence[str]) -> str:
+    """"tea, coffee or water"."""
+    if len(items) <= 1:
+        return "".join(items)
+    return ", ".join(items[:-1]) + f" or {items[-1]}"
+
+
+_RESPONSE = {
+    "accepted": "accepted", "rejected": "turned it down", "answered": "answered",
+    "human_request": "asked for", "none": "did nothing", "terminated": "ended the talk",
+}
+
+
+def response_words(response: str | None) -> str:
+    """What the person did, in words ("asked for", "turned it down"); None: not yet."""
+    if response is None:
+        return "no answer yet"
+    return _RESPONSE.get(response, response)
+
+
+def correction_words(c: CorrectionOut) -> str:
+    """What a correction says: "Prefers Provide drink (tea)", "Avoid Brief information",
+    "Quiet: the robot does not offer help"."""
+    if c.kind == "prefers":
+        return f"Prefers {wanted_words(None, service=c.service, detail=c.detail)}"
+    if c.kind == "avoid":
+        return f"Do not offer {wanted_words(None, service=c.service, detail=c.detail)}"
+    return "Quiet: the robot does not offer help"
+
+
+def correction_status(c: CorrectionOut, who: str = "the person") -> str:
+    if c.status == "overridden":
+        return f"Overridden by {who}'s own answers"
+    if c.status == "lifted":
+        return "Lifted"
+    if c.status == "idle":
+        return "Not in use: the mission no longer has this time slot, situation or service"
+    return "In force"
+
+
+@dataclass(frozen=True, slots=True)
+class ProfileCell:
+    time_slot: str
+    situation: str
+    context: ProfileContext | None  # None: the profile does not speak of it (no data at all)
+    staff: tuple[CorrectionOut, ...] = ()  # the staff corrections in force here
+
+    @property
+    def by_staff(self) -> bool:
+        return bool(self.staff) or (self.context is not None and self.context.source == "staff")
+
+    @property
+    def certainty(self) -> str:
+        return self.context.certainty if self.context is not None else "unknown"
+
+
+@dataclass(frozen=True, slots=True)
+class ProfileRow:
+    time_slot: str
+    hours: str
+    cells: list[ProfileCell]
+
+
+def profile_grid(profile: ProfileOut, mission: Mission) -> list[ProfileRow]:
+    """Time slots (rows) x situations (columns), in the mission's order."""
+    by_context = {(c.time_slot, c.situation): c for c in profile.contexts}
+    in_force = {c.correction_id: c for c in profile.corrections if c.status == "in_force"}
+
+    def cell(slot: str, situation: str) -> ProfileCell:
+        context = by_context.get((slot, situation))
+        staff = () if context is None else tuple(
+            in_force[i] for i in context.corrections if i in in_force)
+        return ProfileCell(slot, situation, context, staff)
+
+    return [ProfileRow(slot.name, f"{slot.start:%H:%M}–{slot.end:%H:%M}",
+                       [cell(slot.name, situation) for situation in mission.situations])
+            for slot in mission.time_slots]

@@ -26,8 +26,8 @@ from .context import Principal, ServiceContext
 from .episodes import get_trace
 from .users import user_out, visible_user
 
-__all__ = ["RECENT_EPISODES", "UserActivity", "UserPage", "find_users", "user_mission",
-           "latest_trace_in_context"]
+__all__ = ["RECENT_EPISODES", "UserActivity", "UserPage", "episode_offsets", "find_users",
+           "latest_trace_in_context", "mission_version", "open_episodes", "user_mission"]
 
 RECENT_EPISODES = 100  # "recent": the last 100 episodes, the paper's block size (Table II)
 
@@ -41,6 +41,7 @@ class UserActivity:
     recent_missions: int
     recent_success_rate: float | None
     last_activity: dt.datetime | None
+    utc_offset: int | None = None  # minutes east of UTC of the latest episode
 
 
 @dataclass(frozen=True, slots=True)
@@ -79,19 +80,40 @@ def find_users(
         items.append(UserActivity(
             user=user_out(user), recent_episodes=a.episodes, recent_missions=a.missions,
             recent_success_rate=a.successes / a.missions if a.missions else None,
-            last_activity=a.last_at,
+            last_activity=a.last_at, utc_offset=a.utc_offset,
         ))
     return UserPage(items=items, total=total, page=page, per_page=per_page)
 
 
+def _pk(session: Session, user: UserOut | UserRow) -> int:
+    if isinstance(user, UserRow):
+        return user.id
+    found = users_repo.get(session, user.fleet, user.user_id)
+    assert found is not None  # the caller found the user
+    return found.id
+
+
+def open_episodes(session: Session, user: UserOut | UserRow) -> int:
+    """How many of the user's episodes are still open (counted in ``user.episodes`` too)."""
+    return repo.open_episodes(session, _pk(session, user))
+
+
+def episode_offsets(session: Session, episode_ids: list[str]) -> dict[str, int | None]:
+    """Minutes east of UTC each episode's time came with: the person's local time then
+    (None: sent before offsets were kept)."""
+    return repo.episode_offsets(session, episode_ids)
+
+
+def mission_version(session: Session, user: UserOut | UserRow) -> int:
+    """The fleet's mission version the user's model follows."""
+    model = models_repo.head(session, _pk(session, user))
+    assert model is not None  # every user is created with its model
+    return model.mission_version
+
+
 def user_mission(session: Session, ctx: ServiceContext, user: UserOut | UserRow) -> Mission:
     """The mission version a user's model is laid out for (the fleet's in force)."""
-    pk = user.id if isinstance(user, UserRow) else None
-    if pk is None:
-        found = users_repo.get(session, user.fleet, user.user_id)
-        assert found is not None  # the caller found the user
-        pk = found.id
-    model = models_repo.head(session, pk)
+    model = models_repo.head(session, _pk(session, user))
     assert model is not None  # every user is created with its model
     return ctx.missions.get(session, user.fleet, model.mission_version).mission
 

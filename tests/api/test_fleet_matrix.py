@@ -54,6 +54,7 @@ NEVER_EPISODE = "ep_" + "0" * 32  # an episode id that never existed
 EXPORT = "{export}"  # a body: the export document of the caller's fleet's lin (A's for others)
 LOGIN, CSRF = "login", "csrf"  # console forms: the caller's key; the page's CSRF token
 MISSION = "mission"  # the mission page's form, applying COCOA's mission, with the CSRF token
+CORRECT = "correct"  # a profile's correction form (a quiet correction), with the CSRF token
 
 Expect = tuple[int, int, int, int, int, int, int]  # one status per PRINCIPALS
 
@@ -155,6 +156,11 @@ MATRIX: list[Row] = [
         form=CSRF),
     Row("GET",    "/admin/users",                       (303, 401, 403, 403, 200, 200, 200)),
     Row("GET",    C + "{q}",                            (303, 401, 403, 403, 200, 200, 200)),
+    Row("GET",    C + "/details{q}",                    (303, 401, 403, 403, 200, 200, 200)),
+    Row("POST",   C + "/corrections{q}",                (303, 401, 403, 403, 303, 303, 303),
+        form=CORRECT, writes=True),
+    Row("POST",   C + "/corrections/world-c/lift{q}",   (303, 401, 403, 403, 303, 303, 303),
+        form=CSRF, writes=True, route=C + "/corrections/{correction_id}/lift"),
     Row("GET",    C + "/why{q}",                        (303, 401, 403, 403, 200, 200, 200)),
     Row("GET",    C + "/episodes{q}",                   (303, 401, 403, 403, 200, 200, 200)),
     Row("GET",    C + "/episodes/{episode_id}/trace{q}",
@@ -420,6 +426,8 @@ def _check_cell(world: World, row: Row, who: str, status: int) -> None:
         form = {"csrf": world.csrf(who)}
     elif row.form == MISSION:
         form = {"csrf": world.csrf(who), **MISSION_FORM}
+    elif row.form == CORRECT:
+        form = {"csrf": world.csrf(who), **CORRECTION, "correction_id": "matrix-console-c"}
     r = send(world, row.method, path, who, json=world.fill(row.json, who), form=form)
     assert r.status_code == status, f"{row.method} {path} as {who}: {r.status_code} {r.text}"
     if row.path.startswith("/admin"):
@@ -481,10 +489,10 @@ CONSOLE_ONLY, CONSOLE_NOBODY = "/admin/users/only-a", "/admin/users/nobody"
 # Staff of B on A's users in the console (robot keys get 403 on every console page).
 CONSOLE_PROBES: list[Probe] = [
     Probe("GET", CONSOLE_ONLY + tail, CONSOLE_NOBODY + tail, (403, 404))
-    for tail in ("", "/why", "/episodes", "/export", "/reset", "/delete")
+    for tail in ("", "/details", "/why", "/episodes", "/export", "/reset", "/delete")
 ] + [
     Probe("POST", CONSOLE_ONLY + tail, CONSOLE_NOBODY + tail, (403, 404), form=True)
-    for tail in ("/reset", "/delete")
+    for tail in ("/reset", "/delete", "/corrections", "/corrections/world-c/lift")
 ] + [
     Probe("GET", f"/admin/users/lin?fleet={A}", "/admin/users/lin?fleet=nofleet", (403, 404)),
     # Another fleet's mission, or a fleet that does not exist: refused alike (as the API's

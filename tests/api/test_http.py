@@ -48,6 +48,8 @@ def _headers(r: Any) -> dict[str, str]:
 
 CONSOLE_PAGES = [
     "/admin", "/admin/login", "/admin/users", "/admin/users/{user_id}",
+    "/admin/users/{user_id}?time_slot=afternoon&situation=stretching",
+    "/admin/users/{user_id}/details",
     "/admin/users/{user_id}/why", "/admin/users/{user_id}/episodes",
     "/admin/users/{user_id}/episodes/{episode_id}/trace", "/admin/users/{user_id}/export",
     "/admin/users/{user_id}/reset", "/admin/users/{user_id}/delete", "/admin/mission",
@@ -276,7 +278,7 @@ class TestIntegerQueries:
     @pytest.mark.parametrize(("page", "name", "low", "high"), [
         ("/admin/users", "page", 1, 1_000_000),
         ("/admin/users", "per_page", 5, 200),
-        ("/admin/users/lin", "last", 1, 1_000_000),
+        ("/admin/users/lin/details", "last", 1, 1_000_000),
         ("/admin/users/lin/episodes", "before", 1, 2**31 - 1),
         ("/admin/users/lin/episodes", "at", 1, 2**31 - 2),
         ("/admin/users/lin/episodes", "per_page", 5, 200),

@@ -4,7 +4,8 @@ users and history were made through the v1 API.
 
 Every test runs at a desktop (1280x800) and a tablet (800x1200) viewport, and saves a screenshot
 of each page it visits under ``$ATTUNE_TEST_OUTPUT/browser/<viewport>/`` (default
-``test-output/`` at the repository root).
+``test-output/`` at the repository root). With ``ATTUNE_DOCS_SHOTS=1`` the screenshots that
+docs/console.md shows are also written to ``docs/img/`` (``DOCS_SHOTS``).
 """
 
 from __future__ import annotations
@@ -37,6 +38,22 @@ CHROMIUM_ARGS = [
 ]
 VIEWPORTS: dict[str, ViewportSize] = {"desktop": {"width": 1280, "height": 800},
                                      "tablet": {"width": 800, "height": 1200}}
+
+# (viewport, screenshot) -> the docs/img file it becomes with ATTUNE_DOCS_SHOTS=1.
+DOCS_SHOTS = {
+    ("desktop", "login"): "console-login.png",
+    ("desktop", "users"): "console-users.png",
+    ("desktop", "profile"): "console-user.png",
+    ("desktop", "profile-evidence"): "console-evidence.png",
+    ("desktop", "profile-corrections"): "console-corrections.png",
+    ("desktop", "details-lin"): "console-details.png",
+    ("desktop", "why"): "console-why.png",
+    ("desktop", "episodes"): "console-episodes.png",
+    ("desktop", "confirm-reset"): "console-confirm-reset.png",
+    ("tablet", "profile"): "console-user-tablet.png",
+    ("tablet", "profile-evidence"): "console-evidence-tablet.png",
+}
+DOCS_IMG = REPO / "docs" / "img"
 
 LIN_NEEDS = {("afternoon", "stretching"): ("ProvideDrink", "tea"),
              ("morning", "arriving"): ("BriefInformation", "news"),
@@ -165,6 +182,9 @@ def shot(viewport: str) -> Shot:
         overflow = tab.evaluate("document.documentElement.scrollWidth - window.innerWidth")
         assert overflow <= 0, f"{name} is {overflow} px wider than the {viewport} viewport"
         tab.screenshot(path=str(folder / f"{name}.png"), full_page=True)
+        docs = DOCS_SHOTS.get((viewport, name))
+        if docs and os.environ.get("ATTUNE_DOCS_SHOTS") == "1":
+            tab.screenshot(path=str(DOCS_IMG / docs), full_page=True)
 
     return take
 

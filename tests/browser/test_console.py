@@ -11,7 +11,7 @@ import httpx
 import pytest
 from playwright.sync_api import Page, expect
 
-from .conftest import Shot, Site, sign_in
+from .conftest import VIEWPORTS, Shot, Site, sign_in
 from .people import (
     action_label,
     count,
@@ -107,8 +107,7 @@ class TestUsers:
             "rows => rows.map(r => r.dataset.userId)")
         assert ids == [f"pager-{i:02d}" for i in range(25, 30)]
         expect(page.locator("#prev-page")).to_be_visible()
-        expect(page.locator("#users tr[data-user-id='pager-29'] .learner")).to_have_text(
-            "rmax m=2")
+        expect(page.locator("#users tr[data-user-id='pager-29'] .learner")).to_have_text("rmax")
 
         page.fill("#search", "mrs. l")  # Mrs. Lin, by display name
         page.click("form.search button[type=submit]")
@@ -120,19 +119,24 @@ class TestUsers:
         assert row.get_attribute("data-user-id") == "lin"
         assert _text(page, "#users .episodes") == str(user["episodes"]) == "60"
         assert _text(page, "#users .success") == pct(recent["success_rate"])
-        assert _text(page, "#users .learner") == "hri τ=0.01"
-        assert re.fullmatch(r"\d{4}-\d\d-\d\d \d\d:\d\d UTC", _text(page, "#users .activity"))
+        assert _text(page, "#users .learner") == "hri"
+        # Last activity in Mrs. Lin's local time (the robot sends +08:00).
+        assert re.fullmatch(r"\d{4}-\d\d-\d\d \d\d:\d\d \(UTC\+8\)",
+                            _text(page, "#users .activity"))
         shot(page, "users-search")
 
 
 class TestUserModel:
     def test_heatmap_and_metrics_show_the_api_numbers(self, admin_page: Page, site: Site,
-                                                      shot: Shot) -> None:
+                                                      shot: Shot, viewport: str) -> None:
         page = admin_page
         for user_id in ("lin", "chen"):
             page.goto(f"{site.url}/admin/users/{user_id}")
+            page.click("#tab-details")  # the engineers' views
+            page.wait_for_url(f"**/admin/users/{user_id}/details?fleet=default")
             model = site.get(f"/v1/users/{user_id}/model")
             assert _text(page, "#model-version") == str(model["version"])
+            assert _text(page, "#learner").startswith("hri τ=" if user_id == "lin" else "dts λ=")
             cells = page.locator("#heatmap td.cell")
             expect(cells).to_have_count(len(model["contexts"]))
             for context in model["contexts"]:
@@ -166,7 +170,20 @@ class TestUserModel:
                     "total_reward": one(stats["total_reward"]),
                 }, (user_id, column)
             expect(page.locator("#reward-chart[data-ready=yes] canvas")).to_have_count(1)
-            shot(page, f"user-{user_id}")
+            # Whole episodes on the x axis, and the curve's end said without hovering.
+            for width in (VIEWPORTS[viewport]["width"], 420):  # narrow: fewer ticks, still whole
+                page.set_viewport_size({"width": width, "height": 800})
+                page.wait_for_function(f"() => document.querySelector('#reward-chart canvas')"
+                                       f".getBoundingClientRect().width < {width}")
+                ticks = (page.get_attribute("#reward-chart", "data-x-ticks") or "").split()
+                assert ticks, width
+                assert all(t.isdigit() for t in ticks), ticks
+            page.set_viewport_size(VIEWPORTS[viewport])
+            stats = site.get(f"/v1/users/{user_id}/stats")
+            expect(page.locator("#reward-caption")).to_contain_text(
+                f"Cumulative reward: {one(stats['total_reward'])} after {stats['episodes']} "
+                "episodes")
+            shot(page, f"details-{user_id}")
 
 
     def test_why_table_shows_the_api_numbers(self, admin_page: Page, site: Site,
@@ -269,7 +286,7 @@ class TestAdminActions:
         before = site.get(f"/v1/users/{user_id}/model")
         assert any(a["visits"] for c in before["contexts"] for s in c["states"]
                    for a in s["actions"])
-        page.goto(f"{site.url}/admin/users/{user_id}")
+        page.goto(f"{site.url}/admin/users/{user_id}/details")
         page.click("#reset")
         expect(page.locator("#confirm")).to_contain_text("history (12 episodes) is kept")
         shot(page, "confirm-reset")
@@ -279,7 +296,7 @@ class TestAdminActions:
 
         page.click("#reset")
         page.click("#confirm-reset")
-        page.wait_for_url(f"**/admin/users/{user_id}?fleet=default&done=reset")
+        page.wait_for_url(f"**/admin/users/{user_id}/details?fleet=default&done=reset")
         expect(page.locator("#reset-notice")).to_be_visible()
         after = site.get(f"/v1/users/{user_id}/model")
         assert after["version"] == before["version"] + 1

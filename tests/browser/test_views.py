@@ -1,22 +1,33 @@
 """The console's pure pieces, without a browser: the reward curve's thinning, the heatmap's
-reading of a policy, where signing in may send the browser, the CSRF token."""
+reading of a policy, the profile's words and local times, where signing in may send the
+browser, the CSRF token."""
 
 from __future__ import annotations
 
+import datetime as dt
 from typing import Any
 
 import pytest
 
 from app.console.auth import csrf_token, safe_next
 from app.console.views import (
+    correction_status,
+    correction_words,
     curve,
     expectation,
+    fmt_aware,
     fmt_count,
+    fmt_local,
     fmt_measure,
+    fmt_offset,
     heat_class,
     learner_summary,
+    name_words,
+    robot_words,
+    wanted_words,
 )
 from app.schemas.models import ContextModel
+from app.schemas.profile import CorrectionOut, RobotWill, Wanted
 
 
 class TestCurve:
@@ -126,3 +137,55 @@ def test_learner_summary_names_the_variant() -> None:
     assert learner_summary("qlearning", {"exploration": "epsilon"}) == "qlearning ε-greedy"
     assert learner_summary("qlearning", {"exploration": "boltzmann"}) == "qlearning Boltzmann"
     assert learner_summary("someday", {}) == "someday"
+
+
+class TestProfileWords:
+    def test_local_times_say_their_offset_or_utc(self) -> None:
+        at = dt.datetime(2026, 11, 30, 23, 30, tzinfo=dt.UTC)
+        assert fmt_local(at, 480) == "2026-12-01 07:30 (UTC+8)"
+        assert fmt_local(at, -330) == "2026-11-30 18:00 (UTC−5:30)"
+        assert fmt_local(at, None) == "2026-11-30 23:30 UTC"
+        assert fmt_local(at, 0) == "2026-11-30 23:30 (UTC)"
+        assert fmt_local(None, 60) == "—"
+        assert fmt_offset(60) == "UTC+1"
+        local = dt.datetime(2026, 11, 3, 9, 12, tzinfo=dt.timezone(dt.timedelta(hours=8)))
+        assert fmt_aware(local) == "2026-11-03 09:12 (UTC+8)"
+
+    def test_names_and_wishes_in_words(self) -> None:
+        assert name_words("ProvideDrink") == "Provide drink"
+        assert name_words("today_agenda") == "today agenda"
+        assert name_words("busy") == "busy"
+        assert wanted_words(Wanted(service="ProvideDrink", detail="tea")) == "Provide drink (tea)"
+        assert wanted_words(Wanted(service="BriefInformation")) == "Brief information"
+        assert wanted_words(None) == "Nothing in particular"
+
+    @pytest.mark.parametrize(("action", "service", "asks", "words"), [
+        ("offer", "ProvideDrink", False, "Offers it without asking"),
+        ("offer", "ProvideDrink", True, "Offers help and asks what first"),
+        ("offer", None, True, "Offers help and asks what first"),
+        ("wait_to_be_asked", None, False, "Waits to be asked"),
+        ("stay_away", None, False, "Stays away"),
+    ])
+    def test_what_the_robot_will_do(self, action: Any, service: str | None, asks: bool,
+                                    words: str) -> None:
+        will = RobotWill(action=action, service=service, detail=None, asks_first=asks,
+                         probability=0.5)
+        assert robot_words(will) == words
+
+    def test_corrections_in_words(self) -> None:
+        def made(kind: Any, status: Any = "in_force", service: str | None = None,
+                 detail: str | None = None) -> CorrectionOut:
+            return CorrectionOut(correction_id="c1", kind=kind, time_slot="morning",
+                                 situation="arriving", service=service, detail=detail,
+                                 note=None, author="key_1",
+                                 created_at=dt.datetime(2026, 11, 30, tzinfo=dt.UTC),
+                                 status=status, model_version=2)
+
+        assert correction_words(made("prefers", service="ProvideDrink", detail="coffee")) \
+            == "Prefers Provide drink (coffee)"
+        assert correction_words(made("avoid", service="BriefInformation")) \
+            == "Do not offer Brief information"
+        assert correction_words(made("quiet")) == "Quiet: the robot does not offer help"
+        assert correction_status(made("quiet")) == "In force"
+        assert correction_status(made("prefers", "overridden"), "Mrs. Lin") \
+            == "Overridden by Mrs. Lin's own answers"

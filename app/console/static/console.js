@@ -31,28 +31,47 @@ function traces() {
   });
 }
 
-// The cumulative reward curve (uPlot, bundled under /admin/static/vendor/uplot/).
+// The cumulative reward curve (uPlot, bundled under /admin/static/vendor/uplot/). The x axis
+// counts whole episodes (1 = the first); the caption under the chart always says where the
+// curve ends, and the value under the pointer while it moves over the chart.
+const EPISODE_STEPS = [1, 2, 5, 10, 20, 50, 100, 200, 500, 1000, 2000, 5000, 10000, 20000,
+  50000, 100000, 200000, 500000, 1000000];
+
 function rewardChart() {
   const box = document.getElementById("reward-chart");
   const source = document.getElementById("reward-data");
   if (!box || !source || typeof uPlot === "undefined") return;
   const data = JSON.parse(source.textContent);
+  const xs = data.x.map((i) => i + 1);  // episode numbers, as the episodes list shows them
+  const cursorText = document.getElementById("reward-cursor");
   const size = () => ({ width: Math.max(240, box.clientWidth), height: 260 });
   const opts = {
     ...size(),
-    legend: { show: true },
+    legend: { show: false },  // the caption below says it without hovering
     cursor: { drag: { x: true, y: false } },
     scales: { x: { time: false } },
     axes: [
-      { label: "episode", size: 40 },
+      { label: "episode", size: 40, incrs: EPISODE_STEPS,
+        values: (u, ticks) => {
+          box.dataset.xTicks = ticks.join(" ");  // what the axis shows, for the tests
+          return ticks.map((t) => (Number.isInteger(t) ? String(t) : ""));
+        } },
       { label: "cumulative reward", size: 60 },
     ],
     series: [
       { label: "episode" },
       { label: "reward", stroke: "#1f5fa8", width: 2, fill: "rgba(31,95,168,0.08)" },
     ],
+    hooks: {
+      setCursor: [(u) => {
+        if (!cursorText) return;
+        const i = u.cursor.idx;
+        cursorText.textContent = i == null ? ""
+          : ` · at episode ${u.data[0][i]}: ${u.data[1][i].toFixed(1)}`;
+      }],
+    },
   };
-  const chart = new uPlot(opts, [data.x, data.y], box);
+  const chart = new uPlot(opts, [xs, data.y], box);
   box.dataset.ready = "yes";
   let pending = 0;
   window.addEventListener("resize", () => {
@@ -61,8 +80,71 @@ function rewardChart() {
   });
 }
 
+// The correction form: the choices offered are the chosen service's; "stay quiet" needs no
+// service.
+function correctionForm() {
+  const form = document.getElementById("correction-form");
+  if (!form) return;
+  const service = form.querySelector("#c-service");
+  const detail = form.querySelector("#c-detail");
+  const what = form.querySelector("#what");
+  const update = () => {
+    const kind = form.querySelector("input[name=kind]:checked");
+    const quiet = kind && kind.value === "quiet";
+    service.disabled = quiet;
+    detail.disabled = quiet;
+    what.classList.toggle("off", quiet);
+    detail.querySelectorAll("optgroup").forEach((group) => {
+      const mine = group.dataset.service === service.value;
+      group.hidden = !mine;
+      group.disabled = !mine;
+    });
+    const picked = detail.selectedOptions[0];
+    if (picked && picked.dataset.service && picked.dataset.service !== service.value) {
+      detail.value = "";
+    }
+    // "Any" is for "should not offer" only: a preference names one choice.
+    const any = detail.querySelector("#c-detail-any");
+    const prefers = kind && kind.value === "prefers";
+    if (any) any.disabled = prefers;
+    if (prefers && detail.value === "") {
+      const mine = `optgroup[data-service="${CSS.escape(service.value)}"] option`;
+      const first = detail.querySelector(mine);
+      if (first) detail.value = first.value;
+    }
+  };
+  form.querySelectorAll("input[name=kind]").forEach((r) => r.addEventListener("change", update));
+  service.addEventListener("change", update);
+  update();
+}
+
+// The profile's boxes: the one under the pointer or the keyboard's focus is said as a sentence
+// under the grid (screen readers read the same sentence inside the box).
+function profileSummaries() {
+  const line = document.getElementById("cell-summary");
+  if (!line) return;
+  const initial = line.textContent;
+  document.querySelectorAll("#profile td.pcell a[data-summary]").forEach((link) => {
+    const show = () => { line.textContent = link.dataset.summary; };
+    link.addEventListener("mouseenter", show);
+    link.addEventListener("focus", show);
+  });
+  const grid = document.getElementById("profile");
+  if (grid) grid.addEventListener("mouseleave", () => { line.textContent = initial; });
+}
+
+// A chosen box of the profile: its evidence section takes the focus, so that a keyboard user
+// lands on it.
+function evidenceFocus() {
+  const evidence = document.getElementById("evidence");
+  if (evidence && window.location.hash === "#evidence") evidence.focus({ preventScroll: false });
+}
+
 document.addEventListener("DOMContentLoaded", () => {
   autosubmit();
   traces();
   rewardChart();
+  correctionForm();
+  profileSummaries();
+  evidenceFocus();
 });

@@ -14,8 +14,8 @@ from ..models import Episode, User
 from ._rows import columns, conn, table
 from .users import UserRow
 
-__all__ = ["Activity", "count_users", "latest_episode_in_context", "recent_activity",
-           "search_users"]
+__all__ = ["Activity", "count_users", "episode_offsets", "latest_episode_in_context",
+           "open_episodes", "recent_activity", "search_users"]
 
 _S = TypeVar("_S", bound=Select[Any])
 
@@ -28,6 +28,7 @@ class Activity:
     missions: int
     successes: int
     last_at: dt.datetime | None
+    utc_offset: int | None = None  # of the latest episode: the person's local time
 
 
 def _matching(stmt: _S, *, fleet: str | None, text: str | None) -> _S:
@@ -70,13 +71,14 @@ def recent_activity(session: Session, user_pks: Sequence[int], *, window: int
         .group_by(Episode.user_pk)
     ).all()
     latest = conn(session).execute(
-        select(Episode.user_pk, Episode.created_at, Episode.closed_at)
+        select(Episode.user_pk, Episode.created_at, Episode.closed_at, Episode.utc_offset)
         .join(User, User.id == Episode.user_pk)
         .where(Episode.user_pk.in_(user_pks), Episode.seq == User.episode_count)
     ).all()
     last_at = {uid: max(t for t in (created, closed) if t is not None)
-               for uid, created, closed in latest}
-    out = {uid: Activity(int(n), int(m or 0), int(s or 0), last_at.get(uid))
+               for uid, created, closed, _ in latest}
+    offsets = {uid: offset for uid, _, _, offset in latest}
+    out = {uid: Activity(int(n), int(m or 0), int(s or 0), last_at.get(uid), offsets.get(uid))
            for uid, n, m, s in counts}
     return {uid: out.get(uid, Activity(0, 0, 0, None)) for uid in user_pks}
 
@@ -94,3 +96,19 @@ def latest_episode_in_context(session: Session, user_pk: int, time_slot: str,
     )
     found: str | None = conn(session).execute(stmt).scalar()
     return found
+
+
+def open_episodes(session: Session, user_pk: int) -> int:
+    """How many of the user's episodes are still open (a robot waiting for an answer)."""
+    stmt = select(func.count()).select_from(Episode).where(Episode.user_pk == user_pk,
+                                                           Episode.status == "open")
+    return int(conn(session).execute(stmt).scalar() or 0)
+
+
+def episode_offsets(session: Session, episode_ids: Sequence[str]) -> dict[str, int | None]:
+    """Per episode id: minutes east of UTC its time came with (None: not known)."""
+    if not episode_ids:
+        return {}
+    rows = conn(session).execute(
+        select(Episode.id, Episode.utc_offset).where(Episode.id.in_(list(episode_ids)))).all()
+    return {episode_id: offset for episode_id, offset in rows}
