@@ -189,6 +189,7 @@ def _robot_will(learner: TabularLearner[Any], c: int, now: int, rules: list[Rule
                      probability=offer)
 
 
+_AT = {"noon": "At noon", "midday": "At midday", "night": "At night", "midnight": "At midnight"}
 _SITUATION_WORDS = {"arriving": "on arrival", "working": "while working",
                     "stretching": "while stretching", "busy": "while busy"}
 
@@ -210,7 +211,8 @@ def _summary(name: str | None, slot: str, situation: str, wants: Item | None, ce
              source: str | None, will: RobotWill, ev: EvidenceOut,
              change: ChangeOut | None) -> str:
     who = name or "this person"
-    where = f"In the {words(slot)}, {_SITUATION_WORDS.get(situation, 'when ' + words(situation))}"
+    when = _AT.get(slot, f"In the {words(slot)}")
+    where = f"{when}, {_SITUATION_WORDS.get(situation, 'when ' + words(situation))}"
     if will.action == "offer":
         if will.service is None:
             does = "the robot offers help and asks what is wanted"
