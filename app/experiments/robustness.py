@@ -69,6 +69,8 @@ LEARNERS: Mapping[str, Method] = {
     "hri": Method("HRI τ=0.01", "hri", {"tau": 0.01}),
     "hri-0.005": Method("HRI τ=0.005", "hri", {"tau": 0.005}),
     "dts": Method("DTS", "dts"),
+    "dts-change": Method("DTS + change test α=0.01", "dts", {"change_alpha": 0.01}),
+    "dts-change-0.05": Method("DTS + change test α=0.05", "dts", {"change_alpha": 0.05}),
 }
 """The learners the suite can run, by the name ``--learners`` takes."""
 DEFAULT_LEARNERS = ("rmax", "qlearning", "hri", "dts")

@@ -199,6 +199,12 @@ class DtsParams(Params):
     samples: posterior models drawn per decision; the action distribution is their argmax share.
     i1_as_acceptance: a human-initiated episode in a context also counts as an accepted
         initiation there (the person wanted service in that context).
+    change_alpha: significance level of the per-context change test on performed services
+        (docs/method.md §8, "Adapting after a change"): when a run of rejected services in a
+        context is less likely than change_alpha given that context's earlier answers, what the
+        context learned about services starts over. 0 = no test.
+    change_keep: the share of such a context's discounted counts kept when its test fires
+        (0 = its service-facing pairs start over; its offers and other contexts are kept).
     """
 
     algorithm: ClassVar[str] = "dts"
@@ -209,11 +215,15 @@ class DtsParams(Params):
     reward_sd: float = 1.0
     samples: int = 16
     i1_as_acceptance: bool = True
+    change_alpha: float = 0.0
+    change_keep: float = 0.0
     vi_tol: float = 1e-8
     vi_max_sweeps: int = 500
 
     def __post_init__(self) -> None:
         _in_range("forgetting", self.forgetting, 0.0, 1.0, low_open=True)
+        _in_range("change_alpha", self.change_alpha, 0.0, 0.5)
+        _in_range("change_keep", self.change_keep, 0.0, 1.0, high_open=True)
         _in_range("prior_count", self.prior_count, 0.0, 1e3, low_open=True)
         _in_range("reward_prior", self.reward_prior, -1e3, 1e3)
         _in_range("reward_prior_count", self.reward_prior_count, 0.0, 1e3, low_open=True)

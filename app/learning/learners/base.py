@@ -58,6 +58,8 @@ class TabularLearner(Generic[P]):
     # of a pair, its counts there leave and the sum is scaled to the samples kept, so the mean
     # reward stays what it was (app.learning.remap).
     _reward_sums: ClassVar[dict[str, str]] = {}
+    # Tables an older state may lack (added later): they keep their initial value on import.
+    _optional_tables: ClassVar[frozenset[str]] = frozenset()
     MAX_OPEN_EPISODES: ClassVar[int] = 256
     MAX_EPISODE: ClassVar[int] = 2**62  # keeps every episode arithmetic inside int64
 
@@ -365,6 +367,8 @@ class TabularLearner(Generic[P]):
             raise StateFormatError("arrays must be an object.")
         for name, (current, code) in learner._exported().items():
             if name not in arrays:
+                if name in learner._optional_tables:
+                    continue
                 raise StateFormatError(f"arrays.{name} is missing.")
             value = decode_array(
                 arrays[name], name=name, dtype=current.dtype, shape=learner._shape(code)

@@ -27,7 +27,7 @@ import numpy as np
 from ..config import DtsParams
 from ..planning import value_iteration
 from ..space import ActionKind
-from ..types import FloatArray, Transition
+from ..types import FloatArray, Polarity, Transition
 from .base import TabularLearner, check_nonnegative
 
 __all__ = ["DtsLearner"]
@@ -44,11 +44,18 @@ class DtsLearner(TabularLearner[DtsParams]):
         "dr": (np.float64, "CP"),
         "dns": (np.float64, "CPM"),
         "answered": (np.float64, "2"),
+        "change": (np.float64, "C3"),
     }
+    # States exported before the change test existed have no "change" table: it starts at zero.
+    _optional_tables: ClassVar[frozenset[str]] = frozenset({"change"})
     dn: FloatArray
     dr: FloatArray
     dns: FloatArray
     answered: FloatArray  # (2,): discounted count and reward sum of services performed as asked
+    # (C, 3) per context, for the change test (only kept while change_alpha > 0): services
+    # accepted and rejected since the context's last restart, before the current run, and the
+    # current run of rejected services.
+    change: FloatArray
 
     def _init_tables(self) -> None:
         space = self.space
@@ -57,6 +64,10 @@ class DtsLearner(TabularLearner[DtsParams]):
         )
         self._to_end = np.zeros((space.n_actions, space.max_succ), dtype=np.float64)
         self._to_end[np.arange(space.n_actions), space.end_column] = 1.0
+        # The pairs a change restarts: every learned pair but the context's offers (root pairs):
+        # a person whose wish changed still wants service there.
+        self._restartable = np.ones(space.n_actions, dtype=bool)
+        self._restartable[list(space.root_actions)] = False
 
     def _add(self, c: int, a: int, reward: float, column: int) -> None:
         lam = self._params.forgetting
@@ -79,6 +90,10 @@ class DtsLearner(TabularLearner[DtsParams]):
                 self.answered *= lam
                 self.answered += (1.0, tr.reward)
                 self._cache.clear()
+        if self._params.change_alpha > 0.0 and tr.signal != Polarity.NEUTRAL \
+                and space.actions[tr.action].kind is ActionKind.PERFORM:
+            # Tested before the sample is learned: a restart keeps the answer that set it off.
+            self._test_change(tr.context, accepted=tr.signal == Polarity.POSITIVE)
         column = space.successor_column(tr.action, tr.next_state)
         self._add(tr.context, tr.action, tr.reward, column)
         human_initiated = (
@@ -87,6 +102,35 @@ class DtsLearner(TabularLearner[DtsParams]):
         if human_initiated and self._params.i1_as_acceptance:
             accept = space.successor_column(space.INITIATE, space.ENGAGED)
             self._add(tr.context, space.INITIATE, self.mission.rewards.positive, accept)
+
+    def _test_change(self, c: int, *, accepted: bool) -> None:
+        """The per-context change test (docs/method.md §8, "Adapting after a change").
+
+        With a accepted and b rejected services in context c before the current run of k
+        rejections, the chance of that run if nothing changed is the Beta(a+1, b+1) posterior
+        predictive of k rejections in a row, prod_{i<k} (b+1+i) / (a+b+2+i). Below
+        ``change_alpha`` the context's service-facing counts are scaled by ``change_keep`` and
+        its test starts over.
+        """
+        row = self.change[c]
+        if accepted:
+            row[0] += 1.0
+            row[1] += row[2]
+            row[2] = 0.0
+            return
+        row[2] += 1.0
+        a, b, k = float(row[0]) + 1.0, float(row[1]) + 1.0, int(row[2])
+        p = 1.0
+        for i in range(k):
+            p *= (b + i) / (a + b + i)
+        if p < self._params.change_alpha:
+            keep = self._params.change_keep
+            mask = self._restartable
+            self.dn[c, mask] *= keep
+            self.dr[c, mask] *= keep
+            self.dns[c, mask] *= keep
+            row[:] = 0.0
+            self._cache.pop(c, None)
 
     def _reinforce(self, context: int, action: int, episode: int, reward: float, *,
                    pending: bool) -> None:
@@ -144,7 +188,8 @@ class DtsLearner(TabularLearner[DtsParams]):
         return self._solve(*self._fold_answers(mean, trans, v_answer))
 
     def _check_tables(self) -> None:
-        check_nonnegative(dn=self.dn, dns=self.dns, answered=self.answered[:1])
+        check_nonnegative(dn=self.dn, dns=self.dns, answered=self.answered[:1],
+                          change=self.change)
 
     def _solve(self, reward: FloatArray, trans: FloatArray) -> FloatArray:
         v_max = self.mission.v_max

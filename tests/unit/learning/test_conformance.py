@@ -71,6 +71,8 @@ def test_hri_options_conform(params: dict[str, Any]) -> None:
         ("qlearning", {"exploration": "boltzmann", "temperature": 0.05}),
         ("qlearning", {"epsilon0": 0.0, "epsilon_min": 0.0}),
         ("dts", {"forgetting": 1.0, "samples": 1, "i1_as_acceptance": False}),
+        ("dts", {"change_alpha": 0.05}),
+        ("dts", {"change_alpha": 0.5, "change_keep": 0.5, "samples": 2}),
     ],
 )
 def test_baseline_options_conform(algorithm: str, params: dict[str, Any]) -> None:
