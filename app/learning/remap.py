@@ -356,7 +356,7 @@ def _axis_indices(code: str, smap: SpaceMap, shape_old: tuple[int, ...]
         if ch == "C":
             fixed_old.append(c_old)
             fixed_new.append(c_new)
-        elif ch in "23":
+        elif ch in "234":
             fixed_old.append(np.arange(n))
             fixed_new.append(np.arange(n))
         else:

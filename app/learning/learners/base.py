@@ -295,6 +295,7 @@ class TabularLearner(Generic[P]):
             "M": self.space.max_succ,
             "2": 2,
             "3": 3,
+            "4": 4,
         }
         return tuple(dims[ch] for ch in code)
 

@@ -27,6 +27,7 @@ import numpy as np
 from ..config import DtsParams
 from ..planning import value_iteration
 from ..space import ActionKind
+from ..state import StateFormatError
 from ..types import FloatArray, Polarity, Transition
 from .base import TabularLearner, check_nonnegative
 
@@ -44,7 +45,7 @@ class DtsLearner(TabularLearner[DtsParams]):
         "dr": (np.float64, "CP"),
         "dns": (np.float64, "CPM"),
         "answered": (np.float64, "2"),
-        "change": (np.float64, "C3"),
+        "change": (np.float64, "C4"),
     }
     # States exported before the change test existed have no "change" table: it starts at zero.
     _optional_tables: ClassVar[frozenset[str]] = frozenset({"change"})
@@ -52,9 +53,9 @@ class DtsLearner(TabularLearner[DtsParams]):
     dr: FloatArray
     dns: FloatArray
     answered: FloatArray  # (2,): discounted count and reward sum of services performed as asked
-    # (C, 3) per context, for the change test (only kept while change_alpha > 0): services
-    # accepted and rejected since the context's last restart, before the current run, and the
-    # current run of rejected services.
+    # (C, 4) per context, for the change test (only kept while change_alpha > 0): services
+    # accepted and rejected since the context's last restart, before the current run; the
+    # current run of rejected services; and the run's chance if nothing changed (0: no run).
     change: FloatArray
 
     def _init_tables(self) -> None:
@@ -117,13 +118,13 @@ class DtsLearner(TabularLearner[DtsParams]):
             row[0] += 1.0
             row[1] += row[2]
             row[2] = 0.0
+            row[3] = 0.0
             return
+        # One more factor of the product: plain arithmetic, so replays agree on every machine.
+        a, b, i = float(row[0]) + 1.0, float(row[1]) + 1.0, float(row[2])
+        row[3] = (row[3] if i > 0 else 1.0) * ((b + i) / (a + b + i))
         row[2] += 1.0
-        a, b, k = float(row[0]) + 1.0, float(row[1]) + 1.0, int(row[2])
-        p = 1.0
-        for i in range(k):
-            p *= (b + i) / (a + b + i)
-        if p < self._params.change_alpha:
+        if row[3] < self._params.change_alpha:
             keep = self._params.change_keep
             mask = self._restartable
             self.dn[c, mask] *= keep
@@ -190,6 +191,8 @@ class DtsLearner(TabularLearner[DtsParams]):
     def _check_tables(self) -> None:
         check_nonnegative(dn=self.dn, dns=self.dns, answered=self.answered[:1],
                           change=self.change)
+        if np.any(self.change[:, 3] > 1.0):
+            raise StateFormatError("arrays.change: a run's chance must not exceed 1.")
 
     def _solve(self, reward: FloatArray, trans: FloatArray) -> FloatArray:
         v_max = self.mission.v_max

@@ -5,12 +5,13 @@ changed, lives in the exported tables (round trip, replay) and helps after a cha
 from __future__ import annotations
 
 import json
+import math
 from typing import Any
 
 import numpy as np
 import pytest
 
-from app.learning import Transition, learner_from_state, make_learner, space_for
+from app.learning import StateFormatError, Transition, learner_from_state, make_learner, space_for
 from app.learning.learners import DtsLearner
 from app.learning.population import (
     FAMILIES,
@@ -161,20 +162,21 @@ def test_a_restart_touches_only_the_changed_context_and_keeps_its_offers() -> No
     assert before[1, 0] == 10
 
 
-def test_the_count_of_rejections_needed_falls_as_evidence_grows() -> None:
-    needed = []
-    for n in (2, 5, 20):
-        learner = dts(**ON)
-        fired = spy(learner)
-        for ep in range(1, n + 1):
-            learner.update(accepted_tea(ep, 0))
-        ep = n
-        while not fired:
-            ep += 1
-            learner.update(rejected_tea(ep, 0))
-        needed.append(ep - n)
-    assert needed == sorted(needed, reverse=True)
-    assert needed[0] > needed[-1]
+@pytest.mark.parametrize("accepted", [2, 5, 20])
+def test_it_fires_at_the_run_the_beta_predictive_makes_unlikely(accepted: int) -> None:
+    """After n accepted services and no rejection, k rejections in a row have the predictive
+    chance prod_{i<k} (1 + i) / (n + 2 + i) = 1 / C(n + 1 + k, k): the test fires at the first k
+    where that is below alpha."""
+    expected = next(k for k in range(1, 1000) if 1 / math.comb(accepted + 1 + k, k) < 0.01)
+    learner = dts(**ON)
+    fired = spy(learner)
+    for ep in range(1, accepted + 1):
+        learner.update(accepted_tea(ep, 0))
+    ep = accepted
+    while not fired:
+        ep += 1
+        learner.update(rejected_tea(ep, 0))
+    assert ep - accepted == expected
 
 
 def snapshot(learner: Any) -> str:
@@ -256,3 +258,12 @@ def test_after_a_change_the_test_earns_more_than_forgetting_alone() -> None:
     share = {k: x / oracle[k[1]] for k, x in earned.items()}
     assert share["on", "after"] > share["off", "after"]
     assert share["on", "before"] >= share["off", "before"] - 0.02
+
+
+def test_a_state_with_an_impossible_run_chance_is_refused() -> None:
+    learner = dts(**ON)
+    learner.update(rejected_tea(1, 0))
+    assert 0.0 < learner.change[0, 3] <= 1.0
+    learner.change[0, 3] = 2.0
+    with pytest.raises(StateFormatError, match="change"):
+        learner_from_state(json.loads(snapshot(learner)), MISSION)
