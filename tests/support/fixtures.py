@@ -15,6 +15,7 @@ not answer, the run fails; it does not skip. Every test starts from empty tables
 
 from __future__ import annotations
 
+import os
 import shutil
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -35,12 +36,27 @@ from .live import database_name, postgres_database
 ENGINES = ("sqlite", "postgresql")
 
 
+def engines() -> tuple[str, ...]:
+    """The engines the database tests run on: both, or those ``ATTUNE_TEST_ENGINES`` names
+    (comma-separated; ``./scripts/test --fast`` sets ``sqlite``)."""
+    chosen = os.environ.get("ATTUNE_TEST_ENGINES", "").strip()
+    if not chosen:
+        return ENGINES
+    names = tuple(dict.fromkeys(e.strip() for e in chosen.split(",") if e.strip()))
+    unknown = [e for e in names if e not in ENGINES]
+    if unknown or not names:
+        raise pytest.UsageError(f"ATTUNE_TEST_ENGINES must name engines among "
+                                f"{', '.join(ENGINES)}; got {chosen!r}.")
+    return names
+
+
 def pytest_generate_tests(metafunc: pytest.Metafunc) -> None:
-    """The engine rule: both engines, or SQLite alone for ``one_engine`` tests."""
+    """The engine rule: both engines (or those ``ATTUNE_TEST_ENGINES`` names), or SQLite alone
+    for ``one_engine`` tests."""
     if "database_url" not in metafunc.fixturenames:
         return
     one = metafunc.definition.get_closest_marker("one_engine") is not None
-    metafunc.parametrize("database_url", ENGINES[:1] if one else ENGINES, indirect=True,
+    metafunc.parametrize("database_url", ENGINES[:1] if one else engines(), indirect=True,
                          scope="session")
 
 
