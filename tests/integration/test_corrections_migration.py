@@ -30,7 +30,13 @@ from app.db import migrate
 from app.main import create_app
 from app.settings import Settings
 from tests.support.live import fresh_database
-from tests.support.release import OldService, play, previous_release, release_code
+from tests.support.release import (
+    OldService,
+    play,
+    previous_release,
+    release_code,
+    table_rows,
+)
 
 pytestmark = [pytest.mark.slow]
 
@@ -86,26 +92,8 @@ def _tables(url: str) -> list[str]:
 
 
 def _rows(url: str, tables: list[str]) -> dict[str, list[tuple[Any, ...]]]:
-    """Every row of the tables the previous release had, sorted, without the new columns."""
-    engine = create_engine(url)
-    out: dict[str, list[tuple[Any, ...]]] = {}
-    try:
-        with engine.connect() as conn:
-            for table in tables:
-                rows = []
-                for row in conn.execute(text(f"SELECT * FROM {table}")).mappings():
-                    d = {k: v for k, v in row.items() if k not in NEW_COLUMNS}
-                    rows.append(tuple(sorted((k, _plain(v)) for k, v in d.items())))
-                out[table] = sorted(rows, key=repr)
-    finally:
-        engine.dispose()
-    return out
-
-
-def _plain(value: Any) -> Any:
-    if isinstance(value, dt.datetime):
-        return value.replace(tzinfo=None).isoformat()
-    return value
+    """Every row of the tables the previous release had, without the new columns."""
+    return table_rows(url, tables, leave_out=NEW_COLUMNS)
 
 
 def _scalars(url: str, sql: str) -> list[Any]:

@@ -12,7 +12,6 @@ still unique across fleets (and say which ids are not, when they are not).
 
 from __future__ import annotations
 
-import datetime as dt
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -29,7 +28,13 @@ from app.services.context import ServiceContext
 from app.services.models import rebuild_model
 from app.settings import Settings
 from tests.support.live import fresh_database
-from tests.support.release import OldService, play, previous_release, release_code
+from tests.support.release import (
+    OldService,
+    play,
+    previous_release,
+    release_code,
+    table_rows,
+)
 
 pytestmark = [pytest.mark.slow]
 
@@ -118,39 +123,28 @@ def _api_view(api: Any, users: dict[str, list[str]], *, fleet_param: bool) -> di
 
 
 def _rows(url: str, user_key: str) -> dict[str, list[tuple[Any, ...]]]:
-    """Every row of every table, sorted; a user's rows name it by (fleet, user id) instead of
-    the key of the schema in force (``user_key``: ``user_id`` before, ``id`` after), and the
-    users' own key and seed key (new) are left out."""
+    """Every row of every table; a user's rows name it by (fleet, user id) instead of the key
+    of the schema in force (``user_key``: ``user_id`` before, ``id`` after), and the users' own
+    key and seed key (new) and later releases' columns are left out."""
     engine = create_engine(url)
-    out: dict[str, list[tuple[Any, ...]]] = {}
     try:
         with engine.connect() as conn:
             owner = {r[0]: (r[1], r[2]) for r in conn.execute(text(
                 f"SELECT {user_key}, fleet, user_id FROM users"))}
-            for table in ("users", *USER_TABLES, "decisions", "feedback", "api_keys",
-                          "audit_log"):
-                result = conn.execute(text(f"SELECT * FROM {table}"))
-                rows = []
-                for row in result.mappings():
-                    d = dict(row)
-                    for later in ("mission_version", "base_mission_version", "utc_offset"):
-                        d.pop(later, None)  # a later release's columns
-                    if table == "users":
-                        d.pop("id", None)
-                        d.pop("seed_key", None)
-                    elif table in USER_TABLES:
-                        d["user"] = owner[d.pop("user_pk" if "user_pk" in d else "user_id")]
-                    rows.append(tuple(sorted((k, _plain(v)) for k, v in d.items())))
-                out[table] = sorted(rows, key=repr)
     finally:
         engine.dispose()
-    return out
 
+    def by_owner(table: str, row: dict[str, Any]) -> None:
+        if table == "users":
+            row.pop("id", None)
+            row.pop("seed_key", None)
+        elif table in USER_TABLES:
+            row["user"] = owner[row.pop("user_pk" if "user_pk" in row else "user_id")]
 
-def _plain(value: Any) -> Any:
-    if isinstance(value, dt.datetime):
-        return value.replace(tzinfo=None).isoformat()
-    return value
+    return table_rows(url, ("users", *USER_TABLES, "decisions", "feedback", "api_keys",
+                            "audit_log"),
+                      leave_out=("mission_version", "base_mission_version", "utc_offset"),
+                      rewrite=by_owner)
 
 
 @pytest.fixture(params=["sqlite", "postgresql"])

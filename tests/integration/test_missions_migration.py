@@ -13,7 +13,6 @@ no fleet has changed its mission (and names those that have).
 
 from __future__ import annotations
 
-import datetime as dt
 import json
 from collections.abc import Iterator
 from pathlib import Path
@@ -33,7 +32,13 @@ from app.services.context import ServiceContext
 from app.services.models import rebuild_model
 from app.settings import Settings
 from tests.support.live import fresh_database
-from tests.support.release import OldService, play, previous_release, release_code
+from tests.support.release import (
+    OldService,
+    play,
+    previous_release,
+    release_code,
+    table_rows,
+)
 
 pytestmark = [pytest.mark.slow]
 
@@ -95,26 +100,8 @@ def _fill(old: OldService) -> dict[str, Any]:
 
 
 def _rows(url: str) -> dict[str, list[tuple[Any, ...]]]:
-    """Every row of the tables the previous release had, sorted, without the new columns."""
-    engine = create_engine(url)
-    out: dict[str, list[tuple[Any, ...]]] = {}
-    try:
-        with engine.connect() as conn:
-            for table in TABLES:
-                rows = []
-                for row in conn.execute(text(f"SELECT * FROM {table}")).mappings():
-                    d = {k: v for k, v in row.items() if k not in NEW_COLUMNS}
-                    rows.append(tuple(sorted((k, _plain(v)) for k, v in d.items())))
-                out[table] = sorted(rows, key=repr)
-    finally:
-        engine.dispose()
-    return out
-
-
-def _plain(value: Any) -> Any:
-    if isinstance(value, dt.datetime):
-        return value.replace(tzinfo=None).isoformat()
-    return value
+    """Every row of the tables the previous release had, without the new columns."""
+    return table_rows(url, TABLES, leave_out=NEW_COLUMNS)
 
 
 def _api_view(api: Any) -> dict[str, Any]:

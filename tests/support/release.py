@@ -5,16 +5,19 @@ API."""
 
 from __future__ import annotations
 
+import datetime as dt
 import os
 import signal
 import subprocess
 import sys
 import tarfile
 import time
+from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any
 
 import httpx
+from sqlalchemy import create_engine, text
 
 from tests.support.live import free_port
 
@@ -119,3 +122,37 @@ def release_code(commit: str, folder: Path) -> Path:
         tar.extractall(folder, filter="data")
     assert (folder / "migrations" / "versions").is_dir()
     return folder
+
+
+Row = dict[str, Any]
+
+
+def table_rows(url: str, tables: Iterable[str], *, leave_out: Iterable[str] = (),
+               rewrite: Callable[[str, Row], None] | None = None
+               ) -> dict[str, list[tuple[Any, ...]]]:
+    """Every row of ``tables`` as sorted (column, value) pairs, the rows sorted, for comparing
+    a database before and after a migration: the columns ``leave_out`` names (a later
+    release's) are left out, times are compared without their zone (the engines give them
+    differently), and ``rewrite(table, row)`` may change a row in place first."""
+    skip = set(leave_out)
+    engine = create_engine(url)
+    out: dict[str, list[tuple[Any, ...]]] = {}
+    try:
+        with engine.connect() as conn:
+            for table in tables:
+                rows = []
+                for found in conn.execute(text(f"SELECT * FROM {table}")).mappings():
+                    row = {k: v for k, v in found.items() if k not in skip}
+                    if rewrite is not None:
+                        rewrite(table, row)
+                    rows.append(tuple(sorted((k, _plain(v)) for k, v in row.items())))
+                out[table] = sorted(rows, key=repr)
+    finally:
+        engine.dispose()
+    return out
+
+
+def _plain(value: Any) -> Any:
+    if isinstance(value, dt.datetime):
+        return value.replace(tzinfo=None).isoformat()
+    return value
