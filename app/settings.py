@@ -63,6 +63,27 @@ class Settings(BaseSettings):
         "snapshots a write stores only the samples it taught, and a worker that does not have "
         "the learner in memory replays them onto the last snapshot (1: store it on every write).",
     )
+    prior_min_contributors: int = Field(
+        default=5, ge=3, le=1000,
+        description="A fleet's prior for newcomers is in force once at least this many of its "
+        "people (with the newcomer's learner, enough episodes and the prior allowed) can "
+        "contribute to it; fewer, and newcomers start from nothing.",
+    )
+    prior_min_episodes: int = Field(
+        default=20, ge=1, le=1_000_000,
+        description="The episodes a person needs before their model counts towards the fleet's "
+        "prior.",
+    )
+    prior_max_contributors: int = Field(
+        default=50, ge=3, le=10_000,
+        description="The prior averages at most this many people: those whose models changed "
+        "last.",
+    )
+    prior_strength: float = Field(
+        default=4.0, gt=0, le=100,
+        description="How many of a newcomer's own answers the fleet's prior weighs, per "
+        "negotiation step it knows.",
+    )
     log_level: str = Field(default="info", description="debug, info, warning or error.")
     log_format: str = Field(
         default="text",

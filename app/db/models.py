@@ -23,7 +23,7 @@ from .base import Base
 from .types import LearnerStateType, UTCDateTime, utcnow
 
 __all__ = ["ApiKey", "AuditEntry", "Correction", "Decision", "Episode", "Feedback",
-           "FleetMission", "LearnerModel", "Sample", "User"]
+           "FleetMission", "FleetSettings", "LearnerModel", "Sample", "User"]
 
 ID = 40  # server-chosen ids: a prefix and 32 hex digits
 CLIENT_ID = 128  # client-chosen ids: ^[A-Za-z0-9._:-]{1,128}$
@@ -64,6 +64,20 @@ class User(Base):
     episode_count: Mapped[int] = mapped_column(Integer, default=0)
     draws: Mapped[int] = mapped_column(Integer, default=0)  # decisions drawn: the seed stream
     seed_key: Mapped[str] = mapped_column(String(2 * CLIENT_ID + 1))
+    # False: the person neither starts from the fleet's prior nor adds to it (docs/api.md)
+    fleet_prior: Mapped[bool] = mapped_column(Boolean, default=True)
+
+
+class FleetSettings(Base):
+    """A fleet's own settings, where they differ from the deployment's: whether its newcomers
+    start from the fleet's prior (``prior_enabled``). A fleet without a row has the defaults."""
+
+    __tablename__ = "fleet_settings"
+
+    fleet: Mapped[str] = mapped_column(String(CLIENT_ID), primary_key=True)
+    prior_enabled: Mapped[bool] = mapped_column(Boolean, default=True)
+    updated_at: Mapped[dt.datetime] = mapped_column(UTCDateTime(), default=utcnow)
+    updated_by: Mapped[str | None] = mapped_column(String(ID))
 
 
 class FleetMission(Base):
@@ -125,6 +139,10 @@ class LearnerModel(Base):
     # The fleet's mission version the learner is laid out for, and the one its base was.
     mission_version: Mapped[int] = mapped_column(Integer, default=1)
     base_mission_version: Mapped[int] = mapped_column(Integer, default=1)
+    # Where the base came from: "fresh" (a new learner), "imported" (an exported document) or
+    # "fleet_prior" (the fleet's prior, averaged over ``base_contributors`` of its people).
+    base_origin: Mapped[str] = mapped_column(String(16), default="fresh")
+    base_contributors: Mapped[int | None] = mapped_column(Integer)
 
 
 class Episode(Base):

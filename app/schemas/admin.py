@@ -9,7 +9,8 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from .common import ClientId
 
-__all__ = ["FleetList", "FleetOut", "KeyCreated", "KeyIn", "KeyList", "KeyOut"]
+__all__ = ["FleetList", "FleetOut", "FleetPriorIn", "FleetPriorOut", "KeyCreated", "KeyIn",
+           "KeyList", "KeyOut"]
 
 Role = Literal["robot", "staff", "admin"]
 
@@ -59,3 +60,29 @@ class FleetOut(BaseModel):
 
 class FleetList(BaseModel):
     items: list[FleetOut]
+
+
+class FleetPriorIn(BaseModel):
+    model_config = ConfigDict(extra="forbid", json_schema_extra={"examples": [{"enabled": False}]})
+
+    enabled: bool = Field(description="Whether the fleet's newcomers start from its prior.")
+
+
+class FleetPriorOut(BaseModel):
+    """A fleet's prior for newcomers: whether it is on, and for which learners it is in force."""
+
+    fleet: str
+    enabled: bool = Field(description="The fleet's switch (on unless its staff turned it off).")
+    in_force: list[str] = Field(description="The learners (algorithms) whose newcomers start "
+                                "from the prior now: enabled, with enough contributors.")
+    contributors: dict[str, int] = Field(description="Per algorithm, the people who can "
+                                         "contribute now (at most max_contributors).")
+    min_contributors: int
+    min_episodes: int
+    max_contributors: int
+    strength: float = Field(description="The weight of the prior, in a newcomer's own answers "
+                            "per negotiation step.")
+    mission_version: int = Field(description="The contributors' models are laid out for it.")
+    shared: str = Field(description="What the prior takes from the contributors' models.")
+    updated_at: dt.datetime | None
+    updated_by: str | None = Field(description="The key that last turned it on or off.")

@@ -1,14 +1,15 @@
 from __future__ import annotations
 
 import datetime as dt
-from typing import Any
+from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
 from .common import ActionOut, ClientId
 
 __all__ = [
-    "ActionBelief", "ContextModel", "MissionOut", "ModelOut", "StateModel", "StatsOut",
+    "ActionBelief", "ContextModel", "MissionOut", "ModelOut", "StartedFrom", "StateModel",
+    "StatsOut",
 ]
 
 
@@ -35,6 +36,15 @@ class ContextModel(BaseModel):
     states: list[StateModel]
 
 
+class StartedFrom(BaseModel):
+    kind: Literal["fresh", "imported", "fleet_prior"] = Field(
+        description="What the model started from (since its last reset or import): a new "
+        "learner, an imported document, or the fleet's prior.")
+    contributors: int | None = Field(
+        default=None, description="fleet_prior: how many of the fleet's people the prior "
+        "averaged; otherwise null.")
+
+
 class ModelOut(BaseModel):
     user_id: str
     algorithm: str
@@ -43,6 +53,7 @@ class ModelOut(BaseModel):
     episodes: int
     mission_version: int = Field(description="The fleet's mission version the model is laid "
                                  "out for.")
+    started_from: StartedFrom
     contexts: list[ContextModel]
 
 

@@ -8,6 +8,7 @@ from typing import Literal
 from pydantic import BaseModel, ConfigDict, Field
 
 from .common import ClientId
+from .models import StartedFrom
 
 __all__ = ["Certainty", "ChangeOut", "CorrectionIn", "CorrectionList", "CorrectionOut",
            "EvidenceOut", "ProfileContext", "ProfileOut", "RobotWill", "Wanted"]
@@ -125,6 +126,8 @@ class ProfileOut(BaseModel):
     open_episodes: int
     utc_offset: int | None = Field(description="Minutes east of UTC of the person's latest "
                                    "event: the local time the profile speaks in.")
+    started_from: StartedFrom = Field(description="What the model started from: as in GET "
+                                      ".../model.")
     contexts: list[ProfileContext]
     corrections: list[CorrectionOut] = Field(description="The corrections in force or "
                                              "overridden (lifted ones: GET .../corrections).")

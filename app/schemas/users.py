@@ -30,6 +30,10 @@ class UserIn(BaseModel):
 
     display_name: str | None = Field(default=None, max_length=200)
     learner: LearnerSpec | None = None
+    fleet_prior: bool | None = Field(
+        default=None, description="Whether the person takes part in the fleet's prior: a new "
+        "user starts from it, and the user's model adds to it. false: neither. Omitted: true "
+        "for a new user, unchanged for an existing one.")
 
 
 class UserOut(BaseModel):
@@ -39,6 +43,7 @@ class UserOut(BaseModel):
     learner: LearnerSpec
     created_at: dt.datetime
     episodes: int
+    fleet_prior: bool = Field(description="Whether the person takes part in the fleet's prior.")
 
 
 class UserList(Page):

@@ -23,7 +23,8 @@ from .context import Principal
 __all__ = ["ACTIONS", "CLI", "list_audit", "record"]
 
 ACTIONS = ("user.delete", "model.reset", "model.export", "model.import", "model.rebuild",
-           "key.create", "key.revoke", "mission.set", "correction.add", "correction.lift")
+           "key.create", "key.revoke", "mission.set", "correction.add", "correction.lift",
+           "fleet.prior")
 CLI = Principal("cli", "admin", "default")  # an operator at the machine (``attune keys ...``)
 
 

@@ -22,13 +22,21 @@ from app.learning.negotiation import INTERACTION_CODE
 from app.learning.state import same_state
 from app.learning.types import Interaction
 from app.schemas.common import ActionOut
-from app.schemas.models import ActionBelief, ContextModel, ModelOut, StateModel, StatsOut
+from app.schemas.models import (
+    ActionBelief,
+    ContextModel,
+    ModelOut,
+    StartedFrom,
+    StateModel,
+    StatsOut,
+)
 
 from . import audit, corrections, missions
 from .auth import require_manager
 from .context import Principal, ServiceContext, rng_for
 from .episodes import action_out
 from .learners import fresh_learner, load_learner, replay, save_learner
+from .prior import started_from
 from .users import visible_user
 
 __all__ = ["RebuildReport", "every_user", "export_model", "fleets_with", "import_model",
@@ -88,7 +96,8 @@ def model_view(
         contexts.append(ContextModel(time_slot=slot, situation=sit, states=states))
     return ModelOut(user_id=user.user_id, algorithm=user.algorithm, params=dict(user.params),
                     version=model.version, episodes=user.episode_count,
-                    mission_version=model.mission_version, contexts=contexts)
+                    mission_version=model.mission_version,
+                    started_from=StartedFrom(**started_from(session, user.id)), contexts=contexts)
 
 
 def stats(session: Session, principal: Principal, user_id: str, *, last: int | None,

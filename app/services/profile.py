@@ -22,6 +22,7 @@ from app.learning import ActionKind, NegotiationSpace
 from app.learning.beliefs import Answer, Belief, EpisodeEvidence, Item, belief, episode_evidence
 from app.learning.guidance import Rule, RuleKind
 from app.learning.learners import TabularLearner
+from app.schemas.models import StartedFrom
 from app.schemas.profile import (
     ChangeOut,
     EvidenceOut,
@@ -34,6 +35,7 @@ from app.schemas.profile import (
 from .context import Principal, ServiceContext
 from .corrections import correction_views
 from .learners import load_learner
+from .prior import started_from
 from .users import visible_user
 
 __all__ = ["profile_view", "words"]
@@ -86,7 +88,8 @@ def profile_view(session: Session, ctx: ServiceContext, principal: Principal, us
     return ProfileOut(
         user_id=user.user_id, display_name=user.display_name, episodes=len(episodes),
         open_episodes=sum(ep.status == "open" for ep in episodes),
-        utc_offset=last.utc_offset if last else None, contexts=contexts,
+        utc_offset=last.utc_offset if last else None,
+        started_from=StartedFrom(**started_from(session, user.id)), contexts=contexts,
         corrections=corrections,
     )
 

@@ -26,6 +26,7 @@ from .auth import require_manager
 from .context import Principal, ServiceContext
 from .learners import fresh_learner, save_learner
 from .missions import current_version
+from .prior import starting_learner
 
 __all__ = ["create_user", "delete_user", "fleet_of", "get_user", "list_users", "no_user",
            "put_user", "user_out", "visible_user"]
@@ -61,21 +62,28 @@ def user_out(user: UserRow) -> UserOut:
     return UserOut(
         user_id=user.user_id, fleet=user.fleet, display_name=user.display_name,
         learner=LearnerSpec(algorithm=user.algorithm, params=dict(user.params)),
-        created_at=user.created_at, episodes=user.episode_count,
+        created_at=user.created_at, episodes=user.episode_count, fleet_prior=user.fleet_prior,
     )
 
 
 def create_user(session: Session, ctx: ServiceContext, fleet: str, user_id: str, *,
-                spec: LearnerSpec | None = None, display_name: str | None = None) -> bool:
-    """Create the user in ``fleet`` with a fresh learner, unless the fleet has that id; True
-    when created. (Two requests creating the same user at once: one creates it, both go on.)"""
+                spec: LearnerSpec | None = None, display_name: str | None = None,
+                fleet_prior: bool | None = None) -> bool:
+    """Create the user in ``fleet`` unless the fleet has that id; True when created. (Two
+    requests creating the same user at once: one creates it, both go on.) The model starts from
+    the fleet's prior when it is in force for the user (``app.services.prior``), else fresh."""
     spec = spec or LearnerSpec()
+    takes_part = fleet_prior is not False
     version = current_version(session, ctx, fleet, for_new_user=True)
-    learner = fresh_learner(spec.algorithm, spec.params,
-                            ctx.missions.get(session, fleet, version).mission)
+    learner, origin = starting_learner(session, ctx, fleet, spec.algorithm, spec.params,
+                                       version, takes_part=takes_part)
+    state = learner.to_state()
     return repo.create(session, user_id=user_id, fleet=fleet, algorithm=spec.algorithm,
                        params=learner.params.to_dict(), display_name=display_name,
-                       state=learner.to_state(), mission_version=version, now=utcnow())
+                       state=state, mission_version=version, now=utcnow(),
+                       fleet_prior=takes_part,
+                       base=(state, origin.contributors or 0)
+                       if origin.kind == "fleet_prior" else None)
 
 
 def put_user(
@@ -88,12 +96,14 @@ def put_user(
     created = False
     if repo.lock(session, in_fleet, user_id) is None:
         created = create_user(session, ctx, in_fleet, user_id, spec=body.learner,
-                              display_name=body.display_name)
+                              display_name=body.display_name, fleet_prior=body.fleet_prior)
     user = visible_user(session, principal, user_id, fleet=in_fleet, lock=True)
     if created:
         return user_out(user), True
     if body.display_name is not None:
         user.display_name = body.display_name
+    if body.fleet_prior is not None:
+        user.fleet_prior = body.fleet_prior
     if body.learner is not None:
         model = models_repo.head(session, user.id)
         assert model is not None  # every user is created with its model

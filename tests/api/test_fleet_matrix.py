@@ -145,6 +145,11 @@ MATRIX: list[Row] = [
         route="/v1/admin/fleets/{fleet}/missions"),
     Row("PUT",    f"/v1/admin/fleets/{A}/mission",      (401, 401, 403, 403, 200, 403, 200),
         json=COCOA, writes=True, route="/v1/admin/fleets/{fleet}/mission"),
+    # Turning a fleet's prior off changes no one's model: only the fleet's next newcomers.
+    Row("GET",    f"/v1/admin/fleets/{A}/prior",        (401, 401, 403, 403, 200, 403, 200),
+        route="/v1/admin/fleets/{fleet}/prior"),
+    Row("PUT",    f"/v1/admin/fleets/{A}/prior",        (401, 401, 403, 403, 200, 403, 200),
+        json={"enabled": False}, route="/v1/admin/fleets/{fleet}/prior"),
     # The console: a cookie holding the key (staff and admin get it by signing in; robot and
     # revoked keys, refused there, send one made by hand). "none": no cookie, so the pages
     # send the browser to the login form (303).

@@ -8,10 +8,10 @@ from sqlalchemy.orm import Session
 
 from app.api.deps import CurrentPrincipal, TransactionalRoute
 from app.api.errors import responses
-from app.schemas.admin import FleetList, KeyCreated, KeyIn, KeyList
+from app.schemas.admin import FleetList, FleetPriorIn, FleetPriorOut, KeyCreated, KeyIn, KeyList
 from app.schemas.audit import AuditList
 from app.schemas.models import MissionChanged, MissionChangeIn, MissionVersionList
-from app.services import admin, missions
+from app.services import admin, missions, prior
 from app.services import audit as service
 from app.services.context import ServiceContext
 
@@ -30,7 +30,8 @@ def list_audit(
     cursor: SeqCursor = None,
 ) -> AuditList:
     """The audit log, newest first: who (the key), what (user.delete, model.reset,
-    model.export, model.import, model.rebuild, key.create, key.revoke, mission.set), when.
+    model.export, model.import, model.rebuild, key.create, key.revoke, mission.set,
+    correction.add, correction.lift, fleet.prior), when.
     Admins read every fleet's entries, a fleet's staff its own."""
     return service.list_audit(session, principal, limit=limit, cursor=cursor)
 
@@ -90,3 +91,22 @@ def set_mission(fleet: FleetName, body: MissionChangeIn, session: Session, ctx: 
     out, replay = missions.set_mission(session, ctx, principal, fleet, change_id=body.change_id,
                                        mission_doc=body.mission, renames_doc=renames)
     return JSONResponse(out, headers={"Idempotent-Replay": "true"} if replay else None)
+
+
+@router.get("/fleets/{fleet}/prior", response_model=FleetPriorOut, responses=responses(403))
+def get_fleet_prior(fleet: FleetName, session: Session, ctx: ServiceContext,
+                    principal: CurrentPrincipal) -> FleetPriorOut:
+    """A fleet's prior for newcomers (the fleet's staff, admins): whether it is on, how many of
+    its people can contribute per learner, and for which learners it is in force."""
+    return FleetPriorOut.model_validate(prior.fleet_prior_view(session, ctx, principal, fleet))
+
+
+@router.put("/fleets/{fleet}/prior", response_model=FleetPriorOut,
+            responses=responses(403, 415))
+def set_fleet_prior(fleet: FleetName, body: FleetPriorIn, session: Session,
+                    ctx: ServiceContext, principal: CurrentPrincipal) -> FleetPriorOut:
+    """Turn a fleet's prior on or off for its next newcomers (the fleet's staff, admins);
+    models that started from it keep their start. Audit entry ``fleet.prior`` when it
+    changes."""
+    return FleetPriorOut.model_validate(
+        prior.set_fleet_prior(session, ctx, principal, fleet, enabled=body.enabled))

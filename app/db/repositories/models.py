@@ -2,7 +2,8 @@
 
 The model row holds ``version`` (up by one with every change), the learner's state document as
 of ``state_version`` (a snapshot, written every few versions), and where the model started
-(``base_state`` at ``base_version``: an imported document, or ``None`` for a fresh learner).
+(``base_state`` at ``base_version``: an imported document or the fleet's prior, or ``None`` for
+a fresh learner).
 Replaying the journal's samples after ``state_version`` onto the snapshot gives the learner at
 ``version``; replaying those after ``base_version`` onto the base gives it too (a rebuild).
 """
@@ -16,11 +17,12 @@ from typing import Any
 from sqlalchemy import bindparam, insert, select, update
 from sqlalchemy.orm import Session
 
-from ..models import LearnerModel, Sample
+from ..models import LearnerModel, Sample, User
 from ._rows import Prepared, columns, conn, names, record, table
 
-__all__ = ["ModelRow", "SampleRow", "add_samples", "advance", "base_state", "has_transition",
-           "head", "replace", "samples_since", "snapshot", "store_snapshot"]
+__all__ = ["ModelRow", "Origin", "SampleRow", "add_samples", "advance", "base_state",
+           "has_transition", "head", "origin", "prior_contributors", "replace", "samples_since",
+           "snapshot", "store_snapshot"]
 
 
 @dataclass(slots=True)
@@ -33,6 +35,15 @@ class ModelRow:
     state_version: int
     mission_version: int  # the fleet's mission version the learner is laid out for
     base_mission_version: int  # the one its base (fresh or imported) was laid out for
+
+
+@dataclass(frozen=True, slots=True)
+class Origin:
+    """Where a model's base came from: ``"fresh"``, ``"imported"`` or ``"fleet_prior"`` (then
+    ``contributors``: how many people the prior averaged)."""
+
+    kind: str = "fresh"
+    contributors: int | None = None
 
 
 @dataclass(slots=True)
@@ -56,6 +67,7 @@ class SampleRow:
 
 
 _models = table(LearnerModel)
+_users = table(User)
 _samples = table(Sample)
 _HEAD = Prepared(select(*columns(_models, ModelRow))
                  .where(_models.c.user_pk == bindparam("user_pk")))
@@ -89,6 +101,26 @@ def base_state(session: Session, user_pk: int) -> dict[str, Any] | None:
     return doc
 
 
+def origin(session: Session, user_pk: int) -> Origin:
+    row = conn(session).execute(
+        select(_models.c.base_origin, _models.c.base_contributors)
+        .where(_models.c.user_pk == user_pk)).first()
+    return Origin() if row is None else Origin(row[0], row[1])
+
+
+def prior_contributors(session: Session, *, fleet: str, algorithm: str, mission_version: int,
+                       min_episodes: int, limit: int) -> list[int]:
+    """The users of ``fleet`` whose models may add to its prior for a newcomer learning with
+    ``algorithm``: taking part, with that learner, at least ``min_episodes`` episodes and laid
+    out for ``mission_version``; at most ``limit``, those whose models changed last first."""
+    stmt = (select(_users.c.id).join(_models, _models.c.user_pk == _users.c.id)
+            .where(_users.c.fleet == fleet, _users.c.fleet_prior.is_(True),
+                   _users.c.algorithm == algorithm, _users.c.episode_count >= min_episodes,
+                   _models.c.mission_version == mission_version)
+            .order_by(_models.c.updated_at.desc(), _users.c.id).limit(limit))
+    return list(conn(session).execute(stmt).scalars())
+
+
 def advance(session: Session, user_pk: int, *, version: int, updated_at: dt.datetime,
             state: dict[str, Any] | None = None, mission_version: int | None = None) -> None:
     """Move the model to ``version``; with ``state``, the snapshot moves there too; with
@@ -111,15 +143,16 @@ def store_snapshot(session: Session, user_pk: int, *, version: int,
 
 def replace(session: Session, user_pk: int, *, version: int, state: dict[str, Any],
             base_state: dict[str, Any] | None, episode_offset: int, mission_version: int,
-            updated_at: dt.datetime) -> None:
+            updated_at: dt.datetime, base_origin: Origin | None = None) -> None:
     """Start the model over at ``version`` from ``state`` (a reset, a new learner, an import:
-    ``base_state`` is the imported document, ``None`` for a fresh learner), laid out for
-    ``mission_version``."""
-    _ADVANCE.run(session, {
-        "b_user_pk": user_pk, "version": version, "state": state, "state_version": version,
-        "base_state": base_state, "base_version": version, "episode_offset": episode_offset,
-        "mission_version": mission_version, "base_mission_version": mission_version,
-        "updated_at": updated_at})
+    ``base_state`` is the imported document or the fleet's prior, ``None`` for a fresh
+    learner; ``base_origin`` says which), laid out for ``mission_version``."""
+    made = base_origin or Origin("fresh" if base_state is None else "imported")
+    conn(session).execute(update(_models).where(_models.c.user_pk == user_pk).values(
+        version=version, state=state, state_version=version, base_state=base_state,
+        base_version=version, episode_offset=episode_offset, mission_version=mission_version,
+        base_mission_version=mission_version, updated_at=updated_at, base_origin=made.kind,
+        base_contributors=made.contributors))
 
 
 def add_samples(session: Session, rows: list[SampleRow]) -> None:

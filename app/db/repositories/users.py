@@ -33,6 +33,7 @@ class UserRow:
     episode_count: int
     draws: int
     seed_key: str
+    fleet_prior: bool
 
 
 _users = table(User)
@@ -79,8 +80,11 @@ def lock_owner(session: Session, episode_id: str) -> UserRow | None:
 
 def create(session: Session, *, user_id: str, fleet: str, algorithm: str,
            params: dict[str, Any], display_name: str | None, state: dict[str, Any],
-           mission_version: int, now: dt.datetime) -> bool:
-    """Insert the user and its fresh model unless the fleet has that id; True when inserted.
+           mission_version: int, now: dt.datetime, fleet_prior: bool = True,
+           base: tuple[dict[str, Any], int] | None = None) -> bool:
+    """Insert the user and its model unless the fleet has that id; True when inserted. The
+    model starts as ``state``: a fresh learner, or with ``base`` (the prior's document, its
+    contributors) the fleet's prior, kept as the model's base.
 
     ``ON CONFLICT DO NOTHING`` makes two robots creating the same user at once safe: one wins,
     the other sees the winner's row when it locks it. The user's decisions are seeded by
@@ -93,16 +97,18 @@ def create(session: Session, *, user_id: str, fleet: str, algorithm: str,
         dialect.insert(_users).values(
             user_id=user_id, fleet=fleet, algorithm=algorithm, params=params,
             display_name=display_name, created_at=now, episode_count=0, draws=0,
-            seed_key=f"{fleet}/{user_id}")
+            seed_key=f"{fleet}/{user_id}", fleet_prior=fleet_prior)
         .on_conflict_do_nothing(index_elements=["fleet", "user_id"]).returning(_users.c.id)
     )
     made = c.execute(stmt).first()
     if made is None:
         return False
     c.execute(insert(_models).values(
-        user_pk=made[0], version=0, state=state, base_state=None, base_version=0,
-        episode_offset=0, mission_version=mission_version, base_mission_version=mission_version,
-        updated_at=now))
+        user_pk=made[0], version=0, state=state, base_state=None if base is None else base[0],
+        base_version=0, episode_offset=0, mission_version=mission_version,
+        base_mission_version=mission_version, updated_at=now,
+        base_origin="fresh" if base is None else "fleet_prior",
+        base_contributors=None if base is None else base[1]))
     return True
 
 
@@ -112,9 +118,11 @@ def save_counters(session: Session, user: UserRow) -> None:
 
 
 def save_profile(session: Session, user: UserRow) -> None:
-    """Store the display name and the learner's algorithm and parameters."""
+    """Store the display name, the learner's algorithm and parameters, and whether the person
+    takes part in the fleet's prior."""
     conn(session).execute(update(_users).where(_users.c.id == user.id).values(
-        display_name=user.display_name, algorithm=user.algorithm, params=user.params))
+        display_name=user.display_name, algorithm=user.algorithm, params=user.params,
+        fleet_prior=user.fleet_prior))
 
 
 def list_page(session: Session, *, fleet: str | None, after: tuple[str, str] | None,

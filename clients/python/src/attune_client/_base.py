@@ -34,6 +34,7 @@ from ._models import (
     EpisodeTrace,
     FeedbackResult,
     FleetMission,
+    FleetPrior,
     FlushReport,
     LearnerSpec,
     Mission,
@@ -199,6 +200,15 @@ class Api:
                   _model(MissionVersionList))
 
     @staticmethod
+    def fleet_prior(fleet: str) -> Op[FleetPrior]:
+        return Op("GET", f"/v1/admin/fleets/{_segment(fleet)}/prior", _model(FleetPrior))
+
+    @staticmethod
+    def set_fleet_prior(fleet: str, enabled: bool) -> Op[FleetPrior]:
+        return Op("PUT", f"/v1/admin/fleets/{_segment(fleet)}/prior", _model(FleetPrior),
+                  body=_json({"enabled": enabled}))
+
+    @staticmethod
     def set_mission(fleet: str, mission: Mission | Mapping[str, Any], change_id: str | None,
                     renames: MissionRenames | Mapping[str, Any] | None) -> Op[MissionChanged]:
         body: dict[str, Any] = {
@@ -213,10 +223,13 @@ class Api:
 
     @staticmethod
     def put_user(user_id: str, display_name: str | None,
-                 learner: LearnerSpec | Mapping[str, Any] | None, reset_model: bool) -> Op[User]:
+                 learner: LearnerSpec | Mapping[str, Any] | None, reset_model: bool,
+                 fleet_prior: bool | None = None) -> Op[User]:
         body: dict[str, Any] = {}
         if display_name is not None:
             body["display_name"] = display_name
+        if fleet_prior is not None:
+            body["fleet_prior"] = fleet_prior
         if learner is not None:
             spec = learner if isinstance(learner, LearnerSpec) else LearnerSpec.model_validate(
                 dict(learner))

@@ -38,6 +38,7 @@ from ._models import (
     EpisodeTrace,
     FeedbackResult,
     FleetMission,
+    FleetPrior,
     FlushReport,
     LearnerSpec,
     Mission,
@@ -286,6 +287,24 @@ class Client(BaseClient):
         """
         return self._call(Api.missions(fleet))
 
+    def fleet_prior(self, fleet: str) -> FleetPrior:
+        """``GET /v1/admin/fleets/{fleet}/prior``: the fleet's prior for newcomers (the fleet's
+        staff, admins).
+
+        Raises:
+            PermissionDeniedError: a robot key, or staff of another fleet.
+        """
+        return self._call(Api.fleet_prior(fleet))
+
+    def set_fleet_prior(self, fleet: str, *, enabled: bool) -> FleetPrior:
+        """``PUT /v1/admin/fleets/{fleet}/prior``: turn the fleet's prior on or off for its
+        next newcomers (the fleet's staff, admins); models already started keep their start.
+
+        Raises:
+            PermissionDeniedError: a robot key, or staff of another fleet.
+        """
+        return self._call(Api.set_fleet_prior(fleet, enabled))
+
     def set_mission(self, fleet: str, mission: Mission | Mapping[str, Any], *,
                     change_id: str | None = None,
                     renames: MissionRenames | Mapping[str, Any] | None = None
@@ -321,7 +340,7 @@ class Client(BaseClient):
     # -- users ---------------------------------------------------------------------------------
     def put_user(self, user_id: str, *, display_name: str | None = None,
                  learner: LearnerSpec | Mapping[str, Any] | None = None,
-                 reset_model: bool = False) -> User:
+                 reset_model: bool = False, fleet_prior: bool | None = None) -> User:
         """``PUT /v1/users/{user_id}``: create or update a user (idempotent).
 
         Args:
@@ -331,12 +350,15 @@ class Client(BaseClient):
                 user gets ``hri`` with tau 0.01).
             reset_model: allow changing the learner of a user who has history (what was
                 learned is forgotten); without it that change is a ``ConflictError``.
+            fleet_prior: whether the person takes part in the fleet's prior (a new user starts
+                from it; the user's model adds to it); unchanged when None (a new user: True).
 
         Raises:
             UnprocessableEntityError: an unknown algorithm or bad parameters.
             ConflictError: a new learner for a user with history, without ``reset_model``.
         """
-        return self._call(Api.put_user(user_id, display_name, learner, reset_model))
+        return self._call(Api.put_user(user_id, display_name, learner, reset_model,
+                                       fleet_prior))
 
     def get_user(self, user_id: str) -> User:
         """``GET /v1/users/{user_id}``.
@@ -759,6 +781,14 @@ class AsyncClient(BaseClient):
         """``GET /v1/admin/fleets/{fleet}/missions``; see ``Client.missions``."""
         return await self._call(Api.missions(fleet))
 
+    async def fleet_prior(self, fleet: str) -> FleetPrior:
+        """``GET /v1/admin/fleets/{fleet}/prior``; see ``Client.fleet_prior``."""
+        return await self._call(Api.fleet_prior(fleet))
+
+    async def set_fleet_prior(self, fleet: str, *, enabled: bool) -> FleetPrior:
+        """``PUT /v1/admin/fleets/{fleet}/prior``; see ``Client.set_fleet_prior``."""
+        return await self._call(Api.set_fleet_prior(fleet, enabled))
+
     async def set_mission(self, fleet: str, mission: Mission | Mapping[str, Any], *,
                           change_id: str | None = None,
                           renames: MissionRenames | Mapping[str, Any] | None = None
@@ -769,9 +799,10 @@ class AsyncClient(BaseClient):
     # -- users ---------------------------------------------------------------------------------
     async def put_user(self, user_id: str, *, display_name: str | None = None,
                        learner: LearnerSpec | Mapping[str, Any] | None = None,
-                       reset_model: bool = False) -> User:
+                       reset_model: bool = False, fleet_prior: bool | None = None) -> User:
         """``PUT /v1/users/{user_id}``; see ``Client.put_user``."""
-        return await self._call(Api.put_user(user_id, display_name, learner, reset_model))
+        return await self._call(Api.put_user(user_id, display_name, learner, reset_model,
+                                             fleet_prior))
 
     async def get_user(self, user_id: str) -> User:
         """``GET /v1/users/{user_id}``; see ``Client.get_user``."""

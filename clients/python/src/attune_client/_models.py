@@ -30,6 +30,7 @@ __all__ = [
     "EpisodeTrace",
     "FeedbackResult",
     "FleetMission",
+    "FleetPrior",
     "FlushReport",
     "LearnerSpec",
     "Mission",
@@ -48,6 +49,8 @@ __all__ = [
     "Queued",
     "Rejection",
     "RobotWill",
+    "StartedFrom",
+    "StartedFrom",
     "ServiceRequest",
     "StateBelief",
     "Stats",
@@ -186,6 +189,7 @@ class User(_Model):
     learner: LearnerSpec
     created_at: dt.datetime
     episodes: int
+    fleet_prior: bool = True
 
 
 class UserPage(_Model):
@@ -285,6 +289,14 @@ class ContextBelief(_Model):
     states: list[StateBelief]
 
 
+class StartedFrom(_Model):
+    """What a model grew from: ``kind`` ``fresh``, ``imported`` or ``fleet_prior`` (then
+    ``contributors``: how many of the fleet's people the prior averaged)."""
+
+    kind: str = "fresh"
+    contributors: int | None = None
+
+
 class ModelView(_Model):
     """What a user's learner believes now; ``version`` goes up by one with every change."""
 
@@ -293,6 +305,7 @@ class ModelView(_Model):
     params: dict[str, Any] = Field(default_factory=dict)
     version: int
     episodes: int
+    started_from: StartedFrom = Field(default_factory=StartedFrom)
     contexts: list[ContextBelief]
 
 
@@ -518,6 +531,24 @@ class MissionVersionList(_Model):
     fleet: str
     current_version: int
     items: list[MissionVersion]
+
+
+class FleetPrior(_Model):
+    """A fleet's prior for newcomers: whether it is on (``enabled``), for which learners it is
+    in force now, and how many people can contribute per learner."""
+
+    fleet: str
+    enabled: bool
+    in_force: list[str] = Field(default_factory=list)
+    contributors: dict[str, int] = Field(default_factory=dict)
+    min_contributors: int
+    min_episodes: int
+    max_contributors: int
+    strength: float
+    mission_version: int
+    shared: str = ""
+    updated_at: dt.datetime | None = None
+    updated_by: str | None = None
 
 
 class MissionChanged(_Model):
