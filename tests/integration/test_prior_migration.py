@@ -1,0 +1,223 @@
+"""The migration to fleets' priors for newcomers, on a database filled by the release before it.
+
+The previous release (the commit before the change's first files) is served as it was, on a
+fresh database, and filled through its HTTP API: users with finished episodes and feedback, one
+with an imported model, and an episode left open. Then this code upgrades the database: every
+row and every figure the API showed stay as they were (the new fields aside), existing users
+take part in their fleet's prior, the imported model says it was imported and the others that
+they started fresh, every model rebuilds identically, and a newcomer starts from the prior the
+upgraded users make. The downgrade gives back the previous schema while no model grew from a
+prior, and refuses, saying why, once one does.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import httpx
+import pytest
+from alembic import command
+from fastapi.testclient import TestClient
+from sqlalchemy import create_engine, inspect, text
+from typer.testing import CliRunner
+
+from app import cli
+from app.db import migrate
+from app.main import create_app
+from app.settings import Settings
+from tests.support.live import fresh_database
+from tests.support.release import (
+    OldService,
+    play,
+    previous_release,
+    release_code,
+    table_rows,
+)
+
+pytestmark = [pytest.mark.slow]
+
+MIGRATION = "migrations/versions/2026-11-30-2100_fleet_priors_for_newcomers.py"
+BEFORE = "5b7d2e9a1c08"  # the revision the previous release ends at
+AFTER = "8c4f1a7e2b93"
+NEW_COLUMNS = ("fleet_prior", "base_origin", "base_contributors")
+USERS = ("lin", "chen", "wu", "room-12")
+IMPORTED = "wu"
+OPEN_USER = "room-12"
+EPISODES = 5  # per user
+
+
+@pytest.fixture(scope="module")
+def old_code(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    assert migrate.head_revision() != BEFORE
+    # The change began with the learning core's prior, before the migration's commit.
+    return release_code(previous_release(MIGRATION, "app/learning/prior.py"),
+                        tmp_path_factory.mktemp("previous-release"))
+
+
+def _fill(old: OldService) -> dict[str, Any]:
+    """What a deployment holds, made through the previous release's API."""
+    keys = {name: old.attune("keys", "create", "--role", role).split()[-1]
+            for name, role in (("robot", "robot"), ("admin", "admin"))}
+    robot = httpx.Client(base_url=old.base, timeout=30,
+                         headers={"Authorization": f"Bearer {keys['robot']}"})
+    admin = httpx.Client(base_url=old.base, timeout=30,
+                         headers={"Authorization": f"Bearer {keys['admin']}"})
+    try:
+        n = 0
+        for uid in USERS:
+            for _ in range(EPISODES):
+                episode = play(robot, uid, f"{uid}-e{n}", n)
+                n += 1
+                if n % 4 == 0:
+                    assert robot.post(f"/v1/episodes/{episode}/feedback", json={
+                        "feedback_id": f"fb-{n}", "feedback": "positive"}).status_code == 200
+        exported = admin.get("/v1/users/lin/model/export")
+        assert exported.status_code == 200, exported.text
+        imported = admin.put(f"/v1/users/{IMPORTED}/model", json=exported.json())
+        assert imported.status_code == 200, imported.text
+        opened = robot.post(f"/v1/users/{OPEN_USER}/episodes", json={
+            "event_id": "left-open", "occurred_at": "2026-11-20T15:10:00+08:00",
+            "situation": "stretching", "initiator": "robot"})
+        assert opened.status_code == 201, opened.text
+    finally:
+        robot.close()
+        admin.close()
+    return {"keys": keys, "episodes": n + 1}
+
+
+def _tables(url: str) -> list[str]:
+    engine = create_engine(url)
+    try:
+        return sorted(t for t in inspect(engine).get_table_names()
+                      if t not in ("alembic_version", "fleet_settings"))
+    finally:
+        engine.dispose()
+
+
+def _scalars(url: str, sql: str) -> list[Any]:
+    engine = create_engine(url)
+    try:
+        with engine.connect() as conn:
+            return list(conn.execute(text(sql)).scalars().all())
+    finally:
+        engine.dispose()
+
+
+def _revision(url: str) -> str | None:
+    engine = create_engine(url)
+    try:
+        return migrate.current_revision(engine)
+    finally:
+        engine.dispose()
+
+
+def _without(doc: dict[str, Any], *names: str) -> dict[str, Any]:
+    return {k: v for k, v in doc.items() if k not in names}
+
+
+def _api_view(api: Any) -> dict[str, Any]:
+    """Every figure the API shows of every user (without the fields this change adds)."""
+    view: dict[str, Any] = {}
+    for uid in USERS:
+        episodes = api.get(f"/v1/users/{uid}/episodes", params={"limit": 500}).json()
+        view[uid] = {
+            "user": _without(api.get(f"/v1/users/{uid}").json(), "fleet_prior"),
+            "model": _without(api.get(f"/v1/users/{uid}/model").json(), "started_from"),
+            "stats": api.get(f"/v1/users/{uid}/stats").json(),
+            "episodes": episodes["items"]}
+    return view
+
+
+@pytest.fixture(params=["sqlite", "postgresql"])
+def filled(request: pytest.FixtureRequest, old_code: Path, tmp_path: Path
+           ) -> Iterator[tuple[str, dict[str, Any], dict[str, Any], list[str],
+                               dict[str, Any]]]:
+    """A database at the previous release's head, filled through its API: (url, names, what
+    its API showed, its tables, their rows)."""
+    with fresh_database(request.param, tmp_path) as url:
+        url = Settings(database_url=url, _env_file=None).database_url  # type: ignore[call-arg]
+        old = OldService(old_code, url, tmp_path / "old.log")
+        with old:
+            names = _fill(old)
+            with httpx.Client(base_url=old.base, timeout=30, headers={
+                    "Authorization": f"Bearer {names['keys']['admin']}"}) as admin:
+                before = _api_view(admin)
+        assert _revision(url) == BEFORE
+        tables = _tables(url)
+        yield url, names, before, tables, table_rows(url, tables, leave_out=NEW_COLUMNS)
+
+
+def _rebuild(url: str, user_id: str) -> dict[str, Any]:
+    result = CliRunner().invoke(cli.app, ["models", "rebuild", user_id],
+                                env={"ATTUNE_DATABASE_URL": url, "ATTUNE_SEED": "0"})
+    assert result.exit_code == 0, result.output
+    summary: dict[str, Any] = json.loads(
+        next(ln for ln in result.output.splitlines() if ln.startswith("{")))
+    return summary
+
+
+def test_the_upgrade_keeps_everything_and_newcomers_start_from_the_prior(
+        filled: tuple[str, dict[str, Any], dict[str, Any], list[str], dict[str, Any]]) -> None:
+    url, names, before, tables, rows_before = filled
+    migrate.upgrade(url)
+    assert _revision(url) == AFTER
+    assert table_rows(url, tables, leave_out=NEW_COLUMNS) == rows_before
+    assert _scalars(url, "SELECT DISTINCT fleet_prior FROM users") == [True]
+    assert _scalars(url, "SELECT COUNT(*) FROM fleet_settings") == [0]
+
+    settings = Settings(database_url=url, seed=0, prior_min_contributors=3,  # type: ignore[call-arg]
+                        prior_min_episodes=EPISODES, _env_file=None)
+    app = create_app(settings)
+    try:
+        with TestClient(app, headers={
+                "Authorization": f"Bearer {names['keys']['admin']}"}) as admin:
+            assert admin.get("/readyz").status_code == 200
+            assert _api_view(admin) == before
+            for uid in USERS:
+                assert admin.get(f"/v1/users/{uid}").json()["fleet_prior"] is True
+                started = admin.get(f"/v1/users/{uid}/model").json()["started_from"]
+                kind = "imported" if uid == IMPORTED else "fresh"
+                assert started == {"kind": kind, "contributors": None}, uid
+            view = admin.get("/v1/admin/fleets/default/prior").json()
+            assert view["enabled"] is True
+            assert view["contributors"]["hri"] == len(USERS)
+            made = admin.put("/v1/users/newcomer")
+            assert made.status_code == 201, made.text
+            assert admin.get("/v1/users/newcomer/model").json()["started_from"] == {
+                "kind": "fleet_prior", "contributors": len(USERS)}
+            play(admin, "newcomer", "newcomer-1", 1)
+    finally:
+        app.state.db.dispose()
+
+    for uid in (*USERS, "newcomer"):
+        summary = _rebuild(url, uid)
+        assert summary["identical"] is True, (uid, summary)
+
+    # Down again: refused while a model grew from a prior, saying so; nothing changed.
+    with pytest.raises(RuntimeError, match=r"1 models started from their fleet's prior"):
+        command.downgrade(migrate.alembic_config(url), BEFORE)
+    assert _revision(url) == AFTER
+
+
+def test_the_downgrade_gives_back_the_previous_schema(
+        filled: tuple[str, dict[str, Any], dict[str, Any], list[str], dict[str, Any]]) -> None:
+    url, _, _, tables, rows_before = filled
+    migrate.upgrade(url)
+    command.downgrade(migrate.alembic_config(url), BEFORE)
+    assert _revision(url) == BEFORE
+    assert _tables(url) == tables
+    engine = create_engine(url)
+    try:
+        assert "fleet_settings" not in inspect(engine).get_table_names()
+        assert "fleet_prior" not in {c["name"] for c in inspect(engine).get_columns("users")}
+        assert not {"base_origin", "base_contributors"} & {
+            c["name"] for c in inspect(engine).get_columns("learner_models")}
+    finally:
+        engine.dispose()
+    assert table_rows(url, tables) == rows_before
+    migrate.upgrade(url)
+    assert _revision(url) == AFTER
+    assert table_rows(url, tables, leave_out=NEW_COLUMNS) == rows_before
