@@ -14,12 +14,14 @@ import json
 from typing import Any
 
 import pytest
+from fastapi import FastAPI
 from fastapi.testclient import TestClient
 from typer.testing import CliRunner
 
 from app import cli
 from app.settings import Settings
 from tests.support.contract import assert_error
+from tests.support.fixtures import MakeKey
 from tests.support.people import TEA, answer
 
 SLOT, SITUATION = "afternoon", "stretching"
@@ -195,3 +197,18 @@ class TestFleetSwitch:
 
     def test_a_bad_user_field_is_422(self, staff: TestClient) -> None:
         assert_error(staff.put("/v1/users/dora", json={"fleet_prior": "sometimes"}), 422)
+
+
+def test_the_console_says_where_a_newcomer_started(app: FastAPI, staff: TestClient,
+                                                   make_key: MakeKey) -> None:
+    residents(staff)
+    staff.put("/v1/users/dora", json={"display_name": "Dora"})
+    staff.put("/v1/users/eve", json={"display_name": "Eve", "fleet_prior": False})
+    with TestClient(app, follow_redirects=False) as browser:
+        browser.cookies.set("attune_console", make_key("staff"), path="/admin")
+        page = browser.get("/admin/users/dora")
+        assert page.status_code == 200, page.text
+        assert "Dora started from what 3 other people here usually want" in page.text
+        page = browser.get("/admin/users/eve")
+        assert page.status_code == 200
+        assert 'id="started-from"' not in page.text
