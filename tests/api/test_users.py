@@ -137,9 +137,9 @@ class TestPutUser:
         assert_error(r, 409, "Conflict")
 
     def test_same_learner_with_history_is_fine(self, robot: TestClient) -> None:
-        start(robot, "lin", "e1")
-        r = robot.put("/v1/users/lin", json={"learner": {"algorithm": "hri",
-                                                         "params": {"tau": 0.01}}})
+        start(robot, "lin", "e1")  # created with the default learner
+        r = robot.put("/v1/users/lin", json={"learner": {"algorithm": "dts-adapt",
+                                                         "params": {"forgetting": 0.95}}})
         assert r.status_code == 200, r.text
 
     def test_reset_model_true_allows_the_change_and_keeps_history(
