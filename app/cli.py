@@ -347,7 +347,8 @@ def robustness(
     learners: Annotated[str | None, typer.Option(
         "--learners", metavar="A,B", show_default=False,
         help="Learners to run, separated by commas, out of rmax, qlearning, hri (τ=0.01), "
-        "hri-0.005 and dts (default: rmax,qlearning,hri,dts).")] = None,
+        "hri-0.005, dts, dts-change, dts-change-0.05 and dts-adapt (default: "
+        "rmax,qlearning,hri,dts,dts-adapt).")] = None,
     out: Annotated[Path, typer.Option("--out", "-o", help="Output folder (created if needed).",
                                       file_okay=False)] = Path("results/robustness"),
     jobs: JobsOption = None,

@@ -116,8 +116,8 @@ def simulate(
         "is carried to it and the fleet's open episodes are interrupted. Default: simulate "
         "the fleet's mission in force.")] = None,
     seed: Annotated[int, typer.Option(help="Seeds the people, their events and reactions.")] = 0,
-    learner: Annotated[str, typer.Option(help="The learner the people are created with: hri, "
-                                         "dts, rmax or qlearning.")] = "hri",
+    learner: Annotated[str, typer.Option(help="The learner the people are created with: "
+                                         "dts-adapt, hri, dts, rmax or qlearning.")] = "dts-adapt",
     prefix: Annotated[str | None, typer.Option(
         show_default=False, help="User ids are PREFIX-u1, PREFIX-u2, ... Default: fleet-SEED-"
         "<random>, so that runs never reuse each other's users.")] = None,

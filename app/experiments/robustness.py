@@ -43,16 +43,21 @@ __all__ = [
     "DEFAULT_SEEDS",
     "LEARNERS",
     "MIN_ORACLE_REWARD",
+    "RULE",
+    "SERVICE_DEFAULT",
     "TARGET_SECONDS",
     "WINDOWS",
     "RobustTask",
     "Window",
     "build_summary",
+    "check_targets",
+    "choose_default",
     "markdown",
     "plot_shares",
     "print_table",
     "run_robust_task",
     "tasks_for",
+    "verdict_lines",
     "window_range",
     "write_csv",
     "write_report",
@@ -71,9 +76,19 @@ LEARNERS: Mapping[str, Method] = {
     "dts": Method("DTS", "dts"),
     "dts-change": Method("DTS + change test α=0.01", "dts", {"change_alpha": 0.01}),
     "dts-change-0.05": Method("DTS + change test α=0.05", "dts", {"change_alpha": 0.05}),
+    "dts-adapt": Method("DTS-adapt", "dts-adapt"),
 }
 """The learners the suite can run, by the name ``--learners`` takes."""
-DEFAULT_LEARNERS = ("rmax", "qlearning", "hri", "dts")
+DEFAULT_LEARNERS = ("rmax", "qlearning", "hri", "dts", "dts-adapt")
+SERVICE_DEFAULT = "dts-adapt"
+"""The suite's name of the learner new users of the service get (``LearnerSpec``'s default
+algorithm, with that algorithm's default parameters): the learner the rule picks."""
+REFERENCE = "dts"
+"""The learner whose level before a change the default must keep (issue §3)."""
+RULE = ("the default learner is the one with the highest mean share over all events, averaged "
+        "over every family of the run; a tie (equal whole percentages) goes to the higher "
+        "worst-family share over all events")
+AFTER_TARGET, ALL_TARGET = 0.75, 0.85
 
 
 @dataclass(frozen=True)
@@ -192,7 +207,79 @@ def build_summary(runs: Sequence[FamilyRun], families: Sequence[str], learners: 
                 cells[w.key] = _cell(mine, label, rng)
             entry["learners"][label] = cells
         out["families"][name] = entry
+    out["rule"] = choose_default(out)
+    out["targets"] = check_targets(out)
     return out
+
+
+def choose_default(summary: Mapping[str, Any]) -> dict[str, Any]:
+    """The rule (:data:`RULE`) applied to the learners of ``summary``: their ranking, best
+    first, and the learner it picks (None when no learner has a share in every family)."""
+    ranking = []
+    for label in summary["learners"]:
+        alls = [fam["learners"][label]["all"]["mean"] for fam in summary["families"].values()]
+        if not alls or any(a is None for a in alls):
+            continue
+        ranking.append({"learner": label, "mean_all": _round(float(np.mean(alls))),
+                        "worst_all": _round(min(alls))})
+    ranking.sort(key=lambda r: (-round(100 * r["mean_all"]), -r["worst_all"]))
+    return {"text": RULE, "ranking": ranking,
+            "chosen": ranking[0]["learner"] if ranking else None,
+            "service_default": LEARNERS[SERVICE_DEFAULT].label}
+
+
+def check_targets(summary: Mapping[str, Any]) -> list[dict[str, Any]]:
+    """Issue §3's targets for the service's default learner, each met or missed (empty when it
+    is not in the run): in every changing family, at least 75 % of the oracle's reward in the
+    15 events after the change and no lower a share than DTS's in the 30 before it; in every
+    family, at least 85 % over all events."""
+    label = LEARNERS[SERVICE_DEFAULT].label
+    reference = LEARNERS[REFERENCE].label
+    if label not in summary["learners"]:
+        return []
+    out = []
+    for name, fam in summary["families"].items():
+        cells = fam["learners"][label]
+        checks = [("all", f"≥ {100 * ALL_TARGET:.0f}%", ALL_TARGET)]
+        if fam["change_at_event"] is not None:
+            checks.insert(0, ("after15", f"≥ {100 * AFTER_TARGET:.0f}%", AFTER_TARGET))
+            if reference in fam["learners"]:
+                level = fam["learners"][reference]["before30"]["mean"]
+                if level is not None:
+                    checks.insert(0, ("before30", f"≥ {reference}'s {_p(level)}%",
+                                      round(level, 2)))
+        for key, text, bound in checks:
+            mean = cells[key]["mean"]
+            out.append({"family": name, "window": key, "learner": label, "target": text,
+                        "share": mean,
+                        "met": mean is not None and round(mean, 2) >= bound})
+    return out
+
+
+def verdict_lines(summary: Mapping[str, Any]) -> list[str]:
+    """The rule's pick and the targets, as plain lines (terminal and markdown alike)."""
+    rule = summary.get("rule") or {}
+    lines = [f"Rule: {rule.get('text', RULE)}."]
+    ranking = rule.get("ranking") or []
+    if ranking:
+        lines.append("Ranking (mean over families, all events; worst family): " + "; ".join(
+            f"{r['learner']} {_p(r['mean_all'])}% (worst {_p(r['worst_all'])}%)"
+            for r in ranking) + ".")
+        chosen = rule["chosen"]
+        same = "the service's default" if chosen == rule["service_default"] else (
+            f"not the service's default ({rule['service_default']})")
+        lines.append(f"The rule picks {chosen}: {same}.")
+    targets = summary.get("targets") or []
+    if targets:
+        met = sum(t["met"] for t in targets)
+        lines.append(f"Issue §3 targets for the default learner ({targets[0]['learner']}): "
+                     f"{met} of {len(targets)} met.")
+        for t in targets:
+            share = "—" if t["share"] is None else f"{_p(t['share'])}%"
+            window = summary["windows"][t["window"]]["label"]
+            lines.append(f"  {t['family']}, {window}: {share} (target {t['target']}): "
+                         f"{'met' if t['met'] else 'MISSED'}")
+    return lines
 
 
 def _cell(runs: Sequence[FamilyRun], label: str, rng: tuple[int, int] | None) -> dict[str, Any]:
@@ -286,6 +373,9 @@ def markdown(summary: Mapping[str, Any]) -> str:
                      f"{fam['description']}.")
     if notes:
         lines += ["", "Seeds without a share:", "", *dict.fromkeys(notes)]
+    verdict = verdict_lines(summary)
+    lines += ["", "## The default learner", "", verdict[0], ""]
+    lines += [f"- {line.strip()}" for line in verdict[1:]]
     return "\n".join(lines) + "\n"
 
 
@@ -306,6 +396,9 @@ def print_table(summary: Mapping[str, Any], console: Console) -> None:
             table.add_row(name if i == 0 else "", label, *(_pct(cells[k]) for k in keys),
                           end_section=i == len(fam["learners"]) - 1)
     console.print(table, soft_wrap=True, crop=False, overflow="ignore")
+    for line in verdict_lines(summary):
+        console.print(line, soft_wrap=True, crop=False, overflow="ignore", markup=False,
+                      highlight=False)
 
 
 CSV_COLUMNS = ("family", "learner", "window", "first_event", "last_event", "seeds",

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 from typing import Any, ClassVar, Self, TypeVar
 
 __all__ = [
+    "DtsAdaptParams",
     "DtsParams",
     "HriParams",
     "Params",
@@ -205,6 +206,12 @@ class DtsParams(Params):
         context learned about services starts over. 0 = no test.
     change_keep: the share of such a context's discounted counts kept when its test fires
         (0 = its service-facing pairs start over; its offers and other contexts are kept).
+    change_on_questions: the change test also counts a detail question the person ended (a
+        question about a service they no longer want) as a rejection.
+    trust_answers: answers are truthful (docs/method.md §8, "Trusted answers"): doing as asked
+        is expected to pay what an accepted service pays before it was ever tried; a detail
+        question about a service nobody named is answered with prior chance 1/K; and a service
+        the person named is followed by a detail question that is answered.
     """
 
     algorithm: ClassVar[str] = "dts"
@@ -217,6 +224,8 @@ class DtsParams(Params):
     i1_as_acceptance: bool = True
     change_alpha: float = 0.0
     change_keep: float = 0.0
+    trust_answers: bool = False
+    change_on_questions: bool = False
     vi_tol: float = 1e-8
     vi_max_sweeps: int = 500
 
@@ -230,10 +239,28 @@ class DtsParams(Params):
         _in_range("reward_sd", self.reward_sd, 0.0, 1e3, low_open=True)
         _integer("samples", self.samples, 1, 4096)
         _flag("i1_as_acceptance", self.i1_as_acceptance)
+        _flag("trust_answers", self.trust_answers)
+        _flag("change_on_questions", self.change_on_questions)
         _in_range("vi_tol", self.vi_tol, 0.0, 1.0, low_open=True)
         _integer("vi_max_sweeps", self.vi_max_sweeps, 1, 100_000)
 
 
+@dataclass(frozen=True)
+class DtsAdaptParams(DtsParams):
+    """DTS that adapts after a change (docs/method.md §8, "Adapting after a change"): the same
+    learner and parameters as ``dts``, with other defaults: slower forgetting (0.95), the change
+    test at 0.05 counting ended detail questions too, and trusted answers. Its own algorithm
+    name, so that learners stored as ``dts`` (whose parameters predate the new ones) keep their
+    behaviour."""
+
+    algorithm: ClassVar[str] = "dts-adapt"
+    forgetting: float = 0.95
+    change_alpha: float = 0.05
+    change_on_questions: bool = True
+    trust_answers: bool = True
+
+
 PARAMS: dict[str, type[Params]] = {
-    cls.algorithm: cls for cls in (HriParams, RmaxParams, QLearningParams, DtsParams)
+    cls.algorithm: cls
+    for cls in (HriParams, RmaxParams, QLearningParams, DtsParams, DtsAdaptParams)
 }

@@ -59,6 +59,7 @@ PRIOR_TABLES: Mapping[str, PriorSpec] = {
     "hri": PriorSpec(counts="ns", sums="rs"),
     "rmax": PriorSpec(counts="ns", sums="r"),
     "dts": PriorSpec(counts="dns", sums="dr", derived=("dn",), pooled=("answered",)),
+    "dts-adapt": PriorSpec(counts="dns", sums="dr", derived=("dn",), pooled=("answered",)),
     "qlearning": PriorSpec(values=("q",)),
 }
 

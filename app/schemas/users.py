@@ -13,8 +13,9 @@ __all__ = ["LearnerSpec", "UserIn", "UserList", "UserOut"]
 class LearnerSpec(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
-    algorithm: str = Field(default="hri", description="hri, rmax, qlearning or dts.",
-                           examples=["hri"])
+    algorithm: str = Field(default="dts-adapt",
+                           description="dts-adapt (the default), hri, rmax, qlearning or dts.",
+                           examples=["dts-adapt"])
     params: dict[str, Any] = Field(default_factory=dict, examples=[{"tau": 0.01}],
                                    description="The algorithm's parameters; omitted ones keep "
                                    "their defaults.")

@@ -129,8 +129,8 @@ class TestStartEpisode:
         start(robot, "newbie", "e1")
         user = robot.get("/v1/users/newbie").json()
         assert user["fleet"] == "default"
-        assert user["learner"]["algorithm"] == "hri"
-        assert user["learner"]["params"]["tau"] == pytest.approx(0.01)
+        assert user["learner"]["algorithm"] == "dts-adapt"
+        assert user["learner"]["params"]["forgetting"] == pytest.approx(0.95)
         assert user["episodes"] == 1
 
     def test_repeat_is_a_replay(self, robot: TestClient) -> None:

@@ -7,6 +7,7 @@ from typing import Any
 import pytest
 from fastapi.testclient import TestClient
 
+from app.learning import DtsAdaptParams
 from tests.support.contract import assert_error
 
 from .helpers import answer, start
@@ -26,17 +27,18 @@ class TestPutUser:
         assert isinstance(body["created_at"], str)
         assert body["created_at"]
 
-    def test_default_learner_is_hri_with_tau_001(self, robot: TestClient) -> None:
+    def test_default_learner_is_dts_adapt_with_its_defaults(self, robot: TestClient) -> None:
+        # The learner the robustness suite's rule picks (docs/method.md §12, Robustness).
         r = robot.put("/v1/users/lin")
         assert r.status_code == 201, r.text
         learner = r.json()["learner"]
-        assert learner["algorithm"] == "hri"
-        assert learner["params"]["tau"] == pytest.approx(0.01)
+        assert learner["algorithm"] == "dts-adapt"
+        assert learner["params"] == DtsAdaptParams().to_dict()
 
     def test_empty_object_body_creates_with_defaults(self, robot: TestClient) -> None:
         r = robot.put("/v1/users/lin", json={})
         assert r.status_code == 201, r.text
-        assert r.json()["learner"]["algorithm"] == "hri"
+        assert r.json()["learner"]["algorithm"] == "dts-adapt"
         assert r.json()["display_name"] is None
 
     def test_update_is_200(self, robot: TestClient) -> None:
@@ -135,9 +137,9 @@ class TestPutUser:
         assert_error(r, 409, "Conflict")
 
     def test_same_learner_with_history_is_fine(self, robot: TestClient) -> None:
-        start(robot, "lin", "e1")
-        r = robot.put("/v1/users/lin", json={"learner": {"algorithm": "hri",
-                                                         "params": {"tau": 0.01}}})
+        start(robot, "lin", "e1")  # created with the default learner
+        r = robot.put("/v1/users/lin", json={"learner": {"algorithm": "dts-adapt",
+                                                         "params": {"forgetting": 0.95}}})
         assert r.status_code == 200, r.text
 
     def test_reset_model_true_allows_the_change_and_keeps_history(

@@ -14,7 +14,7 @@ from typer.testing import CliRunner, Result
 from app.cli import app
 
 FAMILIES = ("abrupt", "shy")
-LEARNERS = ("R-MAX", "Q-learning", "HRI τ=0.01", "DTS")
+LEARNERS = ("R-MAX", "Q-learning", "HRI τ=0.01", "DTS", "DTS-adapt")
 FILES = ("robustness.md", "robustness.csv", "robustness.png", "summary.json")
 
 
@@ -50,7 +50,7 @@ def test_the_table_has_every_learner_and_family(
         for family in FAMILIES:
             assert any(family in line for line in lines), family
         for learner in LEARNERS:  # one row per family
-            rows = [line for line in lines if f" {learner} " in line]
+            rows = [line for line in lines if f" {learner} " in line and "worst" not in line]
             assert len(rows) == len(FAMILIES), (learner, rows)
     with (out / "robustness.csv").open(encoding="utf-8") as handle:
         records = list(csv.DictReader(handle))
@@ -110,3 +110,24 @@ def test_another_mission_is_named(tmp_path: Path) -> None:
     assert "care-home" in (tmp_path / "robustness.md").read_text(encoding="utf-8")
     summary = json.loads((tmp_path / "summary.json").read_text(encoding="utf-8"))
     assert summary["run"]["mission"]["file"] == str(care_home)
+
+
+def test_prints_the_rules_pick_and_the_targets_of_the_default(
+        suite: tuple[Result, Path, dict[str, Any]]) -> None:
+    from app.experiments.robustness import LEARNERS as SUITE
+    from app.experiments.robustness import SERVICE_DEFAULT
+    from app.schemas.users import LearnerSpec
+
+    done, out, summary = suite
+    # The suite's default is the service's: its algorithm with that algorithm's defaults.
+    assert (SUITE[SERVICE_DEFAULT].algorithm, dict(SUITE[SERVICE_DEFAULT].params)) == (
+        LearnerSpec().algorithm, LearnerSpec().params)
+    assert summary["rule"]["chosen"] in LEARNERS
+    assert [r["learner"] for r in summary["rule"]["ranking"]][0] == summary["rule"]["chosen"]
+    windows = {(t["family"], t["window"]) for t in summary["targets"]}
+    assert windows == {("abrupt", "before30"), ("abrupt", "after15"), ("abrupt", "all"),
+                       ("shy", "all")}
+    for text in (done.stdout, (out / "robustness.md").read_text(encoding="utf-8")):
+        assert f"The rule picks {summary['rule']['chosen']}" in text
+        assert "15 after the change" in text
+        assert ("met" in text or "MISSED" in text)

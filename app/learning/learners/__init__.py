@@ -10,13 +10,14 @@ from ..mission import Mission
 from ..protocols import Learner
 from ..state import StateFormatError
 from .base import TabularLearner
-from .dts import DtsLearner
+from .dts import DtsAdaptLearner, DtsLearner
 from .hri import HriLearner
 from .qlearning import QLearner
 from .rmax import RmaxLearner
 
 __all__ = [
     "ALGORITHMS",
+    "DtsAdaptLearner",
     "DtsLearner",
     "HriLearner",
     "QLearner",
@@ -27,7 +28,8 @@ __all__ = [
 ]
 
 ALGORITHMS: dict[str, type[TabularLearner[Any]]] = {
-    cls.algorithm: cls for cls in (HriLearner, RmaxLearner, QLearner, DtsLearner)
+    cls.algorithm: cls
+    for cls in (HriLearner, RmaxLearner, QLearner, DtsLearner, DtsAdaptLearner)
 }
 
 

@@ -24,14 +24,14 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from ..config import DtsParams
+from ..config import DtsAdaptParams, DtsParams
 from ..planning import value_iteration
 from ..space import ActionKind
 from ..state import StateFormatError
 from ..types import FloatArray, Polarity, Transition
 from .base import TabularLearner, check_nonnegative
 
-__all__ = ["DtsLearner"]
+__all__ = ["DtsAdaptLearner", "DtsLearner"]
 
 
 class DtsLearner(TabularLearner[DtsParams]):
@@ -69,6 +69,21 @@ class DtsLearner(TabularLearner[DtsParams]):
         # a person whose wish changed still wants service there.
         self._restartable = np.ones(space.n_actions, dtype=bool)
         self._restartable[list(space.root_actions)] = False
+        rewards = self.mission.rewards
+        # Successor priors: prior_count each, but with trust_answers a detail question about a
+        # service nobody named is answered with prior chance 1/K (only one of K services is the
+        # person's): its END successor weighs as much as the details of the K - 1 others.
+        self._query_type = np.asarray(
+            [a.kind is ActionKind.QUERY_TYPE for a in space.actions], dtype=bool
+        )
+        prior = np.where(space.succ_mask, self._params.prior_count, 0.0)
+        if self._params.trust_answers and len(self.mission.services) > 1:
+            for a in np.flatnonzero(self._query_detail):
+                answers = float(prior[a].sum() - prior[a, space.end_column[a]])
+                prior[a, space.end_column[a]] = answers * (len(self.mission.services) - 1)
+        self._succ_prior = prior
+        self._answer_prior = rewards.positive + rewards.accepted_service \
+            if self._params.trust_answers else self._params.reward_prior
 
     def _add(self, c: int, a: int, reward: float, column: int) -> None:
         lam = self._params.forgetting
@@ -91,8 +106,11 @@ class DtsLearner(TabularLearner[DtsParams]):
                 self.answered *= lam
                 self.answered += (1.0, tr.reward)
                 self._cache.clear()
-        if self._params.change_alpha > 0.0 and tr.signal != Polarity.NEUTRAL \
-                and space.actions[tr.action].kind is ActionKind.PERFORM:
+        kind = space.actions[tr.action].kind
+        if self._params.change_alpha > 0.0 and tr.signal != Polarity.NEUTRAL and (
+                kind is ActionKind.PERFORM or (self._params.change_on_questions
+                                               and tr.signal == Polarity.NEGATIVE
+                                               and kind is ActionKind.QUERY_DETAIL)):
             # Tested before the sample is learned: a restart keeps the answer that set it off.
             self._test_change(tr.context, accepted=tr.signal == Polarity.POSITIVE)
         column = space.successor_column(tr.action, tr.next_state)
@@ -151,7 +169,7 @@ class DtsLearner(TabularLearner[DtsParams]):
             n + prm.reward_prior_count
         )
         sd = prm.reward_sd / np.sqrt(n + prm.reward_prior_count)
-        alpha = np.where(space.succ_mask, self.dns[context] + prm.prior_count, 0.0)
+        alpha = np.where(space.succ_mask, self.dns[context] + self._succ_prior, 0.0)
         silent = space.silent
         mean = np.where(silent, space.silent_reward, mean)
         sd = np.where(silent, 0.0, sd)
@@ -163,7 +181,8 @@ class DtsLearner(TabularLearner[DtsParams]):
         """Mean and sd of the reward of performing the service the person named when asked."""
         prm = self._params
         n, total = float(self.answered[0]), float(self.answered[1])
-        mean = (total + prm.reward_prior * prm.reward_prior_count) / (n + prm.reward_prior_count)
+        prior = self._answer_prior
+        mean = (total + prior * prm.reward_prior_count) / (n + prm.reward_prior_count)
         return mean, prm.reward_sd / float(np.sqrt(n + prm.reward_prior_count))
 
     def _fold_answers(self, reward: FloatArray, trans: FloatArray, v_answer: FloatArray
@@ -176,8 +195,17 @@ class DtsLearner(TabularLearner[DtsParams]):
         rows = np.flatnonzero(qd)
         p_answer = 1.0 - trans[..., rows, space.end_column[rows]]
         reward = reward.copy()
-        reward[..., rows] += self.mission.gamma * p_answer * v_answer[..., None]
-        trans = np.where(qd[:, None], self._to_end, trans)
+        gamma = self.mission.gamma
+        reward[..., rows] += gamma * p_answer * v_answer[..., None]
+        ends = qd
+        if self._params.trust_answers:
+            # A named service is the person's: the detail question that follows is answered.
+            qt = np.flatnonzero(self._query_type)
+            p_named = 1.0 - trans[..., qt, space.end_column[qt]]
+            v_named = self.mission.rewards.query + gamma * v_answer
+            reward[..., qt] += gamma * p_named * v_named[..., None]
+            ends = qd | self._query_type
+        trans = np.where(ends[:, None], self._to_end, trans)
         return reward, trans
 
     def _compute_q(self, context: int) -> FloatArray:
@@ -226,3 +254,11 @@ class DtsLearner(TabularLearner[DtsParams]):
     def _kept_visits(self, context: int) -> FloatArray:
         out: FloatArray = self.dn[context].copy()
         return out
+
+
+class DtsAdaptLearner(DtsLearner):
+    """DTS with the defaults that adapt after a change (:class:`DtsAdaptParams`); the same
+    tables, so the same export format under its own algorithm name."""
+
+    algorithm: ClassVar[str] = "dts-adapt"
+    params_type = DtsAdaptParams

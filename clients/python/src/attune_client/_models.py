@@ -166,10 +166,10 @@ class FeedbackResult(_Model):
 
 # -- users ---------------------------------------------------------------------------------------
 class LearnerSpec(_Model):
-    """A learner: the algorithm (``hri``, ``rmax``, ``qlearning``...) and its parameters
+    """A learner: the algorithm (``dts-adapt``, ``hri``, ``rmax``...) and its parameters
     (omitted ones keep the service's defaults)."""
 
-    algorithm: str = "hri"
+    algorithm: str = "dts-adapt"
     params: dict[str, Any] = Field(default_factory=dict)
 
 
