@@ -15,6 +15,7 @@ import pytest
 
 from app.learning import Mission, Observation, learner_from_state, load_mission, make_learner
 from app.learning import office_mission as _office
+from app.learning.learners import QLearner
 from app.learning.learners.base import TabularLearner
 from app.learning.population import FAMILIES, people, run_learner
 from app.learning.prior import (
@@ -61,8 +62,9 @@ def tables(learner: TabularLearner[Any]) -> dict[str, np.ndarray]:
 
 def pair_weight(learner: TabularLearner[Any]) -> np.ndarray:
     """(C, P): the pseudo-samples the prior puts on each pair (its counts over the other axes)."""
-    counts = getattr(learner, PRIOR_TABLES[learner.algorithm].counts or "")
-    return np.asarray(counts).reshape(*counts.shape[:2], -1).sum(axis=-1)
+    counts = np.asarray(getattr(learner, PRIOR_TABLES[learner.algorithm].counts or ""))
+    weight: np.ndarray = counts.reshape(*counts.shape[:2], -1).sum(axis=-1)
+    return weight
 
 
 def assert_fresh(learner: TabularLearner[Any]) -> None:
@@ -100,16 +102,17 @@ class TestSupport:
         assert np.count_nonzero(weight) == 1  # nothing anywhere else
 
     def test_q_values_of_a_pair_visited_by_too_few_contributors_stay_initial(self) -> None:
-        contributors = [make_learner("qlearning", None, office()) for _ in range(5)]
-        initial = np.array(getattr(contributors[0], "q"))
+        contributors = [QLearner(office()) for _ in range(5)]
+        initial = np.array(contributors[0].q)
         for i, learner in enumerate(contributors):
             if i < MIN_SUPPORT - 1:
                 learner.visits[2, 1] = 3
-                getattr(learner, "q")[2, 1] = 5.0
+                learner.q[2, 1] = 5.0
             learner.visits[4, 1] = 1
-            getattr(learner, "q")[4, 1] = float(i)
+            learner.q[4, 1] = float(i)
         prior = population_prior("qlearning", None, office(), contributors)
-        q = getattr(prior, "q")
+        assert isinstance(prior, QLearner)
+        q = prior.q
         assert q[2, 1] == initial[2, 1]
         assert q[4, 1] == pytest.approx(np.mean(range(5)))
         assert prior.visits.sum() == 0  # no counts of episodes are taken
