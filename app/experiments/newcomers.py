@@ -107,7 +107,7 @@ class Span:
 
 WINDOWS = (
     Span("first20", "first 20", 0, 20),
-    Span("early", "21–100", 20, 100),
+    Span("early", "middle", 20, 100),
     Span("after100", "after 100", 100, None),
     Span("all", "all", 0, None),
 )
@@ -518,8 +518,10 @@ def plot_newcomers(summary: Mapping[str, Any], path: Path) -> None:
     for ax, name in zip(axes, families, strict=True):
         fam = summary["families"][name]
         ax.axvspan(0.5, 20.5, color="0.92", zorder=0)
-        if "home" == name:
+        if name == "home":
             ax.axhline(FIRST_TARGET, color="0.5", linewidth=0.8, linestyle=":")
+            ax.text(21.5, FIRST_TARGET + 0.01, f"target in the first 20: "
+                    f"{100 * FIRST_TARGET:.0f}%", fontsize=7, color="0.4", va="bottom")
         for color, label in zip(colors, learners, strict=True):
             curves = fam["learners"][label]["curves"]
             for arm, style in (("fresh", "--"), ("prior", "-")):

@@ -7,6 +7,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -172,3 +173,14 @@ def test_the_fresh_runs_are_the_robustness_suites() -> None:
                         office_mission(), n_persons=3, n_events=30)
     np.testing.assert_array_equal(mine.oracle, suites.oracle)
     np.testing.assert_array_equal(mine.fresh[method.label], suites.learners[method.label])
+
+
+def test_without_matplotlib_it_says_which_extra(monkeypatch: pytest.MonkeyPatch,
+                                                tmp_path: Path) -> None:
+    monkeypatch.setitem(sys.modules, "matplotlib", None)
+    done = CliRunner().invoke(app, ["experiment", "newcomers", "--seeds", "2", "--jobs", "1",
+                                    "--out", str(tmp_path / "out")])
+    assert done.exit_code == 2
+    assert "'experiments' extra" in done.stderr
+    assert done.stdout == ""
+    assert not (tmp_path / "out").exists()
