@@ -25,9 +25,9 @@ from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from datetime import time
 
-from .claims import Claim, check_claims
+from .claims import HRI100, HRI200, QL, RMAX, Claim, check_claims
 from .evaluation import Method, RunResult
-from .mission import Mission, TimeSlot
+from .mission import Mission
 
 __all__ = [
     "AXES",
@@ -46,7 +46,6 @@ __all__ = [
 
 Value = int | float | str
 
-RMAX_LABEL, QL_LABEL, HRI100_LABEL, HRI200_LABEL = "R-MAX", "Q-learning", "HRI τ=0.01", "HRI τ=0.005"
 
 
 @dataclass(frozen=True)
@@ -217,10 +216,10 @@ def setting_methods(setting: Setting) -> tuple[Method, Method, Method, Method]:
     """
     hri = {"exclusion": setting["exclusion"], "pref_scale": setting["pref_scale"]}
     return (
-        Method(RMAX_LABEL, "rmax", {"m": setting["m"], "optimism": setting["optimism"]}),
-        Method(QL_LABEL, "qlearning"),
-        Method(HRI100_LABEL, "hri", {"tau": 0.01, **hri}),
-        Method(HRI200_LABEL, "hri", {"tau": 0.005, **hri}),
+        Method(RMAX, "rmax", {"m": setting["m"], "optimism": setting["optimism"]}),
+        Method(QL, "qlearning"),
+        Method(HRI100, "hri", {"tau": 0.01, **hri}),
+        Method(HRI200, "hri", {"tau": 0.005, **hri}),
     )
 
 

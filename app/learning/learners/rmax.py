@@ -1,7 +1,8 @@
 """R-MAX (Brafman & Tennenholtz 2002) in the discounted form of Strehl, Li & Littman (2009).
 
-Unknown pairs (n < m) are pinned at Q = optimism x Vmax (Vmax by default), known pairs use the empirical model; the action is
-greedy with a seeded tie-break (uniform over the maximal actions, then one draw).
+Unknown pairs (n < m) are pinned at Q = optimism x Vmax (Vmax by default), known pairs use the
+empirical model; the action is greedy with a seeded tie-break (uniform over the maximal actions,
+then one draw).
 """
 
 from __future__ import annotations
