@@ -210,6 +210,14 @@ def _confirmed(summary: Mapping[str, Any]) -> list[dict[str, Any]]:
     return list((summary.get("confirmation") or {}).get("settings", []))
 
 
+def _name(summary: Mapping[str, Any], confirmed: Mapping[str, Any]) -> str:
+    """``default``, or ``best N``: the setting's place among the best of the sweep."""
+    if confirmed["label"] == "default":
+        return "default"
+    labels = [b["label"] for b in summary["best"]]
+    return f"best {labels.index(confirmed['label']) + 1}"
+
+
 def _intro(summary: Mapping[str, Any]) -> str:
     run = summary["run"]
     sizes = " × ".join(str(len(a["values"])) for a in summary["axes"])
@@ -220,7 +228,8 @@ def _intro(summary: Mapping[str, Any]) -> str:
         first, last = summary["confirmation"]["seeds"]
         text += (f" The default and the best settings were run again on held-out seeds "
                  f"{first}–{last} ({run['confirm_runs']} runs).")
-    text += f" Ran in {run['seconds']:.1f} s on {run['workers']} worker processes."
+    text += (f" Ran in {run['seconds']:.1f} s on {run['workers']} worker processes (load "
+             f"average {run['load_average']:.1f}).")
     if run.get("quick"):
         text += " Quick mode: a reduced grid, for checks only."
     return text
@@ -244,7 +253,7 @@ def markdown(summary: Mapping[str, Any]) -> str:
     if default is not None:
         head.append("default")
     head.append("best")
-    head += [f"{c['label']}, held-out seeds" for c in confirmed]
+    head += [f"{_name(summary, c)}, held-out seeds" for c in confirmed]
     lines += ["| " + " | ".join(head) + " |", "|:---|" + "---:|" * (len(head) - 1)]
     for i, claim in enumerate(summary["claims"]):
         row = [f"**{claim['key']}**: {claim['text']}", _pct(claim["share"])]
@@ -263,6 +272,12 @@ def markdown(summary: Mapping[str, Any]) -> str:
     lines += ["", f"Best settings ({best[0]['held']} of {n} claims; {len(best)} tied, fewest "
               "changes from the default first):", ""]
     lines += [f"{i + 1}. {b['label']}" for i, b in enumerate(best[:10])]
+    if confirmed:
+        first, last = summary["confirmation"]["seeds"]
+        lines += ["", f"On the held-out seeds {first}–{last}: "
+                  + "; ".join(f"{_name(summary, c)}, {c['held']} of {n}" for c in confirmed)
+                  + ". Deciding many settings on few seeds and keeping the best favours "
+                  "settings that were lucky; the held-out seeds say what is left of it."]
     if len(best) > 10:
         lines.append(f"- … and {len(best) - 10} more (summary.json, claims-map.csv).")
     hist = ", ".join(f"{k}: {c}" for k, c in enumerate(summary["histogram"]) if c)
@@ -295,8 +310,7 @@ def print_table(summary: Mapping[str, Any], console: Console) -> None:
         table.add_column("default", justify="center")
     table.add_column("best", justify="center")
     for c in confirmed:
-        name = "default" if c["label"] == "default" else f"best {confirmed.index(c)}"
-        table.add_column(f"{name}, held-out", justify="center")
+        table.add_column(f"{_name(summary, c)}, held-out", justify="center")
     for i, claim in enumerate(summary["claims"]):
         row = [claim["key"], _pct(claim["share"])]
         if default is not None:
@@ -313,9 +327,9 @@ def print_table(summary: Mapping[str, Any], console: Console) -> None:
     console.print(table, soft_wrap=True, crop=False, overflow="ignore")
     console.print(f"Best setting ({best[0]['held']} of {len(summary['claims'])}; {len(best)} "
                   f"tied): {best[0]['label']}")
-    for i, c in enumerate(confirmed):
-        if c["label"] != "default":
-            console.print(f"Best {i}, on held-out seeds: {c['label']}: {c['held']} hold.")
+    for c in confirmed:
+        what = "default" if c["label"] == "default" else f"{_name(summary, c)} ({c['label']})"
+        console.print(f"On held-out seeds, {what}: {c['held']} hold.")
 
 
 def write_csv(summary: Mapping[str, Any], path: Path) -> int:
@@ -358,8 +372,8 @@ def plot_map(summary: Mapping[str, Any], path: Path) -> None:
     default = [i for i, s in enumerate(settings) if s["label"] == "default"]
     for i in default:
         left.axvline(i, color="#d73027", linewidth=1.5)
-        left.text(i, -0.7, "default", color="#d73027", ha="center", va="bottom", fontsize=8)
-    left.set_title("Claims that hold (green) under each setting", fontsize=10)
+    left.set_title("Claims that hold (green) under each setting; red: the default",
+                   fontsize=10)
     image = right.imshow(shares, cmap="viridis", norm=Normalize(0.0, 1.0), aspect="auto")
     for i in range(shares.shape[0]):
         for j in range(shares.shape[1]):
