@@ -35,7 +35,7 @@ from app.learning.claims_map import (
     method_key,
     setting_methods,
 )
-from app.learning.evaluation import E1E2, E3, Method, RunResult
+from app.learning.evaluation import E1E2, E3, Method, Protocol, RunResult
 
 from .runner import Job, run_jobs
 
@@ -53,6 +53,7 @@ __all__ = [
     "TARGET_SECONDS",
     "build_summary",
     "confirm",
+    "confirmed_settings",
     "markdown",
     "plan",
     "plot_map",
@@ -72,7 +73,7 @@ TARGET_SECONDS = 300.0  # the default map, sweep and confirmation, on 2 CPUs
 PROTOCOLS = (E1E2, E3)  # what check_claims decides on
 
 
-def _job(world: World, method: Method, protocol: Any, seed: int, users: int,
+def _job(world: World, method: Method, protocol: Protocol, seed: int, users: int,
          base: Mission) -> Job:
     """The runner's job for one method variant in ``world`` (the office mission is passed as
     None, as ``attune experiment paper`` does, so its default runs are the same)."""

@@ -88,6 +88,7 @@ AXES: tuple[Axis, ...] = (
 """The swept choices, in the order of a setting's values (docs/method.md §13 gives the ranges)."""
 
 _AXIS = {axis.key: axis for axis in AXES}
+_INDEX = {axis.key: i for i, axis in enumerate(AXES)}
 
 
 @dataclass(frozen=True, order=True)
@@ -117,7 +118,9 @@ class Setting:
         return cls(tuple(changes.get(axis.key, axis.default) for axis in AXES))
 
     def __getitem__(self, key: str) -> Value:
-        return self.values[list(_AXIS).index(key)]
+        if key not in _INDEX:
+            raise KeyError(f"{key} is not an axis; axes: {', '.join(_AXIS)}.")
+        return self.values[_INDEX[key]]
 
     def as_dict(self) -> dict[str, Value]:
         return {axis.key: value for axis, value in zip(AXES, self.values, strict=True)}
@@ -292,8 +295,8 @@ def decide(setting: Setting, runs: Mapping[RunKey, Sequence[RunResult]]) -> list
 class ClaimMap:
     """Which claims hold under which settings, and what follows from it.
 
-    ``held[i, j]``-like data as plain lists: ``verdicts[setting]`` is one bool per claim of
-    ``claims`` (keys, in :func:`check_claims` order).
+    ``verdicts[setting]`` is one bool per claim of ``claims`` ((key, text) pairs, in
+    :func:`check_claims` order); ``evidence[setting]`` the numbers each was decided on.
     """
 
     claims: list[tuple[str, str]]  # (key, text)
