@@ -230,10 +230,14 @@ def _intro(summary: Mapping[str, Any]) -> str:
         text += (f" The default and the best settings were run again on held-out seeds "
                  f"{first}–{last} ({run['confirm_runs']} runs).")
     text += (f" Ran in {run['seconds']:.1f} s on {run['workers']} worker processes (load "
-             f"average {run['load_average']:.1f}).")
+             f"average {run['load_average']:.1f}")
+    cpu = run.get("cpu_seconds")
+    text += ")." if cpu is None else f"; {cpu:.0f} s of CPU time)."
     if run.get("quick"):
         text += " Quick mode: a reduced grid, for checks only."
-    return text
+    command = (f"attune experiment claims-map{' --quick' if run.get('quick') else ''} --seeds "
+               f"{run['seeds']} --confirm-seeds {run['confirm_seeds']} --users {run['users']}")
+    return text + f" Made by `{command}`."
 
 
 def markdown(summary: Mapping[str, Any]) -> str:

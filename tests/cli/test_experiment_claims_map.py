@@ -103,6 +103,7 @@ def test_the_table_names_every_claim_and_the_elapsed_time(
     assert "Elapsed:" in done.stdout
     assert "not the default map" in done.stdout
     assert "Finished" in done.stderr
+    assert "s of CPU time" in done.stderr
     assert "runs in" in done.stderr
     assert "a reading" in markdown
     assert "not the paper" in markdown
