@@ -83,7 +83,8 @@ def heat_class(p: float | None) -> str:
 
 
 # -- labels ----------------------------------------------------------------------------------
-_KEY_PARAM = {"hri": ("tau", "τ"), "dts": ("forgetting", "λ"), "rmax": ("m", "m"),
+_KEY_PARAM = {"hri": ("tau", "τ"), "dts": ("forgetting", "λ"), "dts-adapt": ("forgetting", "λ"),
+              "rmax": ("m", "m"),
               "qlearning": ("exploration", "")}
 _EXPLORATION = {"epsilon": "ε-greedy", "boltzmann": "Boltzmann"}
 

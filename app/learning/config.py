@@ -143,19 +143,23 @@ class HriParams(Params):
 class RmaxParams(Params):
     """R-MAX (Brafman & Tennenholtz 2002), discounted form; greedy with a seeded tie-break.
 
-    m: visits from which a pair is known (below it, Q = Vmax).
+    m: visits from which a pair is known (below it, Q = optimism * Vmax).
     freeze_known: canonical R-MAX stops counting a pair once it is known.
+    optimism: the value of an unknown pair as a share of Vmax (1: the literature's Vmax; 0.1 in
+        the office mission: the largest one-step reward, a tighter bound on a short negotiation).
     """
 
     algorithm: ClassVar[str] = "rmax"
     m: int = 2
     freeze_known: bool = False
+    optimism: float = 1.0
     vi_tol: float = 1e-8
     vi_max_sweeps: int = 500
 
     def __post_init__(self) -> None:
         _integer("m", self.m, 1, 1_000_000)
         _flag("freeze_known", self.freeze_known)
+        _in_range("optimism", self.optimism, 0.0, 1.0, low_open=True)
         _in_range("vi_tol", self.vi_tol, 0.0, 1.0, low_open=True)
         _integer("vi_max_sweeps", self.vi_max_sweeps, 1, 100_000)
 

@@ -73,7 +73,9 @@ def console(app: FastAPI, make_key: MakeKey) -> Iterator[Console]:
     client = TestClient(app, raise_server_exceptions=False, follow_redirects=False)
     client.cookies.set("attune_console", staff, path="/admin")
     with robot, api, client:
-        assert robot.put("/v1/users/lin", json={"display_name": "Mrs. Lin"}).status_code == 201
+        made = robot.put("/v1/users/lin", json={"display_name": "Mrs. Lin",
+                                                "learner": {"algorithm": "hri"}})
+        assert made.status_code == 201
         _play(robot)
         yield Console(client, api, robot)
 

@@ -192,7 +192,10 @@ class TestDecisions:
         assert _cell(profile)["robot_will"]["action"] == "stay_away"
 
     def test_lifting_restores_the_learner(self, staff: TestClient, robot: TestClient) -> None:
-        make_user(staff)
+        # HRI: its probabilities are exact (the DTS family's are estimated from posterior
+        # draws seeded by the model version, which a correction and its lift move on by two).
+        assert staff.put("/v1/users/chen", json={"learner": {"algorithm": "hri"}}).status_code \
+            == 201
         quiet = correction("hush", kind="quiet", service=None, detail=None)
         before = robot.get("/v1/users/chen/model").json()
         assert staff.post("/v1/users/chen/corrections", json=quiet).status_code == 201

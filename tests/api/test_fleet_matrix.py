@@ -532,11 +532,14 @@ def _same(value: Any, hidden: str, absent: str) -> Any:
 
 def _created(body: dict[str, Any]) -> dict[str, Any]:
     """A new user's or episode's answer without what differs from one id to another (the time,
-    the server's ids, the drawn action)."""
+    the server's ids, the drawn action, and the chances it was drawn with: a new learner that
+    samples its beliefs draws them from the user's own seed stream)."""
     out = {k: v for k, v in body.items() if k not in ("created_at", "episode_id", "user_id")}
     if isinstance(out.get("decision"), dict):
         out["decision"] = {k: v for k, v in out["decision"].items()
                            if k not in ("decision_id", "action", "expects")}
+        out["decision"]["probabilities"] = [
+            p["action"] for p in out["decision"].get("probabilities", [])]
     return out
 
 

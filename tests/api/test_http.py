@@ -212,7 +212,8 @@ class TestContentType:
                     assert "415" in op["responses"], (method, path)
                 else:
                     assert "415" not in op["responses"], (method, path)
-        assert seen == 8  # users, episodes, outcomes, feedback, model, corrections, keys, mission
+        # users, episodes, outcomes, feedback, model, corrections, keys, mission, fleet prior
+        assert seen == 9
 
 
 # (path, parameter, lowest, highest): every integer query parameter of the API.

@@ -446,6 +446,9 @@ class TestChangeMission:
                                         other_robot: TestClient, admin: TestClient) -> None:
         train(robot, "lin", 2)
         for uid in ("ana", "kim"):
+            # HRI: a decision's distribution is exactly the model view's (the DTS family's view
+            # is an estimate from posterior draws of its own)
+            other_robot.put(f"/v1/users/{uid}", json={"learner": {"algorithm": "hri"}})
             train(other_robot, uid, 3, need=("BriefInformation", "stocks"))
         views = {uid: model(other_robot, uid) for uid in ("ana", "kim")}
         exports = {uid: admin.get(f"/v1/users/{uid}/model/export",

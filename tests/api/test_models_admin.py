@@ -75,8 +75,9 @@ class TestGetModel:
         view = model(robot, "lin")
         assert set(view) >= {"user_id", "algorithm", "params", "version", "episodes",
                              "contexts"}
-        assert (view["user_id"], view["algorithm"], view["episodes"]) == ("lin", "hri", 0)
-        assert view["params"]["tau"] == pytest.approx(0.01)
+        assert (view["user_id"], view["algorithm"], view["episodes"]) == ("lin", "dts-adapt", 0)
+        assert view["started_from"] == {"kind": "fresh", "contributors": None}
+        assert view["params"]["forgetting"] == pytest.approx(0.95)
         assert isinstance(view["version"], int)
         assert len(view["contexts"]) == 16
         pairs = {(c["time_slot"], c["situation"]) for c in view["contexts"]}
@@ -93,7 +94,7 @@ class TestGetModel:
                     assert set(a) >= ACTION_KEYS
                     assert a["visits"] == 0
                     assert isinstance(a["q"], float)
-                    assert isinstance(a["measure"], float)
+                    assert a["measure"] is None  # HRI's temporal measure only
                     assert isinstance(a["kept_visits"], float)
         kinds = root(view)
         assert set(kinds) == {"initiate", "pass"}
@@ -310,8 +311,8 @@ class TestExportImport:
         doc = r.json()
         assert set(doc) >= {"format", "format_version", "algorithm", "params", "arrays",
                             "mission"}
-        assert doc["algorithm"] == "hri"
-        assert doc["params"]["tau"] == pytest.approx(0.01)
+        assert doc["algorithm"] == "dts-adapt"
+        assert doc["params"]["forgetting"] == pytest.approx(0.95)
         assert doc["mission"]["name"] == "office"
 
     def test_import_on_another_user_gives_the_same_model_view(
@@ -328,7 +329,7 @@ class TestExportImport:
         assert (copy["algorithm"], copy["params"]) == (source["algorithm"], source["params"])
         assert copy["contexts"] == source["contexts"]
         assert robot.get("/v1/users/twin").json()["learner"] == {
-            "algorithm": "hri", "params": source["params"]}
+            "algorithm": "dts-adapt", "params": source["params"]}
 
     def test_round_trip_after_a_reset(self, robot: TestClient, admin: TestClient) -> None:
         for i in range(2):

@@ -95,7 +95,7 @@ def _seed(client: httpx.Client) -> None:
         r = client.put(f"/v1/users/{user_id}", json=body)
         assert r.status_code in (200, 201), r.text
 
-    put("lin", display_name="Mrs. Lin")
+    put("lin", display_name="Mrs. Lin", learner={"algorithm": "hri"})  # the views of HRI
     play(client, "lin", Person(LIN_NEEDS), 60, prefix="lin")
     put("chen", display_name="Mr. Chen", learner={"algorithm": "dts"})
     play(client, "chen", Person({("noon", "working"): ("ProvideDrink", "coffee")}), 30,

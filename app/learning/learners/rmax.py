@@ -1,7 +1,8 @@
 """R-MAX (Brafman & Tennenholtz 2002) in the discounted form of Strehl, Li & Littman (2009).
 
-Unknown pairs (n < m) are pinned at Q = Vmax, known pairs use the empirical model; the action is
-greedy with a seeded tie-break (uniform over the maximal actions, then one draw).
+Unknown pairs (n < m) are pinned at Q = optimism x Vmax (Vmax by default), known pairs use the
+empirical model; the action is greedy with a seeded tie-break (uniform over the maximal actions,
+then one draw).
 """
 
 from __future__ import annotations
@@ -62,7 +63,7 @@ class RmaxLearner(TabularLearner[RmaxParams]):
             tol=self._params.vi_tol,
             max_sweeps=self._params.vi_max_sweeps,
             fixed=unknown,
-            fixed_value=self.mission.v_max,
+            fixed_value=self._params.optimism * self.mission.v_max,
         )
 
     def _policy(self, plan: Any, context: int, state: int, episode: int) -> FloatArray:
