@@ -427,6 +427,8 @@ def markdown(summary: Mapping[str, Any]) -> str:
         f"{MIN_ORACLE_REWARD:g} in a window has no share there. Ran in {run['seconds']:.1f} s "
         f"on {run['workers']} worker processes.",
     ]
+    if run.get("cpu_seconds") is not None:
+        lines[-1] = lines[-1][:-1] + f" ({run['cpu_seconds']:.1f} s of CPU time)."
     mission = run.get("mission") or {}
     if mission.get("file"):
         lines[-1] += (f" The people lived in the mission {mission['name']!r} of "

@@ -19,7 +19,9 @@ Which tables are averaged, per algorithm (:data:`PRIOR_TABLES`):
 - ``counts``: a successor-count table (C, P, ..., M) and ``sums``, its reward-sum table
   (C, P, ...): the rates are the shares of the counts (over all but the pair axes) and the mean
   reward of each sum cell; ``derived`` tables are the counts summed over their last axis;
-- ``values``: a value table (C, P), averaged where the contributors have visited the pair;
+- ``values``: a value table (C, P), averaged where the contributors have visited the pair,
+  and never below a fresh learner's initial value (a learner without a posterior, greedy
+  once its exploration decays, would never try again a pair that others found bad);
 - ``pooled``: a (count, reward sum) pair of one number each, averaged as a rate.
 
 Pure: the standard library and numpy only.
@@ -139,7 +141,10 @@ def _values(tables: Sequence[FloatArray], visits: Sequence[np.ndarray], initial:
     seen = np.stack([np.asarray(v) > 0 for v in visits])
     support = seen.sum(axis=0)
     mean = np.where(seen, q, 0.0).sum(axis=0) / np.maximum(support, 1)
-    out: FloatArray = np.where(support >= min_support, mean, initial)
+    # Never below a fresh learner's start: a value the contributors found worse than that is
+    # their experience of the pair, not the newcomer's, and a learner without a posterior
+    # (Q-learning is greedy once its exploration has decayed) would never try it again.
+    out: FloatArray = np.where(support >= min_support, np.maximum(mean, initial), initial)
     return out
 
 

@@ -118,6 +118,21 @@ class TestSupport:
         assert prior.visits.sum() == 0  # no counts of episodes are taken
 
 
+    def test_a_value_found_worse_than_a_fresh_start_stays_at_the_start(self) -> None:
+        """Q-learning has no posterior: a pair the contributors found bad would never be tried
+        again by a greedy newcomer, so the prior never starts a value below a fresh one."""
+        contributors = [QLearner(office()) for _ in range(4)]
+        initial = float(contributors[0].q[5, 1])
+        for i, learner in enumerate(contributors):
+            learner.visits[5, 1:3] = 2
+            learner.q[5, 1] = initial - 3.0 - i  # refused by everyone
+            learner.q[5, 2] = initial + 1.0 + i  # welcome
+        prior = population_prior("qlearning", None, office(), contributors)
+        assert isinstance(prior, QLearner)
+        assert prior.q[5, 1] == initial
+        assert prior.q[5, 2] == pytest.approx(initial + 2.5)
+
+
 class TestWeights:
     @pytest.mark.parametrize("algorithm", COUNTING)
     def test_a_contributor_served_ten_times_as_much_weighs_the_same(self,
