@@ -40,10 +40,15 @@ from .learners.base import TabularLearner
 from .mission import Mission
 from .types import FloatArray
 
-__all__ = ["DEFAULT_STRENGTH", "MIN_SUPPORT", "PRIOR_TABLES", "PriorSpec", "population_prior"]
+__all__ = ["DEFAULT_STRENGTH", "FRESH_ONLY", "MIN_SUPPORT", "PRIOR_TABLES", "PriorSpec",
+           "population_prior"]
 
 DEFAULT_STRENGTH = 4.0  # pseudo-samples per pair that every contributor has evidence on
 MIN_SUPPORT = 3  # the fewest contributors with evidence on a pair for it to enter the prior
+# Learners the service starts fresh even where a fleet's prior is in force: HRI gains at the start
+# from it but loses later (after event 100 of a home, docs/method.md §16), its exclusion rule
+# keeping too few samples per pair for the prior's to fade.
+FRESH_ONLY = frozenset({"hri"})
 
 
 @dataclass(frozen=True)

@@ -21,7 +21,7 @@ from app.db.repositories.models import Origin
 from app.db.types import utcnow
 from app.errors import Forbidden
 from app.learning.learners import ALGORITHMS, TabularLearner
-from app.learning.prior import population_prior
+from app.learning.prior import FRESH_ONLY, population_prior
 
 from . import audit
 from .auth import require_manager
@@ -60,7 +60,7 @@ def starting_learner(session: Session, ctx: ServiceContext, fleet: str, algorith
     parameters, either way)."""
     mission = ctx.missions.get(session, fleet, mission_version).mission
     fresh = fresh_learner(algorithm, params, mission)
-    if not takes_part or not prior_enabled(session, fleet):
+    if not takes_part or algorithm in FRESH_ONLY or not prior_enabled(session, fleet):
         return fresh, Origin()
     pks = _contributors(session, ctx, fleet, algorithm, mission_version)
     if len(pks) < ctx.settings.prior_min_contributors:
@@ -93,7 +93,8 @@ def fleet_prior_view(session: Session, ctx: ServiceContext, principal: Principal
     return {
         "fleet": fleet, "enabled": enabled,
         "in_force": sorted(n for n, k in counts.items()
-                           if enabled and k >= s.prior_min_contributors),
+                           if enabled and n not in FRESH_ONLY
+                           and k >= s.prior_min_contributors),
         "contributors": counts, "min_contributors": s.prior_min_contributors,
         "min_episodes": s.prior_min_episodes, "max_contributors": s.prior_max_contributors,
         "strength": s.prior_strength, "mission_version": version, "shared": SHARED,

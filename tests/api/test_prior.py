@@ -133,6 +133,15 @@ class TestNewcomers:
         staff.put("/v1/users/dora", json={"learner": {"algorithm": "qlearning"}})
         assert started_from(staff, "dora")["kind"] == "fresh"
 
+    def test_hri_newcomers_start_fresh(self, staff: TestClient) -> None:
+        hri: dict[str, Any] = {"learner": {"algorithm": "hri"}}
+        residents(staff, learner=hri["learner"])
+        staff.put("/v1/users/dora", json=hri)
+        assert started_from(staff, "dora")["kind"] == "fresh"
+        view = staff.get("/v1/admin/fleets/default/prior").json()
+        assert view["contributors"]["hri"] == 3
+        assert "hri" not in view["in_force"]
+
     def test_other_fleets_never_contribute(self, staff: TestClient,
                                            other_staff: TestClient) -> None:
         residents(other_staff)
