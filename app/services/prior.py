@@ -108,7 +108,8 @@ def set_fleet_prior(session: Session, ctx: ServiceContext, principal: Principal,
     """``PUT /v1/admin/fleets/{fleet}/prior``: turn the fleet's prior on or off for the
     fleet's next newcomers (models made from it before keep it)."""
     _check_fleet(principal, fleet)
-    if prior_enabled(session, fleet) != enabled or repo.get(session, fleet) is None:
+    row = repo.get(session, fleet)
+    if row is None or row.prior_enabled != enabled:
         repo.set_prior(session, fleet, enabled=enabled, now=utcnow(), actor=principal.key_id)
         audit.record(session, principal, "fleet.prior", target=fleet, fleet=fleet,
                      detail={"enabled": enabled})

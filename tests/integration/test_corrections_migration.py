@@ -13,7 +13,6 @@ previous schema while no correction exists, and refuses, saying why, once one do
 from __future__ import annotations
 
 import datetime as dt
-import json
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -22,10 +21,8 @@ import httpx
 import pytest
 from alembic import command
 from fastapi.testclient import TestClient
-from sqlalchemy import create_engine, inspect, text
-from typer.testing import CliRunner
+from sqlalchemy import create_engine, inspect
 
-from app import cli
 from app.db import migrate
 from app.main import create_app
 from app.settings import Settings
@@ -34,7 +31,10 @@ from tests.support.release import (
     OldService,
     play,
     previous_release,
+    rebuild,
     release_code,
+    revision,
+    scalars,
     table_rows,
 )
 
@@ -96,21 +96,6 @@ def _rows(url: str, tables: list[str]) -> dict[str, list[tuple[Any, ...]]]:
     return table_rows(url, tables, leave_out=NEW_COLUMNS)
 
 
-def _scalars(url: str, sql: str) -> list[Any]:
-    engine = create_engine(url)
-    try:
-        with engine.connect() as conn:
-            return list(conn.execute(text(sql)).scalars().all())
-    finally:
-        engine.dispose()
-
-
-def _revision(url: str) -> str | None:
-    engine = create_engine(url)
-    try:
-        return migrate.current_revision(engine)
-    finally:
-        engine.dispose()
 
 
 def _api_view(api: Any) -> dict[str, Any]:
@@ -142,20 +127,11 @@ def filled(request: pytest.FixtureRequest, old_code: Path, tmp_path: Path
             with httpx.Client(base_url=old.base, timeout=30, headers={
                     "Authorization": f"Bearer {names['keys']['admin']}"}) as admin:
                 before = _api_view(admin)
-        assert _revision(url) == BEFORE
+        assert revision(url) == BEFORE
         tables = _tables(url)
         assert "corrections" not in tables
         yield url, names, before, tables, _rows(url, tables)
 
-
-def _rebuild(url: str, user_id: str) -> dict[str, Any]:
-    """``attune models rebuild`` of one user: its summary line."""
-    result = CliRunner().invoke(cli.app, ["models", "rebuild", user_id],
-                                env={"ATTUNE_DATABASE_URL": url, "ATTUNE_SEED": "0"})
-    assert result.exit_code == 0, result.output
-    summary: dict[str, Any] = json.loads(
-        next(ln for ln in result.output.splitlines() if ln.startswith("{")))
-    return summary
 
 
 def _cell(profile: dict[str, Any]) -> dict[str, Any]:
@@ -169,11 +145,11 @@ def test_the_upgrade_keeps_everything_and_corrections_can_be_made(
         filled: tuple[str, dict[str, Any], dict[str, Any], list[str], dict[str, Any]]) -> None:
     url, names, before, tables, rows_before = filled
     migrate.upgrade(url)
-    assert _revision(url) == AFTER
+    assert revision(url) == AFTER
     assert _rows(url, tables) == rows_before
-    assert _scalars(url, "SELECT COUNT(*) FROM episodes") == [names["episodes"]]
-    assert _scalars(url, "SELECT DISTINCT utc_offset FROM episodes") == [None]
-    assert _scalars(url, "SELECT COUNT(*) FROM corrections") == [0]
+    assert scalars(url, "SELECT COUNT(*) FROM episodes") == [names["episodes"]]
+    assert scalars(url, "SELECT DISTINCT utc_offset FROM episodes") == [None]
+    assert scalars(url, "SELECT COUNT(*) FROM corrections") == [0]
 
     settings = Settings(database_url=url, seed=0, _env_file=None)  # type: ignore[call-arg]
     app = create_app(settings)
@@ -245,17 +221,17 @@ def test_the_upgrade_keeps_everything_and_corrections_can_be_made(
     finally:
         app.state.db.dispose()
 
-    assert _scalars(url, "SELECT COUNT(*) FROM episodes WHERE utc_offset IS NULL") == [
+    assert scalars(url, "SELECT COUNT(*) FROM episodes WHERE utc_offset IS NULL") == [
         names["episodes"]]
     for uid in USERS:
-        summary = _rebuild(url, uid)
+        summary = rebuild(url, uid)
         assert summary["identical"] is True, (uid, summary)
 
     # Down again: refused while corrections exist, saying so; nothing changed.
     with pytest.raises(RuntimeError, match=r"2 staff corrections are stored"):
         command.downgrade(migrate.alembic_config(url), BEFORE)
-    assert _revision(url) == AFTER
-    assert _scalars(url, "SELECT COUNT(*) FROM corrections") == [2]
+    assert revision(url) == AFTER
+    assert scalars(url, "SELECT COUNT(*) FROM corrections") == [2]
 
 
 def test_the_downgrade_gives_back_the_previous_schema(
@@ -263,7 +239,7 @@ def test_the_downgrade_gives_back_the_previous_schema(
     url, _, _, tables, rows_before = filled
     migrate.upgrade(url)
     command.downgrade(migrate.alembic_config(url), BEFORE)
-    assert _revision(url) == BEFORE
+    assert revision(url) == BEFORE
     assert _tables(url) == tables
     assert "corrections" not in _tables_with_new(url)
     assert _rows(url, tables) == rows_before
@@ -273,7 +249,7 @@ def test_the_downgrade_gives_back_the_previous_schema(
     finally:
         engine.dispose()
     migrate.upgrade(url)
-    assert _revision(url) == AFTER
+    assert revision(url) == AFTER
     assert _rows(url, tables) == rows_before
 
 

@@ -12,7 +12,6 @@ prior, and refuses, saying why, once one does.
 
 from __future__ import annotations
 
-import json
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -21,10 +20,8 @@ import httpx
 import pytest
 from alembic import command
 from fastapi.testclient import TestClient
-from sqlalchemy import create_engine, inspect, text
-from typer.testing import CliRunner
+from sqlalchemy import create_engine, inspect
 
-from app import cli
 from app.db import migrate
 from app.main import create_app
 from app.settings import Settings
@@ -33,7 +30,10 @@ from tests.support.release import (
     OldService,
     play,
     previous_release,
+    rebuild,
     release_code,
+    revision,
+    scalars,
     table_rows,
 )
 
@@ -97,21 +97,6 @@ def _tables(url: str) -> list[str]:
         engine.dispose()
 
 
-def _scalars(url: str, sql: str) -> list[Any]:
-    engine = create_engine(url)
-    try:
-        with engine.connect() as conn:
-            return list(conn.execute(text(sql)).scalars().all())
-    finally:
-        engine.dispose()
-
-
-def _revision(url: str) -> str | None:
-    engine = create_engine(url)
-    try:
-        return migrate.current_revision(engine)
-    finally:
-        engine.dispose()
 
 
 def _without(doc: dict[str, Any], *names: str) -> dict[str, Any]:
@@ -145,28 +130,20 @@ def filled(request: pytest.FixtureRequest, old_code: Path, tmp_path: Path
             with httpx.Client(base_url=old.base, timeout=30, headers={
                     "Authorization": f"Bearer {names['keys']['admin']}"}) as admin:
                 before = _api_view(admin)
-        assert _revision(url) == BEFORE
+        assert revision(url) == BEFORE
         tables = _tables(url)
         yield url, names, before, tables, table_rows(url, tables, leave_out=NEW_COLUMNS)
 
-
-def _rebuild(url: str, user_id: str) -> dict[str, Any]:
-    result = CliRunner().invoke(cli.app, ["models", "rebuild", user_id],
-                                env={"ATTUNE_DATABASE_URL": url, "ATTUNE_SEED": "0"})
-    assert result.exit_code == 0, result.output
-    summary: dict[str, Any] = json.loads(
-        next(ln for ln in result.output.splitlines() if ln.startswith("{")))
-    return summary
 
 
 def test_the_upgrade_keeps_everything_and_newcomers_start_from_the_prior(
         filled: tuple[str, dict[str, Any], dict[str, Any], list[str], dict[str, Any]]) -> None:
     url, names, before, tables, rows_before = filled
     migrate.upgrade(url)
-    assert _revision(url) == AFTER
+    assert revision(url) == AFTER
     assert table_rows(url, tables, leave_out=NEW_COLUMNS) == rows_before
-    assert _scalars(url, "SELECT DISTINCT fleet_prior FROM users") == [True]
-    assert _scalars(url, "SELECT COUNT(*) FROM fleet_settings") == [0]
+    assert scalars(url, "SELECT DISTINCT fleet_prior FROM users") == [True]
+    assert scalars(url, "SELECT COUNT(*) FROM fleet_settings") == [0]
 
     settings = Settings(database_url=url, seed=0, prior_min_contributors=3,  # type: ignore[call-arg]
                         prior_min_episodes=EPISODES, _env_file=None)
@@ -193,13 +170,13 @@ def test_the_upgrade_keeps_everything_and_newcomers_start_from_the_prior(
         app.state.db.dispose()
 
     for uid in (*USERS, "newcomer"):
-        summary = _rebuild(url, uid)
+        summary = rebuild(url, uid)
         assert summary["identical"] is True, (uid, summary)
 
     # Down again: refused while a model grew from a prior, saying so; nothing changed.
     with pytest.raises(RuntimeError, match=r"1 models started from their fleet's prior"):
         command.downgrade(migrate.alembic_config(url), BEFORE)
-    assert _revision(url) == AFTER
+    assert revision(url) == AFTER
 
 
 def test_the_downgrade_gives_back_the_previous_schema(
@@ -207,7 +184,7 @@ def test_the_downgrade_gives_back_the_previous_schema(
     url, _, _, tables, rows_before = filled
     migrate.upgrade(url)
     command.downgrade(migrate.alembic_config(url), BEFORE)
-    assert _revision(url) == BEFORE
+    assert revision(url) == BEFORE
     assert _tables(url) == tables
     engine = create_engine(url)
     try:
@@ -219,5 +196,5 @@ def test_the_downgrade_gives_back_the_previous_schema(
         engine.dispose()
     assert table_rows(url, tables) == rows_before
     migrate.upgrade(url)
-    assert _revision(url) == AFTER
+    assert revision(url) == AFTER
     assert table_rows(url, tables, leave_out=NEW_COLUMNS) == rows_before

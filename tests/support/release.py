@@ -21,7 +21,8 @@ from sqlalchemy import create_engine, text
 
 from tests.support.live import free_port
 
-__all__ = ["REPO", "OldService", "play", "previous_release", "release_code"]
+__all__ = ["REPO", "OldService", "play", "previous_release", "rebuild", "release_code", "revision",
+           "scalars", "table_rows"]
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -156,3 +157,40 @@ def _plain(value: Any) -> Any:
     if isinstance(value, dt.datetime):
         return value.replace(tzinfo=None).isoformat()
     return value
+
+
+def scalars(url: str, sql: str) -> list[Any]:
+    """The first column of ``sql``'s rows on the database at ``url``."""
+    engine = create_engine(url)
+    try:
+        with engine.connect() as conn:
+            return list(conn.execute(text(sql)).scalars().all())
+    finally:
+        engine.dispose()
+
+
+def revision(url: str) -> str | None:
+    """The database's Alembic revision."""
+    from app.db import migrate
+
+    engine = create_engine(url)
+    try:
+        return migrate.current_revision(engine)
+    finally:
+        engine.dispose()
+
+
+def rebuild(url: str, user_id: str) -> dict[str, Any]:
+    """``attune models rebuild USER_ID`` on the database at ``url``: its JSON summary line."""
+    import json
+
+    from typer.testing import CliRunner
+
+    from app import cli
+
+    result = CliRunner().invoke(cli.app, ["models", "rebuild", user_id],
+                                env={"ATTUNE_DATABASE_URL": url, "ATTUNE_SEED": "0"})
+    assert result.exit_code == 0, result.output
+    summary: dict[str, Any] = json.loads(
+        next(ln for ln in result.output.splitlines() if ln.startswith("{")))
+    return summary
