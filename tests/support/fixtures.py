@@ -226,7 +226,9 @@ class WarmApps:
 
 def _shape(application: FastAPI) -> tuple[object, ...]:
     """What a test could change on an app beyond its state (identities, not values)."""
-    return (tuple(map(id, application.router.routes)), len(application.user_middleware),
+    router = application.router
+    return (tuple(map(id, router.routes)), len(application.user_middleware),
+            len(router.on_startup), len(router.on_shutdown),
             tuple(application.dependency_overrides.items()), application.__dict__.get("openapi"),
             application.title, application.root_path)
 
@@ -240,9 +242,11 @@ def warm_apps() -> WarmApps:
 def app(settings: Settings, empty_tables: None, warm_apps: WarmApps) -> Iterator[FastAPI]:
     """The service on the test's empty database, in the state of a new app (``WarmApps``)."""
     application = warm_apps.take(settings)
-    yield application
-    application.state.db.dispose()
-    warm_apps.give_back(settings, application)
+    try:
+        yield application
+    finally:
+        warm_apps.give_back(settings, application)
+        application.state.db.dispose()
 
 
 class ManualClock:
