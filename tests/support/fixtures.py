@@ -6,23 +6,27 @@ SQLite and on PostgreSQL, unless it is marked ``one_engine``: then it runs on SQ
 ``one_engine`` what is decided before any SQL runs (bad input refused by validation, HTTP
 behaviours, the schema, auth header parsing) and nothing else; when in doubt, both engines.
 
-Each pytest-xdist worker builds its own databases once per run, by the migrations: a SQLite file
-in the worker's temporary folder and a PostgreSQL database named after the worker
-(``attune_test_gw0_<pid>_<tag>``; ``master`` outside xdist) on the server at
-``ATTUNE_TEST_POSTGRES_URL`` (default postgres@127.0.0.1:5432, trust auth). If that server does
-not answer, the run fails; it does not skip. Every test starts from empty tables.
+Each pytest-xdist worker builds its own databases once per run, by the migrations, the first
+time a test needs them (``WorkerDatabases``): a SQLite file in the worker's temporary folder and
+a PostgreSQL database named after the worker (``attune_test_gw0_<pid>_<tag>``; ``master``
+outside xdist) on the server at ``ATTUNE_TEST_POSTGRES_URL`` (default postgres@127.0.0.1:5432,
+trust auth). If that server does not answer, the run fails; it does not skip. Every test starts
+from empty tables (``EmptyTables``), and ``app`` is the service in the state of a new one, on
+routes that earlier tests warmed up (``WarmApps``).
 """
 
 from __future__ import annotations
 
 import os
 import shutil
+import sqlite3
 from collections.abc import Callable, Iterator
+from contextlib import ExitStack, closing
 from pathlib import Path
 
 import pytest
 from fastapi import FastAPI
-from sqlalchemy import create_engine, text
+from sqlalchemy import Engine, create_engine, text
 
 from app.db import migrate
 from app.db.base import Base
@@ -60,20 +64,106 @@ def pytest_generate_tests(metafunc: pytest.Metafunc) -> None:
                          scope="session")
 
 
+class EmptyTables:
+    """Brings one test database back to its migrated, empty schema, cheaply, before each test.
+
+    SQLite: a copy of the template the migrations made (in WAL mode, as the app opens it),
+    moved into place, so that a connection a test left open keeps the file it had.
+
+    PostgreSQL: one round trip on a connection kept for the run: ``DELETE`` from every table,
+    children first, and every sequence back to 1 (as ``TRUNCATE ... RESTART IDENTITY``, which
+    costs tens of milliseconds per test: it makes new files for every table). The append-only
+    audit log refuses deletes by a trigger: the tables' own triggers are off inside that one
+    transaction only, so no other connection ever sees them off.
+    """
+
+    def __init__(self, url: str) -> None:
+        self.url = url
+        self._engine: Engine | None = None
+        self._sql = ""
+        if url.startswith("sqlite"):
+            self._path = Path(url.removeprefix("sqlite:///"))
+            self._template = self._path.with_name("template.db")
+            migrate.upgrade(f"sqlite:///{self._template}")
+            with closing(sqlite3.connect(self._template)) as conn:
+                conn.execute("PRAGMA journal_mode=WAL")
+            return
+        migrate.upgrade(url)
+        self._engine = create_engine(url, pool_size=1, max_overflow=0)
+        tables = [t.name for t in reversed(Base.metadata.sorted_tables)]
+        with self._engine.connect() as conn:
+            triggered = set(conn.scalars(text(
+                "SELECT DISTINCT c.relname FROM pg_trigger t JOIN pg_class c ON c.oid = t.tgrelid"
+                " WHERE NOT t.tgisinternal AND c.relnamespace = 'public'::regnamespace")))
+            sequences = list(conn.scalars(text(
+                "SELECT sequencename FROM pg_sequences WHERE schemaname = 'public'")))
+        off = [f'ALTER TABLE "{t}" DISABLE TRIGGER USER;' for t in tables if t in triggered]
+        on = [f'ALTER TABLE "{t}" ENABLE TRIGGER USER;' for t in tables if t in triggered]
+        self._sql = " ".join([*off, *(f'DELETE FROM "{t}";' for t in tables), *on,
+                              *(f"SELECT setval('\"{q}\"', 1, false);" for q in sequences)])
+
+    def __call__(self) -> None:
+        if self._engine is None:
+            for extra in ("-wal", "-shm"):
+                self._path.with_name(self._path.name + extra).unlink(missing_ok=True)
+            copy = self._path.with_name(self._path.name + ".new")
+            shutil.copyfile(self._template, copy)
+            os.replace(copy, self._path)
+            return
+        with self._engine.begin() as conn:
+            conn.exec_driver_sql(self._sql)
+
+    def close(self) -> None:
+        if self._engine is not None:
+            self._engine.dispose()
+
+
+class WorkerDatabases:
+    """This worker's test databases, one per engine, each made (and migrated) the first time a
+    test asks for it and kept until the end of the run, however the tests of the two engines
+    come in turn: a SQLite file in the worker's temporary folder, and a PostgreSQL database
+    named after the worker."""
+
+    def __init__(self, worker_id: str, tmp_path_factory: pytest.TempPathFactory) -> None:
+        self._worker, self._tmp = worker_id, tmp_path_factory
+        self._stack = ExitStack()
+        self._urls: dict[str, str] = {}
+        self._empty: dict[str, EmptyTables] = {}
+
+    def url(self, engine: str) -> str:
+        if engine not in self._urls:
+            if engine == "sqlite":
+                url = f"sqlite:///{self._tmp.mktemp(f'sqlite-{self._worker}') / 'attune.db'}"
+            else:
+                server_url = self._stack.enter_context(
+                    postgres_database(database_name("test", self._worker)))
+                url = Settings(database_url=server_url,  # type: ignore[call-arg]
+                               _env_file=None).database_url
+            emptier = self._empty[url] = EmptyTables(url)
+            self._stack.callback(emptier.close)
+            emptier()
+            self._urls[engine] = url
+        return self._urls[engine]
+
+    def empty(self, url: str) -> None:
+        self._empty[url]()
+
+    def close(self) -> None:
+        self._stack.close()
+
+
 @pytest.fixture(scope="session")
-def database_url(request: pytest.FixtureRequest, worker_id: str,
-                 tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
+def worker_databases(worker_id: str,
+                   tmp_path_factory: pytest.TempPathFactory) -> Iterator[WorkerDatabases]:
+    databases = WorkerDatabases(worker_id, tmp_path_factory)
+    yield databases
+    databases.close()
+
+
+@pytest.fixture(scope="session")
+def database_url(request: pytest.FixtureRequest, worker_databases: WorkerDatabases) -> str:
     """A migrated database of the engine ``request.param``, for this worker's whole run."""
-    if request.param == "sqlite":
-        folder = tmp_path_factory.mktemp(f"sqlite-{worker_id}")
-        migrate.upgrade(f"sqlite:///{folder / 'template.db'}")
-        shutil.copyfile(folder / "template.db", folder / "attune.db")
-        yield f"sqlite:///{folder / 'attune.db'}"
-        return
-    with postgres_database(database_name("test", worker_id)) as server_url:
-        settings = Settings(database_url=server_url, _env_file=None)  # type: ignore[call-arg]
-        migrate.upgrade(settings.database_url)
-        yield settings.database_url
+    return worker_databases.url(request.param)
 
 
 @pytest.fixture
@@ -87,27 +177,76 @@ def engine_name(database_url: str) -> str:
 
 
 @pytest.fixture
-def empty_tables(database_url: str) -> None:
-    """Every test starts from the migrated, empty schema: a copy of the SQLite template, or the
-    PostgreSQL tables truncated (the audit log refuses row deletes; TRUNCATE is not one)."""
-    if database_url.startswith("sqlite"):
-        path = Path(database_url.removeprefix("sqlite:///"))
-        for extra in ("-wal", "-shm"):
-            path.with_name(path.name + extra).unlink(missing_ok=True)
-        shutil.copyfile(path.with_name("template.db"), path)
-        return
-    engine = create_engine(database_url)
-    with engine.begin() as conn:
-        names = ", ".join(t.name for t in Base.metadata.sorted_tables)
-        conn.execute(text(f"TRUNCATE {names} RESTART IDENTITY CASCADE"))
-    engine.dispose()
+def empty_tables(database_url: str, worker_databases: WorkerDatabases) -> None:
+    """Every test starts from the migrated, empty schema (``EmptyTables``)."""
+    worker_databases.empty(database_url)
+
+
+class WarmApps:
+    """This worker's apps, one per settings, each handed to one test at a time with the state of
+    a new one.
+
+    ``create_app`` is cheap, but an app's first requests are not: FastAPI works out each route's
+    parameters, models and dependencies on first use, per app (about 0.1 s for a test's first
+    requests). So each test gets the app that earlier tests with the same settings warmed up,
+    after it adopted everything ``create_app`` makes per call from a new app: ``app.state``
+    (database, caches, metrics, rate limiter), the middleware (rebuilt on the next request, with
+    no counts carried over), the exception handlers and the lifespan. A test that changes the app
+    itself (adds a route, overrides a dependency, patches a method) leaves it to no one: the next
+    test builds a new one.
+    """
+
+    def __init__(self) -> None:
+        self._apps: dict[str, tuple[FastAPI, tuple[object, ...]]] = {}
+
+    def take(self, settings: Settings) -> FastAPI:
+        fresh = create_app(settings)
+        key = settings.model_dump_json()
+        warm = self._apps.pop(key, None)
+        if warm is None:
+            self._apps[key] = (fresh, _shape(fresh))
+            return fresh
+        application, shape = warm
+        application.state = fresh.state
+        application.user_middleware = fresh.user_middleware
+        application.middleware_stack = None
+        application.exception_handlers = fresh.exception_handlers
+        application.router.lifespan_context = fresh.router.lifespan_context
+        application.openapi_schema = None
+        self._apps[key] = (application, shape)
+        return application
+
+    def give_back(self, settings: Settings, application: FastAPI) -> None:
+        """Keep ``application`` for the next test, unless this one changed it."""
+        key = settings.model_dump_json()
+        warm = self._apps.get(key)
+        if warm is not None and warm[0] is application and _shape(application) != warm[1]:
+            del self._apps[key]
+
+
+def _shape(application: FastAPI) -> tuple[object, ...]:
+    """What a test could change on an app beyond its state (identities, not values)."""
+    router = application.router
+    return (tuple(map(id, router.routes)), len(application.user_middleware),
+            len(router.on_startup), len(router.on_shutdown),
+            tuple(application.dependency_overrides.items()), application.__dict__.get("openapi"),
+            application.title, application.root_path)
+
+
+@pytest.fixture(scope="session")
+def warm_apps() -> WarmApps:
+    return WarmApps()
 
 
 @pytest.fixture
-def app(settings: Settings, empty_tables: None) -> Iterator[FastAPI]:
-    application = create_app(settings)
-    yield application
-    application.state.db.dispose()
+def app(settings: Settings, empty_tables: None, warm_apps: WarmApps) -> Iterator[FastAPI]:
+    """The service on the test's empty database, in the state of a new app (``WarmApps``)."""
+    application = warm_apps.take(settings)
+    try:
+        yield application
+    finally:
+        warm_apps.give_back(settings, application)
+        application.state.db.dispose()
 
 
 class ManualClock:
