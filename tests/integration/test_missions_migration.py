@@ -46,7 +46,8 @@ MIGRATION = "migrations/versions/2026-11-30-1500_missions_per_fleet.py"
 BEFORE = "9c1f4e7a2b65"  # the revision the previous release ends at
 TABLES = ("users", "learner_models", "episodes", "samples", "decisions", "feedback", "api_keys",
           "audit_log")
-NEW_COLUMNS = ("mission_version", "base_mission_version", "utc_offset")  # this and later releases
+NEW_COLUMNS = ("mission_version", "base_mission_version", "utc_offset",  # this and later releases
+               "fleet_prior", "base_origin", "base_contributors")
 USERS = {"north": ["lin", "chen", "room-12"], "south": ["lin", "bo"]}
 
 
@@ -112,13 +113,16 @@ def _api_view(api: Any) -> dict[str, Any]:
             q = {"fleet": fleet}
             model = api.get(f"/v1/users/{uid}/model", params=q).json()
             model.pop("mission_version", None)
+            model.pop("started_from", None)  # a later release's
+            user = api.get(f"/v1/users/{uid}", params=q).json()
+            user.pop("fleet_prior", None)  # a later release's
             episodes = api.get(f"/v1/users/{uid}/episodes", params={**q, "limit": 500}).json()
             traces = [api.get(f"/v1/episodes/{ep['episode_id']}").json()
                       for ep in episodes["items"]]
             for item in [*episodes["items"], *traces]:
                 item.pop("mission_version", None)
             view[f"{fleet}/{uid}"] = {
-                "user": api.get(f"/v1/users/{uid}", params=q).json(), "model": model,
+                "user": user, "model": model,
                 "stats": api.get(f"/v1/users/{uid}/stats", params=q).json(),
                 "episodes": episodes["items"], "traces": traces}
     return view

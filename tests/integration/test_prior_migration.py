@@ -68,6 +68,9 @@ def _fill(old: OldService) -> dict[str, Any]:
     try:
         n = 0
         for uid in USERS:
+            # DTS: the previous release's default, HRI, is a learner whose newcomers start fresh
+            made = robot.put(f"/v1/users/{uid}", json={"learner": {"algorithm": "dts"}})
+            assert made.status_code == 201, made.text
             for _ in range(EPISODES):
                 episode = play(robot, uid, f"{uid}-e{n}", n)
                 n += 1
@@ -160,8 +163,8 @@ def test_the_upgrade_keeps_everything_and_newcomers_start_from_the_prior(
                 assert started == {"kind": kind, "contributors": None}, uid
             view = admin.get("/v1/admin/fleets/default/prior").json()
             assert view["enabled"] is True
-            assert view["contributors"]["hri"] == len(USERS)
-            made = admin.put("/v1/users/newcomer")
+            assert view["contributors"]["dts"] == len(USERS)
+            made = admin.put("/v1/users/newcomer", json={"learner": {"algorithm": "dts"}})
             assert made.status_code == 201, made.text
             assert admin.get("/v1/users/newcomer/model").json()["started_from"] == {
                 "kind": "fleet_prior", "contributors": len(USERS)}
