@@ -38,8 +38,9 @@ pytestmark = [pytest.mark.slow]
 
 USERS, EVENTS = 30, 20
 OTHER_USERS, OTHER_EVENTS = 3, 15
-# A few users of the fleet learn with another algorithm whose identical decisions docs/method.md
-# also promises where the change did not reach (not DTS: its draws change in every context).
+# The fleet's users learn with HRI, and a few with another algorithm whose identical decisions
+# docs/method.md also promises where the change did not reach (not the DTS family, the service's
+# default: its draws change in every context).
 ALGORITHMS = {27: "rmax", 28: "qlearning", 29: "qlearning"}
 DAY = dt.date(2026, 12, 1)
 Key = tuple[Any, ...]
@@ -209,7 +210,7 @@ def test_a_mission_change_keeps_what_it_did_not_reach(
         other_staff: TestClient) -> None:
     users = [f"u{i:02d}" for i in range(USERS)]
     for i, uid in enumerate(users):
-        spec = {"learner": {"algorithm": ALGORITHMS[i]}} if i in ALGORITHMS else {}
+        spec = {"learner": {"algorithm": ALGORITHMS.get(i, "hri")}}
         assert robot.put(f"/v1/users/{uid}", json=spec).status_code == 201
     profiles = {uid: train(robot, uid, EVENTS, seed=100 + i) for i, uid in enumerate(users)}
     others = [f"o{i}" for i in range(OTHER_USERS)]
