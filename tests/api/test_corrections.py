@@ -11,12 +11,11 @@ from typing import Any
 
 import pytest
 from fastapi.testclient import TestClient
-from typer.testing import CliRunner
 
-from app import cli
 from app.settings import Settings
 from tests.api.helpers import answer, start
 from tests.support import people
+from tests.support.release import rebuild
 
 SLOT, SITUATION = "afternoon", "stretching"  # the helpers' event time and situation
 TEA = {"service": "ProvideDrink", "detail": "tea"}
@@ -58,15 +57,6 @@ def kinds(steps: list[dict[str, Any]]) -> list[tuple[str, str | None, str | None
     return [(d["action"]["kind"], d["action"].get("service"), d["action"].get("detail"))
             for d in steps]
 
-
-def rebuild(settings: Settings, user_id: str) -> dict[str, Any]:
-    result = CliRunner().invoke(cli.app, ["models", "rebuild", user_id],
-                                env={"ATTUNE_DATABASE_URL": settings.database_url,
-                                     "ATTUNE_SEED": "0"})
-    assert result.exit_code == 0, result.output
-    summary: dict[str, Any] = json.loads(
-        next(ln for ln in result.output.splitlines() if ln.startswith("{")))
-    return summary
 
 
 class TestContract:
@@ -244,7 +234,7 @@ class TestHistory:
         play(robot, "chen", 2, "h3")
         staff.delete("/v1/users/chen/corrections/hush")
         play(robot, "chen", 2, "h4")
-        summary = rebuild(settings, "chen")
+        summary = rebuild(settings.database_url, "chen")
         assert summary["identical"] is True, summary
 
     def test_export_import_and_reset(self, staff: TestClient, robot: TestClient,
@@ -261,7 +251,7 @@ class TestHistory:
         assert staff.put("/v1/users/chen/model", json=doc).status_code == 200
         assert _statuses(staff) == {"tea": "in_force"}
         play(robot, "chen", 2, "e")
-        assert rebuild(settings, "chen")["identical"] is True
+        assert rebuild(settings.database_url, "chen")["identical"] is True
 
     def test_bad_guidance_in_an_import_is_422(self, staff: TestClient) -> None:
         make_user(staff)

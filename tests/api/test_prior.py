@@ -10,19 +10,17 @@ fills a fleet in a few requests; the defaults are documented in docs/operations.
 
 from __future__ import annotations
 
-import json
 from typing import Any
 
 import pytest
 from fastapi import FastAPI
 from fastapi.testclient import TestClient
-from typer.testing import CliRunner
 
-from app import cli
 from app.settings import Settings
 from tests.support.contract import assert_error
 from tests.support.fixtures import MakeKey
 from tests.support.people import TEA, answer
+from tests.support.release import rebuild
 
 SLOT, SITUATION = "afternoon", "stretching"
 AFTERNOON = "2026-11-22T15:10:00+08:00"
@@ -74,15 +72,6 @@ def beliefs(client: TestClient, user_id: str) -> list[float]:
     return [a["q"] for s in r.json()["contexts"][0]["states"] for a in s["actions"]]
 
 
-def rebuild(settings: Settings, user_id: str, fleet: str = "default") -> dict[str, Any]:
-    result = CliRunner().invoke(cli.app, ["models", "rebuild", user_id, "--fleet", fleet],
-                                env={"ATTUNE_DATABASE_URL": settings.database_url,
-                                     "ATTUNE_SEED": "0"})
-    assert result.exit_code == 0, result.output
-    summary: dict[str, Any] = json.loads(
-        next(ln for ln in result.output.splitlines() if ln.startswith("{")))
-    return summary
-
 
 class TestNewcomers:
     def test_a_newcomer_starts_from_the_prior_and_rebuilds_onto_it(
@@ -102,7 +91,7 @@ class TestNewcomers:
         for n in range(4):
             serve(staff, "dora", f"dora-{n}")
         assert started_from(staff, "dora")["kind"] == "fleet_prior"
-        summary = rebuild(settings, "dora")
+        summary = rebuild(settings.database_url, "dora")
         assert summary["identical"] is True, summary
 
     def test_a_first_episode_makes_the_user_from_the_prior(self, robot: TestClient) -> None:

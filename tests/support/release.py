@@ -180,15 +180,17 @@ def revision(url: str) -> str | None:
         engine.dispose()
 
 
-def rebuild(url: str, user_id: str) -> dict[str, Any]:
-    """``attune models rebuild USER_ID`` on the database at ``url``: its JSON summary line."""
+def rebuild(url: str, user_id: str, fleet: str | None = None) -> dict[str, Any]:
+    """``attune models rebuild USER_ID [--fleet FLEET]`` on the database at ``url`` (seed 0):
+    its JSON summary line."""
     import json
 
     from typer.testing import CliRunner
 
     from app import cli
 
-    result = CliRunner().invoke(cli.app, ["models", "rebuild", user_id],
+    where = [] if fleet is None else ["--fleet", fleet]
+    result = CliRunner().invoke(cli.app, ["models", "rebuild", user_id, *where],
                                 env={"ATTUNE_DATABASE_URL": url, "ATTUNE_SEED": "0"})
     assert result.exit_code == 0, result.output
     summary: dict[str, Any] = json.loads(
