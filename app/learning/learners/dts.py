@@ -15,7 +15,9 @@ Two ideas the paper's learner does without:
 
 Per decision, ``samples`` models are drawn (Dirichlet successors, Normal mean rewards), each is
 solved by value iteration, and the action distribution is the share of models in which each
-action is best; the action is drawn from that distribution.
+action is best; the action is drawn from that distribution. The models are drawn at once, but
+solved only when a state's distribution is asked, and only as far as that state needs (a
+decision in TYPE_KNOWN needs none of the values of the states before it).
 """
 
 from __future__ import annotations
@@ -25,13 +27,35 @@ from typing import Any, ClassVar
 import numpy as np
 
 from ..config import DtsAdaptParams, DtsParams
-from ..planning import value_iteration
+from ..planning import space_levels, value_iteration
 from ..space import ActionKind
 from ..state import StateFormatError
-from ..types import FloatArray, Polarity, Transition
+from ..types import FloatArray, IntArray, Polarity, Transition
 from .base import TabularLearner, check_nonnegative
 
 __all__ = ["DtsAdaptLearner", "DtsLearner"]
+
+
+class _Models:
+    """The posterior models of one decision: their draws, taken at once (what ``rng`` yields
+    must not depend on the states a decision visits), and their Q once solved (``q``, final up
+    to pair level ``level``; None: every pair)."""
+
+    __slots__ = ("context", "gammas", "level", "normals", "q")
+
+    def __init__(self, context: int, gammas: FloatArray, normals: FloatArray) -> None:
+        self.context = context
+        self.gammas = gammas  # (samples, draws): the Dirichlet draws' gamma variates
+        self.normals = normals  # (samples * (P + 1),): the rewards' draws, then the answers'
+        self.q: FloatArray | None = None
+        self.level: int | None = None
+
+
+def _slice_or_index(rows: IntArray) -> slice | IntArray:
+    """``rows`` as a slice when they are contiguous (indexing by a slice is a view, and faster)."""
+    if len(rows) and rows[-1] - rows[0] + 1 == len(rows):
+        return slice(int(rows[0]), int(rows[-1]) + 1)
+    return rows
 
 
 class DtsLearner(TabularLearner[DtsParams]):
@@ -84,6 +108,52 @@ class DtsLearner(TabularLearner[DtsParams]):
         self._succ_prior = prior
         self._answer_prior = rewards.positive + rewards.accepted_service \
             if self._params.trust_answers else self._params.reward_prior
+        # What a decision's models need, laid out once (_plan). A model draws one gamma variate
+        # per possible successor: the flat positions of succ_mask in a (P * M) row, in order,
+        # which is the stream of drawing the whole (samples, P, M) Dirichlet table (its other
+        # entries have parameter 0, draw nothing and are 0).
+        M = space.max_succ
+        self._succ_flat = np.flatnonzero(space.succ_mask)
+        self._prior_flat = prior.ravel()[self._succ_flat]
+        # The pairs _fold_answers ends at once: those that earn what a named service is worth
+        # (query_type, with trust_answers), then those that earn the answer's value.
+        named = self._query_type if self._params.trust_answers \
+            else np.zeros(space.n_actions, dtype=bool)
+        folded = self._query_detail | named
+        fold_rows = np.concatenate([np.flatnonzero(named), np.flatnonzero(self._query_detail)])
+        self._n_named = int(named.sum())
+        # Only some rows of the drawn table are used: those of the pairs whose successors the
+        # model learns (not silent, not folded, not END-only: an END-only pair adds gamma * 0 to
+        # its reward whatever its row says), then the folded ones, for their chance of END. They
+        # are normalised as a (samples, rows, M) table: _drawn_cols picks their draws and
+        # _drawn_pos places them in its (rows * M) row.
+        learned_rows = np.flatnonzero(
+            ~space.silent & ~folded & (space.succ_mask.sum(axis=1) > 1))
+        drawn = np.concatenate([learned_rows, fold_rows])
+        position = np.full(space.n_actions, -1, dtype=np.int64)
+        position[drawn] = np.arange(len(drawn))
+        rows, cols = np.divmod(self._succ_flat, M)
+        use = position[rows] >= 0
+        self._drawn_cols = np.flatnonzero(use)
+        self._drawn_pos = position[rows[use]] * M + cols[use]
+        self._n_drawn = len(drawn)
+        self._n_learned = len(learned_rows)
+        self._learned_rows = _slice_or_index(learned_rows)
+        self._fold_rows = fold_rows  # their columns in the rewards
+        # ...and where their END successor is in the normalised table's (rows * M) row
+        self._fold_end = (len(learned_rows) + np.arange(len(fold_rows))) * M \
+            + space.end_column[fold_rows]
+        # The other rows of the solved model: a silent pair moves to its target (its first
+        # successor); folded and END-only pairs end.
+        first = np.zeros_like(self._to_end)
+        first[:, 0] = 1.0
+        self._base_trans = np.where(space.silent[:, None], first, self._to_end)
+        self._silent_rows = np.flatnonzero(space.silent)
+        self._silent_reward = space.silent_reward[self._silent_rows]
+        # How far a state's policy needs the models solved: the highest level of its pairs.
+        levels = space_levels(space)
+        self._state_level = None if levels is None \
+            else [int(x) for x in np.maximum.reduceat(levels, space.state_start)]
 
     def _add(self, c: int, a: int, reward: float, column: int) -> None:
         lam = self._params.forgetting
@@ -163,19 +233,22 @@ class DtsLearner(TabularLearner[DtsParams]):
     def _posterior(self, context: int) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
         """Mean reward (P,), its standard deviation (P,), Dirichlet parameters (P, M), and the
         known transition of silent pairs (P, M)."""
-        space, prm = self.space, self._params
-        n = self.dn[context]
-        mean = (self.dr[context] + prm.reward_prior * prm.reward_prior_count) / (
-            n + prm.reward_prior_count
-        )
-        sd = prm.reward_sd / np.sqrt(n + prm.reward_prior_count)
+        space = self.space
+        mean, sd = self._reward_posterior(context)
         alpha = np.where(space.succ_mask, self.dns[context] + self._succ_prior, 0.0)
-        silent = space.silent
-        mean = np.where(silent, space.silent_reward, mean)
-        sd = np.where(silent, 0.0, sd)
         known = np.zeros_like(alpha)
-        known[silent, 0] = 1.0  # a silent pair's first successor is its deterministic target
+        known[space.silent, 0] = 1.0  # a silent pair's first successor is its deterministic target
         return mean, sd, alpha, known
+
+    def _reward_posterior(self, context: int) -> tuple[FloatArray, FloatArray]:
+        """Mean reward (P,) and its standard deviation (P,); a silent pair's reward is known."""
+        prm = self._params
+        n = self.dn[context] + prm.reward_prior_count
+        mean = (self.dr[context] + prm.reward_prior * prm.reward_prior_count) / n
+        sd = prm.reward_sd / np.sqrt(n)
+        mean[self._silent_rows] = self._silent_reward
+        sd[self._silent_rows] = 0.0
+        return mean, sd
 
     def _answer_posterior(self) -> tuple[float, float]:
         """Mean and sd of the reward of performing the service the person named when asked."""
@@ -222,33 +295,77 @@ class DtsLearner(TabularLearner[DtsParams]):
         if np.any(self.change[:, 3] > 1.0):
             raise StateFormatError("arrays.change: a run's chance must not exceed 1.")
 
-    def _solve(self, reward: FloatArray, trans: FloatArray) -> FloatArray:
+    def _solve(self, reward: FloatArray, trans: FloatArray, level: int | None = None
+               ) -> FloatArray:
         v_max = self.mission.v_max
         q = value_iteration(
             self.space, reward, trans, gamma=self.mission.gamma, tol=self._params.vi_tol,
-            max_sweeps=self._params.vi_max_sweeps,
+            max_sweeps=self._params.vi_max_sweeps, level=level,
         )
-        return np.clip(q, -v_max, v_max)
+        return q.clip(-v_max, v_max, out=q)
 
-    def _plan(self, context: int, episode: int, rng: np.random.Generator | None) -> Any:
+    def _plan(self, context: int, episode: int, rng: np.random.Generator | None) -> _Models:
+        """The ``samples`` models of one decision, drawn from the posterior now (``_models``
+        builds them and ``_solved`` solves them when a policy needs their Q).
+
+        From ``rng``, in this order: every model's gamma variates for the Dirichlet draw of each
+        pair's successors (silent pairs' too, though they are not used), then every model's
+        Normal draw of each pair's mean reward, then every model's Normal draw of the value of
+        doing as asked (``_fold_answers``).
+        """
         if rng is None:  # explain(): a fixed draw, so the view is stable for a given model
             rng = np.random.default_rng([self.version, context])
         k = self._params.samples
-        mean, sd, alpha, known = self._posterior(context)
-        g = rng.standard_gamma(np.broadcast_to(alpha, (k, *alpha.shape)))
-        total = g.sum(axis=2, keepdims=True)
-        sampled = g / np.maximum(total, 1e-300)
-        trans = np.where(self.space.silent[None, :, None], known[None], sampled)
-        reward = mean + sd * rng.standard_normal((k, mean.shape[0]))
+        alpha = self.dns[context].ravel()[self._succ_flat] + self._prior_flat
+        gammas = rng.standard_gamma(alpha[None, :].repeat(k, axis=0))
+        normals = rng.standard_normal(k * (self.space.n_actions + 1))
+        return _Models(context, gammas, normals)
+
+    def _models(self, plan: _Models) -> tuple[FloatArray, FloatArray]:
+        """Rewards (samples, P) and transitions (samples, P, M) of a decision's models, with
+        the answers folded in (``_fold_answers``, for all its pairs at once)."""
+        space, k = self.space, self._params.samples
+        P, M = space.n_actions, space.max_succ
+        flat = np.zeros((k, self._n_drawn * M), dtype=np.float64)
+        flat[:, self._drawn_pos] = plan.gammas.take(self._drawn_cols, axis=1)
+        g = flat.reshape(k, self._n_drawn, M)
+        total = np.add.reduce(g, axis=2, keepdims=True)  # what g.sum does
+        sampled = g / np.maximum(total, 1e-300, out=total)
+        trans = np.empty((k, P, M), dtype=np.float64)
+        trans[...] = self._base_trans
+        trans[:, self._learned_rows] = sampled[:, : self._n_learned]
+        mean, sd = self._reward_posterior(plan.context)
+        reward = mean + sd * plan.normals[: k * P].reshape(k, P)
         a_mean, a_sd = self._answer_posterior()
-        v_answer = a_mean + a_sd * rng.standard_normal(k)
-        return self._solve(*self._fold_answers(reward, trans, v_answer))
+        v_answer = a_mean + a_sd * plan.normals[k * P :]
+        gamma = self.mission.gamma
+        gain = 1.0 - sampled.reshape(k, -1).take(self._fold_end, axis=1)  # P(answer)
+        gain *= gamma
+        n = self._n_named
+        if n:
+            gain[:, :n] *= (self.mission.rewards.query + gamma * v_answer)[:, None]
+        gain[:, n:] *= v_answer[:, None]
+        rows = self._fold_rows
+        reward[:, rows] = reward.take(rows, axis=1) + gain
+        return reward, trans
+
+    def _solved(self, plan: _Models, state: int) -> FloatArray:
+        """Q (samples, P) of a decision's models, final for the pairs of ``state`` and of the
+        states it can lead to (those of higher levels may be unfinished). Solved once, as far as
+        the first state asked needs: a decision asks its observed state, then the states its
+        silent steps lead to, which need less; explain asks OBSERVE first, which needs all. A
+        state that needs more solves them again, further."""
+        level = None if self._state_level is None else self._state_level[state]
+        if plan.q is None or (plan.level is not None and (level is None or level > plan.level)):
+            plan.q = self._solve(*self._models(plan), level=level)
+            plan.level = level
+        return plan.q
 
     def _policy(self, plan: Any, context: int, state: int, episode: int) -> FloatArray:
         actions = self.space.actions_of(state)
-        best = np.argmax(plan[:, actions.start : actions.stop], axis=1)
-        counts = np.bincount(best, minlength=len(actions)).astype(np.float64)
-        out: FloatArray = counts / counts.sum()
+        q = self._solved(plan, state)
+        best = q[:, actions.start : actions.stop].argmax(axis=1)
+        out: FloatArray = np.bincount(best, minlength=len(actions)) / best.shape[0]
         return out
 
     def _kept_visits(self, context: int) -> FloatArray:
