@@ -42,6 +42,11 @@ class Settings(BaseSettings):
         "loop when the database's write lock is free at once (else in the thread pool, as every "
         "other request)."
     )
+    pg_inline_writes: bool = Field(
+        default=True, description="PostgreSQL: run the robots' short writes on the worker's "
+        "event loop, on a connection of its own, when the user's lock is free at once (else in "
+        "the thread pool, as every other request)."
+    )
     db_pool_size: int = Field(default=10, ge=1, description="Connections per worker process.")
     db_pre_ping: bool = Field(
         default=False, description="Test each pooled connection before use (one more round "

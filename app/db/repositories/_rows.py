@@ -79,16 +79,12 @@ _Convert = Callable[[Any], Any] | None
 _DRIVER = "attune_driver"  # session.info: (its transaction, its connection)
 
 
-def _convert(f: _Convert, value: Any) -> Any:
-    return value if f is None or value is None else f(value)
-
-
 class _Compiled:
     """One statement compiled for one dialect, with SQLAlchemy's own conversions of its
     parameters and result columns for that dialect."""
 
     __slots__ = ("sql", "order", "getter", "positional", "converts", "binds", "types", "dialect",
-                 "results")
+                 "results", "named_converts")
 
     def __init__(self, stmt: ClauseElement, dialect: Dialect, keys: Sequence[str] | None) -> None:
         compiled: Any = stmt.compile(dialect=dialect, column_keys=list(keys) if keys else None)
@@ -101,14 +97,21 @@ class _Compiled:
         self.getter = operator.itemgetter(*self.order) if len(self.order) > 1 else None
         self.converts: tuple[tuple[int, Callable[[Any], Any]], ...] = tuple(
             (i, f) for i, name in enumerate(self.order) if (f := procs.get(name)) is not None)
+        # Named drivers (psycopg): only the parameters with a conversion are touched.
+        self.named_converts: tuple[tuple[str, Callable[[Any], Any]], ...] = tuple(
+            (name, f) for name, f in procs.items() if f is not None)
         self.types = [entry.type for entry in compiled._result_columns]
         self.dialect = dialect
         self.results: tuple[tuple[int, Callable[[Any], Any]], ...] | None = None
 
     def args(self, params: Mapping[str, Any]) -> Any:
         if not self.positional:
-            binds = self.binds
-            return {k: _convert(binds.get(k), v) for k, v in params.items()}
+            out = dict(params)
+            for name, f in self.named_converts:
+                value = out.get(name)
+                if value is not None:
+                    out[name] = f(value)
+            return out
         if self.getter is None:
             values = [params[name] for name in self.order]
         else:

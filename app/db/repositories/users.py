@@ -8,9 +8,11 @@ from typing import Any
 
 from sqlalchemy import bindparam, delete, func, insert, select, tuple_, update
 from sqlalchemy.dialects import postgresql, sqlite
+from sqlalchemy.exc import OperationalError
 from sqlalchemy.orm import Session
 
 from ..models import Episode, LearnerModel, User
+from ..session import NOWAIT, LockBusy
 from ._rows import Prepared, columns, conn, record, table
 
 __all__ = ["UserRow", "all_ids", "create", "delete_user", "fleet_counts", "fleets_with", "get",
@@ -45,8 +47,13 @@ _GET = select(*_COLS).where(_users.c.fleet == bindparam("fleet"),
 # PostgreSQL: the row lock is the per-user lock. SQLite ignores FOR UPDATE: its write
 # transactions are BEGIN IMMEDIATE, which already hold the database's single write lock.
 _LOCK = Prepared(_GET.with_for_update())
-_LOCK_OWNER = Prepared(select(*_COLS).where(_users.c.id == select(_episodes.c.user_pk).where(
-    _episodes.c.id == bindparam("episode_id")).scalar_subquery()).with_for_update())
+_OWNER_OF = select(*_COLS).where(_users.c.id == select(_episodes.c.user_pk).where(
+    _episodes.c.id == bindparam("episode_id")).scalar_subquery())
+_LOCK_OWNER = Prepared(_OWNER_OF.with_for_update())
+# In a session that must not wait (app.db.session.NOWAIT): the lock only if it is free at once.
+_LOCK_NOWAIT = Prepared(_GET.with_for_update(nowait=True))
+_LOCK_OWNER_NOWAIT = Prepared(_OWNER_OF.with_for_update(nowait=True))
+_LOCK_NOT_AVAILABLE = "55P03"  # PostgreSQL's lock_not_available
 _SAVE_COUNTERS = Prepared(update(_users).where(_users.c.id == bindparam("b_id")), keyed=True)
 
 
@@ -55,9 +62,22 @@ def get(session: Session, fleet: str, user_id: str) -> UserRow | None:
                                                         "user_id": user_id}).first())
 
 
+def _locked(session: Session, waiting: Prepared, at_once: Prepared, params: dict[str, Any]
+            ) -> UserRow | None:
+    if not session.info.get(NOWAIT):
+        return record(UserRow, waiting.first(session, params))
+    try:
+        return record(UserRow, at_once.first(session, params))
+    except OperationalError as exc:
+        if getattr(exc.orig, "sqlstate", None) == _LOCK_NOT_AVAILABLE:
+            raise LockBusy from None
+        raise
+
+
 def lock(session: Session, fleet: str, user_id: str) -> UserRow | None:
-    """The user, locked for the rest of the transaction (``None``: no such user)."""
-    return record(UserRow, _LOCK.first(session, {"fleet": fleet, "user_id": user_id}))
+    """The user, locked for the rest of the transaction (``None``: no such user). In a session
+    that must not wait (``NOWAIT``), :class:`LockBusy` if another transaction holds it."""
+    return _locked(session, _LOCK, _LOCK_NOWAIT, {"fleet": fleet, "user_id": user_id})
 
 
 def lock_fleet(session: Session, fleet: str) -> None:
@@ -75,7 +95,7 @@ def lock_owner(session: Session, episode_id: str) -> UserRow | None:
     committed by the previous holder only if it starts after the wait (READ COMMITTED), so the
     episode is read by the next statement.
     """
-    return record(UserRow, _LOCK_OWNER.first(session, {"episode_id": episode_id}))
+    return _locked(session, _LOCK_OWNER, _LOCK_OWNER_NOWAIT, {"episode_id": episode_id})
 
 
 def create(session: Session, *, user_id: str, fleet: str, algorithm: str,

@@ -23,6 +23,7 @@ from app.db.repositories import users as users_repo
 from app.db.repositories.episodes import DecisionRow, EpisodeRow, FeedbackRow
 from app.db.repositories.models import ModelRow, SampleRow
 from app.db.repositories.users import UserRow
+from app.db.session import NOWAIT, LockBusy
 from app.db.types import utcnow
 from app.errors import Conflict, NotFound
 from app.learning import (
@@ -198,6 +199,8 @@ def _lock_or_create(session: Session, ctx: ServiceContext, principal: Principal,
     first event."""
     in_fleet = fleet_of(principal, fleet, user_id)
     user = users_repo.lock(session, in_fleet, user_id)
+    if user is None and session.info.get(NOWAIT):
+        raise LockBusy  # a new user is made where it may wait (for the fleet's mission lock)
     if user is None:  # once per user: build the fresh learner and its state
         create_user(session, ctx, in_fleet, user_id)
         user = users_repo.lock(session, in_fleet, user_id)

@@ -1,0 +1,74 @@
+"""PostgreSQL: the robots' short writes run on the event loop when the user's lock is free at
+once, and in the thread pool when they would have to wait for it: a write whose user is locked
+by another transaction waits without holding up the worker's other requests, and is stored once
+when the lock comes free. (SQLite's counterpart, the write group, waits for no lock either: it
+forms only when the database's write lock is free.)"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
+from typing import Any
+
+import httpx
+import psycopg
+import pytest
+from fastapi import FastAPI
+from sqlalchemy import func, select
+
+from app.db.models import Decision
+from app.db.session import Database
+from tests.support.fixtures import MakeKey
+from tests.support.live import serving
+
+from .helpers import event
+
+
+@contextmanager
+def user_held(database_url: str, user_id: str) -> Iterator[None]:
+    """Another transaction that holds the user's row lock until the block ends."""
+    other = psycopg.connect(database_url.replace("postgresql+psycopg://", "postgresql://"))
+    other.execute("SELECT id FROM users WHERE user_id = %s FOR UPDATE", (user_id,))
+    try:
+        yield
+    finally:
+        other.rollback()
+        other.close()
+
+
+def test_a_write_on_a_locked_user_waits_aside_and_is_stored_once(
+        app: FastAPI, db: Database, make_key: MakeKey, database_url: str) -> None:
+    if db.is_sqlite:
+        pytest.skip("PostgreSQL's inline writes and row locks")
+    key = make_key("robot")
+    headers = {"Authorization": f"Bearer {key}"}
+    with serving(app) as base, httpx.Client(base_url=base, headers=headers, timeout=30) as http:
+        first = http.post("/v1/users/held/episodes", json=event("held-1"))
+        assert first.status_code == 201, first.text
+        episode = first.json()
+        before = (db.inlined, db.deferred)
+        outcome = {"decision_id": episode["decision"]["decision_id"], "response": "accepted"}
+        answered: dict[str, Any] = {}
+        with user_held(database_url, "held"):
+            writer = threading.Thread(target=lambda: answered.update(r=http.post(
+                f"/v1/episodes/{episode['episode_id']}/outcomes", json=outcome)))
+            writer.start()
+            # While the write waits for the lock, the worker still answers other requests.
+            for _ in range(3):
+                assert http.get("/healthz").status_code == 200
+            assert writer.is_alive(), "the write did not wait for the user's lock"
+        writer.join(timeout=30)
+        assert not writer.is_alive()
+        assert answered["r"].status_code == 200, answered["r"].text
+        again = http.post(f"/v1/episodes/{episode['episode_id']}/outcomes", json=outcome)
+        assert again.status_code == 200
+        assert again.json() == answered["r"].json()
+    with db.transaction(write=False) as session:
+        stored = session.execute(select(func.count()).select_from(Decision).where(
+            Decision.outcome_hash.is_not(None),
+            Decision.episode_id == episode["episode_id"])).scalar_one()
+    assert stored == 1
+    # The held write went to the pool; the replay, with the lock free, ran inline.
+    assert db.deferred == before[1] + 1
+    assert db.inlined > before[0]
