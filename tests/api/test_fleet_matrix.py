@@ -5,7 +5,8 @@ both engines; refusals, reads and the probes, decided the same way on both, on S
 The world of every test, made through the API: fleets ``fleet-a`` and ``fleet-b`` each have a
 user ``lin`` (the same id, two people) with an answered episode that has feedback and an open
 episode with its current decision, each made with its fleet's robot key; ``fleet-a`` also has
-``only-a``. The callers (the matrix's columns): no key, a revoked (admin) key, the robot and the
+``only-a`` (on SQLite a worker makes it once and starts each later test from a copy of that
+database file). The callers (the matrix's columns): no key, a revoked (admin) key, the robot and the
 staff key of each fleet, and an admin key (fleet ``default``). Paths name A's resources: a user
 route's ``{user_id}`` is ``lin``, which robot and staff keys of either fleet find in their own
 fleet, and the admin key names ``fleet-a`` with ``?fleet=`` (the ``{q}`` of a path); an episode
@@ -24,9 +25,12 @@ route's ``{episode_id}`` is an episode of A's ``lin``.
 
 from __future__ import annotations
 
+import copy
 import re
 from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import httpx
@@ -38,7 +42,7 @@ from fastapi.testclient import TestClient
 from app.console.auth import COOKIE, csrf_token
 from app.learning import office_mission
 from tests.support.contract import assert_error
-from tests.support.fixtures import MakeKey
+from tests.support.fixtures import MakeKey, WorkerDatabases
 
 from .helpers import event
 
@@ -308,8 +312,40 @@ def _answer(expects: list[str]) -> str:
     raise AssertionError(f"no simple response in {expects}")
 
 
+@dataclass(frozen=True)
+class Saved:
+    """A world built once by this worker on SQLite: its database file and what the tests
+    need to know of it (every later SQLite test starts from a copy of that file)."""
+
+    path: Path
+    secrets: dict[str, str]
+    victim: str
+    fleets: dict[str, Fleet]
+
+
+_SAVED: dict[str, Saved] = {}
+
+
 @pytest.fixture
-def world(app: FastAPI, make_key: MakeKey) -> Iterator[World]:
+def world(app: FastAPI, make_key: MakeKey, database_url: str,
+          worker_databases: WorkerDatabases) -> Iterator[World]:
+    saved = _SAVED.get(database_url)
+    if saved is not None:
+        worker_databases.tables(database_url).restore(saved.path)
+        with TestClient(app, raise_server_exceptions=False, follow_redirects=False) as client:
+            yield World(client, dict(saved.secrets), saved.victim, copy.deepcopy(saved.fleets))
+        return
+    with _built(app, make_key) as w:
+        if database_url.startswith("sqlite"):
+            path = worker_databases.tables(database_url).save("fleet-matrix")
+            _SAVED[database_url] = Saved(path, dict(w.secrets), w.victim,
+                                         copy.deepcopy(w.fleets))
+        yield w
+
+
+@contextmanager
+def _built(app: FastAPI, make_key: MakeKey) -> Iterator[World]:
+    """The world, made through the API (see the module's docstring)."""
     secrets = {who: make_key(role, fleet, who) for who, (role, fleet) in KEYS.items()}
     make_key("robot", A, "victim")
     with TestClient(app, raise_server_exceptions=False, follow_redirects=False) as client:

@@ -104,14 +104,28 @@ class EmptyTables:
 
     def __call__(self) -> None:
         if self._engine is None:
-            for extra in ("-wal", "-shm"):
-                self._path.with_name(self._path.name + extra).unlink(missing_ok=True)
-            copy = self._path.with_name(self._path.name + ".new")
-            shutil.copyfile(self._template, copy)
-            os.replace(copy, self._path)
+            self.restore(self._template)
             return
         with self._engine.begin() as conn:
             conn.exec_driver_sql(self._sql)
+
+    def restore(self, saved: Path) -> None:
+        """SQLite: put a copy of ``saved`` (the template, or a file :meth:`save` wrote) in
+        place of the database."""
+        for extra in ("-wal", "-shm"):
+            self._path.with_name(self._path.name + extra).unlink(missing_ok=True)
+        copy = self._path.with_name(self._path.name + ".new")
+        shutil.copyfile(saved, copy)
+        os.replace(copy, self._path)
+
+    def save(self, name: str) -> Path:
+        """SQLite: a consistent copy of the database as it is now (open connections and their
+        WAL included), for :meth:`restore`."""
+        saved = self._path.with_name(f"saved-{name}.db")
+        with closing(sqlite3.connect(self._path)) as source, \
+                closing(sqlite3.connect(saved)) as target:
+            source.backup(target)
+        return saved
 
     def close(self) -> None:
         if self._engine is not None:
@@ -147,6 +161,10 @@ class WorkerDatabases:
 
     def empty(self, url: str) -> None:
         self._empty[url]()
+
+    def tables(self, url: str) -> EmptyTables:
+        """The emptier of ``url`` (SQLite's can also save and restore a whole database)."""
+        return self._empty[url]
 
     def close(self) -> None:
         self._stack.close()
