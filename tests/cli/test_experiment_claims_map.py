@@ -13,6 +13,9 @@ from typer.testing import CliRunner, Result
 
 from app.cli import app
 
+# The module's shared run is made once: every test of the module on one worker.
+pytestmark = pytest.mark.xdist_group("experiment-claims-map")
+
 FILES = ("claims-map.md", "claims-map.csv", "claims-map.png", "summary.json")
 AXES = ("time_slots", "p_self", "noise", "m", "optimism", "exclusion", "pref_scale")
 
@@ -31,6 +34,7 @@ def quick(tmp_path_factory: pytest.TempPathFactory) -> tuple[Result, Path, dict[
     return done, out, json.loads((out / "summary.json").read_text(encoding="utf-8"))
 
 
+@pytest.mark.slow
 def test_writes_the_files(quick: tuple[Result, Path, dict[str, Any]]) -> None:
     done, out, summary = quick
     for name in FILES:
@@ -42,6 +46,7 @@ def test_writes_the_files(quick: tuple[Result, Path, dict[str, Any]]) -> None:
     assert summary["run"]["default_map"] is False
 
 
+@pytest.mark.slow
 def test_every_setting_and_claim_is_in_the_summary_and_the_csv(
         quick: tuple[Result, Path, dict[str, Any]]) -> None:
     _, out, summary = quick
@@ -66,6 +71,7 @@ def test_every_setting_and_claim_is_in_the_summary_and_the_csv(
         assert claim["settings_held"] == sum(s["claims"][i] for s in summary["settings"])
 
 
+@pytest.mark.slow
 def test_best_settings_hold_the_most_claims(quick: tuple[Result, Path, dict[str, Any]]) -> None:
     _, _, summary = quick
     most = max(s["held"] for s in summary["settings"])
@@ -78,6 +84,7 @@ def test_best_settings_hold_the_most_claims(quick: tuple[Result, Path, dict[str,
     assert changes == sorted(changes)  # fewest changes from the default first
 
 
+@pytest.mark.slow
 def test_default_and_best_are_decided_again_on_held_out_seeds(
         quick: tuple[Result, Path, dict[str, Any]]) -> None:
     done, _, summary = quick
@@ -92,6 +99,7 @@ def test_default_and_best_are_decided_again_on_held_out_seeds(
     assert "Held-out seeds" in done.stderr
 
 
+@pytest.mark.slow
 def test_the_table_names_every_claim_and_the_elapsed_time(
         quick: tuple[Result, Path, dict[str, Any]]) -> None:
     done, out, summary = quick
@@ -109,6 +117,7 @@ def test_the_table_names_every_claim_and_the_elapsed_time(
     assert "not the paper" in markdown
 
 
+@pytest.mark.slow
 def test_json_is_the_summary(tmp_path: Path) -> None:
     done = run(tmp_path, "--json", "--confirm-seeds", "0")
     assert done.exit_code == 0, done.output

@@ -17,6 +17,9 @@ from typer.testing import CliRunner, Result
 
 from app.cli import app
 
+# The module's shared run is made once: every test of the module on one worker.
+pytestmark = pytest.mark.xdist_group("experiment-newcomers")
+
 FAMILIES = ("home", "individual")
 LEARNERS = ("DTS", "DTS-adapt")
 FILES = ("newcomers.md", "newcomers.csv", "newcomers.png", "summary.json")
@@ -38,6 +41,7 @@ def study(tmp_path_factory: pytest.TempPathFactory) -> tuple[Result, Path, dict[
     return done, out, json.loads((out / "summary.json").read_text(encoding="utf-8"))
 
 
+@pytest.mark.slow
 def test_writes_the_files(study: tuple[Result, Path, dict[str, Any]]) -> None:
     done, out, summary = study
     for name in FILES:
@@ -50,6 +54,7 @@ def test_writes_the_files(study: tuple[Result, Path, dict[str, Any]]) -> None:
     assert summary["windows"]["after100"]["events"] == [101, 110]
 
 
+@pytest.mark.slow
 def test_every_share_is_bounded_and_the_difference_is_paired(
         study: tuple[Result, Path, dict[str, Any]]) -> None:
     _, _, summary = study
@@ -72,6 +77,7 @@ def test_every_share_is_bounded_and_the_difference_is_paired(
                 assert all(v is None or math.isfinite(v) for v in curve)
 
 
+@pytest.mark.slow
 def test_a_home_newcomer_from_the_prior_starts_better(
         study: tuple[Result, Path, dict[str, Any]]) -> None:
     """An ordering, not a number: in a home, DTS from the other residents' prior earns a larger
@@ -83,6 +89,7 @@ def test_a_home_newcomer_from_the_prior_starts_better(
         assert prior > fresh
 
 
+@pytest.mark.slow
 def test_the_table_has_fresh_and_prior_rows(study: tuple[Result, Path, dict[str, Any]]) -> None:
     done, out, _ = study
     for text in (done.stdout, (out / "newcomers.md").read_text(encoding="utf-8")):
@@ -99,6 +106,7 @@ def test_the_table_has_fresh_and_prior_rows(study: tuple[Result, Path, dict[str,
     assert {r["start"] for r in records} == {"fresh", "prior", "difference"}
 
 
+@pytest.mark.slow
 def test_prints_the_targets_met_or_missed(study: tuple[Result, Path, dict[str, Any]]) -> None:
     done, out, summary = study
     targets = summary["targets"]
@@ -124,6 +132,7 @@ def test_prints_the_targets_met_or_missed(study: tuple[Result, Path, dict[str, A
     assert "Elapsed:" in done.stdout
 
 
+@pytest.mark.slow
 def test_json_is_the_summary(tmp_path: Path) -> None:
     done = run(tmp_path, "--json", "--families", "home", "--learners", "hri",
                "--events", "40")

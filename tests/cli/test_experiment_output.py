@@ -13,6 +13,9 @@ from typer.testing import CliRunner, Result
 
 from app.cli import app
 
+# The module's shared run is made once: every test of the module on one worker.
+pytestmark = pytest.mark.xdist_group("experiment-output")
+
 NARROW = {"COLUMNS": "40"}  # what a narrow terminal would cut, a pipe must not
 
 

@@ -13,6 +13,9 @@ from typer.testing import CliRunner, Result
 
 from app.cli import app
 
+# The module's shared run is made once: every test of the module on one worker.
+pytestmark = pytest.mark.xdist_group("experiment-robustness")
+
 FAMILIES = ("abrupt", "shy")
 LEARNERS = ("R-MAX", "Q-learning", "HRI τ=0.01", "DTS", "DTS-adapt")
 FILES = ("robustness.md", "robustness.csv", "robustness.png", "summary.json")

@@ -19,6 +19,9 @@ from app.experiments.runner import Job, jobs_for, run_jobs
 from app.experiments.statistics import cumulative_curve
 from app.learning.evaluation import ABLATION_METHODS, E3, PA, PAPER_METHODS, RunResult
 
+# The module's shared run is made once: every test of the module on one worker.
+pytestmark = pytest.mark.xdist_group("experiment-report")
+
 SEEDS, USERS = 1, 2
 EVENTS = {"e1e2": 100, "e3": 100, "pa": 200}
 RATES = ("interaction_rate", "success_rate", "success_rate_engaged")
