@@ -78,27 +78,32 @@ def _in_transaction(endpoint: Callable[..., Any], *, write: bool, inline: bool
         params.append(inspect.Parameter("request", inspect.Parameter.KEYWORD_ONLY,
                                         annotation=Request))
 
+    def arguments(kwargs: dict[str, Any]) -> tuple[dict[str, Any], Request]:
+        """The endpoint's arguments from the route's (the request kept only if the endpoint
+        takes it, the context filled in; the session is the caller's), and the request."""
+        call = dict(kwargs)
+        request: Request = call["request"] if own_request else call.pop("request")
+        if "ctx" in injected:
+            call["ctx"] = request.app.state.ctx
+        return call, request
+
     @functools.wraps(endpoint)
     async def run_here_or_in_thread(**kwargs: Any) -> Any:
-        request: Request = kwargs["request"]
+        call, request = arguments(kwargs)
         db: Database = request.app.state.db
         group = db.join_group(asyncio.get_running_loop())
         if group is None:
             if db.writes_inline:
                 try:
-                    return run_inline(db, dict(kwargs))
+                    with db.inline() as session:
+                        return endpoint(**call, session=session)
                 except LockBusy:  # the user's lock is taken: wait for it in the thread pool
                     pass
             return await run_in_threadpool(run, **kwargs)
-        if not own_request:
-            kwargs.pop("request")
-        if "ctx" in injected:
-            kwargs["ctx"] = request.app.state.ctx
         failure: Exception | None = None
         try:
             with group.member() as session:
-                kwargs["session"] = session
-                result = endpoint(**kwargs)
+                result = endpoint(**call, session=session)
         except Exception as exc:  # answered once the group committed: it saw the group's writes
             failure = exc
         await group.committed()
@@ -106,25 +111,14 @@ def _in_transaction(endpoint: Callable[..., Any], *, write: bool, inline: bool
             raise failure
         return result
 
-    def run_inline(db: Database, kwargs: dict[str, Any]) -> Any:
-        request: Request = kwargs["request"] if own_request else kwargs.pop("request")
-        if "ctx" in injected:
-            kwargs["ctx"] = request.app.state.ctx
-        with db.inline() as session:
-            kwargs["session"] = session
-            return endpoint(**kwargs)
-
     @functools.wraps(endpoint)
     def run(**kwargs: Any) -> Any:
-        request: Request = kwargs["request"] if own_request else kwargs.pop("request")
-        if "ctx" in injected:
-            kwargs["ctx"] = request.app.state.ctx
+        call, request = arguments(kwargs)
         if "session" not in injected:
-            return endpoint(**kwargs)
+            return endpoint(**call)
         db: Database = request.app.state.db
         with db.transaction(write=write) as session:
-            kwargs["session"] = session
-            return endpoint(**kwargs)
+            return endpoint(**call, session=session)
 
     run.__signature__ = signature.replace(parameters=params)  # type: ignore[attr-defined]
     if not (write and inline):
