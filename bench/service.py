@@ -448,14 +448,15 @@ class Data:
                        f"{d['action'].get('service') or '-'}")
         return out
 
-    def history(self, user: str, n: int, progress: Any = None) -> None:
-        """``n`` whole episodes of ``user`` through the use cases (as a robot would)."""
+    def history(self, user: str, n: int, progress: Any = None, tag: str = "history") -> None:
+        """``n`` whole episodes of ``user`` through the use cases (as a robot would); their
+        event ids are ``tag-0``, ``tag-1``..."""
         from app.schemas.episodes import OutcomeIn
         from app.services.episodes import report_outcome
 
         for i in range(n):
             with self.db.transaction() as session:
-                ep = self.start(session, user, f"history-{i}", i)
+                ep = self.start(session, user, f"{tag}-{i}", i)
             decision = ep["decision"]
             for _ in range(8):  # an episode has at most four visible steps
                 if decision is None:
@@ -534,6 +535,7 @@ class Bench:
         self.args, self.console = args, console
         self.wrk = require_wrk()
         self.rows: list[Row] = []
+        self.floors: dict[str, Any] = {}  # engine -> floor.Floor
         self.run_tag = secrets.token_hex(3)
 
     def say(self, text: str) -> None:
@@ -637,9 +639,29 @@ class Bench:
                         self.large(engine, workers, data, workdir, keys, db_url)
                 finally:
                     data.close()
+            if args.floor and TARGET_CLIENTS[engine] in args.clients:
+                self.floor(engine, workdir / "floor")
             for row in self.rows:
                 if row.engine == engine and row.scenario != "reference":
                     row.ref = refs.get(row.clients)
+
+    def floor(self, engine: str, workdir: Path) -> None:
+        """What the learner and the bare driver cost per robot request (``floor.py``)."""
+        from floor import measure
+
+        workdir.mkdir()
+        with fresh_database(engine, workdir) as db_url:
+            data = Data(db_url)
+            try:
+                users = [f"floor-robot{i}" for i in range(1, TARGET_CLIENTS[engine] + 1)]
+                found = measure(engine, db_url, data, users, self.args.floor_requests,
+                                PG_SERVER.rstrip("/"), self.say)
+            finally:
+                data.close()
+        self.floors[engine] = found
+        self.say(f"  floor over {found.requests} requests: learner {found.learner_ms:.3f} ms, "
+                 f"{found.statements:.1f} statements through the bare driver "
+                 f"{found.statements_ms:.3f} ms")
 
     def large(self, engine: str, workers: int, data: Data, workdir: Path, keys: list[str],
               db_url: str) -> None:
@@ -747,6 +769,19 @@ def targets(bench: Bench, console: Any) -> list[str]:
                          f"request costs {r.fig.cpu_ms:.3f} ms of server CPU, {times:.2f}× the "
                          f"bare POST's {r.ref.cpu_ms:.3f} ms (ratio {1 / times:.2f}; target ≤ "
                          f"{limit:g}×, ratio ≥ {1 / limit:.2f}): {verdict(times <= limit)}")
+        floor = bench.floors.get(engine)
+        r = find(engine, "loop", clients)
+        if floor is not None and r is not None and r.ref is not None and r.ref.cpu_ms \
+                and r.fig.cpu_ms:
+            bare = r.ref.cpu_ms
+            least = bare + floor.learner_ms + floor.statements_ms
+            room = CPU_TARGET[engine] * bare - least
+            lines.append(
+                f"{engine}: floor of a robot-loop request: the bare POST {bare:.3f} ms + the "
+                f"learner {floor.learner_ms:.3f} ms + {floor.statements:.1f} statements through "
+                f"the bare driver {floor.statements_ms:.3f} ms = {least:.3f} ms, {least / bare:.2f}"
+                f"× the bare POST; the target leaves {room:.3f} ms ({room / bare:.2f}×) for the "
+                f"rest of the request, where the service spends {r.fig.cpu_ms - least:.3f} ms")
         r = find(engine, "open", clients)
         if r is not None:
             limit = OPEN_P99_MS[engine]
@@ -818,6 +853,11 @@ def main() -> None:
                         help="cap on episodes opened per client for the outcome run")
     parser.add_argument("--quick", action="store_true",
                         help="a short check: 8 clients, 2 s runs, 2,000 users, 200 episodes")
+    parser.add_argument("--no-floor", dest="floor", action="store_false",
+                        help="skip the floor: the learner's and the bare driver's CPU per robot "
+                        "request, measured in-process after the runs at the target robots")
+    parser.add_argument("--floor-requests", type=int, default=3000,
+                        help="robot requests recorded and replayed for the floor (default 3000)")
     parser.add_argument("--json", type=Path, help="also write the figures here")
     parser.add_argument("--profile", type=Path, metavar="DIR",
                         help="run the service under py-spy and write its profiles to DIR (one "
@@ -829,6 +869,7 @@ def main() -> None:
     args = parser.parse_args()
     if args.quick:
         args.clients, args.duration, args.users, args.episodes = "8,16", 2.0, 2000, 200
+        args.floor_requests = min(args.floor_requests, 1000)
     args.clients = sorted({int(c) for c in str(args.clients).split(",")})
     from rich.console import Console
 
@@ -844,6 +885,7 @@ def main() -> None:
     if args.json:
         args.json.write_text(json.dumps({
             "machine": before, "command": " ".join(sys.argv), "targets": lines,
+            "floors": {engine: found.__dict__ for engine, found in bench.floors.items()},
             "rows": [{"engine": r.engine, "workers": r.workers, "scenario": r.scenario,
                       "clients": r.clients, "data": r.data, **r.fig.__dict__,
                       "ref_rps": r.ref.rps if r.ref else None,
