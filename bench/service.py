@@ -59,10 +59,13 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from fastapi import FastAPI
 from pydantic import BaseModel
+
+if TYPE_CHECKING:
+    from floor import Floor
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -539,7 +542,7 @@ class Bench:
         self.args, self.console = args, console
         self.wrk = require_wrk()
         self.rows: list[Row] = []
-        self.floors: dict[str, Any] = {}  # engine -> floor.Floor
+        self.floors: dict[str, Floor] = {}
         self.run_tag = secrets.token_hex(3)
 
     def say(self, text: str) -> None:
@@ -659,12 +662,12 @@ class Bench:
             try:
                 users = [f"floor-robot{i}" for i in range(1, TARGET_CLIENTS[engine] + 1)]
                 found = measure(engine, db_url, data, users, self.args.floor_requests,
-                                PG_SERVER.rstrip("/"), self.say)
+                                PG_SERVER.rstrip("/"), self.say, group=TARGET_CLIENTS[engine])
             finally:
                 data.close()
         self.floors[engine] = found
         self.say(f"  floor over {found.requests} requests: learner {found.learner_ms:.3f} ms, "
-                 f"{found.statements:.1f} statements through the bare driver "
+                 f"{found.statements_per_request:.1f} statements through the bare driver "
                  f"{found.statements_ms:.3f} ms")
 
     def large(self, engine: str, workers: int, data: Data, workdir: Path, keys: list[str],
@@ -753,6 +756,22 @@ def report(bench: Bench, console: Any, before: dict[str, Any], seconds: float) -
     return targets(bench, console)
 
 
+def floor_line(engine: str, floor: Floor, bare: float, target: float, service: float) -> str:
+    """The floor of a robot-loop request against its CPU target (all in ms per request)."""
+    least = bare + floor.learner_ms + floor.statements_ms
+    room = target - least
+    head = (f"{engine}: floor of a robot-loop request: the bare POST {bare:.3f} ms + the "
+            f"learner {floor.learner_ms:.3f} ms + {floor.statements_per_request:.1f} statements "
+            f"through the bare driver {floor.statements_ms:.3f} ms = {least:.3f} ms, "
+            f"{least / bare:.2f}× the bare POST; ")
+    if room > 0:
+        return (head + f"the target leaves {room:.3f} ms ({room / bare:.2f}×) for the rest of "
+                f"the request, where the service spends {service - least:.3f} ms")
+    return (head + f"the target is {-room:.3f} ms below this floor: no change outside the "
+            f"learner and the statements can meet it (the rest of the request costs the "
+            f"service {service - least:.3f} ms)")
+
+
 def targets(bench: Bench, console: Any) -> list[str]:
     lines: list[str] = []
 
@@ -767,30 +786,16 @@ def targets(bench: Bench, console: Any) -> list[str]:
         clients = TARGET_CLIENTS[engine]
         r = find(engine, "loop", clients)
         if r is not None and r.ref is not None and r.fig.cpu_ms and r.ref.cpu_ms:
-            times = r.fig.cpu_ms / r.ref.cpu_ms
+            bare = r.ref.cpu_ms
+            times = r.fig.cpu_ms / bare
             limit = CPU_TARGET[engine]
             lines.append(f"{engine}, {r.workers} worker(s), {clients} robots: a robot-loop "
                          f"request costs {r.fig.cpu_ms:.3f} ms of server CPU, {times:.2f}× the "
-                         f"bare POST's {r.ref.cpu_ms:.3f} ms (ratio {1 / times:.2f}; target ≤ "
+                         f"bare POST's {bare:.3f} ms (ratio {1 / times:.2f}; target ≤ "
                          f"{limit:g}×, ratio ≥ {1 / limit:.2f}): {verdict(times <= limit)}")
-        floor = bench.floors.get(engine)
-        r = find(engine, "loop", clients)
-        if floor is not None and r is not None and r.ref is not None and r.ref.cpu_ms \
-                and r.fig.cpu_ms:
-            bare = r.ref.cpu_ms
-            least = bare + floor.learner_ms + floor.statements_ms
-            room = CPU_TARGET[engine] * bare - least
-            lines.append(
-                f"{engine}: floor of a robot-loop request: the bare POST {bare:.3f} ms + the "
-                f"learner {floor.learner_ms:.3f} ms + {floor.statements:.1f} statements through "
-                f"the bare driver {floor.statements_ms:.3f} ms = {least:.3f} ms, {least / bare:.2f}"
-                f"× the bare POST; " + (
-                    f"the target leaves {room:.3f} ms ({room / bare:.2f}×) for the rest of the "
-                    f"request, where the service spends {r.fig.cpu_ms - least:.3f} ms"
-                    if room > 0 else
-                    f"the target is {-room:.3f} ms below this floor: no change outside the "
-                    f"learner and the statements can meet it (the rest of the request costs "
-                    f"the service {r.fig.cpu_ms - least:.3f} ms)"))
+            floor = bench.floors.get(engine)
+            if floor is not None:
+                lines.append(floor_line(engine, floor, bare, limit * bare, r.fig.cpu_ms))
         r = find(engine, "open", clients)
         if r is not None:
             limit = OPEN_P99_MS[engine]
@@ -879,6 +884,8 @@ def main() -> None:
     if args.quick:
         args.clients, args.duration, args.users, args.episodes = "8,16", 2.0, 2000, 200
         args.floor_requests = min(args.floor_requests, 1000)
+    if args.floor_requests < 1:
+        parser.error("--floor-requests must be at least 1")
     args.clients = sorted({int(c) for c in str(args.clients).split(",")})
     from rich.console import Console
 

@@ -1,15 +1,16 @@
 """The service benchmark's floor (bench/floor.py): the statements it records are the service's
 whole work on the database, so replaying them on a copy taken before leaves the copy as the
-service left the original; the learner is timed; the service is left as it was."""
+service left the original, row for row; the learner is timed; the service is left as it was."""
 
 from __future__ import annotations
 
 import sys
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
-from sqlalchemy import create_engine, text
+from sqlalchemy import create_engine, inspect, text
 
 from app.db.repositories import _rows
 from app.learning.learners import base
@@ -20,30 +21,27 @@ from tests.support.live import fresh_database
 BENCH = Path(__file__).resolve().parents[2] / "bench"
 pytestmark = pytest.mark.slow
 
-# What the robots' writes change: the rows and the counters that must come out the same.
-STATE = {
-    "episodes": "SELECT count(*), coalesce(sum(total_reward), 0), "
-                "sum(CASE WHEN status = 'closed' THEN 1 ELSE 0 END) FROM episodes",
-    "decisions": "SELECT count(*), sum(CASE WHEN answered_at IS NULL THEN 0 ELSE 1 END), "
-                 "coalesce(sum(action), 0) FROM decisions",
-    "users": "SELECT user_id, episode_count, draws FROM users ORDER BY user_id",
-    "models": "SELECT user_pk, version, state FROM learner_models ORDER BY user_pk",
-    "samples": "SELECT count(*), coalesce(sum(reward), 0) FROM samples",
-}
 
-
-def _state(url: str) -> dict[str, Any]:
+def _rows_of(url: str) -> dict[str, list[tuple[str, ...]]]:
+    """Every row of every table, as text, in a stable order."""
     engine = create_engine(url)
     try:
         with engine.connect() as conn:
-            return {name: [tuple(row) for row in conn.execute(text(sql))]
-                    for name, sql in STATE.items()}
+            tables = inspect(conn).get_table_names()
+            return {t: sorted(tuple(str(v) for v in row)
+                              for row in conn.execute(text(f'SELECT * FROM "{t}"')))
+                    for t in tables}
     finally:
         engine.dispose()
 
 
+def _hooks() -> tuple[Any, ...]:
+    return (_rows.Prepared._execute, base.TabularLearner.select_action,
+            base.TabularLearner.update, vars(write)["rng_for"], vars(write)["batch"])
+
+
 @pytest.fixture(scope="module")
-def bench_modules() -> Any:
+def bench_modules() -> Iterator[tuple[Any, Any]]:
     sys.path.insert(0, str(BENCH))
     try:
         import floor
@@ -51,34 +49,55 @@ def bench_modules() -> Any:
         yield floor, service
     finally:
         sys.path.remove(str(BENCH))
+        for name in ("floor", "service"):
+            sys.modules.pop(name, None)
 
 
 @pytest.mark.parametrize("engine", engines())
 def test_replay_is_the_services_work_and_the_learner_is_timed(
-        engine: str, tmp_path: Path, bench_modules: Any) -> None:
+        engine: str, tmp_path: Path, bench_modules: tuple[Any, Any]) -> None:
     floor, service = bench_modules
-    originals = (_rows.Prepared._execute, base.TabularLearner.select_action,
-                 base.TabularLearner.update, vars(write)["rng_for"])
+    pg_server = service.PG_SERVER.rstrip("/")
+    hooks = _hooks()
     with fresh_database(engine, tmp_path) as url:
         data = service.Data(url)
         try:
-            found = floor.measure(engine, url, data, ["ann", "bob", "cyd"], 150,
-                                  service.PG_SERVER.rstrip("/"), keep_copy=True)
+            found = floor.measure(engine, url, data, ["ann", "bob", "cyd"], 150, pg_server,
+                                  group=3, keep_copy=True)
         finally:
             data.close()
         assert found.copy is not None
         try:
-            assert _state(found.copy) == _state(url)
-            assert _state(url)["episodes"][0][0] > 3 * 2  # the recorded run's episodes are in
+            original, replayed = _rows_of(url), _rows_of(found.copy)
         finally:
-            if engine == "sqlite":
-                Path(found.copy.removeprefix("sqlite:///")).unlink()
-            else:
-                floor._drop_postgresql(service.PG_SERVER.rstrip("/"),
-                                       found.copy.rsplit("/", 1)[1])
+            floor.remove_copy(found.copy, pg_server)
+    assert replayed == original
+    assert len(original["episodes"]) > 2 * 3  # the recorded run's episodes are in both
     assert found.requests >= 150
-    assert 3 <= found.statements <= 20  # a write's handful, not a session's bookkeeping
+    assert 3 <= found.statements_per_request <= 20  # a write's handful
     assert found.learner_ms > 0
     assert found.statements_ms > 0
-    assert (_rows.Prepared._execute, base.TabularLearner.select_action,
-            base.TabularLearner.update, vars(write)["rng_for"]) == originals
+    assert _hooks() == hooks
+
+
+@pytest.mark.parametrize("engine", engines())
+def test_the_copy_is_removed(engine: str, tmp_path: Path,
+                             bench_modules: tuple[Any, Any]) -> None:
+    floor, service = bench_modules
+    with fresh_database(engine, tmp_path) as url:
+        data = service.Data(url)
+        try:
+            found = floor.measure(engine, url, data, ["ann"], 5, service.PG_SERVER.rstrip("/"))
+        finally:
+            data.close()
+        assert found.copy is None
+        if engine == "sqlite":
+            assert not list(Path(url.removeprefix("sqlite:///")).parent.glob("*-floor.db*"))
+        else:
+            import psycopg
+
+            name = url.rsplit("/", 1)[1] + "_floor"
+            with psycopg.connect(f"{service.PG_SERVER.rstrip('/')}/postgres") as conn:
+                found_dbs = conn.execute("SELECT 1 FROM pg_database WHERE datname = %s",
+                                         (name,)).fetchall()
+            assert found_dbs == []
