@@ -23,6 +23,7 @@ from .history import Workload, check_history
 pytestmark = [pytest.mark.stress, pytest.mark.xdist_group("stress")]
 
 CLIENTS = 6
+EPISODES = 60
 KINDS = [("prefers", "ProvideDrink", "tea"), ("avoid", "BriefInformation", None),
          ("quiet", None, None)]
 SLOTS = ["morning", "noon", "afternoon", "evening"]
@@ -36,7 +37,9 @@ def test_corrections_under_load_lose_nothing(engine: str, workers: int) -> None:
         staff_key = make_keys(url, 1, role="staff")[0]
         with httpx.Client(base_url=service.url, timeout=120,
                           headers={"Authorization": f"Bearer {admin_key}"}) as api:
-            work = Workload(service.url, make_keys(url, CLIENTS), episodes_per_client=8,
+            # The robots go on until the staff are done (at most EPISODES each), so that the
+            # corrections meet the traffic however fast the service answers the robots.
+            work = Workload(service.url, make_keys(url, CLIENTS), episodes_per_client=EPISODES,
                             seed=11)
             initial = create_users(api, work.all_users)
             made: dict[tuple[str, str], bool] = {}  # (user, correction id) -> lifted
@@ -47,26 +50,29 @@ def test_corrections_under_load_lose_nothing(engine: str, workers: int) -> None:
                 rng = random.Random(5)
                 with httpx.Client(base_url=service.url, timeout=120, headers={
                         "Authorization": f"Bearer {staff_key}"}) as http:
-                    for n in range(12):
-                        if any(t.is_alive() for t in work._threads):
-                            during.append(n)
-                        user = rng.choice(work.all_users)
-                        kind, service_, detail = rng.choice(KINDS)
-                        body: dict[str, Any] = {
-                            "correction_id": f"c{n}", "kind": kind,
-                            "time_slot": rng.choice(SLOTS), "situation": rng.choice(SITUATIONS),
-                            "service": service_, "detail": detail}
-                        codes = [http.post(f"/v1/users/{user}/corrections", json=body
-                                           ).status_code for _ in range(2)]
-                        if codes != [201, 200]:
-                            problems.append(f"c{n} for {user}: {codes}")
-                        made[(user, f"c{n}")] = False
-                        if rng.random() < 0.4:
-                            r = http.delete(f"/v1/users/{user}/corrections/c{n}")
-                            if r.status_code != 204:
-                                problems.append(f"lift c{n}: {r.status_code}")
-                            made[(user, f"c{n}")] = True
-                        time.sleep(0.02)
+                    try:
+                        for n in range(12):
+                            if any(t.is_alive() for t in work._threads):
+                                during.append(n)
+                            user = rng.choice(work.all_users)
+                            kind, service_, detail = rng.choice(KINDS)
+                            body: dict[str, Any] = {
+                                "correction_id": f"c{n}", "kind": kind,
+                                "time_slot": rng.choice(SLOTS), "situation": rng.choice(SITUATIONS),
+                                "service": service_, "detail": detail}
+                            codes = [http.post(f"/v1/users/{user}/corrections", json=body
+                                               ).status_code for _ in range(2)]
+                            if codes != [201, 200]:
+                                problems.append(f"c{n} for {user}: {codes}")
+                            made[(user, f"c{n}")] = False
+                            if rng.random() < 0.4:
+                                r = http.delete(f"/v1/users/{user}/corrections/c{n}")
+                                if r.status_code != 204:
+                                    problems.append(f"lift c{n}: {r.status_code}")
+                                made[(user, f"c{n}")] = True
+                            time.sleep(0.02)
+                    finally:
+                        work.stopping.set()
 
             work.start()
             staffer = threading.Thread(target=staff)

@@ -55,7 +55,7 @@ def test_a_mission_change_under_load_loses_nothing(engine: str, workers: int) ->
             assert r.status_code == 200, r.text
             care = Mission.from_dict(_office_with(service="Companionship"))
             homes = {fleet: Workload(service.url, make_keys(url, CLIENTS, fleet=fleet),
-                                     episodes_per_client=10, seed=seed, mission=mission)
+                                     episodes_per_client=30, seed=seed, mission=mission)
                      for fleet, seed, mission in (("default", 7, office_with_cocoa()),
                                                   ("care", 8, care))}
             initial = {fleet: create_users(api, w.all_users, fleet=fleet)
@@ -66,17 +66,28 @@ def test_a_mission_change_under_load_loses_nothing(engine: str, workers: int) ->
             changed: dict[str, Any] = {}
 
             def change_midway() -> None:
-                """The default fleet's staff add cocoa once a third of its writes are in."""
+                """The default fleet's staff add cocoa once CLIENTS * 5 of its writes are in;
+                the robots go on (at most 30 episodes each) until as many more are in after
+                it, so the change meets the traffic however fast the service answers."""
                 deadline = time.monotonic() + 120
-                while len(homes["default"].history.acks) < CLIENTS * 5 and \
-                        time.monotonic() < deadline:
-                    time.sleep(0.05)
-                with httpx.Client(base_url=service.url, timeout=120, headers={
-                        "Authorization": f"Bearer {staff_key}"}) as staff:
-                    r = staff.put("/v1/admin/fleets/default/mission", json={
-                        "change_id": "add-cocoa", "mission": _office_with(detail="cocoa")})
-                    changed.update(status=r.status_code, body=r.json(),
-                                   during=any(t.is_alive() for t in threads))
+
+                def wait_for(acks: int) -> None:
+                    while len(homes["default"].history.acks) < acks and \
+                            time.monotonic() < deadline:
+                        time.sleep(0.05)
+
+                try:
+                    wait_for(CLIENTS * 5)
+                    with httpx.Client(base_url=service.url, timeout=120, headers={
+                            "Authorization": f"Bearer {staff_key}"}) as staff:
+                        r = staff.put("/v1/admin/fleets/default/mission", json={
+                            "change_id": "add-cocoa", "mission": _office_with(detail="cocoa")})
+                        changed.update(status=r.status_code, body=r.json(),
+                                       during=any(t.is_alive() for t in threads))
+                    wait_for(len(homes["default"].history.acks) + CLIENTS * 5)
+                finally:
+                    for w in homes.values():
+                        w.stopping.set()
 
             began = time.monotonic()
             for w in homes.values():
