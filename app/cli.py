@@ -64,11 +64,18 @@ def _print_version(value: bool) -> None:
 
 @app.callback()
 def _options(
-    show_version: Annotated[bool, typer.Option(
-        "--version", callback=_print_version, is_eager=True,
-        help="Print the version (attune X.Y.Z) and exit.")] = False,
+    show_version: Annotated[
+        bool,
+        typer.Option(
+            "--version",
+            callback=_print_version,
+            is_eager=True,
+            help="Print the version (attune X.Y.Z) and exit.",
+        ),
+    ] = False,
 ) -> None:
     """Options of ``attune`` itself, before the command."""
+
 
 experiment = typer.Typer(
     help="Reproduce the paper's experiments with simulated users (docs/method.md §12).\n\n"
@@ -86,39 +93,61 @@ app.add_typer(fleet_commands.fleet, name="fleet")
 
 SeedsOption = Annotated[
     int,
-    typer.Option("--seeds", min=1, help="Independent repetitions (seeds 0..N-1) per method and "
-                 "protocol; every repetition simulates --users users."),
+    typer.Option(
+        "--seeds",
+        min=1,
+        help="Independent repetitions (seeds 0..N-1) per method and "
+        "protocol; every repetition simulates --users users.",
+    ),
 ]
 JobsOption = Annotated[
     int | None,
-    typer.Option("--jobs", "-j", min=1, show_default=False,
-                 # os.cpu_count() is app.experiments.runner.default_workers(), without importing
-                 # the runner (and numpy) for --help.
-                 help=f"Worker processes (default: one per CPU, {os.cpu_count() or 1} here). "
-                 "1 runs everything in this process."),
+    typer.Option(
+        "--jobs",
+        "-j",
+        min=1,
+        show_default=False,
+        # os.cpu_count() is app.experiments.runner.default_workers(), without importing
+        # the runner (and numpy) for --help.
+        help=f"Worker processes (default: one per CPU, {os.cpu_count() or 1} here). "
+        "1 runs everything in this process.",
+    ),
 ]
 UsersOption = Annotated[int, typer.Option("--users", min=1, help="Simulated users per run.")]
 UserOption = Annotated[
     list[str] | None,
-    typer.Option("--user", metavar="NAME=VALUE", show_default=False,
-                 help="Override a response parameter of every simulated user, e.g. "
-                 "--user p_self=0.2 --user eps_fb=0 (p_acc, p_self, eps_fb, p_abort, p_idle_acc; "
-                 "each in [0, 1]). Repeatable."),
+    typer.Option(
+        "--user",
+        metavar="NAME=VALUE",
+        show_default=False,
+        help="Override a response parameter of every simulated user, e.g. "
+        "--user p_self=0.2 --user eps_fb=0 (p_acc, p_self, eps_fb, p_abort, p_idle_acc; "
+        "each in [0, 1]). Repeatable.",
+    ),
 ]
 ProgressOption = Annotated[
     bool, typer.Option("--progress/--no-progress", help="Show a progress bar (on stderr).")
 ]
 MissionOption = Annotated[
     Path | None,
-    typer.Option("--mission", metavar="FILE", show_default=False, dir_okay=False,
-                 help="The simulated users live in the mission in FILE (JSON, like "
-                 "docs/examples/care-home-mission.json: its situations, time slots, services "
-                 "and rewards) instead of the paper's office mission; the reports say so. The "
-                 "paper's numbers are targets for the office mission only."),
+    typer.Option(
+        "--mission",
+        metavar="FILE",
+        show_default=False,
+        dir_okay=False,
+        help="The simulated users live in the mission in FILE (JSON, like "
+        "docs/examples/care-home-mission.json: its situations, time slots, services "
+        "and rewards) instead of the paper's office mission; the reports say so. The "
+        "paper's numbers are targets for the office mission only.",
+    ),
 ]
 JsonOption = Annotated[
-    bool, typer.Option("--json", help="Print the summary (summary.json) on stdout instead of "
-                       "the table; messages and progress go to stderr as always.")
+    bool,
+    typer.Option(
+        "--json",
+        help="Print the summary (summary.json) on stdout instead of "
+        "the table; messages and progress go to stderr as always.",
+    ),
 ]
 
 
@@ -140,13 +169,16 @@ def _run(
 
     user_params = _user_params(user or ())
     mission = _mission(console, mission_file)
-    todo = jobs_for(methods, protocols, seeds, users, user_params,
-                    mission if mission_file is not None else None)
+    todo = jobs_for(
+        methods, protocols, seeds, users, user_params, mission if mission_file is not None else None
+    )
     workers = min(jobs or default_workers(), len(todo))
     if mission_file is not None:
-        console.print(f"Mission {mission.name!r} from {mission_file} ({len(mission.situations)} "
-                      f"situations, {len(mission.time_slots)} time slots, "
-                      f"{len(mission.services)} services), not the paper's office mission.")
+        console.print(
+            f"Mission {mission.name!r} from {mission_file} ({len(mission.situations)} "
+            f"situations, {len(mission.time_slots)} time slots, "
+            f"{len(mission.services)} services), not the paper's office mission."
+        )
     console.print(
         f"{what}: {len(todo)} runs ({len(methods)} methods × {len(protocols)} protocols × "
         f"{seeds} seed{'s' if seeds != 1 else ''}, {users} user{'s' if users != 1 else ''} "
@@ -164,10 +196,14 @@ def _run(
         "workers": workers,
         "user_params": user_params,
         "seconds": round(seconds, 2),
-        "mission": {"name": mission.name, "file": None if mission_file is None
-                    else str(mission_file), "fingerprint": mission.fingerprint,
-                    "situations": len(mission.situations),
-                    "time_slots": len(mission.time_slots), "services": len(mission.services)},
+        "mission": {
+            "name": mission.name,
+            "file": None if mission_file is None else str(mission_file),
+            "fingerprint": mission.fingerprint,
+            "situations": len(mission.situations),
+            "time_slots": len(mission.time_slots),
+            "services": len(mission.services),
+        },
     }
     return results, info
 
@@ -204,8 +240,9 @@ def _user_params(pairs: Sequence[str]) -> dict[str, float]:
         except ValueError:
             value = float("nan")
         if not 0.0 <= value <= 1.0:
-            raise typer.BadParameter(f"{pair!r}: the value must be a number in [0, 1].",
-                                     param_hint="--user")
+            raise typer.BadParameter(
+                f"{pair!r}: the value must be a number in [0, 1].", param_hint="--user"
+            )
         out[name] = value
     return out
 
@@ -232,8 +269,10 @@ def _written(console: Console, out: Path, files: Sequence[Path], seconds: float)
 )
 def paper(
     seeds: SeedsOption = 20,
-    out: Annotated[Path, typer.Option("--out", "-o", help="Output folder (created if needed).",
-                                      file_okay=False)] = Path("results/paper"),
+    out: Annotated[
+        Path,
+        typer.Option("--out", "-o", help="Output folder (created if needed).", file_okay=False),
+    ] = Path("results/paper"),
     jobs: JobsOption = None,
     users: UsersOption = 6,
     user: UserOption = None,
@@ -248,8 +287,18 @@ def paper(
     from app.learning.evaluation import E1E2, E3, PA, PAPER_METHODS
 
     console = stderr_console()
-    results, info = _run(console, PAPER_METHODS, (E1E2, E3, PA), seeds, users, jobs, progress,
-                         "Paper experiments", user, mission)
+    results, info = _run(
+        console,
+        PAPER_METHODS,
+        (E1E2, E3, PA),
+        seeds,
+        users,
+        jobs,
+        progress,
+        "Paper experiments",
+        user,
+        mission,
+    )
     start = time.perf_counter()
     summary, files = write_paper_report(results, out, info)
     _written(console, out, files, time.perf_counter() - start)
@@ -271,8 +320,10 @@ def paper(
 )
 def ablation(
     seeds: SeedsOption = 20,
-    out: Annotated[Path, typer.Option("--out", "-o", help="Output folder (created if needed).",
-                                      file_okay=False)] = Path("results/ablation"),
+    out: Annotated[
+        Path,
+        typer.Option("--out", "-o", help="Output folder (created if needed).", file_okay=False),
+    ] = Path("results/ablation"),
     jobs: JobsOption = None,
     users: UsersOption = 6,
     user: UserOption = None,
@@ -287,8 +338,18 @@ def ablation(
     from app.learning.evaluation import ABLATION_METHODS, E3, PA
 
     console = stderr_console()
-    results, info = _run(console, ABLATION_METHODS, (E3, PA), seeds, users, jobs, progress,
-                         "Ablations", user, mission)
+    results, info = _run(
+        console,
+        ABLATION_METHODS,
+        (E3, PA),
+        seeds,
+        users,
+        jobs,
+        progress,
+        "Ablations",
+        user,
+        mission,
+    )
     start = time.perf_counter()
     summary, files = write_ablation_report(results, out, info)
     _written(console, out, files, time.perf_counter() - start)
@@ -296,12 +357,16 @@ def ablation(
         print_json(summary)
         return
     blocks = summary["protocols"][E3.name]["blocks"]
-    print_metrics_table(blocks[f"1-{E3.n_events}"], summary["methods"], "Ablations on E3",
-                        stdout_console(), with_paper=False)
+    print_metrics_table(
+        blocks[f"1-{E3.n_events}"],
+        summary["methods"],
+        "Ablations on E3",
+        stdout_console(),
+        with_paper=False,
+    )
 
 
-def _names(raw: str | None, known: Sequence[str], default: Sequence[str], option: str
-           ) -> list[str]:
+def _names(raw: str | None, known: Sequence[str], default: Sequence[str], option: str) -> list[str]:
     """A comma-separated list of names out of ``known`` (``default`` when not given), in the
     order given, without repeats; an unknown name is a usage error naming the known ones."""
     if raw is None:
@@ -311,7 +376,9 @@ def _names(raw: str | None, known: Sequence[str], default: Sequence[str], option
     if unknown or not names:
         raise typer.BadParameter(
             f"{', '.join(map(repr, unknown)) or 'nothing'}: expected names out of "
-            f"{', '.join(known)}, separated by commas.", param_hint=option)
+            f"{', '.join(known)}, separated by commas.",
+            param_hint=option,
+        )
     return names
 
 
@@ -334,29 +401,63 @@ def _names(raw: str | None, known: Sequence[str], default: Sequence[str], option
     "target of under 2 minutes on 2 CPUs.",
 )
 def robustness(
-    seeds: Annotated[int, typer.Option("--seeds", min=2, help="Seeds (0..N-1) per family; the "
-                                       "intervals are over seeds.")] = 8,
-    events: Annotated[int, typer.Option("--events", min=20, help="Events per person; the "
-                                        "changing families change at 5/8 of them (event 101 "
-                                        "of 160).")] = 160,
-    persons: Annotated[int, typer.Option("--persons", min=1, help="Simulated persons per "
-                                         "family and seed (a home's residents).")] = 3,
-    families: Annotated[str | None, typer.Option(
-        "--families", metavar="A,B", show_default=False,
-        help="Families to run, separated by commas (default: all).")] = None,
-    learners: Annotated[str | None, typer.Option(
-        "--learners", metavar="A,B", show_default=False,
-        help="Learners to run, separated by commas, out of rmax, qlearning, hri (τ=0.01), "
-        "hri-0.005, dts, dts-change, dts-change-0.05 and dts-adapt (default: "
-        "rmax,qlearning,hri,dts,dts-adapt).")] = None,
-    out: Annotated[Path, typer.Option("--out", "-o", help="Output folder (created if needed).",
-                                      file_okay=False)] = Path("results/robustness"),
+    seeds: Annotated[
+        int,
+        typer.Option(
+            "--seeds", min=2, help="Seeds (0..N-1) per family; the intervals are over seeds."
+        ),
+    ] = 8,
+    events: Annotated[
+        int,
+        typer.Option(
+            "--events",
+            min=20,
+            help="Events per person; the "
+            "changing families change at 5/8 of them (event 101 "
+            "of 160).",
+        ),
+    ] = 160,
+    persons: Annotated[
+        int,
+        typer.Option(
+            "--persons", min=1, help="Simulated persons per family and seed (a home's residents)."
+        ),
+    ] = 3,
+    families: Annotated[
+        str | None,
+        typer.Option(
+            "--families",
+            metavar="A,B",
+            show_default=False,
+            help="Families to run, separated by commas (default: all).",
+        ),
+    ] = None,
+    learners: Annotated[
+        str | None,
+        typer.Option(
+            "--learners",
+            metavar="A,B",
+            show_default=False,
+            help="Learners to run, separated by commas, out of rmax, qlearning, hri (τ=0.01), "
+            "hri-0.005, dts, dts-change, dts-change-0.05 and dts-adapt (default: "
+            "rmax,qlearning,hri,dts,dts-adapt).",
+        ),
+    ] = None,
+    out: Annotated[
+        Path,
+        typer.Option("--out", "-o", help="Output folder (created if needed).", file_okay=False),
+    ] = Path("results/robustness"),
     jobs: JobsOption = None,
     mission: MissionOption = None,
     progress: ProgressOption = True,
-    json_output: Annotated[bool, typer.Option(
-        "--json", help="Print the summary (summary.json) on stdout instead of the table; "
-        "messages and progress go to stderr as always.")] = False,
+    json_output: Annotated[
+        bool,
+        typer.Option(
+            "--json",
+            help="Print the summary (summary.json) on stdout instead of the table; "
+            "messages and progress go to stderr as always.",
+        ),
+    ] = False,
 ) -> None:
     """Run the robustness suite and write its reports."""
     require("matplotlib", "experiments", "attune experiment")
@@ -375,32 +476,61 @@ def robustness(
     todo = suite.tasks_for(chosen, methods, seeds, persons, events, document)
     workers = min(jobs or default_workers(), len(todo))
     default = (seeds, events, persons, families, learners, mission) == (
-        suite.DEFAULT_SEEDS, suite.DEFAULT_EVENTS, suite.DEFAULT_PERSONS, None, None, None)
+        suite.DEFAULT_SEEDS,
+        suite.DEFAULT_EVENTS,
+        suite.DEFAULT_PERSONS,
+        None,
+        None,
+        None,
+    )
     if mission is not None:
         console.print(f"Mission {world.name!r} from {mission}, not the paper's office mission.")
     console.print(
         f"Robustness: {len(chosen)} families × {seeds} seeds × {persons} persons × {events} "
         f"events, {len(methods)} learners and the oracle; {len(todo)} runs on {workers} worker "
-        f"process{'es' if workers != 1 else ''}.")
+        f"process{'es' if workers != 1 else ''}."
+    )
     start = time.perf_counter()
-    runs = run_tasks(suite.run_robust_task, todo, workers, description="Robustness",
-                     console=console, progress=progress, describe=suite.RobustTask.describe)
+    runs = run_tasks(
+        suite.run_robust_task,
+        todo,
+        workers,
+        description="Robustness",
+        console=console,
+        progress=progress,
+        describe=suite.RobustTask.describe,
+    )
     seconds = time.perf_counter() - start
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
-    verdict = ("met" if seconds < suite.TARGET_SECONDS else "missed") if default else (
-        "not the default suite")
-    console.print(f"Finished {len(runs)} runs in {seconds:.1f} s (target for the default suite "
-                  f"on 2 CPUs: under {suite.TARGET_SECONDS:.0f} s; {verdict}; load average "
-                  f"{load:.2f} on {os.cpu_count() or 1} CPUs).")
+    verdict = (
+        ("met" if seconds < suite.TARGET_SECONDS else "missed")
+        if default
+        else ("not the default suite")
+    )
+    console.print(
+        f"Finished {len(runs)} runs in {seconds:.1f} s (target for the default suite "
+        f"on 2 CPUs: under {suite.TARGET_SECONDS:.0f} s; {verdict}; load average "
+        f"{load:.2f} on {os.cpu_count() or 1} CPUs)."
+    )
     info = {
-        "seeds": seeds, "persons": persons, "events": events,
-        "change_at_event": change_event(events) + 1, "families": chosen,
-        "learners": {m.label: {"algorithm": m.algorithm, "params": dict(m.params)}
-                     for m in methods},
-        "workers": workers, "seconds": round(seconds, 2), "load_average": round(load, 2),
-        "target_seconds": suite.TARGET_SECONDS, "default_suite": default,
-        "mission": {"name": world.name, "file": None if mission is None else str(mission),
-                    "fingerprint": world.fingerprint},
+        "seeds": seeds,
+        "persons": persons,
+        "events": events,
+        "change_at_event": change_event(events) + 1,
+        "families": chosen,
+        "learners": {
+            m.label: {"algorithm": m.algorithm, "params": dict(m.params)} for m in methods
+        },
+        "workers": workers,
+        "seconds": round(seconds, 2),
+        "load_average": round(load, 2),
+        "target_seconds": suite.TARGET_SECONDS,
+        "default_suite": default,
+        "mission": {
+            "name": world.name,
+            "file": None if mission is None else str(mission),
+            "fingerprint": world.fingerprint,
+        },
     }
     summary = suite.build_summary(runs, chosen, [m.label for m in methods], events, info)
     begin = time.perf_counter()
@@ -437,26 +567,58 @@ def robustness(
     "users, takes seconds.",
 )
 def claims_map(
-    seeds: Annotated[int | None, typer.Option(
-        "--seeds", min=1, show_default=False,
-        help="Seeds (0..N-1) per setting; default 2 (1 with --quick).")] = None,
-    confirm_seeds: Annotated[int | None, typer.Option(
-        "--confirm-seeds", min=0, show_default=False,
-        help="Held-out seeds (the N after the sweep's) on which the default and the best "
-        "settings are decided again; 0 skips it. Default 10 (2 with --quick).")] = None,
-    users: Annotated[int | None, typer.Option(
-        "--users", min=1, show_default=False,
-        help="Simulated users per run; default 6, as in the paper (2 with --quick).")] = None,
-    quick: Annotated[bool, typer.Option(
-        "--quick", help="A reduced grid (time slots 2, 4; m 1, 2; exclusion per_pair, none; "
-        "the other choices at their default) on 1 seed and 2 users: seconds, for checks.")
+    seeds: Annotated[
+        int | None,
+        typer.Option(
+            "--seeds",
+            min=1,
+            show_default=False,
+            help="Seeds (0..N-1) per setting; default 2 (1 with --quick).",
+        ),
+    ] = None,
+    confirm_seeds: Annotated[
+        int | None,
+        typer.Option(
+            "--confirm-seeds",
+            min=0,
+            show_default=False,
+            help="Held-out seeds (the N after the sweep's) on which the default and the best "
+            "settings are decided again; 0 skips it. Default 10 (2 with --quick).",
+        ),
+    ] = None,
+    users: Annotated[
+        int | None,
+        typer.Option(
+            "--users",
+            min=1,
+            show_default=False,
+            help="Simulated users per run; default 6, as in the paper (2 with --quick).",
+        ),
+    ] = None,
+    quick: Annotated[
+        bool,
+        typer.Option(
+            "--quick",
+            help="A reduced grid (time slots 2, 4; m 1, 2; exclusion per_pair, none; "
+            "the other choices at their default) on 1 seed and 2 users: seconds, for checks.",
+        ),
     ] = False,
-    out: Annotated[Path, typer.Option("--out", "-o", help="Output folder (created if needed).",
-                                      file_okay=False)] = Path("results/claims-map"),
-    jobs: Annotated[int | None, typer.Option(
-        "--jobs", "-j", "--workers", min=1, show_default=False,
-        help=f"Worker processes (default: one per CPU, {os.cpu_count() or 1} here). 1 runs "
-        "everything in this process.")] = None,
+    out: Annotated[
+        Path,
+        typer.Option("--out", "-o", help="Output folder (created if needed).", file_okay=False),
+    ] = Path("results/claims-map"),
+    jobs: Annotated[
+        int | None,
+        typer.Option(
+            "--jobs",
+            "-j",
+            "--workers",
+            min=1,
+            show_default=False,
+            help=f"Worker processes (default: one per CPU, {os.cpu_count() or 1} here). 1 runs "
+            "everything in this process.",
+        ),
+    ] = None,
     progress: ProgressOption = True,
     json_output: JsonOption = False,
 ) -> None:
@@ -477,39 +639,59 @@ def claims_map(
     variants = grid.methods()
     workers = jobs or default_workers()
     default = not quick and (seeds, confirm_seeds, users) == (
-        cmap.DEFAULT_SEEDS, cmap.DEFAULT_CONFIRM_SEEDS, cmap.DEFAULT_USERS)
+        cmap.DEFAULT_SEEDS,
+        cmap.DEFAULT_CONFIRM_SEEDS,
+        cmap.DEFAULT_USERS,
+    )
     console.print(
         f"Claims map: {len(settings)} settings ("
         + " × ".join(f"{len(grid.values[a.key])} {a.key}" for a in AXES)
         + f") from {len(worlds)} worlds × {len(variants)} method variants × "
         f"{len(cmap.PROTOCOLS)} protocols × {seeds} seed{'s' if seeds != 1 else ''}, {users} "
         f"user{'s' if users != 1 else ''} each, on {workers} worker "
-        f"process{'es' if workers != 1 else ''}.")
+        f"process{'es' if workers != 1 else ''}."
+    )
     start, cpu_start = time.perf_counter(), _cpu_seconds()
-    claim_map, runs = cmap.sweep(grid, seeds, users, workers, console=console,
-                                 progress=progress)
+    claim_map, runs = cmap.sweep(grid, seeds, users, workers, console=console, progress=progress)
     confirmed, confirm_runs = None, 0
     if confirm_seeds:
         chosen = cmap.confirmed_settings(claim_map)
-        console.print(f"Held-out seeds {seeds}–{seeds + confirm_seeds - 1}: the default and "
-                      f"{len(chosen) - 1} best setting(s).")
-        confirmed, confirm_runs = cmap.confirm(chosen, seeds, confirm_seeds, users, workers,
-                                               console=console, progress=progress)
+        console.print(
+            f"Held-out seeds {seeds}–{seeds + confirm_seeds - 1}: the default and "
+            f"{len(chosen) - 1} best setting(s)."
+        )
+        confirmed, confirm_runs = cmap.confirm(
+            chosen, seeds, confirm_seeds, users, workers, console=console, progress=progress
+        )
     seconds, cpu = time.perf_counter() - start, _cpu_seconds() - cpu_start
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
-    verdict = ("met" if seconds < cmap.TARGET_SECONDS else "missed") if default else (
-        "not the default map")
-    console.print(f"Finished {runs + confirm_runs} runs in {seconds:.1f} s, {cpu:.0f} s of CPU "
-                  f"time (target for the default map on 2 CPUs: under "
-                  f"{cmap.TARGET_SECONDS:.0f} s; {verdict}; load average {load:.2f} on "
-                  f"{os.cpu_count() or 1} CPUs).")
+    verdict = (
+        ("met" if seconds < cmap.TARGET_SECONDS else "missed")
+        if default
+        else ("not the default map")
+    )
+    console.print(
+        f"Finished {runs + confirm_runs} runs in {seconds:.1f} s, {cpu:.0f} s of CPU "
+        f"time (target for the default map on 2 CPUs: under "
+        f"{cmap.TARGET_SECONDS:.0f} s; {verdict}; load average {load:.2f} on "
+        f"{os.cpu_count() or 1} CPUs)."
+    )
     info = {
-        "seeds": seeds, "users": users, "quick": quick, "settings": len(settings),
-        "worlds": len(worlds), "method_variants": len(variants), "runs": runs,
-        "confirm_seeds": confirm_seeds, "confirm_first_seed": seeds,
-        "confirm_runs": confirm_runs, "workers": workers, "seconds": round(seconds, 2),
+        "seeds": seeds,
+        "users": users,
+        "quick": quick,
+        "settings": len(settings),
+        "worlds": len(worlds),
+        "method_variants": len(variants),
+        "runs": runs,
+        "confirm_seeds": confirm_seeds,
+        "confirm_first_seed": seeds,
+        "confirm_runs": confirm_runs,
+        "workers": workers,
+        "seconds": round(seconds, 2),
         "cpu_seconds": round(cpu, 2) if cpu == cpu else None,  # NaN: the platform cannot tell
-        "load_average": round(load, 2), "target_seconds": cmap.TARGET_SECONDS,
+        "load_average": round(load, 2),
+        "target_seconds": cmap.TARGET_SECONDS,
         "default_map": default,
     }
     summary = cmap.build_summary(claim_map, confirmed, grid, info)
@@ -530,8 +712,13 @@ def _cpu_seconds() -> float:
         import resource
     except ImportError:  # not on Windows
         return float("nan")
-    return sum(u.ru_utime + u.ru_stime for u in (resource.getrusage(resource.RUSAGE_SELF),
-                                                  resource.getrusage(resource.RUSAGE_CHILDREN)))
+    return sum(
+        u.ru_utime + u.ru_stime
+        for u in (
+            resource.getrusage(resource.RUSAGE_SELF),
+            resource.getrusage(resource.RUSAGE_CHILDREN),
+        )
+    )
 
 
 @experiment.command(
@@ -555,34 +742,74 @@ def _cpu_seconds() -> float:
     "time; the default run takes under 2 minutes on 2 CPUs.",
 )
 def newcomers(
-    seeds: Annotated[int, typer.Option("--seeds", min=2, help="Seeds (0..N-1) per family; the "
-                                       "intervals are over seeds.")] = 8,
-    residents: Annotated[int, typer.Option("--residents", min=2, help="Persons per family and "
-                                           "seed (a home's residents); each newcomer's prior "
-                                           "has the other residents.")] = 6,
+    seeds: Annotated[
+        int,
+        typer.Option(
+            "--seeds", min=2, help="Seeds (0..N-1) per family; the intervals are over seeds."
+        ),
+    ] = 8,
+    residents: Annotated[
+        int,
+        typer.Option(
+            "--residents",
+            min=2,
+            help="Persons per family and "
+            "seed (a home's residents); each newcomer's prior "
+            "has the other residents.",
+        ),
+    ] = 6,
     events: Annotated[int, typer.Option("--events", min=20, help="Events per person.")] = 160,
-    families: Annotated[str | None, typer.Option(
-        "--families", metavar="A,B", show_default=False,
-        help="Families to run, separated by commas, out of the robustness suite's (default: "
-        "home,individual).")] = None,
-    learners: Annotated[str | None, typer.Option(
-        "--learners", metavar="A,B", show_default=False,
-        help="Learners to run, separated by commas, by the robustness suite's names (default: "
-        "the suite's default learners).")] = None,
-    strength: Annotated[float, typer.Option(
-        "--strength", help="The prior's weight: pseudo-samples per pair that every contributor "
-        "has evidence on (positive).")] = 4.0,
-    min_support: Annotated[int, typer.Option(
-        "--min-support", min=1, help="The fewest contributors with evidence on a pair for it "
-        "to enter the prior.")] = 3,
-    out: Annotated[Path, typer.Option("--out", "-o", help="Output folder (created if needed).",
-                                      file_okay=False)] = Path("results/newcomers"),
+    families: Annotated[
+        str | None,
+        typer.Option(
+            "--families",
+            metavar="A,B",
+            show_default=False,
+            help="Families to run, separated by commas, out of the robustness suite's (default: "
+            "home,individual).",
+        ),
+    ] = None,
+    learners: Annotated[
+        str | None,
+        typer.Option(
+            "--learners",
+            metavar="A,B",
+            show_default=False,
+            help="Learners to run, separated by commas, by the robustness suite's names (default: "
+            "the suite's default learners).",
+        ),
+    ] = None,
+    strength: Annotated[
+        float,
+        typer.Option(
+            "--strength",
+            help="The prior's weight: pseudo-samples per pair that every contributor "
+            "has evidence on (positive).",
+        ),
+    ] = 4.0,
+    min_support: Annotated[
+        int,
+        typer.Option(
+            "--min-support",
+            min=1,
+            help="The fewest contributors with evidence on a pair for it to enter the prior.",
+        ),
+    ] = 3,
+    out: Annotated[
+        Path,
+        typer.Option("--out", "-o", help="Output folder (created if needed).", file_okay=False),
+    ] = Path("results/newcomers"),
     jobs: JobsOption = None,
     mission: MissionOption = None,
     progress: ProgressOption = True,
-    json_output: Annotated[bool, typer.Option(
-        "--json", help="Print the summary (summary.json) on stdout instead of the table; "
-        "messages and progress go to stderr as always.")] = False,
+    json_output: Annotated[
+        bool,
+        typer.Option(
+            "--json",
+            help="Print the summary (summary.json) on stdout instead of the table; "
+            "messages and progress go to stderr as always.",
+        ),
+    ] = False,
 ) -> None:
     """Run newcomers fresh and from the fleet's prior, and write the reports."""
     require("matplotlib", "experiments", "attune experiment")
@@ -595,49 +822,91 @@ def newcomers(
     from app.learning.population import FAMILIES
 
     if not strength > 0.0 or not math.isfinite(strength):
-        raise typer.BadParameter(f"{strength!r}: must be a positive number.",
-                                 param_hint="--strength")
+        raise typer.BadParameter(
+            f"{strength!r}: must be a positive number.", param_hint="--strength"
+        )
     console = stderr_console()
     chosen = _names(families, list(FAMILIES), study.DEFAULT_FAMILIES, "--families")
     keys = _names(learners, list(suite.LEARNERS), suite.DEFAULT_LEARNERS, "--learners")
     methods = [suite.LEARNERS[k] for k in keys]
     world = _mission(console, mission)
     document = None if mission is None else json.dumps(world.to_dict(), sort_keys=True)
-    todo = study.tasks_for(chosen, methods, seeds, residents, events, strength=strength,
-                           min_support=min_support, mission=document)
+    todo = study.tasks_for(
+        chosen,
+        methods,
+        seeds,
+        residents,
+        events,
+        strength=strength,
+        min_support=min_support,
+        mission=document,
+    )
     workers = min(jobs or default_workers(), len(todo))
-    default = (seeds, residents, events, families, learners, strength, min_support,
-               mission) == (study.DEFAULT_SEEDS, study.DEFAULT_RESIDENTS, study.DEFAULT_EVENTS,
-                            None, None, study.DEFAULT_STRENGTH, study.MIN_SUPPORT, None)
+    default = (seeds, residents, events, families, learners, strength, min_support, mission) == (
+        study.DEFAULT_SEEDS,
+        study.DEFAULT_RESIDENTS,
+        study.DEFAULT_EVENTS,
+        None,
+        None,
+        study.DEFAULT_STRENGTH,
+        study.MIN_SUPPORT,
+        None,
+    )
     if mission is not None:
         console.print(f"Mission {world.name!r} from {mission}, not the paper's office mission.")
     if residents - 1 < min_support:
-        console.print(f"Each newcomer has {residents - 1} contributors, fewer than "
-                      f"--min-support {min_support}: every prior is a fresh learner.")
+        console.print(
+            f"Each newcomer has {residents - 1} contributors, fewer than "
+            f"--min-support {min_support}: every prior is a fresh learner."
+        )
     console.print(
         f"Newcomers: {len(chosen)} families × {seeds} seeds × {residents} residents × {events} "
         f"events, {len(methods)} learners fresh and from the prior, and the oracle; "
-        f"{len(todo)} runs on {workers} worker process{'es' if workers != 1 else ''}.")
+        f"{len(todo)} runs on {workers} worker process{'es' if workers != 1 else ''}."
+    )
     start, cpu_start = time.perf_counter(), _cpu_seconds()
-    runs = run_tasks(study.run_newcomer_task, todo, workers, description="Newcomers",
-                     console=console, progress=progress, describe=study.NewcomerTask.describe)
+    runs = run_tasks(
+        study.run_newcomer_task,
+        todo,
+        workers,
+        description="Newcomers",
+        console=console,
+        progress=progress,
+        describe=study.NewcomerTask.describe,
+    )
     seconds, cpu = time.perf_counter() - start, _cpu_seconds() - cpu_start
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
-    verdict = ("met" if seconds < suite.TARGET_SECONDS else "missed") if default else (
-        "not the default run")
-    console.print(f"Finished {len(runs)} runs in {seconds:.1f} s, {cpu:.1f} s of CPU time "
-                  f"(target for the default run on 2 CPUs: under {suite.TARGET_SECONDS:.0f} s; "
-                  f"{verdict}; load average {load:.2f} on {os.cpu_count() or 1} CPUs).")
+    verdict = (
+        ("met" if seconds < suite.TARGET_SECONDS else "missed")
+        if default
+        else ("not the default run")
+    )
+    console.print(
+        f"Finished {len(runs)} runs in {seconds:.1f} s, {cpu:.1f} s of CPU time "
+        f"(target for the default run on 2 CPUs: under {suite.TARGET_SECONDS:.0f} s; "
+        f"{verdict}; load average {load:.2f} on {os.cpu_count() or 1} CPUs)."
+    )
     info = {
-        "seeds": seeds, "residents": residents, "events": events, "families": chosen,
-        "learners": {m.label: {"algorithm": m.algorithm, "params": dict(m.params)}
-                     for m in methods},
-        "strength": strength, "min_support": min_support,
-        "workers": workers, "seconds": round(seconds, 2), "cpu_seconds": round(cpu, 2),
-        "load_average": round(load, 2), "target_seconds": suite.TARGET_SECONDS,
+        "seeds": seeds,
+        "residents": residents,
+        "events": events,
+        "families": chosen,
+        "learners": {
+            m.label: {"algorithm": m.algorithm, "params": dict(m.params)} for m in methods
+        },
+        "strength": strength,
+        "min_support": min_support,
+        "workers": workers,
+        "seconds": round(seconds, 2),
+        "cpu_seconds": round(cpu, 2),
+        "load_average": round(load, 2),
+        "target_seconds": suite.TARGET_SECONDS,
         "default_run": default,
-        "mission": {"name": world.name, "file": None if mission is None else str(mission),
-                    "fingerprint": world.fingerprint},
+        "mission": {
+            "name": world.name,
+            "file": None if mission is None else str(mission),
+            "fingerprint": world.fingerprint,
+        },
     }
     summary = study.build_summary(runs, chosen, [m.label for m in methods], events, info)
     begin = time.perf_counter()

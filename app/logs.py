@@ -24,9 +24,18 @@ from dataclasses import dataclass
 from datetime import UTC, datetime
 from typing import Any
 
-__all__ = ["FIELDS", "REQUEST_ID_PATTERN", "JsonFormatter", "RequestContext", "RequestIdFilter",
-           "TextFormatter", "current", "current_request_id", "logging_config",
-           "request_id_from"]
+__all__ = [
+    "FIELDS",
+    "REQUEST_ID_PATTERN",
+    "JsonFormatter",
+    "RequestContext",
+    "RequestIdFilter",
+    "TextFormatter",
+    "current",
+    "current_request_id",
+    "logging_config",
+    "request_id_from",
+]
 
 REQUEST_ID_PATTERN = r"^[A-Za-z0-9._:-]{1,128}$"
 _REQUEST_ID = re.compile(REQUEST_ID_PATTERN)
@@ -45,7 +54,8 @@ class RequestContext:
 
 
 _current: contextvars.ContextVar[RequestContext | None] = contextvars.ContextVar(
-    "attune_request", default=None)
+    "attune_request", default=None
+)
 
 
 def current() -> RequestContext | None:
@@ -105,8 +115,9 @@ class JsonFormatter(logging.Formatter):
 
     def format(self, record: logging.LogRecord) -> str:
         out: dict[str, Any] = {
-            "time": datetime.fromtimestamp(record.created, UTC).isoformat(timespec="milliseconds")
-                    .replace("+00:00", "Z"),
+            "time": datetime.fromtimestamp(record.created, UTC)
+            .isoformat(timespec="milliseconds")
+            .replace("+00:00", "Z"),
             "level": record.levelname,
             "logger": record.name,
             "message": record.getMessage(),
@@ -139,8 +150,14 @@ def logging_config(level: str, fmt: str) -> dict[str, Any]:
         "disable_existing_loggers": False,
         "filters": {"request_id": {"()": RequestIdFilter}},
         "formatters": {"attune": {"()": formatter}},
-        "handlers": {"stderr": {"class": "logging.StreamHandler", "stream": "ext://sys.stderr",
-                                "formatter": "attune", "filters": ["request_id"]}},
+        "handlers": {
+            "stderr": {
+                "class": "logging.StreamHandler",
+                "stream": "ext://sys.stderr",
+                "formatter": "attune",
+                "filters": ["request_id"],
+            }
+        },
         "loggers": {
             "attune": {"level": level, "handlers": ["stderr"], "propagate": False},
             "uvicorn": {"level": level, "handlers": ["stderr"], "propagate": False},

@@ -71,13 +71,21 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         # holder of the lock always finds a thread to finish on. The 8 spare threads serve the
         # probes and /metrics, which are not counted.
         to_thread.current_default_thread_limiter().total_tokens = settings.max_in_flight + 8
-        logging.getLogger("attune").info("serving with database %s", db.engine.url
-                                         .render_as_string(hide_password=True))
+        logging.getLogger("attune").info(
+            "serving with database %s", db.engine.url.render_as_string(hide_password=True)
+        )
         yield
         db.dispose()
 
-    app = FastAPI(title="Attune", version="1.0.0", description=DESCRIPTION, lifespan=lifespan,
-                  generate_unique_id_function=_operation_id, docs_url=None, redoc_url=None)
+    app = FastAPI(
+        title="Attune",
+        version="1.0.0",
+        description=DESCRIPTION,
+        lifespan=lifespan,
+        generate_unique_id_function=_operation_id,
+        docs_url=None,
+        redoc_url=None,
+    )
     app.state.settings = settings
     app.state.db = db
     app.state.ctx = ServiceContext.from_settings(settings)

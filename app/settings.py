@@ -24,7 +24,9 @@ class Settings(BaseSettings):
         "postgresql+psycopg://USER@HOST:PORT/DB (production).",
     )
     seed: int = Field(
-        default=0, ge=0, lt=2**63,
+        default=0,
+        ge=0,
+        lt=2**63,
         description="Deployment seed: each user's decisions are drawn from a generator seeded "
         "by this seed, the user id and the decision's position in the user's history.",
     )
@@ -38,54 +40,68 @@ class Settings(BaseSettings):
         default=30.0, gt=0, description="How long a SQLite writer waits for the write lock."
     )
     sqlite_inline_writes: bool = Field(
-        default=True, description="SQLite: run the robots' short writes on the worker's event "
+        default=True,
+        description="SQLite: run the robots' short writes on the worker's event "
         "loop when the database's write lock is free at once (else in the thread pool, as every "
-        "other request)."
+        "other request).",
     )
     pg_inline_writes: bool = Field(
-        default=True, description="PostgreSQL: run the robots' short writes on the worker's "
+        default=True,
+        description="PostgreSQL: run the robots' short writes on the worker's "
         "event loop, on a connection of its own, when the user's lock is free at once (else in "
-        "the thread pool, as every other request)."
+        "the thread pool, as every other request).",
     )
     db_pool_size: int = Field(default=10, ge=1, description="Connections per worker process.")
     db_pre_ping: bool = Field(
-        default=False, description="Test each pooled connection before use (one more round "
+        default=False,
+        description="Test each pooled connection before use (one more round "
         "trip per transaction). Off: a connection broken by a database restart fails the one "
-        "request that finds it (503, which clients retry) and the pool replaces them all."
+        "request that finds it (503, which clients retry) and the pool replaces them all.",
     )
     model_cache_size: int = Field(
         default=1024, ge=0, description="Decoded learners kept in memory per worker (0: none)."
     )
     key_cache_seconds: float = Field(
-        default=5.0, ge=0, le=3600,
+        default=5.0,
+        ge=0,
+        le=3600,
         description="How long a worker keeps an API key it authenticated before reading it "
         "from the database again: a key revoked by the command line or another worker keeps "
         "working for at most this long in each worker (0: read every request's key).",
     )
     snapshot_every: int = Field(
-        default=16, ge=1, le=10_000,
+        default=16,
+        ge=1,
+        le=10_000,
         description="Store each user's learner state every this many model versions; between "
         "snapshots a write stores only the samples it taught, and a worker that does not have "
         "the learner in memory replays them onto the last snapshot (1: store it on every write).",
     )
     prior_min_contributors: int = Field(
-        default=5, ge=3, le=1000,
+        default=5,
+        ge=3,
+        le=1000,
         description="A fleet's prior for newcomers is in force once at least this many of its "
         "people (with the newcomer's learner, enough episodes and the prior allowed) can "
         "contribute to it; fewer, and newcomers start from nothing.",
     )
     prior_min_episodes: int = Field(
-        default=20, ge=1, le=1_000_000,
+        default=20,
+        ge=1,
+        le=1_000_000,
         description="The episodes a person needs before their model counts towards the fleet's "
         "prior.",
     )
     prior_max_contributors: int = Field(
-        default=50, ge=3, le=10_000,
-        description="The prior averages at most this many people: those whose models changed "
-        "last.",
+        default=50,
+        ge=3,
+        le=10_000,
+        description="The prior averages at most this many people: those whose models changed last.",
     )
     prior_strength: float = Field(
-        default=4.0, gt=0, le=100,
+        default=4.0,
+        gt=0,
+        le=100,
         description="How many of a newcomer's own answers the fleet's prior weighs, per "
         "negotiation step it knows.",
     )
@@ -97,18 +113,21 @@ class Settings(BaseSettings):
         "route, status, latency_ms and key_id).",
     )
     rate_limit_per_s: float = Field(
-        default=100.0, ge=0,
+        default=100.0,
+        ge=0,
         description="Requests per second each API key may make, per worker process (a token "
         "bucket refilled at this rate; 0 turns the limit off). With --workers N a key may make "
         "up to N times this in all. Over it: 429 with Retry-After.",
     )
     rate_limit_burst: int = Field(
-        default=2000, ge=1,
+        default=2000,
+        ge=1,
         description="Requests a key may make at once after being idle (the bucket's size): "
         "large enough for a robot that reconnects and replays what it buffered while offline.",
     )
     max_in_flight: int = Field(
-        default=64, ge=1,
+        default=64,
+        ge=1,
         description="Requests one worker process handles at once; more get 503 with "
         "Retry-After at once instead of waiting in an unbounded queue (/healthz, /readyz and "
         "/metrics are exempt).",

@@ -71,8 +71,9 @@ def parse_seeds(text: str) -> list[range]:
     return out
 
 
-def run_pair(job: tuple[str, int, Spec, Spec, int, int]) -> tuple[str, int, np.ndarray,
-                                                                  np.ndarray, np.ndarray]:
+def run_pair(
+    job: tuple[str, int, Spec, Spec, int, int],
+) -> tuple[str, int, np.ndarray, np.ndarray, np.ndarray]:
     """One family and seed: rewards (persons, events) of the oracle, the base and the variant,
     each person's learners drawing from one generator seed."""
     name, seed, base, variant, n_persons, n_events = job
@@ -97,8 +98,11 @@ def shares(oracle: np.ndarray, learner: np.ndarray, rng: tuple[int, int]) -> flo
     return float(learner[:, start:stop].sum()) / total if total >= 1.0 else float("nan")
 
 
-def report(results: Sequence[tuple[str, int, np.ndarray, np.ndarray, np.ndarray]],
-           families: Sequence[str], n_events: int) -> dict[str, Any]:
+def report(
+    results: Sequence[tuple[str, int, np.ndarray, np.ndarray, np.ndarray]],
+    families: Sequence[str],
+    n_events: int,
+) -> dict[str, Any]:
     """Per family and window: the mean shares of base and variant, the paired difference."""
     out: dict[str, Any] = {}
     for name in families:
@@ -114,7 +118,8 @@ def report(results: Sequence[tuple[str, int, np.ndarray, np.ndarray, np.ndarray]
             diff = [v - b for b, v in zip(base, variant, strict=True)]
             stats = mean_ci95(diff)
             cells[w.key] = {
-                "base": float(np.nanmean(base)), "variant": float(np.nanmean(variant)),
+                "base": float(np.nanmean(base)),
+                "variant": float(np.nanmean(variant)),
                 "diff": None if stats is None else list(stats),
             }
         out[name] = cells
@@ -122,8 +127,10 @@ def report(results: Sequence[tuple[str, int, np.ndarray, np.ndarray, np.ndarray]
 
 
 def print_report(summary: Mapping[str, Any], seeds: range, base: str, variant: str) -> None:
-    print(f"\nSeeds {seeds.start}-{seeds.stop - 1}: base {base!r}, variant {variant!r}; "
-          "mean share base -> variant, paired difference in points [95% CI]")
+    print(
+        f"\nSeeds {seeds.start}-{seeds.stop - 1}: base {base!r}, variant {variant!r}; "
+        "mean share base -> variant, paired difference in points [95% CI]"
+    )
     keys = [w.key for w in WINDOWS]
     print(f"{'family':<11}" + "".join(f"{k:>24}" for k in keys))
     for name, cells in summary.items():
@@ -144,12 +151,21 @@ def print_report(summary: Mapping[str, Any], seeds: range, base: str, variant: s
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--base", default="dts", help="the learner to compare against")
-    parser.add_argument("--variant", default=SERVICE_DEFAULT,
-                        help="the learner compared (default: the service's default learner)")
-    parser.add_argument("--seeds", default="0-11,12-23",
-                        help="seed ranges, each reported apart (a tuning and a held-out range)")
-    parser.add_argument("--families", default=",".join(FAMILIES),
-                        help="families, separated by commas (default: all)")
+    parser.add_argument(
+        "--variant",
+        default=SERVICE_DEFAULT,
+        help="the learner compared (default: the service's default learner)",
+    )
+    parser.add_argument(
+        "--seeds",
+        default="0-11,12-23",
+        help="seed ranges, each reported apart (a tuning and a held-out range)",
+    )
+    parser.add_argument(
+        "--families",
+        default=",".join(FAMILIES),
+        help="families, separated by commas (default: all)",
+    )
     parser.add_argument("--persons", type=int, default=3)
     parser.add_argument("--events", type=int, default=DEFAULT_EVENTS)
     parser.add_argument("--jobs", type=int, default=2)
@@ -159,12 +175,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     variant_label, variant = parse_learner(args.variant)
     families = [f for f in args.families.split(",") if f]
     ranges = parse_seeds(args.seeds)
-    everything: dict[str, Any] = {"base": [base_label, *base], "variant": [variant_label,
-                                                                             *variant]}
+    everything: dict[str, Any] = {"base": [base_label, *base], "variant": [variant_label, *variant]}
     with ProcessPoolExecutor(max_workers=args.jobs) as pool:
         for seeds in ranges:
-            jobs = [(f, s, base, variant, args.persons, args.events)
-                    for f in families for s in seeds]
+            jobs = [
+                (f, s, base, variant, args.persons, args.events) for f in families for s in seeds
+            ]
             results = list(pool.map(run_pair, jobs))
             summary = report(results, families, args.events)
             print_report(summary, seeds, base_label, variant_label)

@@ -57,22 +57,34 @@ def time_help(attune: str, path: tuple[str, ...], runs: int) -> list[float]:
     seconds = []
     for _ in range(runs):
         start = time.perf_counter()
-        done = subprocess.run([attune, *path, "--help"], env=env, capture_output=True,
-                              text=True, timeout=60, check=False)
+        done = subprocess.run(
+            [attune, *path, "--help"],
+            env=env,
+            capture_output=True,
+            text=True,
+            timeout=60,
+            check=False,
+        )
         seconds.append(time.perf_counter() - start)
         if done.returncode != 0 or "Usage" not in done.stdout:
-            raise SystemExit(f"attune {' '.join(path)} --help failed ({done.returncode}):\n"
-                             f"{done.stdout}{done.stderr}")
+            raise SystemExit(
+                f"attune {' '.join(path)} --help failed ({done.returncode}):\n"
+                f"{done.stdout}{done.stderr}"
+            )
     return seconds
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--runs", type=int, default=5, help="runs per command (default 5)")
     parser.add_argument("--target", type=float, default=1.0, help="seconds (default 1)")
-    parser.add_argument("--attune", default=str(Path(sys.executable).with_name("attune")),
-                        help="the attune executable (default: the one beside this Python)")
+    parser.add_argument(
+        "--attune",
+        default=str(Path(sys.executable).with_name("attune")),
+        help="the attune executable (default: the one beside this Python)",
+    )
     parser.add_argument("--json", action="store_true", help="print JSON instead of a table")
     args = parser.parse_args()
     if args.runs < 1:
@@ -82,34 +94,49 @@ def main() -> None:
     rows: list[dict[str, Any]] = []
     for path in paths:
         seconds = time_help(args.attune, path, args.runs)
-        rows.append({
-            "command": " ".join(("attune", *path, "--help")),
-            "runs": len(seconds),
-            "min_s": round(min(seconds), 3),
-            "median_s": round(statistics.median(seconds), 3),
-            "max_s": round(max(seconds), 3),
-            "met": max(seconds) < args.target,
-        })
+        rows.append(
+            {
+                "command": " ".join(("attune", *path, "--help")),
+                "runs": len(seconds),
+                "min_s": round(min(seconds), 3),
+                "median_s": round(statistics.median(seconds), 3),
+                "max_s": round(max(seconds), 3),
+                "met": max(seconds) < args.target,
+            }
+        )
     met = all(row["met"] for row in rows)
     if args.json:
-        print(json.dumps({"target_s": args.target, "cpus": os.cpu_count(), "met": met,
-                          "commands": rows}, indent=2))
+        print(
+            json.dumps(
+                {"target_s": args.target, "cpus": os.cpu_count(), "met": met, "commands": rows},
+                indent=2,
+            )
+        )
     else:
         out = Console(highlight=False)
-        table = Table(title=f"--help of {len(rows)} commands, {args.runs} runs each "
-                            f"({os.cpu_count()} CPUs)", title_justify="left")
+        table = Table(
+            title=f"--help of {len(rows)} commands, {args.runs} runs each ({os.cpu_count()} CPUs)",
+            title_justify="left",
+        )
         table.add_column("command", no_wrap=True)
         for heading in ("min s", "median s", "max s"):
             table.add_column(heading, justify="right")
         table.add_column(f"< {args.target:g} s")
         for row in rows:
-            table.add_row(row["command"], f"{row['min_s']:.3f}", f"{row['median_s']:.3f}",
-                          f"{row['max_s']:.3f}", "met" if row["met"] else "MISSED")
+            table.add_row(
+                row["command"],
+                f"{row['min_s']:.3f}",
+                f"{row['median_s']:.3f}",
+                f"{row['max_s']:.3f}",
+                "met" if row["met"] else "MISSED",
+            )
         out.print(table)
         slowest = max(rows, key=lambda row: row["max_s"])
-        out.print(f"Target: every --help under {args.target:g} s, slowest run included: "
-                  f"{'met' if met else 'NOT met'} (slowest: {slowest['command']}, "
-                  f"{slowest['max_s']:.3f} s).")
+        out.print(
+            f"Target: every --help under {args.target:g} s, slowest run included: "
+            f"{'met' if met else 'NOT met'} (slowest: {slowest['command']}, "
+            f"{slowest['max_s']:.3f} s)."
+        )
     sys.exit(0 if met else 1)
 
 

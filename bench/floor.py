@@ -94,6 +94,7 @@ class _Recorder:
                 return original(*args, **kwargs)
             finally:
                 self.learner_s += time.process_time() - t
+
         return call
 
     def restore(self) -> None:
@@ -124,6 +125,7 @@ def _recording(sa_engine: Any) -> Iterator[_Recorder]:
             else:
                 rec.add(compiled.sql, compiled.args(params), many=False, fetch=fetch > 0)
             return original(self, session, params, fetch)
+
         return execute
 
     def batch(original: Callable[..., Any]) -> Callable[..., Any]:
@@ -131,10 +133,12 @@ def _recording(sa_engine: Any) -> Iterator[_Recorder]:
         def block(session: Any) -> Iterator[None]:
             with original(session), rec.batched():
                 yield
+
         return block
 
-    def core(_conn: Any, _cursor: Any, statement: str, parameters: Any, _context: Any,
-             executemany: bool) -> None:
+    def core(
+        _conn: Any, _cursor: Any, statement: str, parameters: Any, _context: Any, executemany: bool
+    ) -> None:
         # SQLAlchemy also reports a single row sent through its many-rows path as executemany.
         many = executemany and isinstance(parameters, list)
         rec.add(statement, parameters, many=many, fetch=not many)
@@ -173,7 +177,7 @@ def _replay_sqlite(path: Path, requests: list[list[_Op]], group: int) -> float:
         t = time.process_time()
         for lo in range(0, len(requests), group):
             conn.execute("BEGIN IMMEDIATE")
-            for ops in requests[lo:lo + group]:
+            for ops in requests[lo : lo + group]:
                 conn.execute("SAVEPOINT attune_write")
                 for op in ops:
                     cursor = conn.cursor()
@@ -231,8 +235,10 @@ def _copy(kind: str, database_url: str, pg_server: str) -> str:
     if kind == "sqlite":
         path = Path(database_url.removeprefix("sqlite:///"))
         copy = path.with_name(path.stem + "-floor.db")
-        with (contextlib.closing(sqlite3.connect(path)) as src,
-              contextlib.closing(sqlite3.connect(copy)) as dst):
+        with (
+            contextlib.closing(sqlite3.connect(path)) as src,
+            contextlib.closing(sqlite3.connect(copy)) as dst,
+        ):
             src.backup(dst)
         return f"sqlite:///{copy}"
     source = database_url.rsplit("/", 1)[1]
@@ -241,9 +247,18 @@ def _copy(kind: str, database_url: str, pg_server: str) -> str:
     return f"postgresql+psycopg://{pg_server.split('://', 1)[1]}/{name}"
 
 
-def measure(kind: str, database_url: str, data: Any, users: list[str], requests: int,
-            pg_server: str, progress: Callable[[str], None] = lambda _: None, *,
-            group: int = 8, keep_copy: bool = False) -> Floor:
+def measure(
+    kind: str,
+    database_url: str,
+    data: Any,
+    users: list[str],
+    requests: int,
+    pg_server: str,
+    progress: Callable[[str], None] = lambda _: None,
+    *,
+    group: int = 8,
+    keep_copy: bool = False,
+) -> Floor:
     """The floor on ``database_url``, a fresh database of ``kind`` (``sqlite``,
     ``postgresql``), through ``data`` (the benchmark's in-process access to it:
     ``history(user, n, tag=...)`` plays whole episodes, one transaction per request, through
@@ -290,6 +305,10 @@ def measure(kind: str, database_url: str, data: Any, users: list[str], requests:
         if not kept:
             remove_copy(copy, pg_server)
     n = len(rec.requests)
-    return Floor(requests=n, learner_ms=rec.learner_s * 1000 / n,
-                 statements_per_request=sum(map(len, rec.requests)) / n,
-                 statements_ms=replay_s * 1000 / n, copy=copy if kept else None)
+    return Floor(
+        requests=n,
+        learner_ms=rec.learner_s * 1000 / n,
+        statements_per_request=sum(map(len, rec.requests)) / n,
+        statements_ms=replay_s * 1000 / n,
+        copy=copy if kept else None,
+    )

@@ -71,14 +71,32 @@ def time_decision_update(learner, profile, reps: int) -> float:  # type: ignore[
         decision = learner.select_action(Observation(context, space.OBSERVE, episode), rng)
         reaction = respond(space, profile, context, decision.state, decision.action, uniforms[i])
         batch = decision.chain_transitions(episode)
-        batch.append(Transition(episode, context, decision.state, decision.action,
-                                reaction.reward, reaction.next_state, reaction.signal))
+        batch.append(
+            Transition(
+                episode,
+                context,
+                decision.state,
+                decision.action,
+                reaction.reward,
+                reaction.next_state,
+                reaction.signal,
+            )
+        )
         learner.update(batch)
         samples.append((time.perf_counter_ns() - start) / 1e6)
         if reaction.next_state != space.END:  # finish the episode outside the timed region
-            learner.update([Transition(episode, context, reaction.next_state,
-                                       space.actions_of(reaction.next_state).start, 0.0,
-                                       space.END)])
+            learner.update(
+                [
+                    Transition(
+                        episode,
+                        context,
+                        reaction.next_state,
+                        space.actions_of(reaction.next_state).start,
+                        0.0,
+                        space.END,
+                    )
+                ]
+            )
     return statistics.median(samples)
 
 
@@ -94,10 +112,14 @@ def main() -> None:
     histories = [10, 1_000] if args.quick else [10, 1_000, 100_000]
     reps = 300 if args.quick else args.reps
 
-    print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
-          f"Python {platform.python_version()}, numpy {np.__version__}")
-    print(f"\nmedian ms of one decision + one update (cold plan), {reps} events per cell; "
-          f"target < {TARGET_MS} ms, flat in history")
+    print(
+        f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
+        f"Python {platform.python_version()}, numpy {np.__version__}"
+    )
+    print(
+        f"\nmedian ms of one decision + one update (cold plan), {reps} events per cell; "
+        f"target < {TARGET_MS} ms, flat in history"
+    )
     cols = "".join(f"{h:>12,}" for h in histories)
     print(f"{'learner':<10}{cols}{'state KiB':>12}{'ratio max/min':>15}")
     worst, largest = 0.0, 0
@@ -108,12 +130,19 @@ def main() -> None:
             cells.append(time_decision_update(learner, profile, reps))
             size = len(json.dumps(learner.to_state()).encode())
         worst, largest = max(worst, *cells), max(largest, size)
-        print(f"{algorithm:<10}" + "".join(f"{c:>12.3f}" for c in cells)
-              + f"{size / 1024:>12.1f}{max(cells) / min(cells):>15.2f}")
-    print(f"\nworst decision+update: {worst:.3f} ms  (target < {TARGET_MS} ms: "
-          f"{'met' if worst < TARGET_MS else 'NOT met'})")
-    print(f"largest exported state: {largest / 1024:.1f} KiB after {histories[-1]:,} episodes "
-          f"(target < 64 KiB: {'met' if largest < TARGET_STATE else 'NOT met'})")
+        print(
+            f"{algorithm:<10}"
+            + "".join(f"{c:>12.3f}" for c in cells)
+            + f"{size / 1024:>12.1f}{max(cells) / min(cells):>15.2f}"
+        )
+    print(
+        f"\nworst decision+update: {worst:.3f} ms  (target < {TARGET_MS} ms: "
+        f"{'met' if worst < TARGET_MS else 'NOT met'})"
+    )
+    print(
+        f"largest exported state: {largest / 1024:.1f} KiB after {histories[-1]:,} episodes "
+        f"(target < 64 KiB: {'met' if largest < TARGET_STATE else 'NOT met'})"
+    )
 
     if not args.no_experiment:
         attune = Path(sys.executable).with_name("attune")
@@ -123,8 +152,10 @@ def main() -> None:
             subprocess.run([*cmd, "--out", out], check=True, stdout=subprocess.DEVNULL)
             wall = time.perf_counter() - start
         verdict = "met" if wall < TARGET_EXPERIMENT_S else "NOT met"
-        print(f"`attune experiment paper --seeds 20`: {wall:.1f} s wall "
-              f"(target < {TARGET_EXPERIMENT_S:.0f} s: {verdict})")
+        print(
+            f"`attune experiment paper --seeds 20`: {wall:.1f} s wall "
+            f"(target < {TARGET_EXPERIMENT_S:.0f} s: {verdict})"
+        )
 
 
 if __name__ == "__main__":

@@ -52,9 +52,14 @@ HOURS = (9, 12, 15, 19)
 def changed_mission() -> dict[str, Any]:
     doc = office_mission().to_dict()
     doc["services"] = [
-        {"name": s["name"], "details": [*s["details"], "cocoa"] if s["name"] == "ProvideDrink"
-         else [d for d in s["details"] if d != "stocks"]}
-        for s in doc["services"]]
+        {
+            "name": s["name"],
+            "details": [*s["details"], "cocoa"]
+            if s["name"] == "ProvideDrink"
+            else [d for d in s["details"] if d != "stocks"],
+        }
+        for s in doc["services"]
+    ]
     return doc
 
 
@@ -67,54 +72,86 @@ def run(engine: str, n_users: int, n_episodes: int) -> dict[str, Any]:
         start = dt.datetime(2026, 1, 1, tzinfo=dt.timezone(dt.timedelta(hours=8)))
         writes: list[float] = []
         try:
-            for u in track(range(n_users), description=f"{engine}: {n_users} people",
-                           console=out):
+            for u in track(range(n_users), description=f"{engine}: {n_users} people", console=out):
                 with db.transaction() as session:
                     for n in range(n_episodes):
                         when = (start + dt.timedelta(days=n)).replace(hour=HOURS[n % 4])
                         t = time.perf_counter()
-                        body = episodes.start_episode(session, ctx, WHO, f"p{u:05d}", EpisodeIn(
-                            event_id=f"e{n}", occurred_at=when,
-                            situation=SITUATIONS[n % 3])).body
+                        body = episodes.start_episode(
+                            session,
+                            ctx,
+                            WHO,
+                            f"p{u:05d}",
+                            EpisodeIn(
+                                event_id=f"e{n}", occurred_at=when, situation=SITUATIONS[n % 3]
+                            ),
+                        ).body
                         writes.append(time.perf_counter() - t)
                         decision = body["decision"]
                         while decision is not None:
-                            outcome = OutcomeIn(decision_id=decision["decision_id"], **answer(
-                                decision["action"], rng=rnd, yes=0.9, asks=0.5))
+                            outcome = OutcomeIn(
+                                decision_id=decision["decision_id"],
+                                **answer(decision["action"], rng=rnd, yes=0.9, asks=0.5),
+                            )
                             decision = episodes.report_outcome(
-                                session, ctx, WHO, body["episode_id"], outcome).body["decision"]
+                                session, ctx, WHO, body["episode_id"], outcome
+                            ).body["decision"]
             t = time.perf_counter()
             with db.transaction() as session:
-                answer_ = missions.set_mission(session, ctx, WHO, "default",
-                                               change_id="bench", mission_doc=changed_mission(),
-                                               renames_doc=None)[0]
+                answer_ = missions.set_mission(
+                    session,
+                    ctx,
+                    WHO,
+                    "default",
+                    change_id="bench",
+                    mission_doc=changed_mission(),
+                    renames_doc=None,
+                )[0]
             took = time.perf_counter() - t
         finally:
             db.dispose()
     assert answer_["users_moved"] == n_users, answer_
     write = statistics.median(writes)
-    return {"engine": engine, "users": n_users, "episodes_per_user": n_episodes,
-            "change_s": took, "ms_per_model": 1000 * took / n_users,
-            "robot_write_ms": 1000 * write, "models_per_robot_write": took / n_users / write}
+    return {
+        "engine": engine,
+        "users": n_users,
+        "episodes_per_user": n_episodes,
+        "change_s": took,
+        "ms_per_model": 1000 * took / n_users,
+        "robot_write_ms": 1000 * write,
+        "models_per_robot_write": took / n_users / write,
+    }
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--engine", choices=["sqlite", "postgresql", "both"], default="sqlite")
-    parser.add_argument("--users", default="100,1000",
-                        help="fleet sizes, comma-separated (default: 100,1000)")
+    parser.add_argument(
+        "--users", default="100,1000", help="fleet sizes, comma-separated (default: 100,1000)"
+    )
     parser.add_argument("--episodes", type=int, default=5, help="episodes per person")
     parser.add_argument("--json", type=Path, help="also write the figures here")
     args = parser.parse_args()
     engines = ["sqlite", "postgresql"] if args.engine == "both" else [args.engine]
     sizes = [int(n) for n in args.users.split(",")]
     rows = [run(engine, n, args.episodes) for engine in engines for n in sizes]
-    table = Table("engine", "people", "change (s)", "ms per model moved",
-                  "one robot write (ms, median)", "robot writes per model moved")
+    table = Table(
+        "engine",
+        "people",
+        "change (s)",
+        "ms per model moved",
+        "one robot write (ms, median)",
+        "robot writes per model moved",
+    )
     for r in rows:
-        table.add_row(r["engine"], str(r["users"]), f"{r['change_s']:.2f}",
-                      f"{r['ms_per_model']:.2f}", f"{r['robot_write_ms']:.2f}",
-                      f"{r['models_per_robot_write']:.1f}")
+        table.add_row(
+            r["engine"],
+            str(r["users"]),
+            f"{r['change_s']:.2f}",
+            f"{r['ms_per_model']:.2f}",
+            f"{r['robot_write_ms']:.2f}",
+            f"{r['models_per_robot_write']:.1f}",
+        )
     Console().print(table)
     if args.json:
         args.json.write_text(json.dumps(rows, indent=2))

@@ -113,9 +113,18 @@ def _answer(decision: dict[str, Any]) -> dict[str, Any]:
     return body
 
 
-async def run_open_loop(url: str, keys: list[str], users: list[str], *, rate: float,
-                        steps: float, duration: float, warmup: float, tag: str,
-                        timeout: float = 10.0) -> OpenLoopResult:
+async def run_open_loop(
+    url: str,
+    keys: list[str],
+    users: list[str],
+    *,
+    rate: float,
+    steps: float,
+    duration: float,
+    warmup: float,
+    tag: str,
+    timeout: float = 10.0,
+) -> OpenLoopResult:
     """Offer ``rate`` requests a second (as episodes of ``steps`` requests) for ``duration``
     seconds; the latencies of requests sent after ``warmup`` seconds are counted."""
     parts = urlsplit(url)
@@ -128,19 +137,23 @@ async def run_open_loop(url: str, keys: list[str], users: list[str], *, rate: fl
     tasks: list[asyncio.Task[None]] = []
 
     def head(method: str, path: str, key: str, length: int) -> bytes:
-        return (f"{method} {path} HTTP/1.1\r\nHost: {host}:{port}\r\n"
-                f"Authorization: Bearer {key}\r\nContent-Type: application/json\r\n"
-                f"Content-Length: {length}\r\n\r\n").encode()
+        return (
+            f"{method} {path} HTTP/1.1\r\nHost: {host}:{port}\r\n"
+            f"Authorization: Bearer {key}\r\nContent-Type: application/json\r\n"
+            f"Content-Length: {length}\r\n\r\n"
+        ).encode()
 
-    async def call(pool: _Pool, key: str, path: str, doc: dict[str, Any]
-                   ) -> tuple[int, dict[str, Any]]:
+    async def call(
+        pool: _Pool, key: str, path: str, doc: dict[str, Any]
+    ) -> tuple[int, dict[str, Any]]:
         body = json.dumps(doc).encode()
         sent = time.monotonic()
         for attempt in range(2):
             connection = await pool.get(fresh=attempt > 0)
             try:
                 status, raw = await asyncio.wait_for(
-                    connection.request(head("POST", path, key, len(body)), body), timeout)
+                    connection.request(head("POST", path, key, len(body)), body), timeout
+                )
                 break
             except ConnectionResetError:
                 # A keep-alive connection the server had closed while idle: send again on a
@@ -164,16 +177,26 @@ async def run_open_loop(url: str, keys: list[str], users: list[str], *, rate: fl
 
     async def episode(n: int) -> None:
         pool, key, user = robots[n % len(robots)]
-        status, doc = await call(pool, key, f"/v1/users/{user}/episodes", {
-            "event_id": f"{tag}-{n}", "occurred_at": "2026-11-22T15:10:00+08:00",
-            "situation": SITUATIONS[n % 3], "initiator": "robot", "robot_id": f"open-{n % 64}"})
+        status, doc = await call(
+            pool,
+            key,
+            f"/v1/users/{user}/episodes",
+            {
+                "event_id": f"{tag}-{n}",
+                "occurred_at": "2026-11-22T15:10:00+08:00",
+                "situation": SITUATIONS[n % 3],
+                "initiator": "robot",
+                "robot_id": f"open-{n % 64}",
+            },
+        )
         decision = doc.get("decision") if status < 300 else None
         episode_id = doc.get("episode_id")
         for _ in range(8):  # a negotiation has at most four visible steps
             if decision is None:
                 break
-            status, doc = await call(pool, key, f"/v1/episodes/{episode_id}/outcomes",
-                                     _answer(decision))
+            status, doc = await call(
+                pool, key, f"/v1/episodes/{episode_id}/outcomes", _answer(decision)
+            )
             decision = doc.get("decision") if status < 300 else None
         result.episodes_done += 1
 
@@ -206,12 +229,30 @@ def main() -> None:
     parser.add_argument("--duration", type=float, default=10.0)
     parser.add_argument("--warmup", type=float, default=1.0)
     args = parser.parse_args()
-    result = asyncio.run(run_open_loop(
-        args.url, args.keys.split(","), args.users.split(","), rate=args.rate, steps=args.steps,
-        duration=args.duration, warmup=args.warmup, tag=f"open-{int(time.time())}"))
-    print(json.dumps({"offered_rps": result.offered_rps, "achieved_rps": result.achieved_rps,
-                      "p50_ms": result.pct(0.5), "p99_ms": result.pct(0.99),
-                      "errors": result.errors, "episodes": result.episodes_done}))
+    result = asyncio.run(
+        run_open_loop(
+            args.url,
+            args.keys.split(","),
+            args.users.split(","),
+            rate=args.rate,
+            steps=args.steps,
+            duration=args.duration,
+            warmup=args.warmup,
+            tag=f"open-{int(time.time())}",
+        )
+    )
+    print(
+        json.dumps(
+            {
+                "offered_rps": result.offered_rps,
+                "achieved_rps": result.achieved_rps,
+                "p50_ms": result.pct(0.5),
+                "p99_ms": result.pct(0.99),
+                "errors": result.errors,
+                "episodes": result.episodes_done,
+            }
+        )
+    )
 
 
 if __name__ == "__main__":

@@ -217,8 +217,10 @@ end
 def require_wrk() -> str:
     path = shutil.which("wrk")
     if path is None:
-        sys.exit("bench/service.py needs wrk, the HTTP load generator: "
-                 "apt-get install -y wrk (Debian/Ubuntu), then run again.")
+        sys.exit(
+            "bench/service.py needs wrk, the HTTP load generator: "
+            "apt-get install -y wrk (Debian/Ubuntu), then run again."
+        )
     return path
 
 
@@ -264,20 +266,43 @@ def _pct(values: list[float], q: float) -> float:
     return values[min(len(values) - 1, max(0, math.ceil(q * len(values)) - 1))]
 
 
-def run_wrk(wrk: str, url: str, mode: str, clients: int, workdir: Path, duration: float,
-            warmup: float, tag: str, pgid: int | None = None) -> Figures:
+def run_wrk(
+    wrk: str,
+    url: str,
+    mode: str,
+    clients: int,
+    workdir: Path,
+    duration: float,
+    warmup: float,
+    tag: str,
+    pgid: int | None = None,
+) -> Figures:
     """Drive ``url`` with ``clients`` wrk connections for ``duration`` s in ``mode``; with
     ``pgid``, also the server's CPU per answered request over the whole run."""
     for old in workdir.glob("rec-*.txt"):
         old.unlink()
     script = workdir / "robot.lua"
     script.write_text(LUA)
-    cmd = [wrk, "-t", str(clients), "-c", str(clients), "-d", f"{duration:g}s",
-           "--timeout", "10s", "-s", str(script), url, "--",
-           f"mode={mode}", f"dir={workdir}", f"tag={tag}"]
+    cmd = [
+        wrk,
+        "-t",
+        str(clients),
+        "-c",
+        str(clients),
+        "-d",
+        f"{duration:g}s",
+        "--timeout",
+        "10s",
+        "-s",
+        str(script),
+        url,
+        "--",
+        f"mode={mode}",
+        f"dir={workdir}",
+        f"tag={tag}",
+    ]
     cpu_before = group_cpu_s(pgid) if pgid is not None else 0.0
-    done = subprocess.run(cmd, capture_output=True, text=True, timeout=duration + 60,
-                          check=False)
+    done = subprocess.run(cmd, capture_output=True, text=True, timeout=duration + 60, check=False)
     cpu_s = group_cpu_s(pgid) - cpu_before if pgid is not None else None
     if done.returncode != 0:
         raise RuntimeError(f"wrk failed: {done.stderr or done.stdout}")
@@ -292,12 +317,21 @@ def run_wrk(wrk: str, url: str, mode: str, clients: int, workdir: Path, duration
     last = max(r[3] for r in records)
     start = first + warmup
     window = max(1e-9, last - start)
-    counted = {"ref": ("ref",), "model": ("model",), "outcome": ("outcome",),
-               "loop": ("episode", "outcome")}[mode]
+    counted = {
+        "ref": ("ref",),
+        "model": ("model",),
+        "outcome": ("outcome",),
+        "loop": ("episode", "outcome"),
+    }[mode]
     mine = [r for r in records if r[3] >= start and r[0] in counted]
     ok = [r[2] for r in mine if r[1] < 300]
-    fig = Figures(rps=len(ok) / window, p50_ms=_pct(ok, 0.50), p99_ms=_pct(ok, 0.99),
-                  count=len(ok), errors=len(mine) - len(ok))
+    fig = Figures(
+        rps=len(ok) / window,
+        p50_ms=_pct(ok, 0.50),
+        p99_ms=_pct(ok, 0.99),
+        count=len(ok),
+        errors=len(mine) - len(ok),
+    )
     answered = sum(1 for r in records if r[0] != "loop")
     if cpu_s is not None and answered:
         fig.cpu_ms = cpu_s * 1000.0 / answered
@@ -346,9 +380,14 @@ class Served:
 
 
 @contextmanager
-def server(kind: str, workers: int, workdir: Path, database_url: str = "",
-           profile: Path | None = None, profile_format: str = "flamegraph"
-           ) -> Iterator[Served]:
+def server(
+    kind: str,
+    workers: int,
+    workdir: Path,
+    database_url: str = "",
+    profile: Path | None = None,
+    profile_format: str = "flamegraph",
+) -> Iterator[Served]:
     """``attune serve`` (kind "service") or the reference app, on a free port; its base URL.
 
     With ``profile``, the service runs under py-spy, which writes a flame graph of all its
@@ -356,25 +395,50 @@ def server(kind: str, workers: int, workdir: Path, database_url: str = "",
     """
     port = free_port()
     log = workdir / f"{kind}-{port}.log"
-    env = {**os.environ, "ATTUNE_DATABASE_URL": database_url, "ATTUNE_LOG_LEVEL": "warning",
-           # The limiter stays on (its cost is part of the figures) but far above the load.
-           "ATTUNE_RATE_LIMIT_PER_S": "1000000", "ATTUNE_RATE_LIMIT_BURST": "1000000"}
+    env = {
+        **os.environ,
+        "ATTUNE_DATABASE_URL": database_url,
+        "ATTUNE_LOG_LEVEL": "warning",
+        # The limiter stays on (its cost is part of the figures) but far above the load.
+        "ATTUNE_RATE_LIMIT_PER_S": "1000000",
+        "ATTUNE_RATE_LIMIT_BURST": "1000000",
+    }
     if kind == "service":
-        cmd = [ATTUNE, "serve", "--host", "127.0.0.1", "--port", str(port),
-               "--workers", str(workers)]
+        cmd = [
+            ATTUNE,
+            "serve",
+            "--host",
+            "127.0.0.1",
+            "--port",
+            str(port),
+            "--workers",
+            str(workers),
+        ]
         if profile is not None:
             profile.mkdir(parents=True, exist_ok=True)
             suffix = {"flamegraph": "svg", "speedscope": "json"}.get(profile_format, "txt")
             graph = profile / f"{Path(database_url.split('?')[0]).name or 'db'}-{port}.{suffix}"
-            cmd = [str(Path(sys.executable).with_name("py-spy")), "record", "--subprocesses",
-                   "--rate", "100", "--format", profile_format, "--output", str(graph), "--", *cmd]
+            cmd = [
+                str(Path(sys.executable).with_name("py-spy")),
+                "record",
+                "--subprocesses",
+                "--rate",
+                "100",
+                "--format",
+                profile_format,
+                "--output",
+                str(graph),
+                "--",
+                *cmd,
+            ]
         probe = f"http://127.0.0.1:{port}/readyz"
     else:
         cmd = [sys.executable, __file__, "--serve-reference", str(port), str(workers)]
         probe = f"http://127.0.0.1:{port}/docs"
     with open(log, "wb") as out:
-        proc = subprocess.Popen(cmd, env=env, stdout=out, stderr=subprocess.STDOUT,
-                                start_new_session=True, cwd=ROOT)
+        proc = subprocess.Popen(
+            cmd, env=env, stdout=out, stderr=subprocess.STDOUT, start_new_session=True, cwd=ROOT
+        )
     try:
         wait_ready(probe, proc, log)
         yield Served(f"http://127.0.0.1:{port}", proc.pid)
@@ -439,9 +503,15 @@ class Data:
         from app.schemas.episodes import EpisodeIn
         from app.services.episodes import start_episode
 
-        body = EpisodeIn.model_validate({
-            "event_id": event_id, "occurred_at": "2026-11-22T15:10:00+08:00",
-            "situation": SITUATIONS[k % 3], "initiator": "robot", "robot_id": "bench"})
+        body = EpisodeIn.model_validate(
+            {
+                "event_id": event_id,
+                "occurred_at": "2026-11-22T15:10:00+08:00",
+                "situation": SITUATIONS[k % 3],
+                "initiator": "robot",
+                "robot_id": "bench",
+            }
+        )
         return start_episode(session, self.ctx, self.robot, user, body).body
 
     def open_episodes(self, user: str, n: int, tag: str) -> list[str]:
@@ -451,8 +521,10 @@ class Data:
             with self.db.transaction() as session:
                 ep = self.start(session, user, f"{tag}-open-{i}", i)
             d = ep["decision"]
-            out.append(f"{ep['episode_id']} {d['decision_id']} {d['action']['kind']} "
-                       f"{d['action'].get('service') or '-'}")
+            out.append(
+                f"{ep['episode_id']} {d['decision_id']} {d['action']['kind']} "
+                f"{d['action'].get('service') or '-'}"
+            )
         return out
 
     def history(self, user: str, n: int, progress: Any = None, tag: str = "history") -> None:
@@ -475,13 +547,17 @@ class Data:
                 elif kind == "query_type":
                     body.update(response="answered", service="ProvideDrink")
                 elif kind == "query_detail":
-                    body.update(response="answered",
-                                detail=DETAIL[decision["action"]["service"]])
+                    body.update(response="answered", detail=DETAIL[decision["action"]["service"]])
                 else:
                     body["response"] = "accepted"
                 with self.db.transaction() as session:
-                    decision = report_outcome(session, self.ctx, self.robot, ep["episode_id"],
-                                              OutcomeIn.model_validate(body)).body["decision"]
+                    decision = report_outcome(
+                        session,
+                        self.ctx,
+                        self.robot,
+                        ep["episode_id"],
+                        OutcomeIn.model_validate(body),
+                    ).body["decision"]
             if progress is not None:
                 progress()
 
@@ -502,16 +578,44 @@ class Data:
         for lo in range(0, n, chunk):
             ids = [f"{prefix}{i:06d}" for i in range(lo, min(n, lo + chunk))]
             with self.db.transaction() as session:
-                made = session.execute(insert(User).returning(User.id), [
-                    {"user_id": u, "fleet": "default", "display_name": None, "algorithm": "hri",
-                     "params": params, "created_at": now, "episode_count": 0, "draws": 0,
-                     "seed_key": f"default/{u}"}
-                    for u in ids]).scalars().all()
-                session.execute(insert(LearnerModel), [
-                    {"user_pk": pk, "version": 0, "state": state, "base_state": None,
-                     "base_version": 0, "episode_offset": 0, "updated_at": now,
-                     "mission_version": 1, "base_mission_version": 1}
-                    for pk in made])
+                made = (
+                    session.execute(
+                        insert(User).returning(User.id),
+                        [
+                            {
+                                "user_id": u,
+                                "fleet": "default",
+                                "display_name": None,
+                                "algorithm": "hri",
+                                "params": params,
+                                "created_at": now,
+                                "episode_count": 0,
+                                "draws": 0,
+                                "seed_key": f"default/{u}",
+                            }
+                            for u in ids
+                        ],
+                    )
+                    .scalars()
+                    .all()
+                )
+                session.execute(
+                    insert(LearnerModel),
+                    [
+                        {
+                            "user_pk": pk,
+                            "version": 0,
+                            "state": state,
+                            "base_state": None,
+                            "base_version": 0,
+                            "episode_offset": 0,
+                            "updated_at": now,
+                            "mission_version": 1,
+                            "base_mission_version": 1,
+                        }
+                        for pk in made
+                    ],
+                )
 
     def close(self) -> None:
         self.db.dispose()
@@ -548,25 +652,37 @@ class Bench:
     def say(self, text: str) -> None:
         self.console.print(f"[dim]{time.strftime('%H:%M:%S')}[/dim] {text}")
 
-    def measure(self, served: Served, mode: str, clients: int, workdir: Path,
-                label: str) -> Figures:
-        fig = run_wrk(self.wrk, served.url, mode, clients, workdir,
-                      self.args.duration + self.args.warmup, self.args.warmup,
-                      re.sub(r"[^A-Za-z0-9.-]", "-", f"{self.run_tag}-{label}"), served.pgid)
+    def measure(
+        self, served: Served, mode: str, clients: int, workdir: Path, label: str
+    ) -> Figures:
+        fig = run_wrk(
+            self.wrk,
+            served.url,
+            mode,
+            clients,
+            workdir,
+            self.args.duration + self.args.warmup,
+            self.args.warmup,
+            re.sub(r"[^A-Za-z0-9.-]", "-", f"{self.run_tag}-{label}"),
+            served.pgid,
+        )
         extra = f", {fig.loops_per_s:.1f} loops/s" if fig.loops_per_s is not None else ""
         cpu = f", {fig.cpu_ms:.3f} ms CPU/request" if fig.cpu_ms is not None else ""
-        self.say(f"  {label}: {fig.rps:.0f} req/s, p50 {fig.p50_ms:.1f} ms, "
-                 f"p99 {fig.p99_ms:.1f} ms{extra}{cpu}"
-                 + (f", {fig.errors} errors" if fig.errors else "")
-                 + (f" ({'; '.join(fig.notes)})" if fig.notes else ""))
+        self.say(
+            f"  {label}: {fig.rps:.0f} req/s, p50 {fig.p50_ms:.1f} ms, "
+            f"p99 {fig.p99_ms:.1f} ms{extra}{cpu}"
+            + (f", {fig.errors} errors" if fig.errors else "")
+            + (f" ({'; '.join(fig.notes)})" if fig.notes else "")
+        )
         return fig
 
     def scenario_files(self, workdir: Path, keys: list[str], users: list[str]) -> None:
         (workdir / "keys.txt").write_text("\n".join(keys) + "\n")
         (workdir / "users.txt").write_text("\n".join(users) + "\n")
 
-    def prepare_outcomes(self, data: Data, workdir: Path, users: list[str], loop: Figures,
-                         label: str) -> None:
+    def prepare_outcomes(
+        self, data: Data, workdir: Path, users: list[str], loop: Figures, label: str
+    ) -> None:
         """Open enough episodes per client for the outcome run (estimated from the loop run)."""
         per_loop = max(1.0, (loop.rps / loop.loops_per_s - 1) if loop.loops_per_s else 2.0)
         # Outcomes alone go faster than whole loops (an episode's start costs more), up to
@@ -578,8 +694,17 @@ class Bench:
             lines = data.open_episodes(user, per_client, f"{self.run_tag}-{label}-{i}")
             (workdir / f"episodes-{i}.txt").write_text("\n".join(lines) + "\n")
 
-    def run_service(self, served: Served, data: Data, workdir: Path, keys: list[str],
-                    users: list[str], engine: str, workers: int, data_label: str) -> None:
+    def run_service(
+        self,
+        served: Served,
+        data: Data,
+        workdir: Path,
+        keys: list[str],
+        users: list[str],
+        engine: str,
+        workers: int,
+        data_label: str,
+    ) -> None:
         clients = len(users)
         self.scenario_files(workdir, keys[:clients], users)
         label = f"{engine}-{data_label.replace(' ', '')}-c{clients}"
@@ -595,8 +720,16 @@ class Bench:
         fig = self.measure(served, "model", clients, workdir, f"{label} model")
         self.rows.append(Row(engine, workers, "model", clients, data_label, fig))
 
-    def open_loop(self, served: Served, keys: list[str], users: list[str], loop: Figures,
-                  engine: str, workers: int, label: str) -> None:
+    def open_loop(
+        self,
+        served: Served,
+        keys: list[str],
+        users: list[str],
+        loop: Figures,
+        engine: str,
+        workers: int,
+        label: str,
+    ) -> None:
         """Robots that send at a fixed rate, half the capacity the closed loop just measured:
         latency at a realistic load, not at saturation."""
         import asyncio
@@ -606,18 +739,33 @@ class Bench:
         steps = loop.rps / loop.loops_per_s if loop.loops_per_s else 3.0
         rate = loop.rps / 2
         cpu_before = group_cpu_s(served.pgid)
-        result = asyncio.run(run_open_loop(
-            served.url, keys, users, rate=rate, steps=steps,
-            duration=self.args.duration * 2 + self.args.warmup, warmup=self.args.warmup,
-            tag=re.sub(r"[^A-Za-z0-9.-]", "-", f"{self.run_tag}-{label}-open")))
+        result = asyncio.run(
+            run_open_loop(
+                served.url,
+                keys,
+                users,
+                rate=rate,
+                steps=steps,
+                duration=self.args.duration * 2 + self.args.warmup,
+                warmup=self.args.warmup,
+                tag=re.sub(r"[^A-Za-z0-9.-]", "-", f"{self.run_tag}-{label}-open"),
+            )
+        )
         cpu_s = group_cpu_s(served.pgid) - cpu_before
-        fig = Figures(rps=result.achieved_rps, p50_ms=result.pct(0.5), p99_ms=result.pct(0.99),
-                      count=len(result.latencies_ms), errors=result.errors)
+        fig = Figures(
+            rps=result.achieved_rps,
+            p50_ms=result.pct(0.5),
+            p99_ms=result.pct(0.99),
+            count=len(result.latencies_ms),
+            errors=result.errors,
+        )
         if result.latencies_ms:
             fig.cpu_ms = cpu_s * 1000.0 / (len(result.latencies_ms) + result.errors)
-        self.say(f"  {label} open loop at {rate:.0f} req/s offered: {fig.rps:.0f} req/s done, "
-                 f"p50 {fig.p50_ms:.1f} ms, p99 {fig.p99_ms:.1f} ms"
-                 + (f", {fig.errors} errors" if fig.errors else ""))
+        self.say(
+            f"  {label} open loop at {rate:.0f} req/s offered: {fig.rps:.0f} req/s done, "
+            f"p50 {fig.p50_ms:.1f} ms, p99 {fig.p99_ms:.1f} ms"
+            + (f", {fig.errors} errors" if fig.errors else "")
+        )
         self.rows.append(Row(engine, workers, "open", len(users), "empty", fig))
 
     def engine(self, engine: str, workers: int) -> None:
@@ -636,12 +784,19 @@ class Bench:
                 try:
                     keys = data.keys(max(args.clients))
                     self.say(f"[bold]{engine}[/bold], {workers} worker(s): attune serve")
-                    with server("service", workers, workdir, db_url, self.args.profile,
-                                self.args.profile_format) as served:
+                    with server(
+                        "service",
+                        workers,
+                        workdir,
+                        db_url,
+                        self.args.profile,
+                        self.args.profile_format,
+                    ) as served:
                         for c in args.clients:
                             users = [f"c{c}-robot{i}" for i in range(1, c + 1)]
-                            self.run_service(served, data, workdir, keys, users, engine,
-                                             workers, "empty")
+                            self.run_service(
+                                served, data, workdir, keys, users, engine, workers, "empty"
+                            )
                     if args.large:
                         self.large(engine, workers, data, workdir, keys, db_url)
                 finally:
@@ -661,17 +816,28 @@ class Bench:
             data = Data(db_url)
             try:
                 users = [f"floor-robot{i}" for i in range(1, TARGET_CLIENTS[engine] + 1)]
-                found = measure(engine, db_url, data, users, self.args.floor_requests,
-                                PG_SERVER.rstrip("/"), self.say, group=TARGET_CLIENTS[engine])
+                found = measure(
+                    engine,
+                    db_url,
+                    data,
+                    users,
+                    self.args.floor_requests,
+                    PG_SERVER.rstrip("/"),
+                    self.say,
+                    group=TARGET_CLIENTS[engine],
+                )
             finally:
                 data.close()
         self.floors[engine] = found
-        self.say(f"  floor over {found.requests} requests: learner {found.learner_ms:.3f} ms, "
-                 f"{found.statements_per_request:.1f} statements through the bare driver "
-                 f"{found.statements_ms:.3f} ms")
+        self.say(
+            f"  floor over {found.requests} requests: learner {found.learner_ms:.3f} ms, "
+            f"{found.statements_per_request:.1f} statements through the bare driver "
+            f"{found.statements_ms:.3f} ms"
+        )
 
-    def large(self, engine: str, workers: int, data: Data, workdir: Path, keys: list[str],
-              db_url: str) -> None:
+    def large(
+        self, engine: str, workers: int, data: Data, workdir: Path, keys: list[str], db_url: str
+    ) -> None:
         args = self.args
         self.say(f"seeding {args.users:,} users (bulk inserts)")
         t = time.perf_counter()
@@ -689,20 +855,38 @@ class Bench:
 
         data.history("big", args.episodes, tick)
         self.say(f"  done in {time.perf_counter() - t:.1f} s")
-        with server("service", workers, workdir, db_url, self.args.profile,
-                    self.args.profile_format) as served:
+        with server(
+            "service", workers, workdir, db_url, self.args.profile, self.args.profile_format
+        ) as served:
             wide = 8 if 8 in args.clients else max(args.clients)
             spread = max(1, args.users // wide)
             users = [f"pop{i * spread + spread // 2:06d}" for i in range(wide)]
-            self.run_service(served, data, workdir, keys, users, engine, workers,
-                             f"{args.users // 1000}k users")
-            self.run_service(served, data, workdir, keys, ["big"], engine, workers,
-                             f"{args.episodes // 1000}k episodes")
+            self.run_service(
+                served, data, workdir, keys, users, engine, workers, f"{args.users // 1000}k users"
+            )
+            self.run_service(
+                served,
+                data,
+                workdir,
+                keys,
+                ["big"],
+                engine,
+                workers,
+                f"{args.episodes // 1000}k episodes",
+            )
         for row in self.rows:
             if row.engine == engine and row.data not in ("empty", "-"):
-                row.base = next((r.fig for r in self.rows if r.engine == engine
-                                 and r.data == "empty" and r.scenario == row.scenario
-                                 and r.clients == row.clients), None)
+                row.base = next(
+                    (
+                        r.fig
+                        for r in self.rows
+                        if r.engine == engine
+                        and r.data == "empty"
+                        and r.scenario == row.scenario
+                        and r.clients == row.clients
+                    ),
+                    None,
+                )
 
 
 # -- the report --------------------------------------------------------------------------------
@@ -715,8 +899,13 @@ def machine() -> dict[str, Any]:
                 break
     except OSError:
         pass
-    return {"cpus": os.cpu_count(), "cpu": cpu, "python": platform.python_version(),
-            "load": os.getloadavg(), "system": f"{platform.system()} {platform.release()}"}
+    return {
+        "cpus": os.cpu_count(),
+        "cpu": cpu,
+        "python": platform.python_version(),
+        "load": os.getloadavg(),
+        "system": f"{platform.system()} {platform.release()}",
+    }
 
 
 def _ratio(a: float | None, b: float | None) -> str:
@@ -728,31 +917,57 @@ def _ratio(a: float | None, b: float | None) -> str:
 def report(bench: Bench, console: Any, before: dict[str, Any], seconds: float) -> list[str]:
     from rich.table import Table
 
-    names = {"loop": "robot loop", "outcome": "outcome", "model": "model read",
-             "reference": "reference", "open": "open loop, ½ capacity"}
-    table = Table("engine", "scenario", "clients", "data", "req/s", "×ref", "p50 ms", "p99 ms",
-                  "CPU ms/req", "ref/CPU", "loops/s",
-                  title="attune serve under load. ×ref: throughput divided by the reference's at "
-                  "the same concurrency (×empty for the seeded data); ref/CPU: the reference's "
-                  "CPU per request divided by the service's (1 = as cheap as a bare FastAPI POST)")
+    names = {
+        "loop": "robot loop",
+        "outcome": "outcome",
+        "model": "model read",
+        "reference": "reference",
+        "open": "open loop, ½ capacity",
+    }
+    table = Table(
+        "engine",
+        "scenario",
+        "clients",
+        "data",
+        "req/s",
+        "×ref",
+        "p50 ms",
+        "p99 ms",
+        "CPU ms/req",
+        "ref/CPU",
+        "loops/s",
+        title="attune serve under load. ×ref: throughput divided by the reference's at "
+        "the same concurrency (×empty for the seeded data); ref/CPU: the reference's "
+        "CPU per request divided by the service's (1 = as cheap as a bare FastAPI POST)",
+    )
     for r in bench.rows:
         f = r.fig
         other = r.base if r.base is not None else r.ref
         table.add_row(
-            f"{r.engine}/{r.workers}w", names[r.scenario], str(r.clients), r.data,
-            f"{f.rps:.0f}", _ratio(f.rps, other.rps if other else None),
-            f"{f.p50_ms:.1f}", f"{f.p99_ms:.1f}",
+            f"{r.engine}/{r.workers}w",
+            names[r.scenario],
+            str(r.clients),
+            r.data,
+            f"{f.rps:.0f}",
+            _ratio(f.rps, other.rps if other else None),
+            f"{f.p50_ms:.1f}",
+            f"{f.p99_ms:.1f}",
             f"{f.cpu_ms:.3f}" if f.cpu_ms is not None else "",
-            _ratio(r.ref.cpu_ms if r.ref else None, f.cpu_ms) if r.scenario != "reference"
-            else "",
-            f"{f.loops_per_s:.1f}" if f.loops_per_s is not None else "")
+            _ratio(r.ref.cpu_ms if r.ref else None, f.cpu_ms) if r.scenario != "reference" else "",
+            f"{f.loops_per_s:.1f}" if f.loops_per_s is not None else "",
+        )
     console.print(table)
     after = machine()
-    console.print(f"Machine: {before['cpus']} CPUs ({before['cpu']}), {before['system']}, "
-                  f"Python {before['python']}; load average {before['load'][0]:.2f} before, "
-                  f"{after['load'][0]:.2f} after ({seconds / 60:.1f} min)."
-                  + (" The machine was busy with other work before the run."
-                     if before["load"][0] > 0.5 else ""))
+    console.print(
+        f"Machine: {before['cpus']} CPUs ({before['cpu']}), {before['system']}, "
+        f"Python {before['python']}; load average {before['load'][0]:.2f} before, "
+        f"{after['load'][0]:.2f} after ({seconds / 60:.1f} min)."
+        + (
+            " The machine was busy with other work before the run."
+            if before["load"][0] > 0.5
+            else ""
+        )
+    )
     return targets(bench, console)
 
 
@@ -760,24 +975,36 @@ def floor_line(engine: str, floor: Floor, bare: float, target: float, service: f
     """The floor of a robot-loop request against its CPU target (all in ms per request)."""
     least = bare + floor.learner_ms + floor.statements_ms
     room = target - least
-    head = (f"{engine}: floor of a robot-loop request: the bare POST {bare:.3f} ms + the "
-            f"learner {floor.learner_ms:.3f} ms + {floor.statements_per_request:.1f} statements "
-            f"through the bare driver {floor.statements_ms:.3f} ms = {least:.3f} ms, "
-            f"{least / bare:.2f}× the bare POST; ")
+    head = (
+        f"{engine}: floor of a robot-loop request: the bare POST {bare:.3f} ms + the "
+        f"learner {floor.learner_ms:.3f} ms + {floor.statements_per_request:.1f} statements "
+        f"through the bare driver {floor.statements_ms:.3f} ms = {least:.3f} ms, "
+        f"{least / bare:.2f}× the bare POST; "
+    )
     if room > 0:
-        return (head + f"the target leaves {room:.3f} ms ({room / bare:.2f}×) for the rest of "
-                f"the request, where the service spends {service - least:.3f} ms")
-    return (head + f"the target is {-room:.3f} ms below this floor: no change outside the "
-            f"learner and the statements can meet it (the rest of the request costs the "
-            f"service {service - least:.3f} ms)")
+        return (
+            head + f"the target leaves {room:.3f} ms ({room / bare:.2f}×) for the rest of "
+            f"the request, where the service spends {service - least:.3f} ms"
+        )
+    return (
+        head + f"the target is {-room:.3f} ms below this floor: no change outside the "
+        f"learner and the statements can meet it (the rest of the request costs the "
+        f"service {service - least:.3f} ms)"
+    )
 
 
 def targets(bench: Bench, console: Any) -> list[str]:
     lines: list[str] = []
 
     def find(engine: str, scenario: str, clients: int, data: str = "empty") -> Row | None:
-        return next((r for r in bench.rows if (r.engine, r.scenario, r.clients, r.data)
-                     == (engine, scenario, clients, data)), None)
+        return next(
+            (
+                r
+                for r in bench.rows
+                if (r.engine, r.scenario, r.clients, r.data) == (engine, scenario, clients, data)
+            ),
+            None,
+        )
 
     def verdict(ok: bool) -> str:
         return "[green]met[/green]" if ok else "[red]missed[/red]"
@@ -789,26 +1016,32 @@ def targets(bench: Bench, console: Any) -> list[str]:
             bare = r.ref.cpu_ms
             times = r.fig.cpu_ms / bare
             limit = CPU_TARGET[engine]
-            lines.append(f"{engine}, {r.workers} worker(s), {clients} robots: a robot-loop "
-                         f"request costs {r.fig.cpu_ms:.3f} ms of server CPU, {times:.2f}× the "
-                         f"bare POST's {bare:.3f} ms (ratio {1 / times:.2f}; target ≤ "
-                         f"{limit:g}×, ratio ≥ {1 / limit:.2f}): {verdict(times <= limit)}")
+            lines.append(
+                f"{engine}, {r.workers} worker(s), {clients} robots: a robot-loop "
+                f"request costs {r.fig.cpu_ms:.3f} ms of server CPU, {times:.2f}× the "
+                f"bare POST's {bare:.3f} ms (ratio {1 / times:.2f}; target ≤ "
+                f"{limit:g}×, ratio ≥ {1 / limit:.2f}): {verdict(times <= limit)}"
+            )
             floor = bench.floors.get(engine)
             if floor is not None:
                 lines.append(floor_line(engine, floor, bare, limit * bare, r.fig.cpu_ms))
         r = find(engine, "open", clients)
         if r is not None:
             limit = OPEN_P99_MS[engine]
-            lines.append(f"{engine}: open loop at half capacity ({r.fig.rps:.0f} req/s), p99 "
-                         f"{r.fig.p99_ms:.1f} ms (target < {limit:g} ms): "
-                         f"{verdict(r.fig.p99_ms < limit and not r.fig.errors)}"
-                         + (f" ({r.fig.errors} errors)" if r.fig.errors else ""))
+            lines.append(
+                f"{engine}: open loop at half capacity ({r.fig.rps:.0f} req/s), p99 "
+                f"{r.fig.p99_ms:.1f} ms (target < {limit:g} ms): "
+                f"{verdict(r.fig.p99_ms < limit and not r.fig.errors)}"
+                + (f" ({r.fig.errors} errors)" if r.fig.errors else "")
+            )
         for r in bench.rows:
             if r.engine == engine and r.base is not None:
                 slower = max(r.base.rps / r.fig.rps, r.fig.p50_ms / r.base.p50_ms)
-                lines.append(f"{engine}: {r.scenario} with {r.data} ({r.clients} clients): "
-                             f"{slower:.2f}× the empty database's figure (throughput and p50; "
-                             f"target ≤ 1.2×): {verdict(slower <= 1.2)}")
+                lines.append(
+                    f"{engine}: {r.scenario} with {r.data} ({r.clients} clients): "
+                    f"{slower:.2f}× the empty database's figure (throughput and p50; "
+                    f"target ≤ 1.2×): {verdict(slower <= 1.2)}"
+                )
     console.print("[bold]Targets[/bold]")
     for line in lines:
         console.print("  " + line)
@@ -820,9 +1053,15 @@ def serve_reference(port: int, workers: int) -> None:
     options, no uvicorn access log, the same listening socket with TCP_NODELAY bound first)."""
     import uvicorn
 
-    options: dict[str, Any] = {"factory": True, "host": "127.0.0.1", "port": port,
-                               "workers": workers, "log_level": "warning",
-                               "access_log": False, "proxy_headers": False}
+    options: dict[str, Any] = {
+        "factory": True,
+        "host": "127.0.0.1",
+        "port": port,
+        "workers": workers,
+        "log_level": "warning",
+        "access_log": False,
+        "proxy_headers": False,
+    }
     config = uvicorn.Config("service:reference_app", **options)
     sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
@@ -845,41 +1084,80 @@ def main() -> None:
     parser = argparse.ArgumentParser(
         description="Throughput and latency of attune serve under wrk, against a bare FastAPI "
         "app on the same machine (loopback only). Needs wrk (apt-get install -y wrk) and, for "
-        "PostgreSQL, a server at 127.0.0.1:5432 (ATTUNE_TEST_POSTGRES_URL).")
+        "PostgreSQL, a server at 127.0.0.1:5432 (ATTUNE_TEST_POSTGRES_URL)."
+    )
     parser.add_argument("--engine", choices=["sqlite", "postgresql", "both"], default="both")
-    parser.add_argument("--clients", default="1,8,16",
-                        help="concurrent clients, comma-separated (default 1,8,16; the CPU and "
-                        "open-loop targets are at 8 robots on SQLite and 16 on PostgreSQL)")
-    parser.add_argument("--duration", type=float, default=5.0,
-                        help="seconds measured per run (default 5)")
-    parser.add_argument("--warmup", type=float, default=1.0,
-                        help="seconds run before measuring (default 1)")
-    parser.add_argument("--users", type=int, default=100_000,
-                        help="users seeded for the large-data runs (default 100000)")
-    parser.add_argument("--episodes", type=int, default=10_000,
-                        help="episodes of the one long-history user (default 10000)")
-    parser.add_argument("--no-large", dest="large", action="store_false",
-                        help="skip the large-data runs")
-    parser.add_argument("--loop-only", action="store_true",
-                        help="only the robot loop (and the open loop): no outcome-only or "
-                        "model-read runs")
-    parser.add_argument("--max-open", type=int, default=3000,
-                        help="cap on episodes opened per client for the outcome run")
-    parser.add_argument("--quick", action="store_true",
-                        help="a short check: 8 clients, 2 s runs, 2,000 users, 200 episodes")
-    parser.add_argument("--no-floor", dest="floor", action="store_false",
-                        help="skip the floor: the learner's and the bare driver's CPU per robot "
-                        "request, measured in-process after the runs at the target robots")
-    parser.add_argument("--floor-requests", type=int, default=3000,
-                        help="robot requests recorded and replayed for the floor (default 3000)")
+    parser.add_argument(
+        "--clients",
+        default="1,8,16",
+        help="concurrent clients, comma-separated (default 1,8,16; the CPU and "
+        "open-loop targets are at 8 robots on SQLite and 16 on PostgreSQL)",
+    )
+    parser.add_argument(
+        "--duration", type=float, default=5.0, help="seconds measured per run (default 5)"
+    )
+    parser.add_argument(
+        "--warmup", type=float, default=1.0, help="seconds run before measuring (default 1)"
+    )
+    parser.add_argument(
+        "--users",
+        type=int,
+        default=100_000,
+        help="users seeded for the large-data runs (default 100000)",
+    )
+    parser.add_argument(
+        "--episodes",
+        type=int,
+        default=10_000,
+        help="episodes of the one long-history user (default 10000)",
+    )
+    parser.add_argument(
+        "--no-large", dest="large", action="store_false", help="skip the large-data runs"
+    )
+    parser.add_argument(
+        "--loop-only",
+        action="store_true",
+        help="only the robot loop (and the open loop): no outcome-only or model-read runs",
+    )
+    parser.add_argument(
+        "--max-open",
+        type=int,
+        default=3000,
+        help="cap on episodes opened per client for the outcome run",
+    )
+    parser.add_argument(
+        "--quick",
+        action="store_true",
+        help="a short check: 8 clients, 2 s runs, 2,000 users, 200 episodes",
+    )
+    parser.add_argument(
+        "--no-floor",
+        dest="floor",
+        action="store_false",
+        help="skip the floor: the learner's and the bare driver's CPU per robot "
+        "request, measured in-process after the runs at the target robots",
+    )
+    parser.add_argument(
+        "--floor-requests",
+        type=int,
+        default=3000,
+        help="robot requests recorded and replayed for the floor (default 3000)",
+    )
     parser.add_argument("--json", type=Path, help="also write the figures here")
-    parser.add_argument("--profile", type=Path, metavar="DIR",
-                        help="run the service under py-spy and write its profiles to DIR (one "
-                        "per server run); the figures then include the profiler's cost")
-    parser.add_argument("--profile-format", choices=["flamegraph", "speedscope", "raw"],
-                        default="flamegraph",
-                        help="py-spy's output: an SVG flame graph (default), a speedscope "
-                        "JSON, or collapsed stacks as text")
+    parser.add_argument(
+        "--profile",
+        type=Path,
+        metavar="DIR",
+        help="run the service under py-spy and write its profiles to DIR (one "
+        "per server run); the figures then include the profiler's cost",
+    )
+    parser.add_argument(
+        "--profile-format",
+        choices=["flamegraph", "speedscope", "raw"],
+        default="flamegraph",
+        help="py-spy's output: an SVG flame graph (default), a speedscope "
+        "JSON, or collapsed stacks as text",
+    )
     args = parser.parse_args()
     if args.quick:
         args.clients, args.duration, args.users, args.episodes = "8,16", 2.0, 2000, 200
@@ -893,20 +1171,40 @@ def main() -> None:
     before = machine()
     began = time.monotonic()
     bench = Bench(args, console)
-    plan = {"sqlite": [("sqlite", 1)], "postgresql": [("postgresql", 2)],
-            "both": [("sqlite", 1), ("postgresql", 2)]}[args.engine]
+    plan = {
+        "sqlite": [("sqlite", 1)],
+        "postgresql": [("postgresql", 2)],
+        "both": [("sqlite", 1), ("postgresql", 2)],
+    }[args.engine]
     for engine, workers in plan:
         bench.engine(engine, workers)
     lines = report(bench, console, before, time.monotonic() - began)
     if args.json:
-        args.json.write_text(json.dumps({
-            "machine": before, "command": " ".join(sys.argv), "targets": lines,
-            "floors": {engine: found.__dict__ for engine, found in bench.floors.items()},
-            "rows": [{"engine": r.engine, "workers": r.workers, "scenario": r.scenario,
-                      "clients": r.clients, "data": r.data, **r.fig.__dict__,
-                      "ref_rps": r.ref.rps if r.ref else None,
-                      "base_rps": r.base.rps if r.base else None} for r in bench.rows],
-        }, indent=1, default=str))
+        args.json.write_text(
+            json.dumps(
+                {
+                    "machine": before,
+                    "command": " ".join(sys.argv),
+                    "targets": lines,
+                    "floors": {engine: found.__dict__ for engine, found in bench.floors.items()},
+                    "rows": [
+                        {
+                            "engine": r.engine,
+                            "workers": r.workers,
+                            "scenario": r.scenario,
+                            "clients": r.clients,
+                            "data": r.data,
+                            **r.fig.__dict__,
+                            "ref_rps": r.ref.rps if r.ref else None,
+                            "base_rps": r.base.rps if r.base else None,
+                        }
+                        for r in bench.rows
+                    ],
+                },
+                indent=1,
+                default=str,
+            )
+        )
 
 
 if __name__ == "__main__":

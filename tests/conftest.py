@@ -27,12 +27,22 @@ def pytest_runtest_setup(item: pytest.Item) -> None:
     appending ``@<group>`` to their ids; with a pytest whose ids it cannot change, the groups
     would silently fall apart."""
     for folder, kind in LEFT_OUT.items():
-        if (item.path.is_relative_to(folder)
-                and not any(item.get_closest_marker(k) for k in SLOW_KINDS)):
-            pytest.fail(f"{item.nodeid}: every test of {folder.name}/ is of a kind that "
-                        f"./scripts/test --fast leaves out (it does not collect the folder): "
-                        f"mark it {kind}", pytrace=False)
-    if (getattr(item.config.option, "loadgroup", False)  # set on xdist's workers only
-            and item.get_closest_marker("xdist_group") is not None and "@" not in item.nodeid):
-        pytest.fail("pytest-xdist does not keep xdist_group tests together with this pytest: "
-                    "pin pytest to a release it supports (pyproject.toml)", pytrace=False)
+        if item.path.is_relative_to(folder) and not any(
+            item.get_closest_marker(k) for k in SLOW_KINDS
+        ):
+            pytest.fail(
+                f"{item.nodeid}: every test of {folder.name}/ is of a kind that "
+                f"./scripts/test --fast leaves out (it does not collect the folder): "
+                f"mark it {kind}",
+                pytrace=False,
+            )
+    if (
+        getattr(item.config.option, "loadgroup", False)  # set on xdist's workers only
+        and item.get_closest_marker("xdist_group") is not None
+        and "@" not in item.nodeid
+    ):
+        pytest.fail(
+            "pytest-xdist does not keep xdist_group tests together with this pytest: "
+            "pin pytest to a release it supports (pyproject.toml)",
+            pytrace=False,
+        )

@@ -32,8 +32,14 @@ from app.services.context import KeyCache, Principal, ServiceContext
 
 from .middleware import KeyRateLimiter
 
-__all__ = ["CurrentPrincipal", "RequestSession", "TransactionalRoute", "inline", "principal_of",
-           "writes"]
+__all__ = [
+    "CurrentPrincipal",
+    "RequestSession",
+    "TransactionalRoute",
+    "inline",
+    "principal_of",
+    "writes",
+]
 
 RequestSession = Session
 """The annotation of an endpoint's ``session`` parameter (the route class gives it)."""
@@ -60,8 +66,9 @@ def writes(endpoint: Callable[..., Any]) -> Callable[..., Any]:
     return endpoint
 
 
-def _in_transaction(endpoint: Callable[..., Any], *, write: bool, inline: bool
-                    ) -> Callable[..., Any]:
+def _in_transaction(
+    endpoint: Callable[..., Any], *, write: bool, inline: bool
+) -> Callable[..., Any]:
     """``endpoint`` with its ``session`` and ``ctx`` parameters filled in by the route: the
     request's session, whose transaction is the endpoint's whole call (committed at the end,
     rolled back if it raises; the after-commit callbacks run once it committed), and the
@@ -75,8 +82,9 @@ def _in_transaction(endpoint: Callable[..., Any], *, write: bool, inline: bool
     params = [p for p in signature.parameters.values() if p.name not in _INJECTED]
     own_request = any(p.name == "request" for p in params)
     if not own_request:
-        params.append(inspect.Parameter("request", inspect.Parameter.KEYWORD_ONLY,
-                                        annotation=Request))
+        params.append(
+            inspect.Parameter("request", inspect.Parameter.KEYWORD_ONLY, annotation=Request)
+        )
 
     def arguments(kwargs: dict[str, Any]) -> tuple[dict[str, Any], Request]:
         """The endpoint's arguments from the route's (the request kept only if the endpoint
@@ -132,8 +140,9 @@ def is_json(content_type: str | None) -> bool:
     if not content_type:
         return False
     kind = content_type.split(";", 1)[0].strip().lower()
-    return kind == "application/json" or (kind.startswith("application/")
-                                          and kind.endswith("+json"))
+    return kind == "application/json" or (
+        kind.startswith("application/") and kind.endswith("+json")
+    )
 
 
 class TransactionalRoute(APIRoute):
@@ -162,10 +171,15 @@ class TransactionalRoute(APIRoute):
         async def json_only(request: Request) -> Response:
             content_type = request.headers.get("content-type")
             if not is_json(content_type) and await request.body():
-                came = (f"as {content_type.split(';', 1)[0].strip()!r}" if content_type
-                        else "without a Content-Type")
-                raise UnsupportedMediaType("The body must be JSON, sent with Content-Type: "
-                                           f"application/json; this one came {came}.")
+                came = (
+                    f"as {content_type.split(';', 1)[0].strip()!r}"
+                    if content_type
+                    else "without a Content-Type"
+                )
+                raise UnsupportedMediaType(
+                    "The body must be JSON, sent with Content-Type: "
+                    f"application/json; this one came {came}."
+                )
             return await handler(request)
 
         if getattr(self.endpoint, _INLINE_MARK, False):
@@ -173,8 +187,9 @@ class TransactionalRoute(APIRoute):
         return json_only
 
 
-def _lean_handler(route: APIRoute, handler: Callable[[Request], Coroutine[Any, Any, Response]]
-                  ) -> Callable[[Request], Coroutine[Any, Any, Response]] | None:
+def _lean_handler(
+    route: APIRoute, handler: Callable[[Request], Coroutine[Any, Any, Response]]
+) -> Callable[[Request], Coroutine[Any, Any, Response]] | None:
     """The robots' writes without FastAPI's general request handling, for a well-formed
     request: a JSON object body sent as ``application/json`` with a Content-Length, valid path
     parameters and no query string are validated with the route's own fields (as FastAPI
@@ -186,12 +201,19 @@ def _lean_handler(route: APIRoute, handler: Callable[[Request], Coroutine[Any, A
     dependant = route.dependant
     body = route.body_field
     principal = [d for d in dependant.dependencies if d.call is current_principal]
-    if (body is None or len(principal) != 1 or len(dependant.dependencies) != 1
-            or dependant.header_params or dependant.cookie_params
-            or any(q.field_info.is_required() for q in dependant.query_params)
-            or dependant.response_param_name or dependant.background_tasks_param_name
-            or dependant.http_connection_param_name or dependant.websocket_param_name
-            or dependant.security_scopes_param_name):
+    if (
+        body is None
+        or len(principal) != 1
+        or len(dependant.dependencies) != 1
+        or dependant.header_params
+        or dependant.cookie_params
+        or any(q.field_info.is_required() for q in dependant.query_params)
+        or dependant.response_param_name
+        or dependant.background_tasks_param_name
+        or dependant.http_connection_param_name
+        or dependant.websocket_param_name
+        or dependant.security_scopes_param_name
+    ):
         return None
     paths = [(f.alias, f.name, f) for f in dependant.path_params]
     defaults = {q.name: q.default for q in dependant.query_params}
@@ -205,9 +227,12 @@ def _lean_handler(route: APIRoute, handler: Callable[[Request], Coroutine[Any, A
     async def lean(request: Request) -> Response:
         headers = request.headers
         content_type = headers.get("content-type")
-        if (request.scope.get("query_string") or "content-length" not in headers
-                or content_type is None
-                or content_type.split(";", 1)[0].strip().lower() != "application/json"):
+        if (
+            request.scope.get("query_string")
+            or "content-length" not in headers
+            or content_type is None
+            or content_type.split(";", 1)[0].strip().lower() != "application/json"
+        ):
             return await handler(request)
         raw = await request.body()  # within the body limit: its Content-Length was checked
         try:
@@ -228,7 +253,8 @@ def _lean_handler(route: APIRoute, handler: Callable[[Request], Coroutine[Any, A
             return await handler(request)
         values[body_name] = value
         values[principal_name] = await current_principal(
-            request, request.headers.get("authorization"))
+            request, request.headers.get("authorization")
+        )
         if request_name is not None:
             values[request_name] = request
         response = await endpoint(**values)
@@ -244,8 +270,9 @@ def _lookup(db: Database, authorization: str | None) -> Principal:
         return authenticate(session, authorization)
 
 
-async def principal_of(request: Request, authorization: str | None, *,
-                       cached: bool = True) -> Principal:
+async def principal_of(
+    request: Request, authorization: str | None, *, cached: bool = True
+) -> Principal:
     """Who holds the key of an ``Authorization`` header (401 if nobody).
 
     A key the worker saw in the last ``ATTUNE_KEY_CACHE_SECONDS`` comes from its cache, on the
@@ -274,8 +301,11 @@ async def current_principal(
     limiter: KeyRateLimiter = request.app.state.limiter
     wait = limiter.acquire(principal.key_id)
     if wait:
-        raise TooManyRequests(f"This API key is over its rate limit ({limiter.rate:g} requests "
-                              f"a second); retry in {wait} s.", retry_after=wait)
+        raise TooManyRequests(
+            f"This API key is over its rate limit ({limiter.rate:g} requests "
+            f"a second); retry in {wait} s.",
+            retry_after=wait,
+        )
     return principal
 
 

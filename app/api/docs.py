@@ -28,8 +28,8 @@ STATIC = Path(__file__).parent / "static" / "docs"
 STATIC_URL = "/static/docs"
 REQUEST_ID_HEADER = {
     "description": "The request's id: the caller's X-Request-ID when it sent a valid one (1 to "
-                   "128 letters, digits and . _ : -), else one made by the service (32 "
-                   "lowercase hexadecimal characters). Error bodies carry it as request_id.",
+    "128 letters, digits and . _ : -), else one made by the service (32 "
+    "lowercase hexadecimal characters). Error bodies carry it as request_id.",
     "schema": {"type": "string", "pattern": REQUEST_ID_PATTERN},
 }
 
@@ -38,13 +38,15 @@ def _csp(html: bytes) -> str:
     """A policy allowing the page's own files and its inline scripts, by their hashes."""
     hashes = " ".join(
         "'sha256-" + base64.b64encode(hashlib.sha256(script).digest()).decode() + "'"
-        for script in re.findall(rb"<script>(.*?)</script>", html, flags=re.S))
-    return ("default-src 'self'; "
-            f"script-src 'self' {hashes}; ".replace(" ;", ";")
-            # Both render with inline styles; Redoc searches in a worker made from a blob.
-            + "style-src 'self' 'unsafe-inline'; img-src 'self' data:; font-src 'self' data:; "
-            "worker-src 'self' blob:; connect-src 'self'; object-src 'none'; "
-            "base-uri 'none'; frame-ancestors 'none'")
+        for script in re.findall(rb"<script>(.*?)</script>", html, flags=re.S)
+    )
+    return (
+        f"default-src 'self'; script-src 'self' {hashes}; ".replace(" ;", ";")
+        # Both render with inline styles; Redoc searches in a worker made from a blob.
+        + "style-src 'self' 'unsafe-inline'; img-src 'self' data:; font-src 'self' data:; "
+        "worker-src 'self' blob:; connect-src 'self'; object-src 'none'; "
+        "base-uri 'none'; frame-ancestors 'none'"
+    )
 
 
 def _page(response: HTMLResponse) -> HTMLResponse:
@@ -62,8 +64,7 @@ def _with_request_id(app: FastAPI) -> None:
         for item in schema.get("paths", {}).values():
             for operation in item.values():
                 for response in operation.get("responses", {}).values():
-                    response.setdefault("headers", {}).setdefault("X-Request-ID",
-                                                                  REQUEST_ID_HEADER)
+                    response.setdefault("headers", {}).setdefault("X-Request-ID", REQUEST_ID_HEADER)
         return schema
 
     app.openapi = openapi  # type: ignore[method-assign]
@@ -79,19 +80,27 @@ def install_docs(app: FastAPI) -> None:
 
     @app.get("/docs", include_in_schema=False)
     def swagger_ui() -> HTMLResponse:
-        return _page(get_swagger_ui_html(
-            openapi_url=openapi_url, title=f"{app.title} API",
-            swagger_js_url=f"{STATIC_URL}/swagger-ui/swagger-ui-bundle.js",
-            swagger_css_url=f"{STATIC_URL}/swagger-ui/swagger-ui.css",
-            swagger_favicon_url=favicon, oauth2_redirect_url=None,
-            # No validator badge: it would send the schema to an online validator.
-            swagger_ui_parameters={"validatorUrl": None},
-        ))
+        return _page(
+            get_swagger_ui_html(
+                openapi_url=openapi_url,
+                title=f"{app.title} API",
+                swagger_js_url=f"{STATIC_URL}/swagger-ui/swagger-ui-bundle.js",
+                swagger_css_url=f"{STATIC_URL}/swagger-ui/swagger-ui.css",
+                swagger_favicon_url=favicon,
+                oauth2_redirect_url=None,
+                # No validator badge: it would send the schema to an online validator.
+                swagger_ui_parameters={"validatorUrl": None},
+            )
+        )
 
     @app.get("/redoc", include_in_schema=False)
     def redoc() -> HTMLResponse:
-        return _page(get_redoc_html(
-            openapi_url=openapi_url, title=f"{app.title} API reference",
-            redoc_js_url=f"{STATIC_URL}/redoc/redoc.standalone.js",
-            redoc_favicon_url=favicon, with_google_fonts=False,
-        ))
+        return _page(
+            get_redoc_html(
+                openapi_url=openapi_url,
+                title=f"{app.title} API reference",
+                redoc_js_url=f"{STATIC_URL}/redoc/redoc.standalone.js",
+                redoc_favicon_url=favicon,
+                with_google_fonts=False,
+            )
+        )

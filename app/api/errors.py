@@ -18,8 +18,13 @@ from app.schemas.common import ErrorOut
 
 from .middleware import BodyTooLarge, error_body
 
-__all__ = ["ERROR_RESPONSES", "allowed_methods", "install_error_handlers", "responses",
-           "validation_detail"]
+__all__ = [
+    "ERROR_RESPONSES",
+    "allowed_methods",
+    "install_error_handlers",
+    "responses",
+    "validation_detail",
+]
 
 log = logging.getLogger("attune.api")
 
@@ -31,19 +36,26 @@ _DESCRIPTIONS = {
     409: "Conflict: an ID reused with another body, or a state that does not allow this.",
     413: "Request body over the size limit (64 KiB by default).",
     415: "The body is not sent as JSON: its Content-Type must be application/json (or "
-         "application/*+json); a body without a Content-Type is refused too.",
+    "application/*+json); a body without a Content-Type is refused too.",
     422: "Validation failed: the detail names the field and the allowed values.",
     429: "The API key is over its rate limit; retry after the Retry-After seconds.",
     500: "Server error. No stack trace is sent: the service's log has it, under the "
-         "response's request_id.",
+    "response's request_id.",
     503: "The service is at capacity, or the database is busy or unreachable; retry after the "
-         "Retry-After seconds.",
+    "Retry-After seconds.",
 }
-_RETRY_AFTER = {"Retry-After": {"description": "Whole seconds to wait before retrying.",
-                                "schema": {"type": "string", "pattern": "^[0-9]+$"}}}
+_RETRY_AFTER = {
+    "Retry-After": {
+        "description": "Whole seconds to wait before retrying.",
+        "schema": {"type": "string", "pattern": "^[0-9]+$"},
+    }
+}
 ERROR_RESPONSES: dict[int | str, dict[str, Any]] = {
-    code: {"model": ErrorOut, "description": text,
-           **({"headers": _RETRY_AFTER} if code in (429, 503) else {})}
+    code: {
+        "model": ErrorOut,
+        "description": text,
+        **({"headers": _RETRY_AFTER} if code in (429, 503) else {}),
+    }
     for code, text in _DESCRIPTIONS.items()
 }
 
@@ -54,8 +66,7 @@ def responses(*codes: int) -> dict[int | str, dict[str, Any]]:
     return {c: ERROR_RESPONSES[c] for c in sorted({*codes, *every})}
 
 
-def _json(body: dict[str, Any], status: int,
-          headers: dict[str, str] | None = None) -> JSONResponse:
+def _json(body: dict[str, Any], status: int, headers: dict[str, str] | None = None) -> JSONResponse:
     return JSONResponse(body, status_code=status, headers=headers or None)
 
 
@@ -136,8 +147,14 @@ def allowed_methods(request: Request) -> list[str] | None:
     scope = request.scope
     allowed: list[str] = []
     for method in _PROBED:
-        probe = {"type": "http", "method": method, "path": scope["path"],
-                 "root_path": scope.get("root_path", ""), "headers": [], "query_string": b""}
+        probe = {
+            "type": "http",
+            "method": method,
+            "path": scope["path"],
+            "root_path": scope.get("root_path", ""),
+            "headers": [],
+            "query_string": b"",
+        }
         for route in request.app.router.routes:
             if isinstance(route, Mount):
                 continue
@@ -160,12 +177,17 @@ def install_error_handlers(app: FastAPI) -> None:
         for err in errors:
             if err.get("type") == "json_invalid":
                 ctx = err.get("ctx") or {}
-                return _render(BadRequest(
-                    f"The request body is not valid JSON ({ctx.get('error', 'parse error')})."
-                ))
+                return _render(
+                    BadRequest(
+                        f"The request body is not valid JSON ({ctx.get('error', 'parse error')})."
+                    )
+                )
         fields = [
-            {"loc": [str(p) for p in err.get("loc", ())], "msg": str(err.get("msg", "")),
-             "type": str(err.get("type", ""))}
+            {
+                "loc": [str(p) for p in err.get("loc", ())],
+                "msg": str(err.get("msg", "")),
+                "type": str(err.get("type", "")),
+            }
             for err in errors
         ]
         return _render(ValidationFailed(validation_detail(request, exc), fields=fields))
@@ -174,8 +196,12 @@ def install_error_handlers(app: FastAPI) -> None:
     async def http_error(request: Request, exc: StarletteHTTPException) -> JSONResponse:
         if isinstance(exc.__cause__, BodyTooLarge):  # a streamed body went over the limit
             return _json(error_body("PayloadTooLarge", str(exc.__cause__)), 413)
-        names = {400: "BadRequest", 404: "NotFound", 405: "MethodNotAllowed",
-                 413: "PayloadTooLarge"}
+        names = {
+            400: "BadRequest",
+            404: "NotFound",
+            405: "MethodNotAllowed",
+            413: "PayloadTooLarge",
+        }
         name = names.get(exc.status_code, "HTTPError")
         detail = str(exc.detail)
         headers = dict(getattr(exc, "headers", None) or {})
@@ -185,8 +211,10 @@ def install_error_handlers(app: FastAPI) -> None:
             allowed = allowed_methods(request)
             if allowed:
                 headers["Allow"] = ", ".join(allowed)
-            detail = (f"{request.method} is not a method of this path; it answers "
-                      f"{headers.get('Allow', 'other methods')}.")
+            detail = (
+                f"{request.method} is not a method of this path; it answers "
+                f"{headers.get('Allow', 'other methods')}."
+            )
         return _json(error_body(name, detail), exc.status_code, headers)
 
     @app.exception_handler(IntegrityError)
@@ -199,8 +227,12 @@ def install_error_handlers(app: FastAPI) -> None:
         # A value the database cannot hold (PostgreSQL: a NUL character in a text) is the
         # client's to fix, not a server failure.
         log.info("data error: %s", exc.orig)
-        return _render(ValidationFailed("A value in the request cannot be stored (a NUL "
-                                        "character, say); remove it and retry."))
+        return _render(
+            ValidationFailed(
+                "A value in the request cannot be stored (a NUL "
+                "character, say); remove it and retry."
+            )
+        )
 
     @app.exception_handler(OperationalError)
     async def operational_error(_: Request, exc: OperationalError) -> JSONResponse:

@@ -18,18 +18,31 @@ __all__ = ["Metrics"]
 class Metrics:
     def __init__(self) -> None:
         self.registry = CollectorRegistry()
-        self.requests = Counter("attune_http_requests", "HTTP requests by route and status.",
-                                ["method", "route", "status"], registry=self.registry)
+        self.requests = Counter(
+            "attune_http_requests",
+            "HTTP requests by route and status.",
+            ["method", "route", "status"],
+            registry=self.registry,
+        )
         self.latency = Histogram(
-            "attune_http_request_duration_seconds", "HTTP request latency by route.",
-            ["method", "route"], registry=self.registry,
+            "attune_http_request_duration_seconds",
+            "HTTP request latency by route.",
+            ["method", "route"],
+            registry=self.registry,
             buckets=(0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5, 5.0),
         )
-        self.decisions = Counter("attune_decisions", "Decisions sent to robots by fleet and "
-                                 "action kind.", ["fleet", "kind"], registry=self.registry)
-        self.outcomes = Counter("attune_outcomes", "Outcomes reported by fleet, action kind and "
-                                "response.", ["fleet", "kind", "response"],
-                                registry=self.registry)
+        self.decisions = Counter(
+            "attune_decisions",
+            "Decisions sent to robots by fleet and action kind.",
+            ["fleet", "kind"],
+            registry=self.registry,
+        )
+        self.outcomes = Counter(
+            "attune_outcomes",
+            "Outcomes reported by fleet, action kind and response.",
+            ["fleet", "kind", "response"],
+            registry=self.registry,
+        )
 
     def observe_request(self, method: str, route: str, status: int, seconds: float) -> None:
         self.requests.labels(method, route, str(status)).inc()

@@ -18,9 +18,17 @@ from app import logs
 
 from .metrics import Metrics
 
-__all__ = ["BodyLimitMiddleware", "BodyTooLarge", "HeadMiddleware", "InFlightLimitMiddleware",
-           "KeyRateLimiter", "MetricsMiddleware", "RequestContextMiddleware", "error_body",
-           "route_template"]
+__all__ = [
+    "BodyLimitMiddleware",
+    "BodyTooLarge",
+    "HeadMiddleware",
+    "InFlightLimitMiddleware",
+    "KeyRateLimiter",
+    "MetricsMiddleware",
+    "RequestContextMiddleware",
+    "error_body",
+    "route_template",
+]
 
 access_log = logging.getLogger("attune.access")
 log = logging.getLogger("attune.api")
@@ -48,18 +56,28 @@ def error_body(error: str, detail: str, **more: Any) -> dict[str, Any]:
     return body
 
 
-async def _send_error(send: Send, status: int, error: str, detail: str,
-                      headers: tuple[tuple[bytes, bytes], ...] = ()) -> None:
+async def _send_error(
+    send: Send, status: int, error: str, detail: str, headers: tuple[tuple[bytes, bytes], ...] = ()
+) -> None:
     body = json.dumps(error_body(error, detail), separators=(",", ":")).encode()
-    await send({"type": "http.response.start", "status": status,
-                "headers": [(b"content-type", b"application/json"),
-                            (b"content-length", str(len(body)).encode()), *headers]})
+    await send(
+        {
+            "type": "http.response.start",
+            "status": status,
+            "headers": [
+                (b"content-type", b"application/json"),
+                (b"content-length", str(len(body)).encode()),
+                *headers,
+            ],
+        }
+    )
     await send({"type": "http.response.body", "body": body})
 
 
 async def _send_413(send: Send, limit: int) -> None:
-    await _send_error(send, 413, "PayloadTooLarge",
-                      f"The request body is over the {limit}-byte limit.")
+    await _send_error(
+        send, 413, "PayloadTooLarge", f"The request body is over the {limit}-byte limit."
+    )
 
 
 def route_template(scope: Scope) -> str:
@@ -99,8 +117,9 @@ class RequestContextMiddleware:
             nonlocal status, started
             if message["type"] == "http.response.start":
                 status, started = message["status"], True
-                headers = [(k, v) for k, v in message.get("headers", [])
-                           if k.lower() != b"x-request-id"]
+                headers = [
+                    (k, v) for k, v in message.get("headers", []) if k.lower() != b"x-request-id"
+                ]
                 message = {**message, "headers": [*headers, header]}
             await send(message)
 
@@ -111,17 +130,29 @@ class RequestContextMiddleware:
             # Logged here, once, and not raised on: the server would log it a second time.
             log.exception("unhandled error on %s %s", method, route_template(scope))
             if not started:
-                await _send_error(send_with_id, 500, "InternalError",
-                                  "The server failed; the error was logged.")
+                await _send_error(
+                    send_with_id, 500, "InternalError", "The server failed; the error was logged."
+                )
         finally:
             if access_log.isEnabledFor(logging.INFO):
                 latency_ms = round((time.perf_counter() - start) * 1000, 2)
                 route = route_template(scope)
-                fields = {"method": method, "route": route, "status": status,
-                          "latency_ms": latency_ms, "key_id": ctx.key_id}
-                access_log.info("method=%s route=%s status=%d latency_ms=%s key_id=%s",
-                                method, route, status, latency_ms, ctx.key_id or "-",
-                                extra={logs.FIELDS: fields})
+                fields = {
+                    "method": method,
+                    "route": route,
+                    "status": status,
+                    "latency_ms": latency_ms,
+                    "key_id": ctx.key_id,
+                }
+                access_log.info(
+                    "method=%s route=%s status=%d latency_ms=%s key_id=%s",
+                    method,
+                    route,
+                    status,
+                    latency_ms,
+                    ctx.key_id or "-",
+                    extra={logs.FIELDS: fields},
+                )
             logs.unbind(token)
 
 
@@ -222,8 +253,12 @@ class MetricsMiddleware:
         try:
             await self.app(scope, receive, tracking_send)
         finally:
-            self.metrics.observe_request(scope.get("method", "?"), route_template(scope),
-                                         status["code"], time.perf_counter() - start)
+            self.metrics.observe_request(
+                scope.get("method", "?"),
+                route_template(scope),
+                status["code"],
+                time.perf_counter() - start,
+            )
 
 
 class InFlightLimitMiddleware:
@@ -266,8 +301,9 @@ class KeyRateLimiter:
     from the route thread pool.
     """
 
-    def __init__(self, rate: float, burst: int,
-                 clock: Callable[[], float] = time.monotonic) -> None:
+    def __init__(
+        self, rate: float, burst: int, clock: Callable[[], float] = time.monotonic
+    ) -> None:
         self.rate, self.burst, self.clock = rate, float(burst), clock
         self._buckets: dict[str, tuple[float, float]] = {}  # key id -> (tokens, at)
         self._lock = threading.Lock()

@@ -105,8 +105,10 @@ def migrations_head() -> str | None:
     try:
         return migrate.head_revision()
     except Exception as exc:  # alembic's CommandError for a missing folder, or a broken script
-        raise StartFailure("The database migrations that come with Attune cannot be read "
-                           f"({one_line(exc)}); reinstall Attune.") from exc
+        raise StartFailure(
+            "The database migrations that come with Attune cannot be read "
+            f"({one_line(exc)}); reinstall Attune."
+        ) from exc
 
 
 def _known_revision(url: str, revision: str) -> bool:
@@ -124,8 +126,9 @@ def _echo(line: str) -> None:
     typer.echo(line, err=True)  # plain: rich would wrap the line at 80 columns
 
 
-def upgrade_schema(settings: Settings, *, report_current: bool = True,
-                   say: Callable[[str], None] = _echo) -> None:
+def upgrade_schema(
+    settings: Settings, *, report_current: bool = True, say: Callable[[str], None] = _echo
+) -> None:
     """Bring the database's schema up to date (telling ``say`` what was done), or raise
     :class:`StartFailure`.
 
@@ -135,8 +138,10 @@ def upgrade_schema(settings: Settings, *, report_current: bool = True,
     head = migrations_head()
     sqlite = sqlite_file(settings)
     if sqlite is not None and not sqlite.parent.is_dir():
-        raise StartFailure(f"The SQLite database {sqlite} cannot be made: the folder "
-                           f"{sqlite.parent} does not exist.")
+        raise StartFailure(
+            f"The SQLite database {sqlite} cannot be made: the folder "
+            f"{sqlite.parent} does not exist."
+        )
     made = sqlite is not None and not sqlite.exists()
     try:
         safe = Database(settings)
@@ -147,11 +152,16 @@ def upgrade_schema(settings: Settings, *, report_current: bool = True,
             raise StartFailure(f"Cannot reach the database {url}: {one_line(exc)}.") from exc
         finally:
             safe.dispose()
-        if before is not None and before != head and not _known_revision(settings.database_url,
-                                                                           before):
-            raise StartFailure(f"The database {url} has schema revision {before}, which this "
-                               f"version of Attune (schema {head}) does not know: it was made "
-                               "by a newer release; run that release, or restore a backup.")
+        if (
+            before is not None
+            and before != head
+            and not _known_revision(settings.database_url, before)
+        ):
+            raise StartFailure(
+                f"The database {url} has schema revision {before}, which this "
+                f"version of Attune (schema {head}) does not know: it was made "
+                "by a newer release; run that release, or restore a backup."
+            )
         if before == head:
             if report_current:
                 say(f"Database {url} is up to date (schema {head}).")
@@ -159,8 +169,9 @@ def upgrade_schema(settings: Settings, *, report_current: bool = True,
         try:
             migrate.upgrade(settings.database_url)
         except Exception as exc:
-            raise StartFailure(f"Upgrading the database {url} to schema {head} failed: "
-                               f"{one_line(exc)}.") from exc
+            raise StartFailure(
+                f"Upgrading the database {url} to schema {head} failed: {one_line(exc)}."
+            ) from exc
         say(f"Database {url} upgraded: schema {before or 'empty'} -> {head}.")
     except BaseException:
         if made and sqlite is not None:

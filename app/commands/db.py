@@ -26,8 +26,9 @@ else:  # imported when a command runs: --help needs neither SQLAlchemy nor Alemb
 
 __all__ = ["db"]
 
-db = typer.Typer(help="The database: ATTUNE_DATABASE_URL (default sqlite:///./attune.db).",
-                 no_args_is_help=True)
+db = typer.Typer(
+    help="The database: ATTUNE_DATABASE_URL (default sqlite:///./attune.db).", no_args_is_help=True
+)
 
 
 @db.command("upgrade")
@@ -56,8 +57,7 @@ def db_current() -> None:
             try:
                 current = migrate.current_revision(database.engine)
             except Exception as exc:  # the driver's error: refused, unknown host...
-                raise StartFailure(f"Cannot reach the database {url}: {one_line(exc)}.") \
-                    from exc
+                raise StartFailure(f"Cannot reach the database {url}: {one_line(exc)}.") from exc
             finally:
                 database.dispose()
             where = ""

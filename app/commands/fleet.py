@@ -20,8 +20,9 @@ if TYPE_CHECKING:  # imported by the command when it runs (--help needs none of 
 
 __all__ = ["fleet"]
 
-fleet = typer.Typer(help="Simulated fleets: robots and people played against a live service.",
-                    no_args_is_help=True)
+fleet = typer.Typer(
+    help="Simulated fleets: robots and people played against a live service.", no_args_is_help=True
+)
 
 TOLERANCE = 1e-9  # the robots' tally and the service's stats are the same sums
 
@@ -43,9 +44,14 @@ def _table(title: str, rows: dict[str, dict[str, Any]]) -> Table:
 
     table = Table(title=title, title_justify="left")
     table.add_column("user", no_wrap=True, min_width=max(map(len, rows), default=4))
-    heads = {"episodes": "episodes", "missions": "missions", "interaction_rate": "interaction",
-             "success_rate": "success", "queries_per_mission": "queries/mission",
-             "total_reward": "cum. reward"}
+    heads = {
+        "episodes": "episodes",
+        "missions": "missions",
+        "interaction_rate": "interaction",
+        "success_rate": "success",
+        "queries_per_mission": "queries/mission",
+        "total_reward": "cum. reward",
+    }
     for name in METRICS:
         table.add_column(heads[name], justify="right")
     for i, (user, stats) in enumerate(rows.items()):
@@ -62,7 +68,8 @@ def _differences(service: dict[str, Any], local: dict[str, float | None]) -> lis
     for k in METRICS:
         a, b = service.get(k), local.get(k)
         same = (a is None and b is None) or (
-            a is not None and b is not None and math.isclose(a, b, rel_tol=0, abs_tol=TOLERANCE))
+            a is not None and b is not None and math.isclose(a, b, rel_tol=0, abs_tol=TOLERANCE)
+        )
         if not same:
             found.append(f"{k}: service {a}, robots {b}")
     return found
@@ -80,8 +87,14 @@ def _plot(path: Path, stats: dict[str, dict[str, Any]], change_at: int | None, t
         ax.plot(range(len(curve)), curve, label=user, linewidth=1.4)
     if change_at is not None:
         ax.axvline(change_at, color="grey", linestyle="--", linewidth=1)
-        ax.annotate("needs change", (change_at, ax.get_ylim()[1]), textcoords="offset points",
-                    xytext=(4, -12), fontsize=8, color="grey")
+        ax.annotate(
+            "needs change",
+            (change_at, ax.get_ylim()[1]),
+            textcoords="offset points",
+            xytext=(4, -12),
+            fontsize=8,
+            color="grey",
+        )
     ax.set_xlabel("episode")
     ax.set_ylabel("cumulative reward")
     ax.set_title(title)
@@ -95,42 +108,81 @@ def _plot(path: Path, stats: dict[str, dict[str, Any]], change_at: int | None, t
 
 @fleet.command("simulate")
 def simulate(
-    key: Annotated[str | None, typer.Option(envvar="ATTUNE_KEY", show_default=False,
-                                            help="A robot (or staff or admin) API key "
-                                            "(required; staff or admin with --mission).")
-                   ] = None,
-    url: Annotated[str, typer.Option(envvar="ATTUNE_URL", help="The service's base URL.")
-                   ] = "http://127.0.0.1:8000",
+    key: Annotated[
+        str | None,
+        typer.Option(
+            envvar="ATTUNE_KEY",
+            show_default=False,
+            help="A robot (or staff or admin) API key (required; staff or admin with --mission).",
+        ),
+    ] = None,
+    url: Annotated[
+        str, typer.Option(envvar="ATTUNE_URL", help="The service's base URL.")
+    ] = "http://127.0.0.1:8000",
     robots: Annotated[int, typer.Option(min=1, max=64, help="Concurrent robots.")] = 4,
     users: Annotated[int, typer.Option(min=1, max=1000, help="Simulated people.")] = 6,
     events: Annotated[int, typer.Option(min=1, help="Events per person.")] = 200,
-    change_at: Annotated[int | None, typer.Option(
-        show_default=False, help="Event at which every person's needs change (about half of "
-        "their rules move), as in the paper's second experiment. Default: no change.")] = None,
-    mission_file: Annotated[Path | None, typer.Option(
-        "--mission", metavar="FILE", show_default=False, dir_okay=False,
-        help="Before simulating, make the mission in FILE (JSON, like "
-        "docs/examples/care-home-mission.json) the mission of the key's fleet, with a change_id "
-        "derived from its content (running again with the same FILE changes nothing); the "
-        "people are then drawn from it. Needs a staff or admin key. Every model of the fleet "
-        "is carried to it and the fleet's open episodes are interrupted. Default: simulate "
-        "the fleet's mission in force.")] = None,
+    change_at: Annotated[
+        int | None,
+        typer.Option(
+            show_default=False,
+            help="Event at which every person's needs change (about half of "
+            "their rules move), as in the paper's second experiment. Default: no change.",
+        ),
+    ] = None,
+    mission_file: Annotated[
+        Path | None,
+        typer.Option(
+            "--mission",
+            metavar="FILE",
+            show_default=False,
+            dir_okay=False,
+            help=(
+                "Before simulating, make the mission in FILE (JSON, like "
+                "docs/examples/care-home-mission.json) the mission of the key's fleet, with a "
+                "change_id derived from its content (running again with the same FILE changes "
+                "nothing); the people are then drawn from it. Needs a staff or admin key. Every "
+                "model of the fleet is carried to it and the fleet's open episodes are "
+                "interrupted. Default: simulate the fleet's mission in force."
+            ),
+        ),
+    ] = None,
     seed: Annotated[int, typer.Option(help="Seeds the people, their events and reactions.")] = 0,
-    learner: Annotated[str, typer.Option(help="The learner the people are created with: "
-                                         "dts-adapt, hri, dts, rmax or qlearning.")] = "dts-adapt",
-    prefix: Annotated[str | None, typer.Option(
-        show_default=False, help="User ids are PREFIX-u1, PREFIX-u2, ... Default: fleet-SEED-"
-        "<random>, so that runs never reuse each other's users.")] = None,
-    plot: Annotated[Path | None, typer.Option(
-        show_default=False, help="Write a PNG of each person's cumulative reward here.")] = None,
-    json_output: Annotated[bool, typer.Option(
-        "--json", help="Print the metrics (per user and overall, as the service reports them) "
-        "as JSON on stdout instead of tables.")] = False,
-    progress: Annotated[bool, typer.Option("--progress/--no-progress",
-                                           help="Show a progress bar.")] = True,
+    learner: Annotated[
+        str,
+        typer.Option(
+            help="The learner the people are created with: dts-adapt, hri, dts, rmax or qlearning."
+        ),
+    ] = "dts-adapt",
+    prefix: Annotated[
+        str | None,
+        typer.Option(
+            show_default=False,
+            help="User ids are PREFIX-u1, PREFIX-u2, ... Default: fleet-SEED-"
+            "<random>, so that runs never reuse each other's users.",
+        ),
+    ] = None,
+    plot: Annotated[
+        Path | None,
+        typer.Option(
+            show_default=False, help="Write a PNG of each person's cumulative reward here."
+        ),
+    ] = None,
+    json_output: Annotated[
+        bool,
+        typer.Option(
+            "--json",
+            help="Print the metrics (per user and overall, as the service reports them) "
+            "as JSON on stdout instead of tables.",
+        ),
+    ] = False,
+    progress: Annotated[
+        bool, typer.Option("--progress/--no-progress", help="Show a progress bar.")
+    ] = True,
     timeout: Annotated[float, typer.Option(min=0.1, help="Seconds per request.")] = 30.0,
-    deadline: Annotated[float, typer.Option(min=1, help="Give up after this many seconds.")
-                        ] = 3600.0,
+    deadline: Annotated[
+        float, typer.Option(min=1, help="Give up after this many seconds.")
+    ] = 3600.0,
 ) -> None:
     """Simulated robots serve simulated people through the service at --url.
 
@@ -144,8 +196,7 @@ def simulate(
     """
     require("attune_client", "fleet", "attune fleet")
     if not key:  # checked here, after the extra: what to install comes first
-        sys.stderr.write("attune fleet simulate needs an API key: pass --key or set "
-                         "ATTUNE_KEY.\n")
+        sys.stderr.write("attune fleet simulate needs an API key: pass --key or set ATTUNE_KEY.\n")
         raise typer.Exit(2)
     if plot is not None:
         require("matplotlib", "fleet", "attune fleet simulate --plot")
@@ -176,8 +227,12 @@ def simulate(
     prefix = prefix or f"fleet-{seed}-{secrets.token_hex(3)}"
 
     def client(robot_id: str | None = None) -> Client:
-        return Client(url, key, timeout=timeout, headers={"User-Agent": f"attune-fleet/{robot_id}"}
-                      if robot_id else None)
+        return Client(
+            url,
+            key,
+            timeout=timeout,
+            headers={"User-Agent": f"attune-fleet/{robot_id}"} if robot_id else None,
+        )
 
     try:
         with client() as setup:
@@ -188,19 +243,25 @@ def simulate(
                 err.print(_mission_change_line(changed, mission_file, fleet_name))
                 in_force = setup.mission()
                 if in_force.fingerprint != changed.fingerprint:
-                    err.print(f"[red]The fleet's mission is not the one in {mission_file}:"
-                              f"[/red] its change_id was used before, for a mission the fleet "
-                              f"had from version {changed.version}. Set it with a new "
-                              f"change_id (PUT /v1/admin/fleets/{fleet_name}/mission), then "
-                              "run without --mission.")
+                    err.print(
+                        f"[red]The fleet's mission is not the one in {mission_file}:"
+                        f"[/red] its change_id was used before, for a mission the fleet "
+                        f"had from version {changed.version}. Set it with a new "
+                        f"change_id (PUT /v1/admin/fleets/{fleet_name}/mission), then "
+                        "run without --mission."
+                    )
                     raise typer.Exit(2)
             mission = Mission.from_dict(in_force.document(), source=f"{url}/v1/mission")
             space = space_for(mission)
-            people = make_people(mission, users=users, events=events, change_at=change_at,
-                                 seed=seed, prefix=prefix)
+            people = make_people(
+                mission, users=users, events=events, change_at=change_at, seed=seed, prefix=prefix
+            )
             for person in people:
-                setup.put_user(person.user_id, display_name=f"Simulated person {person.user_id}",
-                               learner={"algorithm": learner})
+                setup.put_user(
+                    person.user_id,
+                    display_name=f"Simulated person {person.user_id}",
+                    learner={"algorithm": learner},
+                )
     except APIConnectionError as exc:
         err.print(f"[red]No service answers at {url}:[/red] {exc}")
         raise typer.Exit(2) from None
@@ -212,14 +273,24 @@ def simulate(
         raise typer.Exit(2) from None
 
     total = users * events
-    err.print(f"Mission {mission.name!r}: {len(mission.situations)} situations, "
-              f"{len(mission.time_slots)} time slots, {len(mission.services)} services.")
-    err.print(f"{robots} robots, {users} people ({prefix}-u1..u{users}), {events} events each"
-              + (f", needs change at event {change_at}" if change_at is not None else "")
-              + f", learner {learner}, seed {seed}, against {url}")
-    bar = Progress(TextColumn("[progress.description]{task.description}"), BarColumn(),
-                   MofNCompleteColumn(), TimeElapsedColumn(), TimeRemainingColumn(),
-                   console=err, disable=not progress)
+    err.print(
+        f"Mission {mission.name!r}: {len(mission.situations)} situations, "
+        f"{len(mission.time_slots)} time slots, {len(mission.services)} services."
+    )
+    err.print(
+        f"{robots} robots, {users} people ({prefix}-u1..u{users}), {events} events each"
+        + (f", needs change at event {change_at}" if change_at is not None else "")
+        + f", learner {learner}, seed {seed}, against {url}"
+    )
+    bar = Progress(
+        TextColumn("[progress.description]{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        TimeRemainingColumn(),
+        console=err,
+        disable=not progress,
+    )
     try:
         with bar:
             task = bar.add_task("episodes", total=total)
@@ -227,39 +298,56 @@ def simulate(
             def advance(_: PlayedEpisode) -> None:
                 bar.advance(task)
 
-            run = run_fleet(client, space, people, robots=robots, on_episode=advance,
-                            deadline_s=deadline)
+            run = run_fleet(
+                client, space, people, robots=robots, on_episode=advance, deadline_s=deadline
+            )
     except FleetError as exc:
         err.print(f"[red]The fleet stopped:[/red] {exc}")
         raise typer.Exit(1) from None
-    err.print(f"{run.played} episodes, {run.requests} requests in {run.elapsed_s:.1f} s "
-              f"({run.requests / max(run.elapsed_s, 1e-9):.0f} requests/s).")
+    err.print(
+        f"{run.played} episodes, {run.requests} requests in {run.elapsed_s:.1f} s "
+        f"({run.requests / max(run.elapsed_s, 1e-9):.0f} requests/s)."
+    )
 
     with client() as reader:
         stats = {p.user_id: reader.get_stats(p.user_id).model_dump() for p in people}
         late = None
         if change_at is not None:
-            late = {p.user_id: reader.get_stats(p.user_id, last=events - change_at).model_dump()
-                    for p in people}
+            late = {
+                p.user_id: reader.get_stats(p.user_id, last=events - change_at).model_dump()
+                for p in people
+            }
     _report(run, stats, late, change_at, events, plot, json_output, learner)
 
 
 def _mission_change_line(changed: Any, path: Path | None, fleet_name: str) -> str:
     """What setting --mission did, in one line."""
     if changed.replayed:
-        return (f"The mission in {path} was set before (version {changed.version} of fleet "
-                f"{fleet_name!r}); nothing changed.")
+        return (
+            f"The mission in {path} was set before (version {changed.version} of fleet "
+            f"{fleet_name!r}); nothing changed."
+        )
     if not changed.changed:
-        return (f"Fleet {fleet_name!r} already has the mission in {path} "
-                f"(version {changed.version}).")
-    return (f"Fleet {fleet_name!r} now has the mission in {path}: version {changed.version}, "
-            f"{changed.users_moved} models carried to it, {changed.episodes_interrupted} open "
-            "episodes interrupted.")
+        return (
+            f"Fleet {fleet_name!r} already has the mission in {path} (version {changed.version})."
+        )
+    return (
+        f"Fleet {fleet_name!r} now has the mission in {path}: version {changed.version}, "
+        f"{changed.users_moved} models carried to it, {changed.episodes_interrupted} open "
+        "episodes interrupted."
+    )
 
 
-def _report(run: FleetRun, stats: dict[str, dict[str, Any]],
-            late: dict[str, dict[str, Any]] | None, change_at: int | None, events: int,
-            plot: Path | None, json_output: bool, learner: str) -> None:
+def _report(
+    run: FleetRun,
+    stats: dict[str, dict[str, Any]],
+    late: dict[str, dict[str, Any]] | None,
+    change_at: int | None,
+    events: int,
+    plot: Path | None,
+    json_output: bool,
+    learner: str,
+) -> None:
     from app.fleet.simulate import local_stats, overall_stats
 
     out, err = stdout_console(), stderr_console()
@@ -268,10 +356,13 @@ def _report(run: FleetRun, stats: dict[str, dict[str, Any]],
     tables.append(_table("Metrics from the service's stats endpoint (docs/method.md §10)", rows))
     document: dict[str, Any] = {"users": stats, "overall": rows["all"]}
     if late is not None and change_at is not None:
-        late_rows: dict[str, dict[str, Any]] = {**late,
-                                                "all": overall_stats(list(late.values()))}
-        tables.append(_table(f"Since the change: the last {events - change_at} episodes of "
-                             "each person", late_rows))
+        late_rows: dict[str, dict[str, Any]] = {**late, "all": overall_stats(list(late.values()))}
+        tables.append(
+            _table(
+                f"Since the change: the last {events - change_at} episodes of each person",
+                late_rows,
+            )
+        )
         document["since_change"] = {"users": late, "overall": late_rows["all"]}
     if json_output:
         print_json(document)
@@ -290,8 +381,9 @@ def _report(run: FleetRun, stats: dict[str, dict[str, Any]],
     else:
         err.print("The service's stats equal the robots' own tally for every user.")
     if plot is not None:
-        _plot(plot, stats, change_at, f"Cumulative reward per person ({learner}, "
-              f"{run.robots} robots)")
+        _plot(
+            plot, stats, change_at, f"Cumulative reward per person ({learner}, {run.robots} robots)"
+        )
         err.print(f"Plot written to {plot}")
     if mismatches:
         raise typer.Exit(1)

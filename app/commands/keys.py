@@ -15,15 +15,17 @@ __all__ = ["keys"]
 
 keys = typer.Typer(help="API keys: made here, shown once, stored hashed.", no_args_is_help=True)
 
-JsonOption = Annotated[bool, typer.Option("--json", help="Print JSON on stdout instead of a "
-                                          "table.")]
+JsonOption = Annotated[
+    bool, typer.Option("--json", help="Print JSON on stdout instead of a table.")
+]
 
 
 @keys.command("create")
 def keys_create(
     role: Annotated[str, typer.Option(help="robot, staff (of one fleet) or admin.")],
-    fleet: Annotated[str, typer.Option(help="The fleet the key (and the users it creates) "
-                                       "belongs to.")] = "default",
+    fleet: Annotated[
+        str, typer.Option(help="The fleet the key (and the users it creates) belongs to.")
+    ] = "default",
     name: Annotated[str | None, typer.Option(help="A label for people, e.g. 'robot7'.")] = None,
 ) -> None:
     """Make a key; the secret is printed once, alone on the last line."""
@@ -35,8 +37,10 @@ def keys_create(
     except AppError as exc:
         tell(exc.detail, "red")
         raise typer.Exit(2) from None
-    tell(f"Created {key.role} key {key.id} for fleet {key.fleet!r}. Store the secret now: "
-         "it cannot be shown again.")
+    tell(
+        f"Created {key.role} key {key.id} for fleet {key.fleet!r}. Store the secret now: "
+        "it cannot be shown again."
+    )
     typer.echo(secret)
 
 
@@ -51,9 +55,15 @@ def keys_list(json_output: JsonOption = False) -> None:
 
     with open_database(load_settings()) as database, database.transaction(write=False) as session:
         rows: list[dict[str, Any]] = [
-            {"id": k.id, "role": k.role, "fleet": k.fleet, "name": k.name, "prefix": k.prefix,
-             "created_at": k.created_at.isoformat(timespec="seconds"),
-             "revoked_at": k.revoked_at.isoformat(timespec="seconds") if k.revoked_at else None}
+            {
+                "id": k.id,
+                "role": k.role,
+                "fleet": k.fleet,
+                "name": k.name,
+                "prefix": k.prefix,
+                "created_at": k.created_at.isoformat(timespec="seconds"),
+                "revoked_at": k.revoked_at.isoformat(timespec="seconds") if k.revoked_at else None,
+            }
             for k in list_keys(session)
         ]
     if json_output:
@@ -64,8 +74,15 @@ def keys_list(json_output: JsonOption = False) -> None:
     table.columns[0].no_wrap = True
     table.columns[0].min_width = max((len(r["id"]) for r in rows), default=2)
     for r in rows:
-        table.add_row(r["id"], r["role"], r["fleet"], r["name"] or "", r["prefix"] + "…",
-                      r["created_at"], r["revoked_at"] or "")
+        table.add_row(
+            r["id"],
+            r["role"],
+            r["fleet"],
+            r["name"] or "",
+            r["prefix"] + "…",
+            r["created_at"],
+            r["revoked_at"] or "",
+        )
     stdout_console().print(table)
 
 
@@ -83,7 +100,9 @@ def keys_revoke(key_id: Annotated[str, typer.Argument(help="The key's id (keys l
         raise typer.Exit(2) from None
     if not changed:
         assert key.revoked_at is not None
-        tell(f"Key {key_id} was already revoked at "
-             f"{key.revoked_at.isoformat(timespec='seconds')}; nothing changed.")
+        tell(
+            f"Key {key_id} was already revoked at "
+            f"{key.revoked_at.isoformat(timespec='seconds')}; nothing changed."
+        )
         return
     tell(f"Revoked {key_id}: its requests get 401 from now on.")

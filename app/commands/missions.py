@@ -16,23 +16,31 @@ from ._setup import load_settings, open_database, tell
 
 __all__ = ["missions"]
 
-missions = typer.Typer(help="Each fleet's mission: what its robots offer, in which situations "
-                       "and time slots, and its versions.", no_args_is_help=True)
+missions = typer.Typer(
+    help="Each fleet's mission: what its robots offer, in which situations "
+    "and time slots, and its versions.",
+    no_args_is_help=True,
+)
 
 FleetOption = Annotated[str, typer.Option(help="The fleet.")]
-JsonOption = Annotated[bool, typer.Option("--json", help="Print JSON on stdout instead of "
-                                          "text.")]
+JsonOption = Annotated[bool, typer.Option("--json", help="Print JSON on stdout instead of text.")]
 
 
 def _summary(doc: dict[str, Any]) -> list[str]:
     """The mission in a few plain lines."""
-    lines = ["  services: " + "; ".join(f"{s['name']} ({', '.join(s['details'])})"
-                                          for s in doc["services"])]
+    lines = [
+        "  services: "
+        + "; ".join(f"{s['name']} ({', '.join(s['details'])})" for s in doc["services"])
+    ]
     quiet = set(doc.get("unavailable_situations", []))
-    lines.append("  situations: " + ", ".join(
-        f"{s} (do not disturb)" if s in quiet else s for s in doc["situations"]))
-    lines.append("  time slots: " + ", ".join(f"{t['name']} {t['start']}-{t['end']}"
-                                               for t in doc["time_slots"]))
+    lines.append(
+        "  situations: "
+        + ", ".join(f"{s} (do not disturb)" if s in quiet else s for s in doc["situations"])
+    )
+    lines.append(
+        "  time slots: "
+        + ", ".join(f"{t['name']} {t['start']}-{t['end']}" for t in doc["time_slots"])
+    )
     rewards = ", ".join(f"{k} {v:g}" for k, v in doc["rewards"].items())
     lines.append(f"  rewards: {rewards}; gamma {doc['gamma']:g}")
     return lines
@@ -41,8 +49,10 @@ def _summary(doc: dict[str, Any]) -> list[str]:
 @missions.command("show")
 def missions_show(
     fleet: FleetOption = "default",
-    version: Annotated[int | None, typer.Option(help="A stored version (default: the one in "
-                                                "force).", show_default=False)] = None,
+    version: Annotated[
+        int | None,
+        typer.Option(help="A stored version (default: the one in force).", show_default=False),
+    ] = None,
     json_output: JsonOption = False,
 ) -> None:
     """Print a fleet's mission (the version in force, or --version N). With --json, the mission
@@ -60,18 +70,21 @@ def missions_show(
     chosen = listed["current_version"] if version is None else version
     found = [item for item in listed["items"] if item["version"] == chosen]
     if not found:
-        tell(f"Fleet {fleet!r} has no mission version {chosen} (it has "
-             f"{', '.join(str(i['version']) for i in listed['items'])}).", "red")
+        tell(
+            f"Fleet {fleet!r} has no mission version {chosen} (it has "
+            f"{', '.join(str(i['version']) for i in listed['items'])}).",
+            "red",
+        )
         raise typer.Exit(2)
     item = found[0]
     if json_output:
         print_json(item["mission"])
         return
     state = "in force" if chosen == listed["current_version"] else "replaced"
-    stored = "" if item["stored"] else " (the deployment's default; stored with the fleet's " \
-        "first user)"
-    typer.echo(f"Fleet {fleet!r}, mission {item['name']!r} version {chosen} ({state})"
-               f"{stored}:")
+    stored = (
+        "" if item["stored"] else " (the deployment's default; stored with the fleet's first user)"
+    )
+    typer.echo(f"Fleet {fleet!r}, mission {item['name']!r} version {chosen} ({state}){stored}:")
     for line in _summary(item["mission"]):
         typer.echo(line)
 
@@ -96,10 +109,19 @@ def missions_list(fleet: FleetOption = "default", json_output: JsonOption = Fals
         return
     table = Table("version", "name", "set", "by", "change id", "renames")
     for item in listed["items"]:
-        renames = "; ".join(f"{old} -> {new}" for section in (item["renames"] or {}).values()
-                            for old, new in section.items())
-        table.add_row(str(item["version"]), item["name"], item["created_at"] or "(default)",
-                      item["set_by"] or "", item["change_id"] or "", renames)
+        renames = "; ".join(
+            f"{old} -> {new}"
+            for section in (item["renames"] or {}).values()
+            for old, new in section.items()
+        )
+        table.add_row(
+            str(item["version"]),
+            item["name"],
+            item["created_at"] or "(default)",
+            item["set_by"] or "",
+            item["change_id"] or "",
+            renames,
+        )
     stdout_console().print(table)
 
 
@@ -115,15 +137,30 @@ def _read_json(path: Path, what: str) -> Any:
 
 @missions.command("set")
 def missions_set(
-    file: Annotated[Path, typer.Argument(help="The mission, a JSON file (as `missions show "
-                                         "--json` prints one).", show_default=False)],
+    file: Annotated[
+        Path,
+        typer.Argument(
+            help="The mission, a JSON file (as `missions show --json` prints one).",
+            show_default=False,
+        ),
+    ],
     fleet: FleetOption = "default",
-    renames: Annotated[Path | None, typer.Option(
-        help='A JSON file of renames that carry what was learned across a rename, e.g. '
-        '{"details": {"cha": "tea"}}.', show_default=False)] = None,
-    change_id: Annotated[str | None, typer.Option(
-        help="Makes the change idempotent (default: derived from the files' contents, so "
-        "running the same command twice is one change).", show_default=False)] = None,
+    renames: Annotated[
+        Path | None,
+        typer.Option(
+            help="A JSON file of renames that carry what was learned across a rename, e.g. "
+            '{"details": {"cha": "tea"}}.',
+            show_default=False,
+        ),
+    ] = None,
+    change_id: Annotated[
+        str | None,
+        typer.Option(
+            help="Makes the change idempotent (default: derived from the files' contents, so "
+            "running the same command twice is one change).",
+            show_default=False,
+        ),
+    ] = None,
     json_output: JsonOption = False,
 ) -> None:
     """Give a fleet a new mission version. Every user's model of the fleet is carried to it in
@@ -146,9 +183,15 @@ def missions_set(
     ctx = ServiceContext.from_settings(settings)
     try:
         with open_database(settings) as database, database.transaction() as session:
-            out, replayed = service.set_mission(session, ctx, audit.CLI, fleet,
-                                                change_id=change_id, mission_doc=doc,
-                                                renames_doc=renamed)
+            out, replayed = service.set_mission(
+                session,
+                ctx,
+                audit.CLI,
+                fleet,
+                change_id=change_id,
+                mission_doc=doc,
+                renames_doc=renamed,
+            )
     except AppError as exc:
         tell(exc.detail, "red")
         raise typer.Exit(2) from None
@@ -156,15 +199,20 @@ def missions_set(
         print_json({**out, "replayed": replayed})
         return
     if replayed:
-        tell(f"This change ({change_id}) was made before: fleet {fleet!r} is at version "
-             f"{out['version']}; nothing changed.")
+        tell(
+            f"This change ({change_id}) was made before: fleet {fleet!r} is at version "
+            f"{out['version']}; nothing changed."
+        )
     elif not out["changed"]:
-        tell(f"Fleet {fleet!r} already has this mission (version {out['version']}); nothing "
-             "changed.")
+        tell(
+            f"Fleet {fleet!r} already has this mission (version {out['version']}); nothing changed."
+        )
     else:
-        tell(f"Fleet {fleet!r} is now at mission version {out['version']}: "
-             f"{out['users_moved']} models carried over, {out['episodes_interrupted']} open "
-             "episodes interrupted.")
+        tell(
+            f"Fleet {fleet!r} is now at mission version {out['version']}: "
+            f"{out['users_moved']} models carried over, {out['episodes_interrupted']} open "
+            "episodes interrupted."
+        )
         for line in _diff_lines(out.get("diff")):
             tell(line)
 
@@ -180,9 +228,13 @@ def _diff_lines(diff: dict[str, Any] | None) -> list[str]:
             if part.get(verb):
                 words.append(f"{verb} {', '.join(map(str, part[verb]))}")
         if part.get("renamed"):
-            words.append("renamed " + ", ".join(
-                f"{r['old']} -> {r['new']}" if isinstance(r, dict) else str(r)
-                for r in part["renamed"]))
+            words.append(
+                "renamed "
+                + ", ".join(
+                    f"{r['old']} -> {r['new']}" if isinstance(r, dict) else str(r)
+                    for r in part["renamed"]
+                )
+            )
         if words:
             lines.append(f"  {what.replace('_', ' ')}: {'; '.join(words)}")
     return lines

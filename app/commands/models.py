@@ -16,15 +16,21 @@ __all__ = ["models"]
 
 models = typer.Typer(help="Users' learned models.", no_args_is_help=True)
 
-UserArg = Annotated[str | None, typer.Argument(help="The user (its id in its fleet).",
-                                               show_default=False)]
-FleetOption = Annotated[str | None, typer.Option(
-    help="The user's fleet; needed only when the id is in several fleets.", show_default=False)]
+UserArg = Annotated[
+    str | None, typer.Argument(help="The user (its id in its fleet).", show_default=False)
+]
+FleetOption = Annotated[
+    str | None,
+    typer.Option(
+        help="The user's fleet; needed only when the id is in several fleets.", show_default=False
+    ),
+]
 AllOption = Annotated[bool, typer.Option("--all", help="Every user of every fleet.")]
 
 
-def _targets(session: Any, user_id: str | None, fleet: str | None, every: bool
-             ) -> list[tuple[str, str]]:
+def _targets(
+    session: Any, user_id: str | None, fleet: str | None, every: bool
+) -> list[tuple[str, str]]:
     """(fleet, user id) pairs the command is about; exit 2 with a sentence if none fits."""
     from app.services.models import every_user, fleets_with
 
@@ -43,8 +49,7 @@ def _targets(session: Any, user_id: str | None, fleet: str | None, every: bool
         tell(f"No user {user_id!r} in this database.", "red")
         raise typer.Exit(2)
     if len(found) > 1:
-        tell(f"User id {user_id!r} is in several fleets ({', '.join(found)}): pass --fleet.",
-             "red")
+        tell(f"User id {user_id!r} is in several fleets ({', '.join(found)}): pass --fleet.", "red")
         raise typer.Exit(2)
     return [(found[0], user_id)]
 
@@ -72,29 +77,38 @@ def models_rebuild(
         for in_fleet, uid in targets:
             try:
                 with database.transaction() as session:
-                    report = rebuild_model(session, ctx, audit.CLI, uid, save=save,
-                                           fleet=in_fleet)
+                    report = rebuild_model(session, ctx, audit.CLI, uid, save=save, fleet=in_fleet)
             except NotFound:
                 tell(f"No user {uid!r} in fleet {in_fleet!r}.", "red")
                 raise typer.Exit(2) from None
             except AppError as exc:
                 tell(exc.detail, "red")
                 raise typer.Exit(2) from None
-            typer.echo(json.dumps({
-                "fleet": in_fleet, "user_id": uid, "version": report.version,
-                "writes_replayed": report.writes, "samples_replayed": report.samples,
-                "decisions_redrawn": report.decisions,
-                "mismatched_decisions": report.mismatched_decisions,
-                "identical": report.identical}))
+            typer.echo(
+                json.dumps(
+                    {
+                        "fleet": in_fleet,
+                        "user_id": uid,
+                        "version": report.version,
+                        "writes_replayed": report.writes,
+                        "samples_replayed": report.samples,
+                        "decisions_redrawn": report.decisions,
+                        "mismatched_decisions": report.mismatched_decisions,
+                        "identical": report.identical,
+                    }
+                )
+            )
             if not report.identical:
                 differ += 1
-                tell(f"{in_fleet}/{uid}: the rebuilt model differs from the stored one."
-                     + (" Stored the rebuilt model." if save else ""), "red")
+                tell(
+                    f"{in_fleet}/{uid}: the rebuilt model differs from the stored one."
+                    + (" Stored the rebuilt model." if save else ""),
+                    "red",
+                )
     if differ:
         raise typer.Exit(1)
     if len(targets) == 1:
-        tell(f"Rebuilt {targets[0][1]}: identical to the stored model (version "
-             f"{report.version}).")
+        tell(f"Rebuilt {targets[0][1]}: identical to the stored model (version {report.version}).")
     else:
         tell(f"Rebuilt {len(targets)} users: every one identical to its stored model.")
 

@@ -32,16 +32,23 @@ def _listen(host: str, port: int) -> socket.socket:
     except OSError as exc:
         sock.close()
         if exc.errno == errno.EADDRINUSE:
-            raise StartFailure(f"Port {port} on {host} is already in use: stop what uses it, or "
-                               "pass another --port.") from None
+            raise StartFailure(
+                f"Port {port} on {host} is already in use: stop what uses it, or "
+                "pass another --port."
+            ) from None
         if exc.errno == errno.EACCES:
-            raise StartFailure(f"Not allowed to listen on port {port} of {host}: pass a port "
-                               "above 1023, or run with the rights to use it.") from None
+            raise StartFailure(
+                f"Not allowed to listen on port {port} of {host}: pass a port "
+                "above 1023, or run with the rights to use it."
+            ) from None
         if exc.errno == errno.EADDRNOTAVAIL or isinstance(exc, socket.gaierror):
-            raise StartFailure(f"Cannot listen on {host}: it is not an address of this "
-                               "machine; pass another --host.") from None
-        raise StartFailure(f"Cannot listen on {host}:{port}: "
-                           f"{exc.strerror or one_line(exc)}.") from None
+            raise StartFailure(
+                f"Cannot listen on {host}: it is not an address of this "
+                "machine; pass another --host."
+            ) from None
+        raise StartFailure(
+            f"Cannot listen on {host}:{port}: {exc.strerror or one_line(exc)}."
+        ) from None
     # uvicorn's own socket is made without IPPROTO_TCP, so asyncio does not turn Nagle's
     # algorithm off on the connections it accepts, and every response sent in two writes waits
     # for the client's delayed ACK (40 ms a request on Linux: 160 instead of 10,000 requests/s
@@ -55,8 +62,12 @@ def _listen(host: str, port: int) -> socket.socket:
 def serve(
     host: Annotated[str, typer.Option(help="Interface to listen on.")] = "127.0.0.1",
     port: Annotated[int, typer.Option(min=1, max=65535, help="TCP port.")] = 8000,
-    workers: Annotated[int, typer.Option(min=1, help="Worker processes (each with its own "
-                                         "connection pool and learner cache).")] = 1,
+    workers: Annotated[
+        int,
+        typer.Option(
+            min=1, help="Worker processes (each with its own connection pool and learner cache)."
+        ),
+    ] = 1,
 ) -> None:
     """Apply pending migrations, then serve the v1 API (docs at /docs).
 
@@ -86,14 +97,23 @@ def serve(
         if workers > 1 and not os.environ.get("PROMETHEUS_MULTIPROC_DIR"):
             # Every worker writes its metrics here and /metrics adds them up.
             os.environ["PROMETHEUS_MULTIPROC_DIR"] = tempfile.mkdtemp(prefix="attune-metrics-")
-        say(f"Attune on http://{host}:{port} (docs: http://{host}:{port}/docs), "
-            f"{workers} worker(s).")
+        say(
+            f"Attune on http://{host}:{port} (docs: http://{host}:{port}/docs), "
+            f"{workers} worker(s)."
+        )
         # uvicorn's access log is off: the service writes one access line per request itself
         # (logger attune.access), with the route, the key id and the request id.
-        config = uvicorn.Config("app.main:app", factory=True, host=host, port=port,
-                                workers=workers, log_config=log_config,
-                                log_level=settings.log_level, access_log=False,
-                                proxy_headers=False)
+        config = uvicorn.Config(
+            "app.main:app",
+            factory=True,
+            host=host,
+            port=port,
+            workers=workers,
+            log_config=log_config,
+            log_level=settings.log_level,
+            access_log=False,
+            proxy_headers=False,
+        )
         if workers == 1:
             with contextlib.suppress(KeyboardInterrupt):  # Ctrl+C: as uvicorn.run does
                 uvicorn.Server(config).run(sockets=[sock])

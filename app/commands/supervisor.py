@@ -54,17 +54,27 @@ class Supervisor(Multiprocess):
             process.join()
             code = process.exitcode
             if hung:
-                log.error("Worker process %s did not answer its health check within %s s; "
-                          "killed it and started a new one.", process.pid, timeout)
+                log.error(
+                    "Worker process %s did not answer its health check within %s s; "
+                    "killed it and started a new one.",
+                    process.pid,
+                    timeout,
+                )
             elif code == STARTUP_FAILURE:
                 # The app, the socket or the settings are broken: every restart would fail too.
-                log.error("Worker process %s failed to start (%s); stopping.", process.pid,
-                          describe_exit(code))
+                log.error(
+                    "Worker process %s failed to start (%s); stopping.",
+                    process.pid,
+                    describe_exit(code),
+                )
                 self.should_exit.set()
                 return
             else:
-                log.error("Worker process %s %s; starting a new one.", process.pid,
-                          describe_exit(code if code is not None else 0))
+                log.error(
+                    "Worker process %s %s; starting a new one.",
+                    process.pid,
+                    describe_exit(code if code is not None else 0),
+                )
             if self.should_exit.is_set():
                 return
             replacement = Process(self.config, self.sockets)

@@ -24,8 +24,18 @@ from app.errors import Forbidden, Unauthorized
 from app.services.auth import require_manager
 from app.services.context import Principal
 
-__all__ = ["COOKIE", "Admin", "AdminDep", "FormDep", "LoginRequired", "PageError", "check_post",
-           "csrf_token", "safe_next", "sign_in"]
+__all__ = [
+    "COOKIE",
+    "Admin",
+    "AdminDep",
+    "FormDep",
+    "LoginRequired",
+    "PageError",
+    "check_post",
+    "csrf_token",
+    "safe_next",
+    "sign_in",
+]
 
 COOKIE = "attune_console"
 COOKIE_PATH = "/admin"
@@ -68,17 +78,24 @@ async def sign_in(request: Request, secret: str) -> Principal:
     try:
         principal = await principal_of(request, f"Bearer {secret}", cached=False)
     except Unauthorized:
-        raise PageError(401, "Unknown or revoked key",
-                        "This key is not known to the service, or it was revoked. Sign in with "
-                        "a staff or admin key (attune keys create --role staff --fleet NAME).",
-                        sign_out=True) from None
+        raise PageError(
+            401,
+            "Unknown or revoked key",
+            "This key is not known to the service, or it was revoked. Sign in with "
+            "a staff or admin key (attune keys create --role staff --fleet NAME).",
+            sign_out=True,
+        ) from None
     try:
         require_manager(principal)
     except Forbidden:
-        raise PageError(403, "A staff or admin key is needed",
-                        f"This is a {principal.role} key: robots may use the API, but the console "
-                        "needs a staff key of the fleet, or an admin key (attune keys create "
-                        "--role staff --fleet NAME).", sign_out=True) from None
+        raise PageError(
+            403,
+            "A staff or admin key is needed",
+            f"This is a {principal.role} key: robots may use the API, but the console "
+            "needs a staff key of the fleet, or an admin key (attune keys create "
+            "--role staff --fleet NAME).",
+            sign_out=True,
+        ) from None
     return principal
 
 
@@ -102,8 +119,12 @@ async def form_fields(request: Request) -> dict[str, str]:
         raise PageError(415, "Not a form", "This page takes a submitted form.")
     body = await request.body()
     try:
-        pairs = parse_qsl(body.decode("utf-8"), keep_blank_values=True,
-                          max_num_fields=_MAX_FIELDS, strict_parsing=False)
+        pairs = parse_qsl(
+            body.decode("utf-8"),
+            keep_blank_values=True,
+            max_num_fields=_MAX_FIELDS,
+            strict_parsing=False,
+        )
     except (UnicodeDecodeError, ValueError):
         raise PageError(400, "Bad form", "The form could not be read; reload the page.") from None
     return dict(pairs)
@@ -128,14 +149,22 @@ def check_post(request: Request, admin: Admin, form: dict[str, str]) -> None:
     """Refuse a state-changing POST that did not come from one of the console's own pages."""
     token = form.get("csrf", "")
     if not same_origin(request) or not hmac.compare_digest(token, admin.csrf):
-        raise PageError(403, "Request refused",
-                        "This action did not come from a console page (its security token is "
-                        "missing or stale). Go back, reload the page and try again.")
+        raise PageError(
+            403,
+            "Request refused",
+            "This action did not come from a console page (its security token is "
+            "missing or stale). Go back, reload the page and try again.",
+        )
 
 
 def safe_next(path: str | None) -> str:
     """Where to go after signing in: a console path only (no open redirect)."""
-    if not path or not path.startswith(COOKIE_PATH + "/") or path.startswith("//") \
-            or "\\" in path or any(ord(ch) < 32 for ch in path):
+    if (
+        not path
+        or not path.startswith(COOKIE_PATH + "/")
+        or path.startswith("//")
+        or "\\" in path
+        or any(ord(ch) < 32 for ch in path)
+    ):
         return f"{COOKIE_PATH}/users"
     return path

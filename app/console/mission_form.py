@@ -19,19 +19,44 @@ from typing import Any
 from app.learning import Mission
 from app.learning.remap import MissionDiff, Renames, diff_missions
 
-__all__ = ["FIELDS", "Change", "FormError", "MissionForm", "MissionVersion", "changes",
-           "field_of", "history"]
+__all__ = [
+    "FIELDS",
+    "Change",
+    "FormError",
+    "MissionForm",
+    "MissionVersion",
+    "changes",
+    "field_of",
+    "history",
+]
 
 # The form's text fields, in the order of the page (the hidden ones aside).
-FIELDS = ("services", "situations", "do_not_disturb", "time_slots", "renames", "name",
-          "reward_positive", "reward_accepted_service", "reward_negative", "reward_query",
-          "gamma")
+FIELDS = (
+    "services",
+    "situations",
+    "do_not_disturb",
+    "time_slots",
+    "renames",
+    "name",
+    "reward_positive",
+    "reward_accepted_service",
+    "reward_negative",
+    "reward_query",
+    "gamma",
+)
 _REWARDS = ("positive", "accepted_service", "negative", "query")
-_SLOT = re.compile(r"^(?P<name>[^\s:]+)\s*:?\s+(?P<start>\d{1,2}[:.h]\d{2})\s*"
-                   r"(?:-|–|—|to)\s*(?P<end>\d{1,2}[:.h]\d{2})$")
+_SLOT = re.compile(
+    r"^(?P<name>[^\s:]+)\s*:?\s+(?P<start>\d{1,2}[:.h]\d{2})\s*"
+    r"(?:-|–|—|to)\s*(?P<end>\d{1,2}[:.h]\d{2})$"
+)
 _ARROW = re.compile(r"\s*(?:->|→|=>)\s*")
-_KINDS = {"time slot": "time_slots", "slot": "time_slots", "situation": "situations",
-          "service": "services", "choice": "details"}
+_KINDS = {
+    "time slot": "time_slots",
+    "slot": "time_slots",
+    "situation": "situations",
+    "service": "services",
+    "choice": "details",
+}
 
 
 class FormError(ValueError):
@@ -86,8 +111,9 @@ class MissionForm:
             services="\n".join(f"{s.name}: {', '.join(s.details)}" for s in mission.services),
             situations=", ".join(mission.situations),
             do_not_disturb=", ".join(mission.unavailable_situations),
-            time_slots="\n".join(f"{s.name} {s.start:%H:%M}-{s.end:%H:%M}"
-                                 for s in mission.time_slots),
+            time_slots="\n".join(
+                f"{s.name} {s.start:%H:%M}-{s.end:%H:%M}" for s in mission.time_slots
+            ),
             name=mission.name,
             reward_positive=_number(mission.rewards.positive),
             reward_accepted_service=_number(mission.rewards.accepted_service),
@@ -118,24 +144,40 @@ class MissionForm:
         for i, line in enumerate(_lines(self.services), 1):
             name, colon, rest = line.partition(":")
             if not colon or not name.strip():
-                raise FormError("services", f"Line {i}, {line!r}: write a service and its "
-                                "choices as 'ProvideDrink: tea, coffee, water'.")
+                raise FormError(
+                    "services",
+                    f"Line {i}, {line!r}: write a service and its "
+                    "choices as 'ProvideDrink: tea, coffee, water'.",
+                )
             services.append({"name": name.strip(), "details": _commas(rest)})
         slots = []
         for line in _lines(self.time_slots):
             found = _SLOT.match(line)
             if not found:
-                raise FormError("time_slots", f"{line!r}: write a time slot as its name and its "
-                                "local hours, 'morning 06:00-11:00'.")
-            slots.append({"name": found["name"], "start": _clock(found["start"]),
-                          "end": _clock(found["end"])})
+                raise FormError(
+                    "time_slots",
+                    f"{line!r}: write a time slot as its name and its "
+                    "local hours, 'morning 06:00-11:00'.",
+                )
+            slots.append(
+                {
+                    "name": found["name"],
+                    "start": _clock(found["start"]),
+                    "end": _clock(found["end"]),
+                }
+            )
         rewards: dict[str, float] = {}
         for key in _REWARDS:
             rewards[key] = self._float(f"reward_{key}")
-        return {"name": self.name.strip(), "situations": _commas(self.situations),
-                "unavailable_situations": _commas(self.do_not_disturb),
-                "time_slots": slots, "services": services, "rewards": rewards,
-                "gamma": self._float("gamma")}
+        return {
+            "name": self.name.strip(),
+            "situations": _commas(self.situations),
+            "unavailable_situations": _commas(self.do_not_disturb),
+            "time_slots": slots,
+            "services": services,
+            "rewards": rewards,
+            "gamma": self._float("gamma"),
+        }
 
     def _float(self, name: str) -> float:
         text = getattr(self, name).strip()
@@ -145,10 +187,12 @@ class MissionForm:
             raise FormError(name, f"{text!r} is not a number.") from None
 
     def _renames(self, current: Mission) -> dict[str, dict[str, str]]:
-        known = {"time_slots": {s.name for s in current.time_slots},
-                 "situations": set(current.situations),
-                 "services": {s.name for s in current.services},
-                 "details": {d for s in current.services for d in s.details}}
+        known = {
+            "time_slots": {s.name for s in current.time_slots},
+            "situations": set(current.situations),
+            "services": {s.name for s in current.services},
+            "details": {d for s in current.services for d in s.details},
+        }
         out: dict[str, dict[str, str]] = {}
         for line in _lines(self.renames):
             parts = _ARROW.split(line)
@@ -164,12 +208,16 @@ class MissionForm:
             else:
                 found = [k for k, names in known.items() if old in names]
                 if not found:
-                    raise FormError("renames", f"{line!r}: the mission in force has no service, "
-                                    f"choice, situation or time slot named {old!r}.")
+                    raise FormError(
+                        "renames",
+                        f"{line!r}: the mission in force has no service, "
+                        f"choice, situation or time slot named {old!r}.",
+                    )
                 if len(found) > 1:
                     words = " or ".join(f"'{_word(k)}: {old} -> {new}'" for k in found)
-                    raise FormError("renames", f"{line!r}: {old!r} names more than one thing; "
-                                    f"write {words}.")
+                    raise FormError(
+                        "renames", f"{line!r}: {old!r} names more than one thing; write {words}."
+                    )
                 section = found[0]
             if old in out.get(section, {}):
                 raise FormError("renames", f"{line!r}: {old!r} is renamed twice.")
@@ -178,18 +226,32 @@ class MissionForm:
 
 
 def _word(section: str) -> str:
-    return {"time_slots": "time slot", "situations": "situation", "services": "service",
-            "details": "choice"}[section]
+    return {
+        "time_slots": "time slot",
+        "situations": "situation",
+        "services": "service",
+        "details": "choice",
+    }[section]
 
 
 # -- the service's messages, next to their field ------------------------------------------------
 _PATHS = [
-    ("services", "services"), ("time_slots", "time_slots"),
-    ("unavailable_situations", "do_not_disturb"), ("situations", "situations"),
-    ("renames", "renames"), ("rewards", "advanced"), ("gamma", "gamma"), ("name", "name"),
+    ("services", "services"),
+    ("time_slots", "time_slots"),
+    ("unavailable_situations", "do_not_disturb"),
+    ("situations", "situations"),
+    ("renames", "renames"),
+    ("rewards", "advanced"),
+    ("gamma", "gamma"),
+    ("name", "name"),
 ]
-_LIMIT_WORDS = [("time slots", "time_slots"), ("situations", "situations"),
-                ("contexts", "time_slots"), ("services", "services"), ("details", "services")]
+_LIMIT_WORDS = [
+    ("time slots", "time_slots"),
+    ("situations", "situations"),
+    ("contexts", "time_slots"),
+    ("services", "services"),
+    ("details", "services"),
+]
 
 
 def field_of(message: str, doc: dict[str, Any] | None = None) -> tuple[str, str]:
@@ -199,7 +261,7 @@ def field_of(message: str, doc: dict[str, Any] | None = None) -> tuple[str, str]
     target = "general"
     reward = re.match(r"rewards\.(positive|accepted_service|negative|query): ", text)
     if reward:
-        target, text = f"reward_{reward[1]}", text[reward.end():]
+        target, text = f"reward_{reward[1]}", text[reward.end() :]
     for prefix, name in _PATHS:
         if target == "general" and re.match(rf"{prefix}\b", text):
             target = name
@@ -228,8 +290,11 @@ def field_of(message: str, doc: dict[str, Any] | None = None) -> tuple[str, str]
 
     text = re.sub(r"services\[(\d+)\](?:\.details\[(\d+)\]|(\.name|\.details))?", service, text)
     text = re.sub(r"time_slots\[(\d+)\](\.name|\.start|\.end)?", slot, text)
-    text = re.sub(r"unavailable_situations\[(\d+)\]",
-                  lambda m: f"do-not-disturb situation {int(m[1]) + 1}", text)
+    text = re.sub(
+        r"unavailable_situations\[(\d+)\]",
+        lambda m: f"do-not-disturb situation {int(m[1]) + 1}",
+        text,
+    )
     text = re.sub(r"situations\[(\d+)\]", lambda m: f"situation {int(m[1]) + 1}", text)
     text = re.sub(r"renames\.\w+\.([^:]+):", r"rename of \1:", text)
     text = re.sub(r"\bdetails\b", "choices", text)
@@ -258,8 +323,12 @@ def changes(old: Mission, new: Mission, diff: MissionDiff) -> list[Change]:
     new_services = set(diff.services.added)
     gone_services = set(diff.services.removed)
     for name in diff.services.added:
-        out.append(Change("added", f"New service {name}, with the choices "
-                                   f"{', '.join(new.service(name).details)}."))
+        out.append(
+            Change(
+                "added",
+                f"New service {name}, with the choices {', '.join(new.service(name).details)}.",
+            )
+        )
     for name in diff.services.removed:
         out.append(Change("removed", f"Service {name} removed."))
     for a, b in diff.services.renamed:
@@ -297,14 +366,23 @@ def changes(old: Mission, new: Mission, diff: MissionDiff) -> list[Change]:
     for s in new.time_slots:
         before = old_slots.get(renamed_slots.get(s.name, s.name))
         if before is not None and (before.start, before.end) != (s.start, s.end):
-            out.append(Change("changed", f"Hours of {s.name}: {before.start:%H:%M}–"
-                                         f"{before.end:%H:%M} become {s.start:%H:%M}–"
-                                         f"{s.end:%H:%M}."))
+            out.append(
+                Change(
+                    "changed",
+                    f"Hours of {s.name}: {before.start:%H:%M}–"
+                    f"{before.end:%H:%M} become {s.start:%H:%M}–"
+                    f"{s.end:%H:%M}.",
+                )
+            )
     if diff.rewards_changed:
         out.append(Change("changed", "The rewards (advanced settings) changed."))
     if diff.gamma_changed:
-        out.append(Change("changed", f"The discount (advanced settings) changed from "
-                                     f"{old.gamma:g} to {new.gamma:g}."))
+        out.append(
+            Change(
+                "changed",
+                f"The discount (advanced settings) changed from {old.gamma:g} to {new.gamma:g}.",
+            )
+        )
     if old.name != new.name:
         out.append(Change("renamed", f"The mission is now called {new.name}."))
     return out
@@ -336,10 +414,16 @@ def history(items: Sequence[dict[str, Any]]) -> list[MissionVersion]:
         if before is not None:
             changed = changes(before, mission, diff_missions(before, mission, renames))
         created = item.get("created_at")
-        out.append(MissionVersion(
-            version=item["version"], mission=mission,
-            created_at=dt.datetime.fromisoformat(created) if created else None,
-            set_by=item.get("set_by"), stored=bool(item.get("stored", True)), renames=renames,
-            changes=changed))
+        out.append(
+            MissionVersion(
+                version=item["version"],
+                mission=mission,
+                created_at=dt.datetime.fromisoformat(created) if created else None,
+                set_by=item.get("set_by"),
+                stored=bool(item.get("stored", True)),
+                renames=renames,
+                changes=changed,
+            )
+        )
         before = mission
     return out[::-1]

@@ -69,22 +69,37 @@ _HEADERS = {
     # The pages load nothing but their own files: no inline script or style, no framing (the
     # reset and delete buttons must not be clickjacked), nothing cached (people's data).
     "Content-Security-Policy": "default-src 'self'; script-src 'self'; style-src 'self'; "
-                               "img-src 'self' data:; object-src 'none'; base-uri 'none'; "
-                               "form-action 'self'; frame-ancestors 'none'",
+    "img-src 'self' data:; object-src 'none'; base-uri 'none'; "
+    "form-action 'self'; frame-ancestors 'none'",
     "X-Frame-Options": "DENY",
     "X-Content-Type-Options": "nosniff",
     "Referrer-Policy": "same-origin",
     "Cache-Control": "no-store",
 }
 _USER_ID = re.compile(CLIENT_ID_PATTERN)
-_TITLES = {400: "Bad request", 401: "Sign in again", 403: "Not allowed", 404: "Not found",
-           409: "Conflict", 422: "Not valid", 503: "Busy, retry"}
+_TITLES = {
+    400: "Bad request",
+    401: "Sign in again",
+    403: "Not allowed",
+    404: "Not found",
+    409: "Conflict",
+    422: "Not valid",
+    503: "Busy, retry",
+}
 
 
 def _error_page(request: Request, status: int, title: str, detail: str) -> HTMLResponse:
-    return templates.TemplateResponse(request, "error.html", {
-        "title": title, "detail": detail, "status": status, "admin": None,
-    }, status_code=status)
+    return templates.TemplateResponse(
+        request,
+        "error.html",
+        {
+            "title": title,
+            "detail": detail,
+            "status": status,
+            "admin": None,
+        },
+        status_code=status,
+    )
 
 
 class ConsoleRoute(TransactionalRoute):
@@ -99,18 +114,19 @@ class ConsoleRoute(TransactionalRoute):
             try:
                 response = await handler(request)
             except LoginRequired as exc:
-                response = RedirectResponse(f"{COOKIE_PATH}/login?next={_quote(exc.next_path)}",
-                                            status_code=303)
+                response = RedirectResponse(
+                    f"{COOKIE_PATH}/login?next={_quote(exc.next_path)}", status_code=303
+                )
             except PageError as exc:
                 response = _error_page(request, exc.status, exc.title, exc.detail)
                 if exc.sign_out:
                     _forget(response)
             except AppError as exc:
-                response = _error_page(request, exc.status_code, _TITLES.get(
-                    exc.status_code, "Error"), exc.detail)
+                response = _error_page(
+                    request, exc.status_code, _TITLES.get(exc.status_code, "Error"), exc.detail
+                )
             except RequestValidationError as exc:
-                response = _error_page(request, 422, "Bad address",
-                                       validation_detail(request, exc))
+                response = _error_page(request, 422, "Bad address", validation_detail(request, exc))
             response.headers.update(_HEADERS)
             return response
 
@@ -125,10 +141,12 @@ def _forget(response: Response) -> None:
     response.delete_cookie(COOKIE, path=COOKIE_PATH, httponly=True, samesite="strict")
 
 
-def _page(request: Request, name: str, admin: Admin | None, status: int = 200,
-          **context: Any) -> HTMLResponse:
-    return templates.TemplateResponse(request, name, {"admin": admin, **context},
-                                      status_code=status)
+def _page(
+    request: Request, name: str, admin: Admin | None, status: int = 200, **context: Any
+) -> HTMLResponse:
+    return templates.TemplateResponse(
+        request, name, {"admin": admin, **context}, status_code=status
+    )
 
 
 def _redirect(url: str) -> RedirectResponse:
@@ -143,8 +161,9 @@ router = APIRouter(prefix=COOKIE_PATH, route_class=ConsoleRoute, include_in_sche
 
 def _check_user_id(user_id: str) -> None:
     if not _USER_ID.match(user_id):
-        raise PageError(404, "Not found", f"No user {user_id!r}: user ids use letters, digits "
-                        "and . _ : - only.")
+        raise PageError(
+            404, "Not found", f"No user {user_id!r}: user ids use letters, digits and . _ : - only."
+        )
 
 
 # -- signing in and out --------------------------------------------------------------------------
@@ -155,11 +174,15 @@ def home() -> RedirectResponse:
 
 
 @router.get("/login")
-def login_form(request: Request, next: Annotated[str | None, Query(max_length=2000)] = None,
-               signed_out: bool = False) -> HTMLResponse:
+def login_form(
+    request: Request,
+    next: Annotated[str | None, Query(max_length=2000)] = None,
+    signed_out: bool = False,
+) -> HTMLResponse:
     """The sign-in form: an admin key."""
-    return _page(request, "login.html", None, next=safe_next(next), error=None,
-                 signed_out=signed_out)
+    return _page(
+        request, "login.html", None, next=safe_next(next), error=None, signed_out=signed_out
+    )
 
 
 @router.post("/login")
@@ -174,12 +197,19 @@ async def login(request: Request, form: FormDep) -> Response:
             raise PageError(401, "Key needed", "Paste an admin key to sign in.")
         await sign_in(request, secret)
     except PageError as exc:
-        return _page(request, "login.html", None, exc.status, next=target, error=exc,
-                     signed_out=False)
+        return _page(
+            request, "login.html", None, exc.status, next=target, error=exc, signed_out=False
+        )
     response = _redirect(target)
     # No Max-Age or Expires: a session cookie, gone when the browser closes.
-    response.set_cookie(COOKIE, secret, path=COOKIE_PATH, httponly=True, samesite="strict",
-                        secure=request.url.scheme == "https")
+    response.set_cookie(
+        COOKIE,
+        secret,
+        path=COOKIE_PATH,
+        httponly=True,
+        samesite="strict",
+        secure=request.url.scheme == "https",
+    )
     return response
 
 
@@ -197,24 +227,28 @@ def logout(request: Request, form: FormDep) -> Response:
 # -- users -----------------------------------------------------------------------------------
 @router.get("/users")
 def users_page(
-    request: Request, session: RequestSession, admin: AdminDep,
+    request: Request,
+    session: RequestSession,
+    admin: AdminDep,
     q: Annotated[str | None, Query(max_length=200)] = None,
     page: Annotated[int, Query(ge=1, le=1_000_000)] = 1,
     per_page: Annotated[int, Query(ge=5, le=200)] = 25,
     deleted: Annotated[str | None, Query(max_length=128)] = None,
 ) -> HTMLResponse:
     """Users, searchable, a page at a time, with learner, episodes, recent success, activity."""
-    found = console_service.find_users(session, admin.principal, text=q, page=page,
-                                       per_page=per_page)
+    found = console_service.find_users(
+        session, admin.principal, text=q, page=page, per_page=per_page
+    )
     shown = deleted if deleted and _USER_ID.match(deleted) else None  # only ids: no free text
-    return _page(request, "users.html", admin, found=found, q=q or "", deleted=shown,
-                 nav="users")
+    return _page(request, "users.html", admin, found=found, q=q or "", deleted=shown, nav="users")
 
 
 def _counts(session: RequestSession, user: UserOut) -> dict[str, int]:
     """The header's episode count: all of the person's episodes, the open ones said apart."""
-    return {"episodes": user.episodes,
-            "open_episodes": console_service.open_episodes(session, user)}
+    return {
+        "episodes": user.episodes,
+        "open_episodes": console_service.open_episodes(session, user),
+    }
 
 
 _SLOT_NAME = Annotated[str | None, Query(max_length=64)]
@@ -222,35 +256,69 @@ _CORRECTION_KINDS = ("prefers", "avoid", "quiet")
 _CORRECTION_FIELDS = ("kind", "service", "detail", "note")
 
 
-def _profile_page(request: Request, session: RequestSession, ctx: ServiceContext, admin: Admin,
-                  user: UserOut, *, time_slot: str | None, situation: str | None,
-                  done: str | None = None, typed: dict[str, str] | None = None,
-                  error: str | None = None, status: int = 200) -> HTMLResponse:
+def _profile_page(
+    request: Request,
+    session: RequestSession,
+    ctx: ServiceContext,
+    admin: Admin,
+    user: UserOut,
+    *,
+    time_slot: str | None,
+    situation: str | None,
+    done: str | None = None,
+    typed: dict[str, str] | None = None,
+    error: str | None = None,
+    status: int = 200,
+) -> HTMLResponse:
     principal = admin.principal
-    profile = profile_service.profile_view(session, ctx, principal, user.user_id,
-                                           fleet=user.fleet)
+    profile = profile_service.profile_view(session, ctx, principal, user.user_id, fleet=user.fleet)
     mission = console_service.user_mission(session, ctx, user)
     grid = views.profile_grid(profile, mission)
     selected = None
     if time_slot is not None and situation is not None:
-        selected = next((c for row in grid for c in row.cells
-                         if (c.time_slot, c.situation) == (time_slot, situation)), None)
+        selected = next(
+            (
+                c
+                for row in grid
+                for c in row.cells
+                if (c.time_slot, c.situation) == (time_slot, situation)
+            ),
+            None,
+        )
     in_force = {c.correction_id: c for c in profile.corrections}
     here = []
     if selected is not None and selected.context is not None:
         here = [in_force[i] for i in selected.context.corrections if i in in_force]
-    return _page(request, "user.html", admin, status, user=user, tab="profile",
-                 profile=profile, grid=grid, selected=selected, here=here, mission=mission,
-                 counts={"episodes": profile.episodes, "open_episodes": profile.open_episodes},
-                 done=done, typed=typed or {}, error=error,
-                 correction_id=secrets.token_hex(16),
-                 mission_version=console_service.mission_version(session, user))
+    return _page(
+        request,
+        "user.html",
+        admin,
+        status,
+        user=user,
+        tab="profile",
+        profile=profile,
+        grid=grid,
+        selected=selected,
+        here=here,
+        mission=mission,
+        counts={"episodes": profile.episodes, "open_episodes": profile.open_episodes},
+        done=done,
+        typed=typed or {},
+        error=error,
+        correction_id=secrets.token_hex(16),
+        mission_version=console_service.mission_version(session, user),
+    )
 
 
 @router.get("/users/{user_id}")
 def user_page(
-    request: Request, user_id: str, session: RequestSession, ctx: ServiceContext, admin: AdminDep,
-    time_slot: _SLOT_NAME = None, situation: _SLOT_NAME = None,
+    request: Request,
+    user_id: str,
+    session: RequestSession,
+    ctx: ServiceContext,
+    admin: AdminDep,
+    time_slot: _SLOT_NAME = None,
+    situation: _SLOT_NAME = None,
     done: Annotated[str | None, Query(max_length=32)] = None,
     fleet: FleetQuery = None,
 ) -> HTMLResponse:
@@ -258,8 +326,9 @@ def user_page(
     (``time_slot`` and ``situation``) shows the evidence and the form that corrects it."""
     _check_user_id(user_id)
     user = users_service.get_user(session, admin.principal, user_id, fleet=fleet)
-    return _profile_page(request, session, ctx, admin, user, time_slot=time_slot,
-                         situation=situation, done=done)
+    return _profile_page(
+        request, session, ctx, admin, user, time_slot=time_slot, situation=situation, done=done
+    )
 
 
 def _correction_error(exc: ValidationError) -> str:
@@ -271,9 +340,15 @@ def _correction_error(exc: ValidationError) -> str:
 
 
 @router.post("/users/{user_id}/corrections")
-def add_correction(request: Request, user_id: str, session: RequestSession,
-                   ctx: ServiceContext, admin: AdminDep, form: FormDep,
-                   fleet: FleetQuery = None) -> Response:
+def add_correction(
+    request: Request,
+    user_id: str,
+    session: RequestSession,
+    ctx: ServiceContext,
+    admin: AdminDep,
+    form: FormDep,
+    fleet: FleetQuery = None,
+) -> Response:
     """Correct what was learned about the person in one context (as POST
     /v1/users/{id}/corrections, with this key as the author), then back to the profile. A
     mistake comes back on the form, in words, with what was typed."""
@@ -288,52 +363,96 @@ def add_correction(request: Request, user_id: str, session: RequestSession,
     note = typed["note"].strip() or None
 
     def again(status: int, message: str) -> HTMLResponse:
-        return _profile_page(request, session, ctx, admin, user, time_slot=time_slot,
-                             situation=situation, typed=typed, error=message, status=status)
+        return _profile_page(
+            request,
+            session,
+            ctx,
+            admin,
+            user,
+            time_slot=time_slot,
+            situation=situation,
+            typed=typed,
+            error=message,
+            status=status,
+        )
 
     if kind not in _CORRECTION_KINDS:
-        return again(422, "Choose what to correct: what the person prefers, what the robot "
-                     "should not offer, or that the robot should stay quiet here.")
+        return again(
+            422,
+            "Choose what to correct: what the person prefers, what the robot "
+            "should not offer, or that the robot should stay quiet here.",
+        )
     if kind == "quiet":
         service = detail = None
     elif service is None:
-        return again(422, "Choose what the person prefers." if kind == "prefers"
-                     else "Choose what the robot should not offer.")
+        return again(
+            422,
+            "Choose what the person prefers."
+            if kind == "prefers"
+            else "Choose what the robot should not offer.",
+        )
     else:
-        offers = {s.name: s.details for s in console_service.user_mission(session, ctx,
-                                                                          user).services}
+        offers = {
+            s.name: s.details for s in console_service.user_mission(session, ctx, user).services
+        }
         if service not in offers:
-            return again(422, f"The robots of fleet {user.fleet} do not offer "
-                         f"“{views.name_words(service)}” any more: choose another service.")
+            return again(
+                422,
+                f"The robots of fleet {user.fleet} do not offer "
+                f"“{views.name_words(service)}” any more: choose another service.",
+            )
         choices = views.or_list([views.name_words(d) for d in offers[service]])
         if detail is not None and detail not in offers[service]:
-            return again(422, f"“{views.name_words(detail)}” is not a choice of "
-                         f"{views.name_words(service)}: choose {choices}.")
+            return again(
+                422,
+                f"“{views.name_words(detail)}” is not a choice of "
+                f"{views.name_words(service)}: choose {choices}.",
+            )
         if kind == "prefers" and detail is None:
-            return again(422, f"Choose which {views.name_words(service)} the person prefers: "
-                         f"{choices}.")
+            return again(
+                422, f"Choose which {views.name_words(service)} the person prefers: {choices}."
+            )
     try:
-        body = CorrectionIn(correction_id=form.get("correction_id", ""), time_slot=time_slot,
-                            situation=situation, kind=kind,  # type: ignore[arg-type]
-                            service=service, detail=detail, note=note)
+        body = CorrectionIn(
+            correction_id=form.get("correction_id", ""),
+            time_slot=time_slot,
+            situation=situation,
+            kind=kind,  # type: ignore[arg-type]
+            service=service,
+            detail=detail,
+            note=note,
+        )
     except ValidationError as exc:
         return again(422, _correction_error(exc))
     try:
-        corrections_service.add_correction(session, ctx, admin.principal, user_id, body,
-                                           fleet=user.fleet)
+        corrections_service.add_correction(
+            session, ctx, admin.principal, user_id, body, fleet=user.fleet
+        )
     except ValidationFailed as exc:
         return again(422, f"The correction was not saved: {exc.detail}")
     except Conflict:
-        return again(409, "This form was already used for another correction. Check the "
-                     "corrections below, then try again.")
-    return _redirect(views.user_url(user, time_slot=time_slot, situation=situation,
-                                    done="corrected") + "#evidence")
+        return again(
+            409,
+            "This form was already used for another correction. Check the "
+            "corrections below, then try again.",
+        )
+    return _redirect(
+        views.user_url(user, time_slot=time_slot, situation=situation, done="corrected")
+        + "#evidence"
+    )
 
 
 @router.post("/users/{user_id}/corrections/{correction_id}/lift")
-def lift_correction(request: Request, user_id: str, correction_id: str,
-                    session: RequestSession, ctx: ServiceContext, admin: AdminDep,
-                    form: FormDep, fleet: FleetQuery = None) -> Response:
+def lift_correction(
+    request: Request,
+    user_id: str,
+    correction_id: str,
+    session: RequestSession,
+    ctx: ServiceContext,
+    admin: AdminDep,
+    form: FormDep,
+    fleet: FleetQuery = None,
+) -> Response:
     """Lift a correction (as DELETE /v1/users/{id}/corrections/{correction_id}): the robot
     goes back to what it learned from the person."""
     _check_user_id(user_id)
@@ -342,19 +461,30 @@ def lift_correction(request: Request, user_id: str, correction_id: str,
     if not _USER_ID.match(correction_id):
         raise PageError(404, "Not found", "No such correction.")
     try:
-        lifted = corrections_service.lift_correction(session, ctx, admin.principal, user_id,
-                                                     correction_id, fleet=user.fleet)
+        lifted = corrections_service.lift_correction(
+            session, ctx, admin.principal, user_id, correction_id, fleet=user.fleet
+        )
     except NotFound:
-        raise PageError(404, "Not found", f"{user.display_name or user.user_id} has no "
-                        "correction of that number; it may have been deleted with the "
-                        "person's history.") from None
-    return _redirect(views.user_url(user, time_slot=lifted.time_slot,
-                                    situation=lifted.situation, done="lifted") + "#evidence")
+        raise PageError(
+            404,
+            "Not found",
+            f"{user.display_name or user.user_id} has no "
+            "correction of that number; it may have been deleted with the "
+            "person's history.",
+        ) from None
+    return _redirect(
+        views.user_url(user, time_slot=lifted.time_slot, situation=lifted.situation, done="lifted")
+        + "#evidence"
+    )
 
 
 @router.get("/users/{user_id}/details")
 def details_page(
-    request: Request, user_id: str, session: RequestSession, ctx: ServiceContext, admin: AdminDep,
+    request: Request,
+    user_id: str,
+    session: RequestSession,
+    ctx: ServiceContext,
+    admin: AdminDep,
     last: Annotated[int, Query(ge=1, le=1_000_000)] = console_service.RECENT_EPISODES,
     done: Annotated[str | None, Query(max_length=32)] = None,
     fleet: FleetQuery = None,
@@ -364,22 +494,38 @@ def details_page(
     _check_user_id(user_id)
     principal = admin.principal
     user = users_service.get_user(session, principal, user_id, fleet=fleet)
-    model = models_service.model_view(session, ctx, principal, user_id, time_slot=None,
-                                      situation=None, fleet=user.fleet)
+    model = models_service.model_view(
+        session, ctx, principal, user_id, time_slot=None, situation=None, fleet=user.fleet
+    )
     overall = models_service.stats(session, principal, user_id, last=None, fleet=user.fleet)
     recent = models_service.stats(session, principal, user_id, last=last, fleet=user.fleet)
     xs, ys = views.curve(overall.cumulative_reward)
     mission = console_service.user_mission(session, ctx, user)
-    return _page(request, "details.html", admin, user=user, model=model, tab="details",
-                 heat=views.heatmap(model, mission), overall=overall, recent=recent,
-                 last=last, chart={"x": xs, "y": ys, "total": overall.total_reward,
-                                   "episodes": overall.episodes},
-                 done=done, mission=mission, counts=_counts(session, user))
+    return _page(
+        request,
+        "details.html",
+        admin,
+        user=user,
+        model=model,
+        tab="details",
+        heat=views.heatmap(model, mission),
+        overall=overall,
+        recent=recent,
+        last=last,
+        chart={"x": xs, "y": ys, "total": overall.total_reward, "episodes": overall.episodes},
+        done=done,
+        mission=mission,
+        counts=_counts(session, user),
+    )
 
 
 @router.get("/users/{user_id}/why")
 def why_page(
-    request: Request, user_id: str, session: RequestSession, ctx: ServiceContext, admin: AdminDep,
+    request: Request,
+    user_id: str,
+    session: RequestSession,
+    ctx: ServiceContext,
+    admin: AdminDep,
     time_slot: Annotated[str | None, Query(max_length=64)] = None,
     situation: Annotated[str | None, Query(max_length=64)] = None,
     fleet: FleetQuery = None,
@@ -390,27 +536,48 @@ def why_page(
     user = users_service.get_user(session, principal, user_id, fleet=fleet)
     mission = console_service.user_mission(session, ctx, user)
     if time_slot is None or situation is None:
-        latest = episodes_service.list_episodes(session, ctx, principal, user_id, limit=1,
-                                                cursor=None, fleet=user.fleet).items
-        slot0, sit0 = ((latest[0].context.time_slot, latest[0].context.situation) if latest
-                       else mission.context_names(0))
+        latest = episodes_service.list_episodes(
+            session, ctx, principal, user_id, limit=1, cursor=None, fleet=user.fleet
+        ).items
+        slot0, sit0 = (
+            (latest[0].context.time_slot, latest[0].context.situation)
+            if latest
+            else mission.context_names(0)
+        )
         time_slot, situation = time_slot or slot0, situation or sit0
-    model = models_service.model_view(session, ctx, principal, user_id, time_slot=time_slot,
-                                      situation=situation, fleet=user.fleet)
+    model = models_service.model_view(
+        session, ctx, principal, user_id, time_slot=time_slot, situation=situation, fleet=user.fleet
+    )
     context = model.contexts[0]
-    trace = console_service.latest_trace_in_context(session, ctx, principal, user_id,
-                                                    time_slot=time_slot, situation=situation,
-                                                    fleet=user.fleet)
-    return _page(request, "why.html", admin, user=user, model=model, tab="details",
-                 context=context, rows=views.why_rows(context), trace=trace,
-                 mission=mission, v_max=mission.v_max, counts=_counts(session, user),
-                 trace_offset=None if trace is None else console_service.episode_offsets(
-                     session, [trace.episode_id]).get(trace.episode_id))
+    trace = console_service.latest_trace_in_context(
+        session, ctx, principal, user_id, time_slot=time_slot, situation=situation, fleet=user.fleet
+    )
+    return _page(
+        request,
+        "why.html",
+        admin,
+        user=user,
+        model=model,
+        tab="details",
+        context=context,
+        rows=views.why_rows(context),
+        trace=trace,
+        mission=mission,
+        v_max=mission.v_max,
+        counts=_counts(session, user),
+        trace_offset=None
+        if trace is None
+        else console_service.episode_offsets(session, [trace.episode_id]).get(trace.episode_id),
+    )
 
 
 @router.get("/users/{user_id}/episodes")
 def episodes_page(
-    request: Request, user_id: str, session: RequestSession, ctx: ServiceContext, admin: AdminDep,
+    request: Request,
+    user_id: str,
+    session: RequestSession,
+    ctx: ServiceContext,
+    admin: AdminDep,
     before: Annotated[int | None, Query(ge=1, le=MAX_POSITION)] = None,
     at: Annotated[int | None, Query(ge=1, le=MAX_POSITION - 1)] = None,
     per_page: Annotated[int, Query(ge=5, le=200)] = 25,
@@ -423,24 +590,44 @@ def episodes_page(
         before = at + 1
     principal = admin.principal
     user = users_service.get_user(session, principal, user_id, fleet=fleet)
-    page = episodes_service.list_episodes(session, ctx, principal, user_id, limit=per_page,
-                                          cursor=None if before is None else str(before),
-                                          fleet=user.fleet)
+    page = episodes_service.list_episodes(
+        session,
+        ctx,
+        principal,
+        user_id,
+        limit=per_page,
+        cursor=None if before is None else str(before),
+        fleet=user.fleet,
+    )
     newest = page.items[0].index if page.items else None
     newer = None
     if newest is not None and newest < user.episodes:
         newer = newest + per_page + 1 if newest + per_page < user.episodes else 0
     offsets = console_service.episode_offsets(session, [e.episode_id for e in page.items])
-    return _page(request, "episodes.html", admin, user=user, tab="episodes", page=page,
-                 per_page=per_page, newer=newer, offsets=offsets,
-                 older=int(page.next_cursor) if page.next_cursor else None,
-                 counts=_counts(session, user))
+    return _page(
+        request,
+        "episodes.html",
+        admin,
+        user=user,
+        tab="episodes",
+        page=page,
+        per_page=per_page,
+        newer=newer,
+        offsets=offsets,
+        older=int(page.next_cursor) if page.next_cursor else None,
+        counts=_counts(session, user),
+    )
 
 
 @router.get("/users/{user_id}/episodes/{episode_id}/trace")
 def trace_fragment(
-    request: Request, user_id: str, episode_id: str, session: RequestSession, ctx: ServiceContext,
-    admin: AdminDep, fleet: FleetQuery = None,
+    request: Request,
+    user_id: str,
+    episode_id: str,
+    session: RequestSession,
+    ctx: ServiceContext,
+    admin: AdminDep,
+    fleet: FleetQuery = None,
 ) -> HTMLResponse:
     """One episode's trace, as an HTML fragment for the episode list."""
     _check_user_id(user_id)
@@ -458,8 +645,13 @@ def trace_fragment(
 # dependency opens a write transaction for the routes of that name.
 @router.get("/users/{user_id}/export")
 @writes  # an export is an admin action: it leaves an audit entry
-def export_model(user_id: str, session: RequestSession, ctx: ServiceContext,
-                 admin: AdminDep, fleet: FleetQuery = None) -> JSONResponse:
+def export_model(
+    user_id: str,
+    session: RequestSession,
+    ctx: ServiceContext,
+    admin: AdminDep,
+    fleet: FleetQuery = None,
+) -> JSONResponse:
     """Download the model document of GET /v1/users/{id}/model/export."""
     _check_user_id(user_id)
     doc = models_service.export_model(session, ctx, admin.principal, user_id, fleet=fleet)
@@ -469,38 +661,66 @@ def export_model(user_id: str, session: RequestSession, ctx: ServiceContext,
 
 # -- admin actions: a confirmation page, then a POST with the CSRF token ----------------------
 _ACTIONS = {
-    "reset": ("Start learning over",
-              "Forget what was learned about {who}: the robot starts over as with a new person "
-              "(a fresh {algorithm} learner). The history ({episodes} episodes) is kept, and "
-              "so are the staff corrections in force (lift them on the profile first if they "
-              "should go too)."),
-    "delete": ("Delete the person",
-               "Remove {who} with the whole history ({episodes} episodes) and the model. This "
-               "cannot be undone; export the model first if it may be needed again."),
+    "reset": (
+        "Start learning over",
+        "Forget what was learned about {who}: the robot starts over as with a new person "
+        "(a fresh {algorithm} learner). The history ({episodes} episodes) is kept, and "
+        "so are the staff corrections in force (lift them on the profile first if they "
+        "should go too).",
+    ),
+    "delete": (
+        "Delete the person",
+        "Remove {who} with the whole history ({episodes} episodes) and the model. This "
+        "cannot be undone; export the model first if it may be needed again.",
+    ),
 }
 
 
-def _confirm(request: Request, session: RequestSession, admin: Admin, user_id: str,
-             action: str, fleet: str | None) -> HTMLResponse:
+def _confirm(
+    request: Request,
+    session: RequestSession,
+    admin: Admin,
+    user_id: str,
+    action: str,
+    fleet: str | None,
+) -> HTMLResponse:
     _check_user_id(user_id)
     user = users_service.get_user(session, admin.principal, user_id, fleet=fleet)
     title, text = _ACTIONS[action]
     who = f"{user.display_name} ({user.user_id})" if user.display_name else user.user_id
-    return _page(request, "confirm.html", admin, user=user, action=action, title=title,
-                 text=text.format(who=who, algorithm=user.learner.algorithm,
-                                  episodes=user.episodes))
+    return _page(
+        request,
+        "confirm.html",
+        admin,
+        user=user,
+        action=action,
+        title=title,
+        text=text.format(who=who, algorithm=user.learner.algorithm, episodes=user.episodes),
+    )
 
 
 @router.get("/users/{user_id}/reset")
-def reset_confirm(request: Request, user_id: str, session: RequestSession,
-                  admin: AdminDep, fleet: FleetQuery = None) -> HTMLResponse:
+def reset_confirm(
+    request: Request,
+    user_id: str,
+    session: RequestSession,
+    admin: AdminDep,
+    fleet: FleetQuery = None,
+) -> HTMLResponse:
     """Ask before resetting a user's model."""
     return _confirm(request, session, admin, user_id, "reset", fleet)
 
 
 @router.post("/users/{user_id}/reset")
-def reset(request: Request, user_id: str, session: RequestSession, ctx: ServiceContext,
-          admin: AdminDep, form: FormDep, fleet: FleetQuery = None) -> RedirectResponse:
+def reset(
+    request: Request,
+    user_id: str,
+    session: RequestSession,
+    ctx: ServiceContext,
+    admin: AdminDep,
+    form: FormDep,
+    fleet: FleetQuery = None,
+) -> RedirectResponse:
     """Reset the user's model (as DELETE /v1/users/{id}/model), keeping the history."""
     _check_user_id(user_id)
     check_post(request, admin, form)
@@ -510,15 +730,27 @@ def reset(request: Request, user_id: str, session: RequestSession, ctx: ServiceC
 
 
 @router.get("/users/{user_id}/delete")
-def delete_confirm(request: Request, user_id: str, session: RequestSession,
-                   admin: AdminDep, fleet: FleetQuery = None) -> HTMLResponse:
+def delete_confirm(
+    request: Request,
+    user_id: str,
+    session: RequestSession,
+    admin: AdminDep,
+    fleet: FleetQuery = None,
+) -> HTMLResponse:
     """Ask before deleting a user."""
     return _confirm(request, session, admin, user_id, "delete", fleet)
 
 
 @router.post("/users/{user_id}/delete")
-def delete(request: Request, user_id: str, session: RequestSession, ctx: ServiceContext,
-           admin: AdminDep, form: FormDep, fleet: FleetQuery = None) -> RedirectResponse:
+def delete(
+    request: Request,
+    user_id: str,
+    session: RequestSession,
+    ctx: ServiceContext,
+    admin: AdminDep,
+    form: FormDep,
+    fleet: FleetQuery = None,
+) -> RedirectResponse:
     """Delete the user with its history and model (as DELETE /v1/users/{id})."""
     _check_user_id(user_id)
     check_post(request, admin, form)
@@ -532,33 +764,58 @@ _CHANGE_ID = re.compile(r"^[A-Za-z0-9_.:-]{1,128}$")
 
 def _mission_url(fleet: str, **params: object) -> str:
     return f"{COOKIE_PATH}/mission?" + urlencode(
-        {"fleet": fleet, **{k: v for k, v in params.items() if v is not None}})
+        {"fleet": fleet, **{k: v for k, v in params.items() if v is not None}}
+    )
 
 
-def _mission_page(request: Request, session: RequestSession, ctx: ServiceContext, admin: Admin,
-                  fleet: str, *, form: MissionForm | None = None, change_id: str | None = None,
-                  preview: missions_service.ChangePreview | None = None,
-                  done: dict[str, Any] | None = None, status: int = 200) -> HTMLResponse:
+def _mission_page(
+    request: Request,
+    session: RequestSession,
+    ctx: ServiceContext,
+    admin: Admin,
+    fleet: str,
+    *,
+    form: MissionForm | None = None,
+    change_id: str | None = None,
+    preview: missions_service.ChangePreview | None = None,
+    done: dict[str, Any] | None = None,
+    status: int = 200,
+) -> HTMLResponse:
     listed = missions_service.list_missions(session, ctx, admin.principal, fleet)  # may 403
     versions = history(listed["items"])
     current = versions[0]
     fleets = None
     if admin.principal.is_admin:
-        fleets = sorted({f.fleet for f in admin_service.fleets(session, admin.principal).items}
-                        | {fleet})
-    return _page(request, "mission.html", admin, status, nav="mission", fleet=fleet,
-                 fleets=fleets, current=current, versions=versions,
-                 form=form or MissionForm.of(current.mission),
-                 change_id=change_id or secrets.token_hex(16),
-                 base_version=current.version if current.stored else 0,
-                 preview=preview, done=done, action=_mission_url(fleet), fields=FIELDS,
-                 preview_changes=changes(preview.old, preview.new, preview.diff)
-                 if preview else None)
+        fleets = sorted(
+            {f.fleet for f in admin_service.fleets(session, admin.principal).items} | {fleet}
+        )
+    return _page(
+        request,
+        "mission.html",
+        admin,
+        status,
+        nav="mission",
+        fleet=fleet,
+        fleets=fleets,
+        current=current,
+        versions=versions,
+        form=form or MissionForm.of(current.mission),
+        change_id=change_id or secrets.token_hex(16),
+        base_version=current.version if current.stored else 0,
+        preview=preview,
+        done=done,
+        action=_mission_url(fleet),
+        fields=FIELDS,
+        preview_changes=changes(preview.old, preview.new, preview.diff) if preview else None,
+    )
 
 
 @router.get("/mission")
 def mission_page(
-    request: Request, session: RequestSession, ctx: ServiceContext, admin: AdminDep,
+    request: Request,
+    session: RequestSession,
+    ctx: ServiceContext,
+    admin: AdminDep,
     fleet: FleetQuery = None,
     done: Annotated[int | None, Query(ge=1, le=MAX_POSITION)] = None,
 ) -> HTMLResponse:
@@ -572,8 +829,14 @@ def mission_page(
 
 
 @router.post("/mission")
-def change_mission(request: Request, session: RequestSession, ctx: ServiceContext,
-                   admin: AdminDep, form: FormDep, fleet: FleetQuery = None) -> Response:
+def change_mission(
+    request: Request,
+    session: RequestSession,
+    ctx: ServiceContext,
+    admin: AdminDep,
+    form: FormDep,
+    fleet: FleetQuery = None,
+) -> Response:
     """``step=preview``: what the typed mission would change (nothing is stored);
     ``step=confirm``: store it as the fleet's new version (as PUT
     /v1/admin/fleets/{fleet}/mission), then back to the mission page. A mistake comes back on
@@ -589,12 +852,25 @@ def change_mission(request: Request, session: RequestSession, ctx: ServiceContex
 
     def again(status: int, where: str, message: str, *, new_id: bool = False) -> HTMLResponse:
         typed.errors[where] = message
-        return _mission_page(request, session, ctx, admin, name, form=typed, status=status,
-                             change_id=None if new_id else change_id)
+        return _mission_page(
+            request,
+            session,
+            ctx,
+            admin,
+            name,
+            form=typed,
+            status=status,
+            change_id=None if new_id else change_id,
+        )
 
     if not _CHANGE_ID.match(change_id):
-        return again(400, "general", "The form is incomplete (its change number is missing). "
-                     "Check what you typed and preview again.", new_id=True)
+        return again(
+            400,
+            "general",
+            "The form is incomplete (its change number is missing). "
+            "Check what you typed and preview again.",
+            new_id=True,
+        )
     try:
         mission_doc, renames_doc = typed.documents(current)
     except FormError as exc:
@@ -602,27 +878,43 @@ def change_mission(request: Request, session: RequestSession, ctx: ServiceContex
     if form.get("step") == "confirm":
         earlier = missions_service.change_of(session, principal, name, change_id)
         if earlier is None and form.get("base_version") != str(base):
-            return again(409, "general", f"The mission was changed meanwhile (it is now "
-                         f"version {listed['current_version']}). Check the preview again "
-                         "before applying.")
+            return again(
+                409,
+                "general",
+                f"The mission was changed meanwhile (it is now "
+                f"version {listed['current_version']}). Check the preview again "
+                "before applying.",
+            )
         try:
-            out, _ = missions_service.set_mission(session, ctx, principal, name,
-                                                  change_id=change_id, mission_doc=mission_doc,
-                                                  renames_doc=renames_doc)
+            out, _ = missions_service.set_mission(
+                session,
+                ctx,
+                principal,
+                name,
+                change_id=change_id,
+                mission_doc=mission_doc,
+                renames_doc=renames_doc,
+            )
         except ValidationFailed as exc:
             return again(422, *field_of(exc.detail, mission_doc))
         except Conflict:
-            return again(409, "general", "This form was already used for another change. "
-                         "Check the mission in force below, then preview again.", new_id=True)
+            return again(
+                409,
+                "general",
+                "This form was already used for another change. "
+                "Check the mission in force below, then preview again.",
+                new_id=True,
+            )
         return _redirect(_mission_url(name, done=out["version"]))
     try:
-        preview = missions_service.preview_change(session, ctx, principal, name,
-                                                  mission_doc=mission_doc,
-                                                  renames_doc=renames_doc)
+        preview = missions_service.preview_change(
+            session, ctx, principal, name, mission_doc=mission_doc, renames_doc=renames_doc
+        )
     except ValidationFailed as exc:
         return again(422, *field_of(exc.detail, mission_doc))
-    return _mission_page(request, session, ctx, admin, name, form=typed, change_id=change_id,
-                         preview=preview)
+    return _mission_page(
+        request, session, ctx, admin, name, form=typed, change_id=change_id, preview=preview
+    )
 
 
 @router.get("/{rest:path}")

@@ -23,13 +23,45 @@ from app.schemas.profile import CorrectionOut, ProfileContext, ProfileOut, Robot
 from app.schemas.users import UserOut
 
 __all__ = [
-    "CERTAINTY", "Expectation", "HeatCell", "HeatRow", "ProfileCell", "ProfileRow", "StateRows",
-    "action_arg", "action_label", "correction_status", "correction_words", "curve",
-    "episode_words", "expectation", "fmt_aware", "fmt_count", "fmt_local", "fmt_measure",
-    "fmt_offset", "fmt_pct", "fmt_q", "fmt_rate", "fmt_reward", "heat_class", "heatmap",
-    "initiate_p", "learner_summary", "name_words", "or_list", "profile_grid", "response_words",
-    "robot_words", "state_label", "state_words", "tenth", "unique_best", "user_url",
-    "wanted_words", "why_rows",
+    "CERTAINTY",
+    "Expectation",
+    "HeatCell",
+    "HeatRow",
+    "ProfileCell",
+    "ProfileRow",
+    "StateRows",
+    "action_arg",
+    "action_label",
+    "correction_status",
+    "correction_words",
+    "curve",
+    "episode_words",
+    "expectation",
+    "fmt_aware",
+    "fmt_count",
+    "fmt_local",
+    "fmt_measure",
+    "fmt_offset",
+    "fmt_pct",
+    "fmt_q",
+    "fmt_rate",
+    "fmt_reward",
+    "heat_class",
+    "heatmap",
+    "initiate_p",
+    "learner_summary",
+    "name_words",
+    "or_list",
+    "profile_grid",
+    "response_words",
+    "robot_words",
+    "state_label",
+    "state_words",
+    "tenth",
+    "unique_best",
+    "user_url",
+    "wanted_words",
+    "why_rows",
 ]
 
 DASH = "—"  # a value the learner has no notion of (or no data yet)
@@ -39,8 +71,7 @@ DASH = "—"  # a value the learner has no notion of (or no data yet)
 def user_url(user: UserOut, tail: str = "", **params: object) -> str:
     """A console address of a user's page (its fleet named, so that an admin's links work for
     every fleet): ``user_url(user, "/why", time_slot="noon")``."""
-    query = urlencode({"fleet": user.fleet, **{k: v for k, v in params.items()
-                                               if v is not None}})
+    query = urlencode({"fleet": user.fleet, **{k: v for k, v in params.items() if v is not None}})
     return f"/admin/users/{quote(user.user_id, safe='')}{tail}?{query}"
 
 
@@ -83,9 +114,13 @@ def heat_class(p: float | None) -> str:
 
 
 # -- labels ----------------------------------------------------------------------------------
-_KEY_PARAM = {"hri": ("tau", "τ"), "dts": ("forgetting", "λ"), "dts-adapt": ("forgetting", "λ"),
-              "rmax": ("m", "m"),
-              "qlearning": ("exploration", "")}
+_KEY_PARAM = {
+    "hri": ("tau", "τ"),
+    "dts": ("forgetting", "λ"),
+    "dts-adapt": ("forgetting", "λ"),
+    "rmax": ("m", "m"),
+    "qlearning": ("exploration", ""),
+}
 _EXPLORATION = {"epsilon": "ε-greedy", "boltzmann": "Boltzmann"}
 
 
@@ -129,8 +164,9 @@ _STATE_WORDS = {
 
 
 def state_words(state: StateModel) -> str:
-    return _STATE_WORDS.get(state.state, state.state).format(service=state.service,
-                                                             detail=state.detail)
+    return _STATE_WORDS.get(state.state, state.state).format(
+        service=state.service, detail=state.detail
+    )
 
 
 # -- the heatmap -------------------------------------------------------------------------------
@@ -152,6 +188,7 @@ class Expectation:
     detail: str | None
     p_guess: float | None
     p_ask: float
+
 
 @dataclass(frozen=True, slots=True)
 class HeatCell:
@@ -186,8 +223,9 @@ def initiate_p(context: ContextModel) -> float | None:
 def unique_best(actions: Sequence[ActionBelief]) -> ActionBelief | None:
     """The most probable action, or None when two or more share the top probability."""
     ranked = sorted(actions, key=lambda a: a.p, reverse=True)
-    if not ranked or (len(ranked) > 1 and math.isclose(ranked[0].p, ranked[1].p,
-                                                       rel_tol=1e-9, abs_tol=1e-12)):
+    if not ranked or (
+        len(ranked) > 1 and math.isclose(ranked[0].p, ranked[1].p, rel_tol=1e-9, abs_tol=1e-12)
+    ):
         return None
     return ranked[0]
 
@@ -212,8 +250,9 @@ def expectation(context: ContextModel) -> Expectation | None:
             elif a.action.kind == "infer_detail" and a.action.detail is not None:
                 guesses.append((guess.p * a.p, guess.action.service, a.action.detail))
     guesses.sort(key=lambda g: g[0], reverse=True)
-    if not guesses or (len(guesses) > 1 and math.isclose(guesses[0][0], guesses[1][0],
-                                                         rel_tol=1e-9, abs_tol=1e-12)):
+    if not guesses or (
+        len(guesses) > 1 and math.isclose(guesses[0][0], guesses[1][0], rel_tol=1e-9, abs_tol=1e-12)
+    ):
         return Expectation(None, None, None, p_ask)
     p, service, detail = guesses[0]
     return Expectation(service, detail, p, p_ask)
@@ -333,9 +372,10 @@ def name_words(name: str | None) -> str:
     return " ".join([first, *rest])
 
 
-def wanted_words(wanted: Wanted | None, *, service: str | None = None,
-                 detail: str | None = None) -> str:
-    """"Provide drink (tea)"; the service alone when no detail is known."""
+def wanted_words(
+    wanted: Wanted | None, *, service: str | None = None, detail: str | None = None
+) -> str:
+    """ "Provide drink (tea)"; the service alone when no detail is known."""
     if wanted is not None:
         service, detail = wanted.service, wanted.detail
     if not service:
@@ -374,15 +414,19 @@ def episode_words(interaction_class: str, initiator: str | None = None) -> str:
 
 
 def or_list(items: Sequence[str]) -> str:
-    """"tea, coffee or water"."""
+    """ "tea, coffee or water"."""
     if len(items) <= 1:
         return "".join(items)
     return ", ".join(items[:-1]) + f" or {items[-1]}"
 
 
 _RESPONSE = {
-    "accepted": "accepted", "rejected": "turned it down", "answered": "answered",
-    "human_request": "asked for", "none": "did nothing", "terminated": "ended the talk",
+    "accepted": "accepted",
+    "rejected": "turned it down",
+    "answered": "answered",
+    "human_request": "asked for",
+    "none": "did nothing",
+    "terminated": "ended the talk",
 }
 
 
@@ -443,10 +487,18 @@ def profile_grid(profile: ProfileOut, mission: Mission) -> list[ProfileRow]:
 
     def cell(slot: str, situation: str) -> ProfileCell:
         context = by_context.get((slot, situation))
-        staff = () if context is None else tuple(
-            in_force[i] for i in context.corrections if i in in_force)
+        staff = (
+            ()
+            if context is None
+            else tuple(in_force[i] for i in context.corrections if i in in_force)
+        )
         return ProfileCell(slot, situation, context, staff)
 
-    return [ProfileRow(slot.name, f"{slot.start:%H:%M}–{slot.end:%H:%M}",
-                       [cell(slot.name, situation) for situation in mission.situations])
-            for slot in mission.time_slots]
+    return [
+        ProfileRow(
+            slot.name,
+            f"{slot.start:%H:%M}–{slot.end:%H:%M}",
+            [cell(slot.name, situation) for situation in mission.situations],
+        )
+        for slot in mission.time_slots
+    ]

@@ -17,8 +17,15 @@ from alembic.runtime.migration import MigrationContext
 from alembic.script import ScriptDirectory
 from sqlalchemy import Engine
 
-__all__ = ["MigrationsMissing", "alembic_config", "current_revision", "head_revision",
-           "is_current", "script_location", "upgrade"]
+__all__ = [
+    "MigrationsMissing",
+    "alembic_config",
+    "current_revision",
+    "head_revision",
+    "is_current",
+    "script_location",
+    "upgrade",
+]
 
 _PACKAGE = Path(__file__).resolve().parents[1]  # app/
 

@@ -22,8 +22,19 @@ from sqlalchemy.orm import Mapped, mapped_column
 from .base import Base
 from .types import LearnerStateType, UTCDateTime, utcnow
 
-__all__ = ["ApiKey", "AuditEntry", "Correction", "Decision", "Episode", "Feedback",
-           "FleetMission", "FleetSettings", "LearnerModel", "Sample", "User"]
+__all__ = [
+    "ApiKey",
+    "AuditEntry",
+    "Correction",
+    "Decision",
+    "Episode",
+    "Feedback",
+    "FleetMission",
+    "FleetSettings",
+    "LearnerModel",
+    "Sample",
+    "User",
+]
 
 ID = 40  # server-chosen ids: a prefix and 32 hex digits
 CLIENT_ID = 128  # client-chosen ids: ^[A-Za-z0-9._:-]{1,128}$

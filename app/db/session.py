@@ -84,9 +84,11 @@ class Database:
     def __init__(self, settings: Settings) -> None:
         self.url = settings.database_url
         self.is_sqlite = settings.is_sqlite
-        kwargs: dict[str, Any] = {"pool_pre_ping": settings.db_pre_ping,
-                                  "json_serializer": json_dumps,
-                                  "json_deserializer": orjson.loads}
+        kwargs: dict[str, Any] = {
+            "pool_pre_ping": settings.db_pre_ping,
+            "json_serializer": json_dumps,
+            "json_deserializer": orjson.loads,
+        }
         if self.is_sqlite:
             kwargs["connect_args"] = {
                 "timeout": settings.sqlite_busy_timeout_s,
@@ -112,9 +114,12 @@ class Database:
             _configure_sqlite(inline, 0.0)
             self._inline_engine = inline.execution_options(**{_WRITE: True})
         elif not self.is_sqlite and settings.pg_inline_writes:
-            inline = create_engine(self.url, pool_size=1, max_overflow=0,
-                                   **{k: v for k, v in kwargs.items()
-                                      if k not in ("pool_size", "max_overflow")})
+            inline = create_engine(
+                self.url,
+                pool_size=1,
+                max_overflow=0,
+                **{k: v for k, v in kwargs.items() if k not in ("pool_size", "max_overflow")},
+            )
             self._inline_engine = inline.execution_options(**{_WRITE: True})
 
     @property
@@ -231,8 +236,9 @@ class Database:
         except BaseException as exc:  # the disk, most likely: every member fails, retryably
             group.session.rollback()
             log.error("a group of %d writes could not be committed: %s", group.members, exc)
-            group.done.set_exception(ServiceUnavailable(
-                "The database could not store this write; retry."))
+            group.done.set_exception(
+                ServiceUnavailable("The database could not store this write; retry.")
+            )
         else:
             self.groups += 1
             self.grouped += group.members

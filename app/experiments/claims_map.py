@@ -73,18 +73,19 @@ TARGET_SECONDS = 300.0  # the default map, sweep and confirmation, on 2 CPUs
 PROTOCOLS = (E1E2, E3)  # what check_claims decides on
 
 
-def _job(world: World, method: Method, protocol: Protocol, seed: int, users: int,
-         base: Mission) -> Job:
+def _job(
+    world: World, method: Method, protocol: Protocol, seed: int, users: int, base: Mission
+) -> Job:
     """The runner's job for one method variant in ``world`` (the office mission is passed as
     None, as ``attune experiment paper`` does, so its default runs are the same)."""
     mission = world.mission(base)
     document = None if mission == base else json.dumps(mission.to_dict(), sort_keys=True)
-    return Job(method, protocol, seed, users, tuple(sorted(world.user_params().items())),
-               document)
+    return Job(method, protocol, seed, users, tuple(sorted(world.user_params().items())), document)
 
 
-def plan(settings: Sequence[Setting], seeds: Sequence[int], users: int,
-         base: Mission | None = None) -> list[tuple[RunKey, Job]]:
+def plan(
+    settings: Sequence[Setting], seeds: Sequence[int], users: int, base: Mission | None = None
+) -> list[tuple[RunKey, Job]]:
     """Every job the settings need, each once: world x method variant x protocol x seed,
     ordered world, protocol, method, seed."""
     base = base or office_mission()
@@ -98,23 +99,41 @@ def plan(settings: Sequence[Setting], seeds: Sequence[int], users: int,
         for protocol in PROTOCOLS:
             for key, method in needed.items():
                 if key[0] == world:
-                    out += [(key, _job(world, method, protocol, seed, users, base))
-                            for seed in seeds]
+                    out += [
+                        (key, _job(world, method, protocol, seed, users, base)) for seed in seeds
+                    ]
     return out
 
 
-def _run(todo: Sequence[tuple[RunKey, Job]], workers: int, description: str,
-         console: Console | None, progress: bool) -> dict[RunKey, list[RunResult]]:
-    results = run_jobs([job for _, job in todo], workers, description=description,
-                       console=console, progress=progress)
+def _run(
+    todo: Sequence[tuple[RunKey, Job]],
+    workers: int,
+    description: str,
+    console: Console | None,
+    progress: bool,
+) -> dict[RunKey, list[RunResult]]:
+    results = run_jobs(
+        [job for _, job in todo],
+        workers,
+        description=description,
+        console=console,
+        progress=progress,
+    )
     runs: dict[RunKey, list[RunResult]] = {}
     for (key, _), result in zip(todo, results, strict=True):
         runs.setdefault(key, []).append(result)
     return runs
 
 
-def sweep(grid: Grid, seeds: int, users: int, workers: int, *, console: Console | None = None,
-          progress: bool = True) -> tuple[ClaimMap, int]:
+def sweep(
+    grid: Grid,
+    seeds: int,
+    users: int,
+    workers: int,
+    *,
+    console: Console | None = None,
+    progress: bool = True,
+) -> tuple[ClaimMap, int]:
     """Run the grid on seeds 0..seeds-1 and decide every setting; returns the map and the
     number of runs."""
     settings = grid.settings()
@@ -123,9 +142,16 @@ def sweep(grid: Grid, seeds: int, users: int, workers: int, *, console: Console 
     return build_map(settings, runs), len(todo)
 
 
-def confirm(settings: Sequence[Setting], first_seed: int, seeds: int, users: int, workers: int,
-            *, console: Console | None = None, progress: bool = True
-            ) -> tuple[ClaimMap, int]:
+def confirm(
+    settings: Sequence[Setting],
+    first_seed: int,
+    seeds: int,
+    users: int,
+    workers: int,
+    *,
+    console: Console | None = None,
+    progress: bool = True,
+) -> tuple[ClaimMap, int]:
     """Decide ``settings`` again on the held-out seeds first_seed..first_seed+seeds-1."""
     todo = plan(settings, range(first_seed, first_seed + seeds), users)
     runs = _run(todo, workers, "Held-out seeds", console, progress)
@@ -153,41 +179,62 @@ def _setting(claim_map: ClaimMap, setting: Setting) -> dict[str, Any]:
     }
 
 
-def build_summary(claim_map: ClaimMap, confirmed: ClaimMap | None, grid: Grid,
-                  run_info: Mapping[str, Any]) -> dict[str, Any]:
+def build_summary(
+    claim_map: ClaimMap, confirmed: ClaimMap | None, grid: Grid, run_info: Mapping[str, Any]
+) -> dict[str, Any]:
     """Every number as plain JSON data."""
     default = Setting.default()
     best = claim_map.best()
     n = len(claim_map.claims)
     summary: dict[str, Any] = {
         "run": dict(run_info),
-        "axes": [{"key": a.key, "label": a.label, "scope": a.scope, "default": a.default,
-                  "values": list(grid.values[a.key])} for a in AXES],
+        "axes": [
+            {
+                "key": a.key,
+                "label": a.label,
+                "scope": a.scope,
+                "default": a.default,
+                "values": list(grid.values[a.key]),
+            }
+            for a in AXES
+        ],
         "claims": [],
         "settings_count": len(claim_map.settings),
         "histogram": claim_map.histogram(),
         "default": _setting(claim_map, default) if default in claim_map.verdicts else None,
         "best": [_setting(claim_map, s) for s in best],
         "marginals": {
-            a.key: {str(v): {"mean_share": _share(claim_map.marginal(a.key, v)),
-                             "per_claim": [_share(claim_map.marginal(a.key, v, i))
-                                           for i in range(n)]}
-                    for v in grid.values[a.key]}
+            a.key: {
+                str(v): {
+                    "mean_share": _share(claim_map.marginal(a.key, v)),
+                    "per_claim": [_share(claim_map.marginal(a.key, v, i)) for i in range(n)],
+                }
+                for v in grid.values[a.key]
+            }
             for a in AXES
         },
         "confirmation": None,
         "settings": [_setting(claim_map, s) for s in claim_map.settings],
     }
     for i, (key, text) in enumerate(claim_map.claims):
-        summary["claims"].append({"key": key, "text": text,
-                                  "share": _share(claim_map.share(i)),
-                                  "settings_held": sum(v[i] for v in claim_map.verdicts.values())})
+        summary["claims"].append(
+            {
+                "key": key,
+                "text": text,
+                "share": _share(claim_map.share(i)),
+                "settings_held": sum(v[i] for v in claim_map.verdicts.values()),
+            }
+        )
     if confirmed is not None:
         summary["confirmation"] = {
-            "seeds": [run_info["confirm_first_seed"],
-                      run_info["confirm_first_seed"] + run_info["confirm_seeds"] - 1],
-            "settings": [{**_setting(confirmed, s), "evidence": confirmed.evidence[s]}
-                         for s in confirmed.settings],
+            "seeds": [
+                run_info["confirm_first_seed"],
+                run_info["confirm_first_seed"] + run_info["confirm_seeds"] - 1,
+            ],
+            "settings": [
+                {**_setting(confirmed, s), "evidence": confirmed.evidence[s]}
+                for s in confirmed.settings
+            ],
         }
     return summary
 
@@ -222,21 +269,29 @@ def _name(summary: Mapping[str, Any], confirmed: Mapping[str, Any]) -> str:
 def _intro(summary: Mapping[str, Any]) -> str:
     run = summary["run"]
     sizes = " × ".join(str(len(a["values"])) for a in summary["axes"])
-    text = (f"{summary['settings_count']} settings ({sizes}, axes below), each decided on the "
-            f"paper's experiments E1/E2 and E3 with {run['seeds']} seed(s) × {run['users']} "
-            f"simulated users; {run['runs']} runs in {run['worlds']} worlds.")
+    text = (
+        f"{summary['settings_count']} settings ({sizes}, axes below), each decided on the "
+        f"paper's experiments E1/E2 and E3 with {run['seeds']} seed(s) × {run['users']} "
+        f"simulated users; {run['runs']} runs in {run['worlds']} worlds."
+    )
     if summary.get("confirmation"):
         first, last = summary["confirmation"]["seeds"]
-        text += (f" The default and the best settings were run again on held-out seeds "
-                 f"{first}–{last} ({run['confirm_runs']} runs).")
-    text += (f" Ran in {run['seconds']:.1f} s on {run['workers']} worker processes (load "
-             f"average {run['load_average']:.1f}")
+        text += (
+            f" The default and the best settings were run again on held-out seeds "
+            f"{first}–{last} ({run['confirm_runs']} runs)."
+        )
+    text += (
+        f" Ran in {run['seconds']:.1f} s on {run['workers']} worker processes (load "
+        f"average {run['load_average']:.1f}"
+    )
     cpu = run.get("cpu_seconds")
     text += ")." if cpu is None else f"; {cpu:.0f} s of CPU time)."
     if run.get("quick"):
         text += " Quick mode: a reduced grid, for checks only."
-    command = (f"attune experiment claims-map{' --quick' if run.get('quick') else ''} --seeds "
-               f"{run['seeds']} --confirm-seeds {run['confirm_seeds']} --users {run['users']}")
+    command = (
+        f"attune experiment claims-map{' --quick' if run.get('quick') else ''} --seeds "
+        f"{run['seeds']} --confirm-seeds {run['confirm_seeds']} --users {run['users']}"
+    )
     return text + f" Made by `{command}`."
 
 
@@ -274,22 +329,35 @@ def markdown(summary: Mapping[str, Any]) -> str:
     total += [f"**{c['held']}**" for c in confirmed]
     lines.append("| " + " | ".join(total) + " |")
     n = len(summary["claims"])
-    lines += ["", f"Best settings ({best[0]['held']} of {n} claims; {len(best)} tied, fewest "
-              "changes from the default first):", ""]
+    lines += [
+        "",
+        f"Best settings ({best[0]['held']} of {n} claims; {len(best)} tied, fewest "
+        "changes from the default first):",
+        "",
+    ]
     lines += [f"{i + 1}. {b['label']}" for i, b in enumerate(best[:10])]
     if confirmed:
         first, last = summary["confirmation"]["seeds"]
-        lines += ["", f"On the held-out seeds {first}–{last}: "
-                  + "; ".join(f"{_name(summary, c)}, {c['held']} of {n}" for c in confirmed)
-                  + ". Deciding many settings on few seeds and keeping the best favours "
-                  "settings that were lucky; the held-out seeds say what is left of it."]
+        lines += [
+            "",
+            f"On the held-out seeds {first}–{last}: "
+            + "; ".join(f"{_name(summary, c)}, {c['held']} of {n}" for c in confirmed)
+            + ". Deciding many settings on few seeds and keeping the best favours "
+            "settings that were lucky; the held-out seeds say what is left of it.",
+        ]
     if len(best) > 10:
         lines.append(f"- … and {len(best) - 10} more (summary.json, claims-map.csv).")
     hist = ", ".join(f"{k}: {c}" for k, c in enumerate(summary["histogram"]) if c)
-    lines += ["", f"Settings by the number of claims that hold ({hist}).", "",
-              "Mean share of the claims that hold, per value of each choice (the default's "
-              "value in bold):", "", "| Choice | value | mean share of claims |",
-              "|:---|:---|---:|"]
+    lines += [
+        "",
+        f"Settings by the number of claims that hold ({hist}).",
+        "",
+        "Mean share of the claims that hold, per value of each choice (the default's "
+        "value in bold):",
+        "",
+        "| Choice | value | mean share of claims |",
+        "|:---|:---|---:|",
+    ]
     for axis in summary["axes"]:
         for j, v in enumerate(axis["values"]):
             text = _value(v)
@@ -307,8 +375,12 @@ def print_table(summary: Mapping[str, Any], console: Console) -> None:
     best = summary["best"]
     default = summary["default"]
     confirmed = _confirmed(summary)
-    table = Table(title=f"The paper's claims over {summary['settings_count']} settings of the "
-                  "reconstruction's choices", box=box.SIMPLE_HEAD, title_justify="left")
+    table = Table(
+        title=f"The paper's claims over {summary['settings_count']} settings of the "
+        "reconstruction's choices",
+        box=box.SIMPLE_HEAD,
+        title_justify="left",
+    )
     table.add_column("Claim", no_wrap=True)
     table.add_column("share of settings", justify="right")
     if default is not None:
@@ -330,8 +402,10 @@ def print_table(summary: Mapping[str, Any], console: Console) -> None:
     total += [str(c["held"]) for c in confirmed]
     table.add_row(*total, style="bold")
     console.print(table, soft_wrap=True, crop=False, overflow="ignore")
-    console.print(f"Best setting ({best[0]['held']} of {len(summary['claims'])}; {len(best)} "
-                  f"tied): {best[0]['label']}")
+    console.print(
+        f"Best setting ({best[0]['held']} of {len(summary['claims'])}; {len(best)} "
+        f"tied): {best[0]['label']}"
+    )
     for c in confirmed:
         what = "default" if c["label"] == "default" else f"{_name(summary, c)} ({c['label']})"
         console.print(f"On held-out seeds, {what}: {c['held']} hold.")
@@ -346,8 +420,14 @@ def write_csv(summary: Mapping[str, Any], path: Path) -> int:
         writer = csv.writer(handle, lineterminator="\n")
         writer.writerow([*axes, "label", "held", *keys])
         for s in summary["settings"]:
-            writer.writerow([*(s["values"][a] for a in axes), s["label"], s["held"],
-                             *(int(v) for v in s["claims"])])
+            writer.writerow(
+                [
+                    *(s["values"][a] for a in axes),
+                    s["label"],
+                    s["held"],
+                    *(int(v) for v in s["claims"]),
+                ]
+            )
     return len(summary["settings"])
 
 
@@ -363,49 +443,77 @@ def plot_map(summary: Mapping[str, Any], path: Path) -> None:
     settings = sorted(summary["settings"], key=lambda s: -s["held"])
     grid = np.array([[float(v) for v in s["claims"]] for s in settings]).T  # claims x settings
     columns = [(a, v) for a in summary["axes"] for v in a["values"]]
-    shares = np.array([[summary["marginals"][a["key"]][str(v)]["per_claim"][i]
-                        if summary["marginals"][a["key"]][str(v)]["per_claim"][i] is not None
-                        else np.nan for a, v in columns] for i in range(len(claims))])
+    shares = np.array(
+        [
+            [
+                summary["marginals"][a["key"]][str(v)]["per_claim"][i]
+                if summary["marginals"][a["key"]][str(v)]["per_claim"][i] is not None
+                else np.nan
+                for a, v in columns
+            ]
+            for i in range(len(claims))
+        ]
+    )
     fig = Figure(figsize=(16, 0.42 * len(claims) + 3.2), dpi=100, layout="constrained")
     FigureCanvasAgg(fig)
     left, right = fig.subplots(1, 2, gridspec_kw={"width_ratios": [1.0, 1.3]})
-    left.imshow(grid, cmap=ListedColormap(["#d9d9d9", "#1b7837"]), aspect="auto",
-                interpolation="nearest", vmin=0, vmax=1)
+    left.imshow(
+        grid,
+        cmap=ListedColormap(["#d9d9d9", "#1b7837"]),
+        aspect="auto",
+        interpolation="nearest",
+        vmin=0,
+        vmax=1,
+    )
     left.set_yticks(range(len(claims)), claims, fontsize=8)
     left.set_xlabel(f"{len(settings)} settings, most claims held first")
     left.set_xticks([])
     default = [i for i, s in enumerate(settings) if s["label"] == "default"]
     for i in default:
         left.axvline(i, color="#d73027", linewidth=1.5)
-    left.set_title("Claims that hold (green) under each setting; red: the default",
-                   fontsize=10)
+    left.set_title("Claims that hold (green) under each setting; red: the default", fontsize=10)
     image = right.imshow(shares, cmap="viridis", norm=Normalize(0.0, 1.0), aspect="auto")
     for i in range(shares.shape[0]):
         for j in range(shares.shape[1]):
             if np.isfinite(shares[i, j]):
-                right.text(j, i, f"{100 * shares[i, j]:.0f}", ha="center", va="center",
-                           fontsize=7, color="white" if shares[i, j] < 0.6 else "black")
+                right.text(
+                    j,
+                    i,
+                    f"{100 * shares[i, j]:.0f}",
+                    ha="center",
+                    va="center",
+                    fontsize=7,
+                    color="white" if shares[i, j] < 0.6 else "black",
+                )
     right.set_yticks(range(len(claims)), claims, fontsize=8)
-    right.set_xticks(range(len(columns)),
-                     [f"{a['key']}={_value(v)}" + (" *" if v == a["default"] else "")
-                      for a, v in columns], rotation=60, ha="right", fontsize=8)
-    right.set_title("Share of settings where the claim holds, per value of each choice "
-                    "(* default)", fontsize=10)
+    right.set_xticks(
+        range(len(columns)),
+        [f"{a['key']}={_value(v)}" + (" *" if v == a["default"] else "") for a, v in columns],
+        rotation=60,
+        ha="right",
+        fontsize=8,
+    )
+    right.set_title(
+        "Share of settings where the claim holds, per value of each choice (* default)", fontsize=10
+    )
     fig.colorbar(image, ax=right, shrink=0.8, label="share of settings")
     run = summary["run"]
-    fig.suptitle(f"The paper's claims over the reconstruction's choices ({run['seeds']} seed(s) "
-                 f"× {run['users']} users per setting)", fontsize=11)
+    fig.suptitle(
+        f"The paper's claims over the reconstruction's choices ({run['seeds']} seed(s) "
+        f"× {run['users']} users per setting)",
+        fontsize=11,
+    )
     fig.savefig(path, format="png")
 
 
 def write_report(summary: Mapping[str, Any], out: Path) -> list[Path]:
     """Write claims-map.md, claims-map.csv, claims-map.png and summary.json into ``out``."""
     out.mkdir(parents=True, exist_ok=True)
-    files = [out / n for n in ("claims-map.md", "claims-map.csv", "claims-map.png",
-                               "summary.json")]
+    files = [out / n for n in ("claims-map.md", "claims-map.csv", "claims-map.png", "summary.json")]
     files[0].write_text(markdown(summary), encoding="utf-8")
     write_csv(summary, files[1])
     plot_map(summary, files[2])
-    files[3].write_text(json.dumps(summary, indent=2, ensure_ascii=False, allow_nan=False)
-                        + "\n", encoding="utf-8")
+    files[3].write_text(
+        json.dumps(summary, indent=2, ensure_ascii=False, allow_nan=False) + "\n", encoding="utf-8"
+    )
     return files

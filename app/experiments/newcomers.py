@@ -152,20 +152,37 @@ class NewcomerRun:
     prior: dict[str, FloatArray]
 
 
-def tasks_for(families: Sequence[str], methods: Sequence[Method], seeds: int, n_residents: int,
-              n_events: int, *, strength: float = DEFAULT_STRENGTH,
-              min_support: int = MIN_SUPPORT, mission: str | None = None) -> list[NewcomerTask]:
+def tasks_for(
+    families: Sequence[str],
+    methods: Sequence[Method],
+    seeds: int,
+    n_residents: int,
+    n_events: int,
+    *,
+    strength: float = DEFAULT_STRENGTH,
+    min_support: int = MIN_SUPPORT,
+    mission: str | None = None,
+) -> list[NewcomerTask]:
     """Every family x seed (0..seeds-1), ordered family, seed."""
-    return [NewcomerTask(f, s, tuple(methods), n_residents, n_events, strength, min_support,
-                         mission) for f in families for s in range(seeds)]
+    return [
+        NewcomerTask(f, s, tuple(methods), n_residents, n_events, strength, min_support, mission)
+        for f in families
+        for s in range(seeds)
+    ]
 
 
 def run_newcomer_task(task: NewcomerTask) -> NewcomerRun:
     """Do one task (in a worker process)."""
-    return newcomer_rewards(FAMILIES[task.family], task.seed, task.methods,
-                            _mission(task.mission), n_residents=task.n_residents,
-                            n_events=task.n_events, strength=task.strength,
-                            min_support=task.min_support)
+    return newcomer_rewards(
+        FAMILIES[task.family],
+        task.seed,
+        task.methods,
+        _mission(task.mission),
+        n_residents=task.n_residents,
+        n_events=task.n_events,
+        strength=task.strength,
+        min_support=task.min_support,
+    )
 
 
 def _generator(seed: int, family: Family, person: int, label: str) -> np.random.Generator:
@@ -175,9 +192,17 @@ def _generator(seed: int, family: Family, person: int, label: str) -> np.random.
     return np.random.default_rng(np.random.SeedSequence([seed, family.key, 2, person, key]))
 
 
-def newcomer_rewards(family: Family, seed: int, methods: Sequence[Method], mission: Mission, *,
-                     n_residents: int, n_events: int, strength: float = DEFAULT_STRENGTH,
-                     min_support: int = MIN_SUPPORT) -> NewcomerRun:
+def newcomer_rewards(
+    family: Family,
+    seed: int,
+    methods: Sequence[Method],
+    mission: Mission,
+    *,
+    n_residents: int,
+    n_events: int,
+    strength: float = DEFAULT_STRENGTH,
+    min_support: int = MIN_SUPPORT,
+) -> NewcomerRun:
     """The protocol (the module's docstring) for one family and seed: the oracle, and every
     method fresh and from the leave-one-out prior, through the same persons and flips."""
     space = space_for(mission)
@@ -190,17 +215,21 @@ def newcomer_rewards(family: Family, seed: int, methods: Sequence[Method], missi
         rows = []
         for i, (person, u) in enumerate(zip(persons, flips, strict=True)):
             learner = make_learner(method.algorithm, method.params, mission)
-            rows.append(run_learner(learner, person, u, _generator(seed, family, i,
-                                                                   method.label)))
+            rows.append(run_learner(learner, person, u, _generator(seed, family, i, method.label)))
             finals.append(learner)
         fresh[method.label] = np.stack(rows)
         rows = []
         for i, (person, u) in enumerate(zip(persons, flips, strict=True)):
             others = [f for j, f in enumerate(finals) if j != i]
-            learner = population_prior(method.algorithm, method.params, mission, others,
-                                       strength=strength, min_support=min_support)
-            rows.append(run_learner(learner, person, u, _generator(seed, family, i,
-                                                                   method.label)))
+            learner = population_prior(
+                method.algorithm,
+                method.params,
+                mission,
+                others,
+                strength=strength,
+                min_support=min_support,
+            )
+            rows.append(run_learner(learner, person, u, _generator(seed, family, i, method.label)))
         prior[method.label] = np.stack(rows)
     return NewcomerRun(family.name, seed, oracle, fresh, prior)
 
@@ -212,8 +241,9 @@ def _round(x: float | None, digits: int = 4) -> float | None:
     return None if x is None or not math.isfinite(x) else round(x, digits)
 
 
-def _shares(runs: Sequence[NewcomerRun], arm: str, label: str, start: int, stop: int
-            ) -> list[float]:
+def _shares(
+    runs: Sequence[NewcomerRun], arm: str, label: str, start: int, stop: int
+) -> list[float]:
     """Per seed: the learner's reward over events start:stop of all persons / the oracle's."""
     out = []
     for r in runs:
@@ -250,37 +280,48 @@ def _curve(runs: Sequence[NewcomerRun], arm: str, label: str, n_events: int) -> 
     return out
 
 
-def build_summary(runs: Sequence[NewcomerRun], families: Sequence[str], learners: Sequence[str],
-                  n_events: int, run_info: Mapping[str, Any]) -> dict[str, Any]:
+def build_summary(
+    runs: Sequence[NewcomerRun],
+    families: Sequence[str],
+    learners: Sequence[str],
+    n_events: int,
+    run_info: Mapping[str, Any],
+) -> dict[str, Any]:
     """Every number as plain JSON data: per family, learner and window, the fresh and the
     prior's shares and their paired difference (mean, 95 % interval, per seed); the smoothed
     curves of the plot; the targets, met or missed."""
     out: dict[str, Any] = {
         "run": dict(run_info),
         "learners": list(learners),
-        "arms": {"fresh": "a new learner", "prior": "a learner from the prior of the other "
-                 "residents of the seed (app.learning.prior.population_prior)"},
+        "arms": {
+            "fresh": "a new learner",
+            "prior": "a learner from the prior of the other "
+            "residents of the seed (app.learning.prior.population_prior)",
+        },
         "windows": {},
         "share": "learner's reward / oracle's reward over the window's events of a seed's "
-                 "persons; mean over seeds",
+        "persons; mean over seeds",
         "interval": "95% CI of the mean over seeds (Student's t)",
         "difference": "per seed: prior's share - fresh share; mean and 95% CI over seeds "
-                      "(paired; Student's t)",
+        "(paired; Student's t)",
         "min_oracle_reward": MIN_ORACLE_REWARD,
         "smoothing_events": SMOOTHING,
         "families": {},
     }
     for w in WINDOWS:
         rng = span_range(w, n_events)
-        out["windows"][w.key] = {"label": w.label,
-                                 "events": None if rng is None else [rng[0] + 1, rng[1]]}
+        out["windows"][w.key] = {
+            "label": w.label,
+            "events": None if rng is None else [rng[0] + 1, rng[1]],
+        }
     for name in families:
         mine = [r for r in runs if r.family == name]
         entry: dict[str, Any] = {
             "description": FAMILIES[name].description,
             "seeds": len(mine),
             "oracle_reward_per_event": _round(
-                float(np.mean([r.oracle.mean() for r in mine])) if mine else float("nan")),
+                float(np.mean([r.oracle.mean() for r in mine])) if mine else float("nan")
+            ),
             "learners": {},
         }
         for label in learners:
@@ -294,7 +335,8 @@ def build_summary(runs: Sequence[NewcomerRun], families: Sequence[str], learners
                 cells["fresh"][w.key] = _cell(fresh, rng)
                 cells["prior"][w.key] = _cell(prior, rng)
                 cells["difference"][w.key] = _cell(
-                    [p - f for p, f in zip(prior, fresh, strict=True)], rng)
+                    [p - f for p, f in zip(prior, fresh, strict=True)], rng
+                )
             cells["curves"] = {arm: _curve(mine, arm, label, n_events) for arm in ARMS}
             entry["learners"][label] = cells
         out["families"][name] = entry
@@ -324,10 +366,19 @@ def check_targets(summary: Mapping[str, Any]) -> list[dict[str, Any]]:
         if cell is None:
             continue
         mean = cell["mean"]
-        out.append({"id": "a", "family": "home", "window": "first20", "learner": label,
-                    "target": f"from the prior ≥ {100 * FIRST_TARGET:.0f}% of the oracle",
-                    "share": mean, "difference": None, "ci95": None,
-                    "met": mean is not None and round(mean, 2) >= FIRST_TARGET})
+        out.append(
+            {
+                "id": "a",
+                "family": "home",
+                "window": "first20",
+                "learner": label,
+                "target": f"from the prior ≥ {100 * FIRST_TARGET:.0f}% of the oracle",
+                "share": mean,
+                "difference": None,
+                "ci95": None,
+                "met": mean is not None and round(mean, 2) >= FIRST_TARGET,
+            }
+        )
     checks: list[tuple[str, str, str]] = []
     if "individual" in families:
         checks += [("b", "individual", "first20"), ("b", "individual", "all")]
@@ -339,11 +390,19 @@ def check_targets(summary: Mapping[str, Any]) -> list[dict[str, Any]]:
                 continue
             diff = cells["difference"][key]
             high = None if diff["ci95"] is None else diff["ci95"][1]
-            out.append({"id": target_id, "family": name, "window": key, "learner": label,
-                        "target": "prior not below fresh (paired 95% CI of the difference "
-                                  "reaches 0)",
-                        "share": cells["prior"][key]["mean"], "difference": diff["mean"],
-                        "ci95": diff["ci95"], "met": high is not None and high >= 0.0})
+            out.append(
+                {
+                    "id": target_id,
+                    "family": name,
+                    "window": key,
+                    "learner": label,
+                    "target": "prior not below fresh (paired 95% CI of the difference reaches 0)",
+                    "share": cells["prior"][key]["mean"],
+                    "difference": diff["mean"],
+                    "ci95": diff["ci95"],
+                    "met": high is not None and high >= 0.0,
+                }
+            )
     return out
 
 
@@ -379,8 +438,14 @@ def _rows(summary: Mapping[str, Any]) -> list[tuple[str, str, str, list[str]]]:
     for name, fam in summary["families"].items():
         for label, cells in fam["learners"].items():
             for arm, row in _ROWS:
-                out.append((name, label, row, [
-                    _pct(cells[arm].get(k), signed=arm == "difference") for k in keys]))
+                out.append(
+                    (
+                        name,
+                        label,
+                        row,
+                        [_pct(cells[arm].get(k), signed=arm == "difference") for k in keys],
+                    )
+                )
     return out
 
 
@@ -390,23 +455,32 @@ def verdict_lines(summary: Mapping[str, Any]) -> list[str]:
     if not targets:
         return ["No target applies to the families of this run."]
     met = sum(t["met"] for t in targets)
-    lines = [f"Targets (issue §2): {met} of {len(targets)} met. (a) home, from the prior, "
-             f"first 20 events ≥ {100 * FIRST_TARGET:.0f}% of the oracle; (b) individual, "
-             "first 20 and all: the prior not below fresh; (c) every family, after event 100: "
-             "the prior not below fresh. Not below: the upper bound of the paired 95% CI of "
-             "the per-seed difference (prior − fresh) is ≥ 0."]
+    lines = [
+        f"Targets (issue §2): {met} of {len(targets)} met. (a) home, from the prior, "
+        f"first 20 events ≥ {100 * FIRST_TARGET:.0f}% of the oracle; (b) individual, "
+        "first 20 and all: the prior not below fresh; (c) every family, after event 100: "
+        "the prior not below fresh. Not below: the upper bound of the paired 95% CI of "
+        "the per-seed difference (prior − fresh) is ≥ 0."
+    ]
     for t in targets:
         window = summary["windows"][t["window"]]["label"]
         verdict = "met" if t["met"] else "MISSED"
         if t["id"] == "a":
             share = "—" if t["share"] is None else f"{_p(t['share'])}%"
-            lines.append(f"  ({t['id']}) {t['family']}, {t['learner']}, {window}: prior {share} "
-                         f"(target ≥ {100 * FIRST_TARGET:.0f}%): {verdict}")
+            lines.append(
+                f"  ({t['id']}) {t['family']}, {t['learner']}, {window}: prior {share} "
+                f"(target ≥ {100 * FIRST_TARGET:.0f}%): {verdict}"
+            )
         else:
-            diff = "—" if t["difference"] is None else (
-                f"{_pct({'mean': t['difference'], 'ci95': t['ci95']}, signed=True)} points")
-            lines.append(f"  ({t['id']}) {t['family']}, {t['learner']}, {window}: prior − fresh "
-                         f"{diff} (target: upper bound ≥ 0): {verdict}")
+            diff = (
+                "—"
+                if t["difference"] is None
+                else (f"{_pct({'mean': t['difference'], 'ci95': t['ci95']}, signed=True)} points")
+            )
+            lines.append(
+                f"  ({t['id']}) {t['family']}, {t['learner']}, {window}: prior − fresh "
+                f"{diff} (target: upper bound ≥ 0): {verdict}"
+            )
     return lines
 
 
@@ -431,8 +505,10 @@ def markdown(summary: Mapping[str, Any]) -> str:
         lines[-1] = lines[-1][:-1] + f" ({run['cpu_seconds']:.1f} s of CPU time)."
     mission = run.get("mission") or {}
     if mission.get("file"):
-        lines[-1] += (f" The people lived in the mission {mission['name']!r} of "
-                      f"{mission['file']}, not in the paper's office mission.")
+        lines[-1] += (
+            f" The people lived in the mission {mission['name']!r} of "
+            f"{mission['file']}, not in the paper's office mission."
+        )
     lines += [
         "",
         "| Family | Learner | Start | " + " | ".join(_heading(summary, k) for k in keys) + " |",
@@ -447,8 +523,9 @@ def markdown(summary: Mapping[str, Any]) -> str:
     lines += ["", "Families (oracle's mean reward per event):", ""]
     for name, fam in summary["families"].items():
         reward = fam["oracle_reward_per_event"]
-        lines.append(f"- **{name}** ({'—' if reward is None else f'{reward:.2f}'}): "
-                     f"{fam['description']}.")
+        lines.append(
+            f"- **{name}** ({'—' if reward is None else f'{reward:.2f}'}): {fam['description']}."
+        )
     verdict = verdict_lines(summary)
     lines += ["", "## Targets", "", verdict[0], ""]
     lines += [f"- {line.strip()}" for line in verdict[1:]]
@@ -461,9 +538,12 @@ def print_table(summary: Mapping[str, Any], console: Console) -> None:
     from rich.table import Table
 
     keys = list(summary["windows"])
-    table = Table(title="Newcomers: share of the oracle's reward, fresh and from the fleet's "
-                  "prior (mean [95% CI] over seeds; difference in points, paired by seed)",
-                  box=box.SIMPLE_HEAD, title_justify="left")
+    table = Table(
+        title="Newcomers: share of the oracle's reward, fresh and from the fleet's "
+        "prior (mean [95% CI] over seeds; difference in points, paired by seed)",
+        box=box.SIMPLE_HEAD,
+        title_justify="left",
+    )
     for heading in ("Family", "Learner", "Start"):
         table.add_column(heading, no_wrap=True)
     for k in keys:
@@ -472,17 +552,34 @@ def print_table(summary: Mapping[str, Any], console: Console) -> None:
     last: tuple[str, str] | None = None
     for i, (name, label, row, cells) in enumerate(rows):
         end = i + 1 == len(rows) or rows[i + 1][1] != label or rows[i + 1][0] != name
-        table.add_row(name if last is None or last[0] != name else "",
-                      label if last != (name, label) else "", row, *cells, end_section=end)
+        table.add_row(
+            name if last is None or last[0] != name else "",
+            label if last != (name, label) else "",
+            row,
+            *cells,
+            end_section=end,
+        )
         last = (name, label)
     console.print(table, soft_wrap=True, crop=False, overflow="ignore")
     for line in verdict_lines(summary):
-        console.print(line, soft_wrap=True, crop=False, overflow="ignore", markup=False,
-                      highlight=False)
+        console.print(
+            line, soft_wrap=True, crop=False, overflow="ignore", markup=False, highlight=False
+        )
 
 
-CSV_COLUMNS = ("family", "learner", "start", "window", "first_event", "last_event", "seeds",
-               "undefined_seeds", "mean", "ci95_low", "ci95_high")
+CSV_COLUMNS = (
+    "family",
+    "learner",
+    "start",
+    "window",
+    "first_event",
+    "last_event",
+    "seeds",
+    "undefined_seeds",
+    "mean",
+    "ci95_low",
+    "ci95_high",
+)
 
 
 def write_csv(summary: Mapping[str, Any], path: Path) -> int:
@@ -497,9 +594,19 @@ def write_csv(summary: Mapping[str, Any], path: Path) -> int:
                 for arm, _ in _ROWS:
                     for key, cell in cells[arm].items():
                         ci = cell["ci95"] or ("", "")
-                        writer.writerow((name, label, arm, key, *cell["events"], cell["seeds"],
-                                         cell["undefined_seeds"],
-                                         "" if cell["mean"] is None else cell["mean"], *ci))
+                        writer.writerow(
+                            (
+                                name,
+                                label,
+                                arm,
+                                key,
+                                *cell["events"],
+                                cell["seeds"],
+                                cell["undefined_seeds"],
+                                "" if cell["mean"] is None else cell["mean"],
+                                *ci,
+                            )
+                        )
                         rows += 1
     return rows
 
@@ -522,33 +629,48 @@ def plot_newcomers(summary: Mapping[str, Any], path: Path) -> None:
         ax.axvspan(0.5, 20.5, color="0.92", zorder=0)
         if name == "home":
             ax.axhline(FIRST_TARGET, color="0.5", linewidth=0.8, linestyle=":")
-            ax.text(21.5, FIRST_TARGET + 0.01, f"target in the first 20: "
-                    f"{100 * FIRST_TARGET:.0f}%", fontsize=7, color="0.4", va="bottom")
+            ax.text(
+                21.5,
+                FIRST_TARGET + 0.01,
+                f"target in the first 20: {100 * FIRST_TARGET:.0f}%",
+                fontsize=7,
+                color="0.4",
+                va="bottom",
+            )
         for color, label in zip(colors, learners, strict=True):
             curves = fam["learners"][label]["curves"]
             for arm, style in (("fresh", "--"), ("prior", "-")):
                 y = np.asarray([np.nan if v is None else v for v in curves[arm]])
-                ax.plot(np.arange(1, y.size + 1), y, style, color=color, linewidth=1.3,
-                        label=f"{label}, {arm}")
+                ax.plot(
+                    np.arange(1, y.size + 1),
+                    y,
+                    style,
+                    color=color,
+                    linewidth=1.3,
+                    label=f"{label}, {arm}",
+                )
         ax.set_title(f"{name} ({fam['seeds']} seeds)", fontsize=10)
         ax.set_xlabel("event (grey: the first 20)")
         ax.grid(alpha=0.3)
     axes[0].set_ylabel(f"share of the oracle's reward ({SMOOTHING}-event window)")
     axes[-1].legend(fontsize=7, loc="lower right", ncol=2)
     run = summary["run"]
-    fig.suptitle(f"Newcomers: fresh (dashed) and from the other {run['residents'] - 1} "
-                 "residents' prior (solid)", fontsize=11)
+    fig.suptitle(
+        f"Newcomers: fresh (dashed) and from the other {run['residents'] - 1} "
+        "residents' prior (solid)",
+        fontsize=11,
+    )
     fig.savefig(path, format="png")
 
 
 def write_report(summary: Mapping[str, Any], out: Path) -> list[Path]:
     """Write newcomers.md, newcomers.csv, newcomers.png and summary.json into ``out``."""
     out.mkdir(parents=True, exist_ok=True)
-    files = [out / n for n in ("newcomers.md", "newcomers.csv", "newcomers.png",
-                               "summary.json")]
+    files = [out / n for n in ("newcomers.md", "newcomers.csv", "newcomers.png", "summary.json")]
     files[0].write_text(markdown(summary), encoding="utf-8")
     write_csv(summary, files[1])
     plot_newcomers(summary, files[2])
-    files[3].write_text(json.dumps(summary, indent=2, ensure_ascii=False, allow_nan=False)
-                        + "\n", encoding="utf-8")
+    files[3].write_text(
+        json.dumps(summary, indent=2, ensure_ascii=False, allow_nan=False) + "\n", encoding="utf-8"
+    )
     return files

@@ -27,8 +27,16 @@ __all__ = [
 ]
 
 CSV_COLUMNS = (
-    "protocol", "method", "seed", "user", "event",
-    "reward", "initiated", "interaction", "success", "queries",
+    "protocol",
+    "method",
+    "seed",
+    "user",
+    "event",
+    "reward",
+    "initiated",
+    "interaction",
+    "success",
+    "queries",
 )
 INTERACTION_NAMES = ("none", "I1", "I2", "I3")  # RunResult.interaction codes 0..3
 
@@ -51,8 +59,18 @@ def write_rewards_csv(results: Iterable[RunResult], path: Path) -> int:
                 success = res.success[user].astype(np.int8).tolist()
                 queries = res.queries[user].tolist()
                 writer.writerows(
-                    (res.protocol, res.method, res.seed, user, e + 1, f"{reward[e]:.10g}",
-                     initiated[e], interaction[e], success[e], queries[e])
+                    (
+                        res.protocol,
+                        res.method,
+                        res.seed,
+                        user,
+                        e + 1,
+                        f"{reward[e]:.10g}",
+                        initiated[e],
+                        interaction[e],
+                        success[e],
+                        queries[e],
+                    )
                     for e in range(events)
                 )
                 rows += events
@@ -61,8 +79,9 @@ def write_rewards_csv(results: Iterable[RunResult], path: Path) -> int:
 
 def _write_json(data: Mapping[str, Any], path: Path) -> None:
     """Write ``data`` as strict, indented UTF-8 JSON."""
-    path.write_text(json.dumps(data, indent=2, ensure_ascii=False, allow_nan=False) + "\n",
-                    encoding="utf-8")
+    path.write_text(
+        json.dumps(data, indent=2, ensure_ascii=False, allow_nan=False) + "\n", encoding="utf-8"
+    )
 
 
 def write_paper_report(
@@ -78,18 +97,34 @@ def write_paper_report(
         if needed.name not in by_protocol:
             raise ValueError(f"No {needed.name} results to report.")
     assert E1E2.change_at is not None
-    files = [out / name for name in
-             ("fig2.png", "fig3.png", "rewards.csv", "table2.md", "summary.json", "claims.md")]
+    files = [
+        out / name
+        for name in (
+            "fig2.png",
+            "fig3.png",
+            "rewards.csv",
+            "table2.md",
+            "summary.json",
+            "claims.md",
+        )
+    ]
     e1e2 = by_protocol[E1E2.name]
     plot_cumulative(
-        e1e2, 0, E1E2.change_at, files[0],
+        e1e2,
+        0,
+        E1E2.change_at,
+        files[0],
         title=f"Fig. 2 — E1: cumulative reward, events 1–{E1E2.change_at} (learning from scratch)",
-        xlabel="event", ylabel="cumulative reward",
+        xlabel="event",
+        ylabel="cumulative reward",
     )
     plot_cumulative(
-        e1e2, E1E2.change_at, E1E2.n_events, files[1],
+        e1e2,
+        E1E2.change_at,
+        E1E2.n_events,
+        files[1],
         title=f"Fig. 3 — E2: cumulative reward after the needs change, events "
-              f"{E1E2.change_at + 1}–{E1E2.n_events} (re-zeroed)",
+        f"{E1E2.change_at + 1}–{E1E2.n_events} (re-zeroed)",
         xlabel=f"event (the users' needs changed after event {E1E2.change_at})",
         ylabel="cumulative reward since the change",
     )
@@ -109,17 +144,23 @@ def write_ablation_report(
     Returns the summary and the files written.
     """
     out.mkdir(parents=True, exist_ok=True)
-    files = [out / name for name in
-             ("ablation.md", "summary.json", "pa_cumulative.png", "rewards.csv")]
+    files = [
+        out / name for name in ("ablation.md", "summary.json", "pa_cumulative.png", "rewards.csv")
+    ]
     summary = build_summary(results, run_info, paper=False)
     files[0].write_text(ablation_markdown(summary), encoding="utf-8")
     _write_json(summary, files[1])
     pa = group(results).get(PA.name)
     if pa:
         plot_cumulative(
-            pa, 0, pa[0].reward.shape[1], files[2],
+            pa,
+            0,
+            pa[0].reward.shape[1],
+            files[2],
             title=f"Ablations — PA: cumulative reward over {pa[0].reward.shape[1]} events",
-            xlabel="event", ylabel="cumulative reward", change_after=PA.change_at,
+            xlabel="event",
+            ylabel="cumulative reward",
+            change_after=PA.change_at,
         )
     else:
         files.remove(files[2])

@@ -44,14 +44,21 @@ def plot_cumulative(
     for i, method in enumerate(methods):
         mean, half = cumulative_curve(results, method, start, stop)
         color = f"C{i % 10}"
-        ax.plot(events, mean, color=color, linestyle=styles[i % len(styles)], linewidth=2,
-                label=method)
+        ax.plot(
+            events, mean, color=color, linestyle=styles[i % len(styles)], linewidth=2, label=method
+        )
         ax.fill_between(events, mean - half, mean + half, color=color, alpha=0.18, linewidth=0)
     if change_after is not None:
         ax.axvline(change_after + 0.5, color="0.4", linestyle=":", linewidth=1.5)
-        ax.annotate("needs change", xy=(change_after + 0.5, 1.0),
-                    xycoords=("data", "axes fraction"), xytext=(4, -14),
-                    textcoords="offset points", color="0.3", fontsize=10)
+        ax.annotate(
+            "needs change",
+            xy=(change_after + 0.5, 1.0),
+            xycoords=("data", "axes fraction"),
+            xytext=(4, -14),
+            textcoords="offset points",
+            color="0.3",
+            fontsize=10,
+        )
     ax.axhline(0.0, color="0.75", linewidth=0.8, zorder=0)
     ax.set_xlim(events[0], events[-1])
     ax.set_xlabel(xlabel, fontsize=12)
@@ -59,7 +66,8 @@ def plot_cumulative(
     ax.tick_params(labelsize=11)
     ax.grid(True, alpha=0.3)
     fig.suptitle(title, fontsize=14)
-    ax.set_title(f"mean over {samples} user-runs per method; {SHADE_LABEL}", fontsize=10,
-                 color="0.3")
+    ax.set_title(
+        f"mean over {samples} user-runs per method; {SHADE_LABEL}", fontsize=10, color="0.3"
+    )
     ax.legend(loc="upper left", fontsize=11, framealpha=0.9)
     fig.savefig(path, format="png")

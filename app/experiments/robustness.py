@@ -85,9 +85,11 @@ SERVICE_DEFAULT = "dts-adapt"
 algorithm, with that algorithm's default parameters): the learner the rule picks."""
 REFERENCE = "dts"
 """The learner whose level before a change the default must keep (issue §3)."""
-RULE = ("the default learner is the one with the highest mean share over all events, averaged "
-        "over every family of the run; a tie (equal whole percentages) goes to the higher "
-        "worst-family share over all events")
+RULE = (
+    "the default learner is the one with the highest mean share over all events, averaged "
+    "over every family of the run; a tie (equal whole percentages) goes to the higher "
+    "worst-family share over all events"
+)
 AFTER_TARGET, ALL_TARGET = 0.75, 0.85
 
 
@@ -109,8 +111,7 @@ WINDOWS = (
 )
 
 
-def window_range(window: Window, n_events: int, change_at: int | None
-                 ) -> tuple[int, int] | None:
+def window_range(window: Window, n_events: int, change_at: int | None) -> tuple[int, int] | None:
     """Events ``start:stop`` (0-based, half-open) of ``window``; None when it does not apply
     (a window about the change in a family without one, or no event in it)."""
     if window.needs_change and change_at is None:
@@ -146,18 +147,33 @@ class RobustTask:
         return f"{self.family} / seed {self.seed}"
 
 
-def tasks_for(families: Sequence[str], methods: Sequence[Method], seeds: int, n_persons: int,
-              n_events: int, mission: str | None = None) -> list[RobustTask]:
+def tasks_for(
+    families: Sequence[str],
+    methods: Sequence[Method],
+    seeds: int,
+    n_persons: int,
+    n_events: int,
+    mission: str | None = None,
+) -> list[RobustTask]:
     """Every family x seed, ordered family, seed."""
-    return [RobustTask(f, s, tuple(methods), n_persons, n_events, mission)
-            for f in families for s in range(seeds)]
+    return [
+        RobustTask(f, s, tuple(methods), n_persons, n_events, mission)
+        for f in families
+        for s in range(seeds)
+    ]
 
 
 def run_robust_task(task: RobustTask) -> FamilyRun:
     """Do one task (in a worker process)."""
     methods = [(m.label, m.algorithm, dict(m.params)) for m in task.methods]
-    return run_family(FAMILIES[task.family], task.seed, methods, _mission(task.mission),
-                      n_persons=task.n_persons, n_events=task.n_events)
+    return run_family(
+        FAMILIES[task.family],
+        task.seed,
+        methods,
+        _mission(task.mission),
+        n_persons=task.n_persons,
+        n_events=task.n_events,
+    )
 
 
 # -- the numbers ------------------------------------------------------------------------------
@@ -167,8 +183,13 @@ def _round(x: float | None, digits: int = 4) -> float | None:
     return None if x is None or not math.isfinite(x) else round(x, digits)
 
 
-def build_summary(runs: Sequence[FamilyRun], families: Sequence[str], learners: Sequence[str],
-                  n_events: int, run_info: Mapping[str, Any]) -> dict[str, Any]:
+def build_summary(
+    runs: Sequence[FamilyRun],
+    families: Sequence[str],
+    learners: Sequence[str],
+    n_events: int,
+    run_info: Mapping[str, Any],
+) -> dict[str, Any]:
     """Every share as plain JSON data: per family, per learner, per window, the mean share, its
     95% interval, and the seeds it stands on."""
     out: dict[str, Any] = {
@@ -176,7 +197,7 @@ def build_summary(runs: Sequence[FamilyRun], families: Sequence[str], learners: 
         "learners": list(learners),
         "windows": {},
         "share": "learner's reward / oracle's reward over the window's events of a seed's "
-                 "persons; mean over seeds",
+        "persons; mean over seeds",
         "interval": "95% CI of the mean over seeds (Student's t)",
         "min_oracle_reward": MIN_ORACLE_REWARD,
         "families": {},
@@ -185,7 +206,8 @@ def build_summary(runs: Sequence[FamilyRun], families: Sequence[str], learners: 
     for w in WINDOWS:
         rng = window_range(w, n_events, change)
         out["windows"][w.key] = {
-            "label": w.label, "needs_change": w.needs_change,
+            "label": w.label,
+            "needs_change": w.needs_change,
             "events": None if rng is None else [rng[0] + 1, rng[1]],
         }
     for name in families:
@@ -197,7 +219,8 @@ def build_summary(runs: Sequence[FamilyRun], families: Sequence[str], learners: 
             "change_at_event": None if change_at is None else change_at + 1,
             "seeds": len(mine),
             "oracle_reward_per_event": _round(
-                float(np.mean([r.oracle.mean() for r in mine])) if mine else float("nan")),
+                float(np.mean([r.oracle.mean() for r in mine])) if mine else float("nan")
+            ),
             "learners": {},
         }
         for label in learners:
@@ -220,12 +243,20 @@ def choose_default(summary: Mapping[str, Any]) -> dict[str, Any]:
         alls = [fam["learners"][label]["all"]["mean"] for fam in summary["families"].values()]
         if not alls or any(a is None for a in alls):
             continue
-        ranking.append({"learner": label, "mean_all": _round(float(np.mean(alls))),
-                        "worst_all": _round(min(alls))})
+        ranking.append(
+            {
+                "learner": label,
+                "mean_all": _round(float(np.mean(alls))),
+                "worst_all": _round(min(alls)),
+            }
+        )
     ranking.sort(key=lambda r: (-round(100 * r["mean_all"]), -r["worst_all"]))
-    return {"text": RULE, "ranking": ranking,
-            "chosen": ranking[0]["learner"] if ranking else None,
-            "service_default": LEARNERS[SERVICE_DEFAULT].label}
+    return {
+        "text": RULE,
+        "ranking": ranking,
+        "chosen": ranking[0]["learner"] if ranking else None,
+        "service_default": LEARNERS[SERVICE_DEFAULT].label,
+    }
 
 
 def check_targets(summary: Mapping[str, Any]) -> list[dict[str, Any]]:
@@ -246,13 +277,19 @@ def check_targets(summary: Mapping[str, Any]) -> list[dict[str, Any]]:
             if reference in fam["learners"]:
                 level = fam["learners"][reference]["before30"]["mean"]
                 if level is not None:
-                    checks.insert(0, ("before30", f"≥ {reference}'s {_p(level)}%",
-                                      round(level, 2)))
+                    checks.insert(0, ("before30", f"≥ {reference}'s {_p(level)}%", round(level, 2)))
         for key, text, bound in checks:
             mean = cells[key]["mean"]
-            out.append({"family": name, "window": key, "learner": label, "target": text,
-                        "share": mean,
-                        "met": mean is not None and round(mean, 2) >= bound})
+            out.append(
+                {
+                    "family": name,
+                    "window": key,
+                    "learner": label,
+                    "target": text,
+                    "share": mean,
+                    "met": mean is not None and round(mean, 2) >= bound,
+                }
+            )
     return out
 
 
@@ -262,31 +299,50 @@ def verdict_lines(summary: Mapping[str, Any]) -> list[str]:
     lines = [f"Rule: {rule.get('text', RULE)}."]
     ranking = rule.get("ranking") or []
     if ranking:
-        lines.append("Ranking (mean over families, all events; worst family): " + "; ".join(
-            f"{r['learner']} {_p(r['mean_all'])}% (worst {_p(r['worst_all'])}%)"
-            for r in ranking) + ".")
+        lines.append(
+            "Ranking (mean over families, all events; worst family): "
+            + "; ".join(
+                f"{r['learner']} {_p(r['mean_all'])}% (worst {_p(r['worst_all'])}%)"
+                for r in ranking
+            )
+            + "."
+        )
         chosen = rule["chosen"]
-        same = "the service's default" if chosen == rule["service_default"] else (
-            f"not the service's default ({rule['service_default']})")
+        same = (
+            "the service's default"
+            if chosen == rule["service_default"]
+            else (f"not the service's default ({rule['service_default']})")
+        )
         lines.append(f"The rule picks {chosen}: {same}.")
     targets = summary.get("targets") or []
     if targets:
         met = sum(t["met"] for t in targets)
-        lines.append(f"Issue §3 targets for the default learner ({targets[0]['learner']}): "
-                     f"{met} of {len(targets)} met.")
+        lines.append(
+            f"Issue §3 targets for the default learner ({targets[0]['learner']}): "
+            f"{met} of {len(targets)} met."
+        )
         for t in targets:
             share = "—" if t["share"] is None else f"{_p(t['share'])}%"
             window = summary["windows"][t["window"]]["label"]
-            lines.append(f"  {t['family']}, {window}: {share} (target {t['target']}): "
-                         f"{'met' if t['met'] else 'MISSED'}")
+            lines.append(
+                f"  {t['family']}, {window}: {share} (target {t['target']}): "
+                f"{'met' if t['met'] else 'MISSED'}"
+            )
     return lines
 
 
 def _cell(runs: Sequence[FamilyRun], label: str, rng: tuple[int, int] | None) -> dict[str, Any]:
     """One family x learner x window: shares per seed, their mean and interval."""
     if rng is None:
-        return {"applicable": False, "events": None, "mean": None, "ci95": None,
-                "seeds": 0, "undefined_seeds": 0, "per_seed": []}
+        return {
+            "applicable": False,
+            "events": None,
+            "mean": None,
+            "ci95": None,
+            "seeds": 0,
+            "undefined_seeds": 0,
+            "per_seed": [],
+        }
     start, stop = rng
     shares = []
     for r in runs:
@@ -349,8 +405,10 @@ def markdown(summary: Mapping[str, Any]) -> str:
     ]
     mission = run.get("mission") or {}
     if mission.get("file"):
-        lines[-1] += (f" The people lived in the mission {mission['name']!r} of {mission['file']}, "
-                      "not in the paper's office mission.")
+        lines[-1] += (
+            f" The people lived in the mission {mission['name']!r} of {mission['file']}, "
+            "not in the paper's office mission."
+        )
     lines += [
         "",
         "| Family | Learner | " + " | ".join(_window_heading(summary, k) for k in keys) + " |",
@@ -360,17 +418,21 @@ def markdown(summary: Mapping[str, Any]) -> str:
     for name, fam in summary["families"].items():
         for i, (label, cells) in enumerate(fam["learners"].items()):
             first = f"**{name}**" if i == 0 else ""
-            lines.append(f"| {first} | {label} | "
-                         + " | ".join(_pct(cells[k]) for k in keys) + " |")
+            lines.append(
+                f"| {first} | {label} | " + " | ".join(_pct(cells[k]) for k in keys) + " |"
+            )
             for k in keys:
                 if cells[k]["undefined_seeds"]:
-                    notes.append(f"- {name}, {label}, {summary['windows'][k]['label']}: "
-                                 f"{cells[k]['undefined_seeds']} seed(s) without a share.")
+                    notes.append(
+                        f"- {name}, {label}, {summary['windows'][k]['label']}: "
+                        f"{cells[k]['undefined_seeds']} seed(s) without a share."
+                    )
     lines += ["", "Families (oracle's mean reward per event):", ""]
     for name, fam in summary["families"].items():
         reward = fam["oracle_reward_per_event"]
-        lines.append(f"- **{name}** ({'—' if reward is None else f'{reward:.2f}'}): "
-                     f"{fam['description']}.")
+        lines.append(
+            f"- **{name}** ({'—' if reward is None else f'{reward:.2f}'}): {fam['description']}."
+        )
     if notes:
         lines += ["", "Seeds without a share:", "", *dict.fromkeys(notes)]
     verdict = verdict_lines(summary)
@@ -385,24 +447,42 @@ def print_table(summary: Mapping[str, Any], console: Console) -> None:
     from rich.table import Table
 
     keys = list(summary["windows"])
-    table = Table(title="Robustness: reward as a share of the oracle's (mean [95% CI] over "
-                  "seeds)", box=box.SIMPLE_HEAD, title_justify="left")
+    table = Table(
+        title="Robustness: reward as a share of the oracle's (mean [95% CI] over seeds)",
+        box=box.SIMPLE_HEAD,
+        title_justify="left",
+    )
     table.add_column("Family", no_wrap=True)
     table.add_column("Learner", no_wrap=True)
     for k in keys:
         table.add_column(_window_heading(summary, k), justify="right", no_wrap=True)
     for name, fam in summary["families"].items():
         for i, (label, cells) in enumerate(fam["learners"].items()):
-            table.add_row(name if i == 0 else "", label, *(_pct(cells[k]) for k in keys),
-                          end_section=i == len(fam["learners"]) - 1)
+            table.add_row(
+                name if i == 0 else "",
+                label,
+                *(_pct(cells[k]) for k in keys),
+                end_section=i == len(fam["learners"]) - 1,
+            )
     console.print(table, soft_wrap=True, crop=False, overflow="ignore")
     for line in verdict_lines(summary):
-        console.print(line, soft_wrap=True, crop=False, overflow="ignore", markup=False,
-                      highlight=False)
+        console.print(
+            line, soft_wrap=True, crop=False, overflow="ignore", markup=False, highlight=False
+        )
 
 
-CSV_COLUMNS = ("family", "learner", "window", "first_event", "last_event", "seeds",
-               "undefined_seeds", "share_mean", "ci95_low", "ci95_high")
+CSV_COLUMNS = (
+    "family",
+    "learner",
+    "window",
+    "first_event",
+    "last_event",
+    "seeds",
+    "undefined_seeds",
+    "share_mean",
+    "ci95_low",
+    "ci95_high",
+)
 
 
 def write_csv(summary: Mapping[str, Any], path: Path) -> int:
@@ -417,10 +497,19 @@ def write_csv(summary: Mapping[str, Any], path: Path) -> int:
                 for key, cell in cells.items():
                     events = cell["events"] or ("", "")
                     ci = cell["ci95"] or ("", "")
-                    writer.writerow((name, label, key, events[0], events[1],
-                                     cell["seeds"] if cell["applicable"] else "",
-                                     cell["undefined_seeds"] if cell["applicable"] else "",
-                                     "" if cell["mean"] is None else cell["mean"], *ci))
+                    writer.writerow(
+                        (
+                            name,
+                            label,
+                            key,
+                            events[0],
+                            events[1],
+                            cell["seeds"] if cell["applicable"] else "",
+                            cell["undefined_seeds"] if cell["applicable"] else "",
+                            "" if cell["mean"] is None else cell["mean"],
+                            *ci,
+                        )
+                    )
                     rows += 1
     return rows
 
@@ -435,8 +524,9 @@ def plot_shares(summary: Mapping[str, Any], path: Path) -> None:
     keys = list(summary["windows"])
     families = list(summary["families"])
     learners = list(summary["learners"])
-    fig = Figure(figsize=(3.2 * len(keys) + 1.5, 0.45 * len(families) + 2.2), dpi=100,
-                 layout="constrained")
+    fig = Figure(
+        figsize=(3.2 * len(keys) + 1.5, 0.45 * len(families) + 2.2), dpi=100, layout="constrained"
+    )
     FigureCanvasAgg(fig)
     axes = fig.subplots(1, len(keys), sharey=True, squeeze=False)[0]
     norm = Normalize(0.0, 1.0)
@@ -453,28 +543,37 @@ def plot_shares(summary: Mapping[str, Any], path: Path) -> None:
         for i in range(len(families)):
             for j in range(len(learners)):
                 if np.isfinite(grid[i, j]):
-                    ax.text(j, i, _p(grid[i, j]), ha="center", va="center",
-                            fontsize=8, color="white" if grid[i, j] < 0.6 else "black")
+                    ax.text(
+                        j,
+                        i,
+                        _p(grid[i, j]),
+                        ha="center",
+                        va="center",
+                        fontsize=8,
+                        color="white" if grid[i, j] < 0.6 else "black",
+                    )
         ax.set_xticks(range(len(learners)), learners, rotation=45, ha="right", fontsize=8)
         ax.set_yticks(range(len(families)), families, fontsize=9)
         ax.set_title(_window_heading(summary, key), fontsize=10)
     if image is not None:
         fig.colorbar(image, ax=list(axes), shrink=0.8, label="share of the oracle's reward")
     run = summary["run"]
-    fig.suptitle(f"Reward as a share of the oracle's, % (mean over {run['seeds']} seeds × "
-                 f"{run['persons']} persons; grey: no change in that family)", fontsize=11)
+    fig.suptitle(
+        f"Reward as a share of the oracle's, % (mean over {run['seeds']} seeds × "
+        f"{run['persons']} persons; grey: no change in that family)",
+        fontsize=11,
+    )
     fig.savefig(path, format="png")
 
 
 def write_report(summary: Mapping[str, Any], out: Path) -> list[Path]:
     """Write robustness.md, robustness.csv, robustness.png and summary.json into ``out``."""
     out.mkdir(parents=True, exist_ok=True)
-    files = [out / n for n in ("robustness.md", "robustness.csv", "robustness.png",
-                               "summary.json")]
+    files = [out / n for n in ("robustness.md", "robustness.csv", "robustness.png", "summary.json")]
     files[0].write_text(markdown(summary), encoding="utf-8")
     write_csv(summary, files[1])
     plot_shares(summary, files[2])
-    files[3].write_text(json.dumps(summary, indent=2, ensure_ascii=False, allow_nan=False)
-                        + "\n", encoding="utf-8")
+    files[3].write_text(
+        json.dumps(summary, indent=2, ensure_ascii=False, allow_nan=False) + "\n", encoding="utf-8"
+    )
     return files
-

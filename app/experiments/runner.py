@@ -30,7 +30,13 @@ from app.learning import Mission, office_mission
 from app.learning.evaluation import Method, Protocol, RunResult, run
 
 __all__ = [
-    "Job", "JobError", "default_workers", "jobs_for", "run_job", "run_jobs", "run_tasks",
+    "Job",
+    "JobError",
+    "default_workers",
+    "jobs_for",
+    "run_job",
+    "run_jobs",
+    "run_tasks",
 ]
 
 T = TypeVar("T")
@@ -87,8 +93,14 @@ def _mission(document: str | None) -> Mission:
 
 def run_job(job: Job) -> RunResult:
     """Do one job; the mission is built here, in the worker (once), from its JSON."""
-    return run(job.method, job.protocol, job.seed, _mission(job.mission), n_users=job.n_users,
-               user_params=dict(job.user_params))
+    return run(
+        job.method,
+        job.protocol,
+        job.seed,
+        _mission(job.mission),
+        n_users=job.n_users,
+        user_params=dict(job.user_params),
+    )
 
 
 def default_workers() -> int:
@@ -126,9 +138,16 @@ def run_jobs(
     so that the last jobs to finish are short ones. Workers are started with "spawn", which is
     safe next to the progress bar's refresh thread and warns about nothing.
     """
-    return run_tasks(run_job, jobs, workers, description=description, console=console,
-                     progress=progress, size=lambda job: job.protocol.n_events,
-                     describe=Job.describe)
+    return run_tasks(
+        run_job,
+        jobs,
+        workers,
+        description=description,
+        console=console,
+        progress=progress,
+        size=lambda job: job.protocol.n_events,
+        describe=Job.describe,
+    )
 
 
 def run_tasks(

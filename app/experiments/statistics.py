@@ -47,7 +47,9 @@ PAPER_TABLE2: dict[str, dict[str, float]] = {
     "R-MAX": {"interaction_rate": 0.4992, "success_rate": 0.7148, "queries_per_mission": 1.2},
     "HRI τ=0.01": {"interaction_rate": 0.765, "success_rate": 0.725, "queries_per_mission": 0.79},
     "HRI τ=0.005": {
-        "interaction_rate": 0.805, "success_rate": 0.7204, "queries_per_mission": 1.095,
+        "interaction_rate": 0.805,
+        "success_rate": 0.7204,
+        "queries_per_mission": 1.095,
     },
 }
 
@@ -111,9 +113,38 @@ def method_order(results: Iterable[RunResult]) -> list[str]:
 
 
 # Two-sided 95% quantiles of Student's t by degrees of freedom (1-30, then a few beyond).
-_T95 = (12.706, 4.303, 3.182, 2.776, 2.571, 2.447, 2.365, 2.306, 2.262, 2.228, 2.201, 2.179,
-        2.160, 2.145, 2.131, 2.120, 2.110, 2.101, 2.093, 2.086, 2.080, 2.074, 2.069, 2.064,
-        2.060, 2.056, 2.052, 2.048, 2.045, 2.042)
+_T95 = (
+    12.706,
+    4.303,
+    3.182,
+    2.776,
+    2.571,
+    2.447,
+    2.365,
+    2.306,
+    2.262,
+    2.228,
+    2.201,
+    2.179,
+    2.160,
+    2.145,
+    2.131,
+    2.120,
+    2.110,
+    2.101,
+    2.093,
+    2.086,
+    2.080,
+    2.074,
+    2.069,
+    2.064,
+    2.060,
+    2.056,
+    2.052,
+    2.048,
+    2.045,
+    2.042,
+)
 _T95_BEYOND = ((40, 2.021), (60, 2.000), (120, 1.980))
 
 
@@ -210,7 +241,8 @@ def _curves(runs: Sequence[RunResult]) -> dict[str, Any]:
     assert E1E2.change_at is not None
     out: dict[str, Any] = {"shade": SHADE_LABEL}
     for fig, (start, stop) in {
-        "fig2": (0, E1E2.change_at), "fig3": (E1E2.change_at, E1E2.n_events)
+        "fig2": (0, E1E2.change_at),
+        "fig3": (E1E2.change_at, E1E2.n_events),
     }.items():
         methods: dict[str, Any] = {}
         for method in method_order(runs):

@@ -86,14 +86,14 @@ def _columns(with_paper: bool) -> list[Column]:
 Row = tuple[Sequence[str], str, Stats]  # leading cells, method, the stats to read
 
 
-def _markdown_table(
-    rows: Sequence[Row], lead: Sequence[str], with_paper: bool
-) -> str:
+def _markdown_table(rows: Sequence[Row], lead: Sequence[str], with_paper: bool) -> str:
     """A markdown table: ``lead`` columns, then the metric (and paper) columns."""
     cols = _columns(with_paper)
     header = [*lead, *(c.heading for c in cols)]
-    lines = ["| " + " | ".join(header) + " |",
-             "|" + "|".join([":---"] * len(lead) + ["---:"] * len(cols)) + "|"]
+    lines = [
+        "| " + " | ".join(header) + " |",
+        "|" + "|".join([":---"] * len(lead) + ["---:"] * len(cols)) + "|",
+    ]
     for cells, method, stats in rows:
         lines.append("| " + " | ".join([*cells, *(c.cell(method, stats) for c in cols)]) + " |")
     return "\n".join(lines)
@@ -103,8 +103,11 @@ def _block_rows(summary: Mapping[str, Any], protocol: str) -> list[Row]:
     """Rows method x block (the phases, or the whole run when there is no change)."""
     blocks: dict[str, Stats] = summary["protocols"][protocol]["blocks"]
     labels = list(blocks)[1:] or list(blocks)
-    return [((method, f"{label}"), method, blocks[label])
-            for method in summary["methods"] for label in labels]
+    return [
+        ((method, f"{label}"), method, blocks[label])
+        for method in summary["methods"]
+        for label in labels
+    ]
 
 
 def _plural(n: int, word: str) -> str:
@@ -125,10 +128,12 @@ def mission_note(summary: Mapping[str, Any]) -> str:
     mission = summary.get("run", {}).get("mission")
     if not mission or mission.get("file") is None:
         return ""
-    return (f" The simulated users lived in the mission {mission['name']!r} of "
-            f"{mission['file']} ({mission['situations']} situations, {mission['time_slots']} "
-            f"time slots, {mission['services']} services), not the paper's office mission: "
-            "the paper's numbers are not targets for it.")
+    return (
+        f" The simulated users lived in the mission {mission['name']!r} of "
+        f"{mission['file']} ({mission['situations']} situations, {mission['time_slots']} "
+        f"time slots, {mission['services']} services), not the paper's office mission: "
+        "the paper's numbers are not targets for it."
+    )
 
 
 DEFINITIONS = """\
@@ -199,8 +204,9 @@ def ablation_markdown(summary: Mapping[str, Any]) -> str:
         parts += [
             f"## E3: {e3['n_events']} events, needs change after event {e3['change_after_event']}",
             "",
-            _markdown_table([((m,), m, _e3_stats(summary)) for m in summary["methods"]],
-                            ["Method"], False),
+            _markdown_table(
+                [((m,), m, _e3_stats(summary)) for m in summary["methods"]], ["Method"], False
+            ),
             "",
         ]
     if PA.name in summary["protocols"]:
@@ -247,8 +253,15 @@ def print_metrics_table(
     """Print one metrics table (mean ± std per method; with ``with_paper``, the paper's value
     below in brackets) to the terminal, compact enough for 80 columns."""
     caption = SPREAD_LABEL + ("; (in brackets): the paper's Table II" if with_paper else "")
-    table = Table(title=title, title_style="bold", caption=caption, box=box.SIMPLE_HEAD,
-                  pad_edge=False, show_edge=False, collapse_padding=True)
+    table = Table(
+        title=title,
+        title_style="bold",
+        caption=caption,
+        box=box.SIMPLE_HEAD,
+        pad_edge=False,
+        show_edge=False,
+        collapse_padding=True,
+    )
     table.add_column("Method", style="bold", no_wrap=True)
     for metric in METRICS:
         table.add_column(TERMINAL_HEADINGS[metric.key], justify="right")
@@ -259,8 +272,13 @@ def print_metrics_table(
 
 def print_table2(summary: Mapping[str, Any], console: Console) -> None:
     """Print the Table II comparison (E3 beside the paper's targets) and the claims."""
-    print_metrics_table(_e3_stats(summary), summary["methods"],
-                        "Table II (E3) — reproduced vs paper", console, with_paper=True)
+    print_metrics_table(
+        _e3_stats(summary),
+        summary["methods"],
+        "Table II (E3) — reproduced vs paper",
+        console,
+        with_paper=True,
+    )
     for claim in summary.get("claims", []):
         mark = "[green]✓[/green]" if claim["reproduced"] else "[red]✗[/red]"
         console.print(f"  {mark} {claim['text']}", highlight=False)

@@ -46,8 +46,14 @@ __all__ = [
 FIRST_DAY = dt.date(2026, 11, 2)
 OFFSETS = ("+08:00", "-05:00", "+00:00", "+05:30")  # people live in several time zones
 MAX_VISIBLE_STEPS = STEP_COLUMNS // 2
-METRICS = ("episodes", "missions", "interaction_rate", "success_rate", "queries_per_mission",
-           "total_reward")
+METRICS = (
+    "episodes",
+    "missions",
+    "interaction_rate",
+    "success_rate",
+    "queries_per_mission",
+    "total_reward",
+)
 
 
 class FleetError(RuntimeError):
@@ -57,13 +63,28 @@ class FleetError(RuntimeError):
 class RobotClient(Protocol):
     """What a robot needs of ``attune_client.Client``."""
 
-    def start_episode(self, user_id: str, *, event_id: str, occurred_at: dt.datetime | str,
-                      situation: str, initiator: str = ..., request: Any = ...,
-                      robot_id: str | None = ...) -> Any: ...
+    def start_episode(
+        self,
+        user_id: str,
+        *,
+        event_id: str,
+        occurred_at: dt.datetime | str,
+        situation: str,
+        initiator: str = ...,
+        request: Any = ...,
+        robot_id: str | None = ...,
+    ) -> Any: ...
 
-    def report_outcome(self, episode_id: str, *, decision_id: str, response: str,
-                       service: str | None = ..., detail: str | None = ...,
-                       feedback: str | None = ...) -> Any: ...
+    def report_outcome(
+        self,
+        episode_id: str,
+        *,
+        decision_id: str,
+        response: str,
+        service: str | None = ...,
+        detail: str | None = ...,
+        feedback: str | None = ...,
+    ) -> Any: ...
 
 
 @dataclass
@@ -122,8 +143,9 @@ class FleetRun:
         return sum(1 + ep.steps for v in self.episodes.values() for ep in v)
 
 
-def make_people(mission: Mission, *, users: int, events: int, change_at: int | None,
-                seed: int, prefix: str) -> list[Person]:
+def make_people(
+    mission: Mission, *, users: int, events: int, change_at: int | None, seed: int, prefix: str
+) -> list[Person]:
     """``users`` people named ``{prefix}-u1`` ...; needs drift at ``change_at`` if given."""
     if change_at is not None and not 0 < change_at < events:
         raise ValueError(f"change_at must be between 1 and {events - 1} (events - 1).")
@@ -137,8 +159,16 @@ def make_people(mission: Mission, *, users: int, events: int, change_at: int | N
             points.append(change_at)
         contexts = event_stream(profiles, points, mission, events, rng)
         uniforms = rng.random((events, STEP_COLUMNS))
-        people.append(Person(f"{prefix}-u{i + 1}", profiles, points, contexts, uniforms,
-                             OFFSETS[i % len(OFFSETS)]))
+        people.append(
+            Person(
+                f"{prefix}-u{i + 1}",
+                profiles,
+                points,
+                contexts,
+                uniforms,
+                OFFSETS[i % len(OFFSETS)],
+            )
+        )
     return people
 
 
@@ -171,17 +201,22 @@ def state_before(space: NegotiationSpace, action: Action) -> int:
     return space.OBSERVE
 
 
-def play_event(client: RobotClient, space: NegotiationSpace, person: Person, event: int,
-               robot_id: str) -> PlayedEpisode:
+def play_event(
+    client: RobotClient, space: NegotiationSpace, person: Person, event: int, robot_id: str
+) -> PlayedEpisode:
     """One event of ``person``, from the episode's start to its end, the person simulated."""
     mission = space.mission
     context = int(person.contexts[event])
     slot, situation = mission.context_names(context)
     profile = person.profile_at(event)
     started = client.start_episode(
-        person.user_id, event_id=f"{person.user_id}-e{event:04d}",
-        occurred_at=occurred_at(mission, slot, person.offset, event), situation=situation,
-        initiator="robot", robot_id=robot_id)
+        person.user_id,
+        event_id=f"{person.user_id}-e{event:04d}",
+        occurred_at=occurred_at(mission, slot, person.offset, event),
+        situation=situation,
+        initiator="robot",
+        robot_id=robot_id,
+    )
     episode_id: str = started.episode_id
     decision = started.decision
     service_reward = float(started.total_reward)
@@ -189,15 +224,21 @@ def play_event(client: RobotClient, space: NegotiationSpace, person: Person, eve
     step = 0
     while decision is not None:
         if step >= MAX_VISIBLE_STEPS:
-            raise FleetError(f"episode {episode_id} of {person.user_id} asks for more than "
-                             f"{MAX_VISIBLE_STEPS} visible steps, the most a negotiation has.")
+            raise FleetError(
+                f"episode {episode_id} of {person.user_id} asks for more than "
+                f"{MAX_VISIBLE_STEPS} visible steps, the most a negotiation has."
+            )
         action = _action(decision.action)
         a, s = space.action_index(action), state_before(space, action)
-        flips = person.uniforms[event, 2 * step:2 * step + 2]
+        flips = person.uniforms[event, 2 * step : 2 * step + 2]
         reaction = person_responds(space, profile, context, s, a, flips)
-        result = client.report_outcome(episode_id, decision_id=decision.decision_id,
-                                       response=reaction.response.value,
-                                       service=reaction.service, detail=reaction.detail)
+        result = client.report_outcome(
+            episode_id,
+            decision_id=decision.decision_id,
+            response=reaction.response.value,
+            service=reaction.service,
+            detail=reaction.detail,
+        )
         if not hasattr(result, "episode"):  # the client queued it: the service is unreachable
             raise FleetError(f"the outcome of {decision.decision_id} could not be delivered.")
         for silent in decision.chain:  # the service's own steps: respond pays, infer is free
@@ -207,14 +248,30 @@ def play_event(client: RobotClient, space: NegotiationSpace, person: Person, eve
         service_reward = float(result.episode.total_reward)
         decision = result.decision
         step += 1
-    return PlayedEpisode(person.user_id, event, episode_id, robot_id, tally.initiated,
-                         tally.interaction, tally.success, tally.queries, tally.reward,
-                         service_reward, step)
+    return PlayedEpisode(
+        person.user_id,
+        event,
+        episode_id,
+        robot_id,
+        tally.initiated,
+        tally.interaction,
+        tally.success,
+        tally.queries,
+        tally.reward,
+        service_reward,
+        step,
+    )
 
 
-def run_fleet(make_client: Callable[[str], Any], space: NegotiationSpace, people: list[Person],
-              *, robots: int, on_episode: Callable[[PlayedEpisode], None] | None = None,
-              deadline_s: float | None = None) -> FleetRun:
+def run_fleet(
+    make_client: Callable[[str], Any],
+    space: NegotiationSpace,
+    people: list[Person],
+    *,
+    robots: int,
+    on_episode: Callable[[PlayedEpisode], None] | None = None,
+    deadline_s: float | None = None,
+) -> FleetRun:
     """Play every event of ``people`` with ``robots`` concurrent robots.
 
     ``make_client(robot_id)`` gives each robot its own client (closed at the end if it has
@@ -261,8 +318,10 @@ def run_fleet(make_client: Callable[[str], Any], space: NegotiationSpace, people
             if close is not None:
                 close()
 
-    threads = [threading.Thread(target=robot, args=(i,), name=f"sim-robot-{i + 1}", daemon=True)
-               for i in range(robots)]
+    threads = [
+        threading.Thread(target=robot, args=(i,), name=f"sim-robot-{i + 1}", daemon=True)
+        for i in range(robots)
+    ]
     for t in threads:
         t.start()
     for t in threads:

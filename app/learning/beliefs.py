@@ -22,8 +22,19 @@ from dataclasses import dataclass, field
 
 from .space import ActionKind, NegotiationSpace
 
-__all__ = ["CHANGE_RUN", "CONFIDENT_SHARE", "CONFIDENT_SUPPORT", "WINDOW", "Answer", "Belief",
-           "Change", "EpisodeEvidence", "Item", "belief", "episode_evidence"]
+__all__ = [
+    "CHANGE_RUN",
+    "CONFIDENT_SHARE",
+    "CONFIDENT_SUPPORT",
+    "WINDOW",
+    "Answer",
+    "Belief",
+    "Change",
+    "EpisodeEvidence",
+    "Item",
+    "belief",
+    "episode_evidence",
+]
 
 WINDOW = 8
 CONFIDENT_SUPPORT = 3
@@ -41,7 +52,8 @@ class Item:
     def covers(self, other: Item) -> bool:
         """The same service, and the same detail where both are known."""
         return self.service == other.service and (
-            self.detail is None or other.detail is None or self.detail == other.detail)
+            self.detail is None or other.detail is None or self.detail == other.detail
+        )
 
 
 @dataclass(frozen=True, slots=True)
@@ -73,14 +85,20 @@ class EpisodeEvidence:
         return self.chose is not None or bool(self.refused) or self.refused_offer
 
     def supports(self, item: Item) -> bool:
-        return self.chose is not None and self.chose.covers(item) \
+        return (
+            self.chose is not None
+            and self.chose.covers(item)
             and not any(_refuses(r, item) for r in self.refused)
+        )
 
     def contradicts(self, item: Item) -> bool:
         if self.supports(item):
             return False
-        return self.chose is not None or self.refused_offer \
+        return (
+            self.chose is not None
+            or self.refused_offer
             or any(_refuses(r, item) for r in self.refused)
+        )
 
 
 def _refuses(refused: Item, item: Item) -> bool:
@@ -89,8 +107,9 @@ def _refuses(refused: Item, item: Item) -> bool:
     return refused.service == item.service and refused.detail == item.detail
 
 
-def episode_evidence(space: NegotiationSpace, seq: int, answers: Iterable[Answer], *,
-                     request: Item | None = None) -> EpisodeEvidence:
+def episode_evidence(
+    space: NegotiationSpace, seq: int, answers: Iterable[Answer], *, request: Item | None = None
+) -> EpisodeEvidence:
     """The evidence of one episode: its opening request (if the person asked) and the person's
     answers to the robot's decisions, in order; ``space`` is the episode's mission's."""
     ev = EpisodeEvidence(seq)
@@ -169,15 +188,14 @@ def belief(evidence: Sequence[EpisodeEvidence]) -> Belief:
                 now = _latest_choice(relevant[j] for j in run)
                 change = Change(relevant[run[0]].seq, current, now)
                 current, since, run = now, run[0], []
-    window = relevant[max(since, len(relevant) - WINDOW):]
+    window = relevant[max(since, len(relevant) - WINDOW) :]
     if change is not None and all(e.seq > change.seq for e in relevant[-WINDOW:]):
         change = None
     if current is None:
         return Belief(None, "unknown", 0, len(window), change)
     support = sum(e.supports(current) for e in window)
     confident = support >= CONFIDENT_SUPPORT and support >= CONFIDENT_SHARE * len(window)
-    return Belief(current, "confident" if confident else "tentative", support, len(window),
-                  change)
+    return Belief(current, "confident" if confident else "tentative", support, len(window), change)
 
 
 def _latest_choice(episodes: Iterable[EpisodeEvidence]) -> Item | None:

@@ -47,7 +47,6 @@ __all__ = [
 Value = int | float | str
 
 
-
 @dataclass(frozen=True)
 class Axis:
     """One choice the paper left open: its values in the sweep, and the default's value.
@@ -73,16 +72,35 @@ class Axis:
 
 
 AXES: tuple[Axis, ...] = (
-    Axis("time_slots", "time slots per day (contexts: slots × 4 situations)", (2, 4, 8), 4,
-         (2, 4), "world"),
-    Axis("p_self", "users speak first after a pass (p_self)", (0.2, 0.5, 0.8), 0.5, (0.5,),
-         "world"),
-    Axis("noise", "users' answer noise ν (p_acc = 1 − ν, eps_fb = ν)", (0.0, 0.05, 0.1), 0.05,
-         (0.05,), "world"),
+    Axis(
+        "time_slots",
+        "time slots per day (contexts: slots × 4 situations)",
+        (2, 4, 8),
+        4,
+        (2, 4),
+        "world",
+    ),
+    Axis(
+        "p_self", "users speak first after a pass (p_self)", (0.2, 0.5, 0.8), 0.5, (0.5,), "world"
+    ),
+    Axis(
+        "noise",
+        "users' answer noise ν (p_acc = 1 − ν, eps_fb = ν)",
+        (0.0, 0.05, 0.1),
+        0.05,
+        (0.05,),
+        "world",
+    ),
     Axis("m", "R-MAX known threshold m", (1, 2, 4), 2, (1, 2), "rmax"),
     Axis("optimism", "R-MAX value of unknown pairs, × Vmax", (1.0, 0.1), 1.0, (1.0,), "rmax"),
-    Axis("exclusion", "HRI exclusion scope", ("per_pair", "root_only", "none"), "per_pair",
-         ("per_pair", "none"), "hri"),
+    Axis(
+        "exclusion",
+        "HRI exclusion scope",
+        ("per_pair", "root_only", "none"),
+        "per_pair",
+        ("per_pair", "none"),
+        "hri",
+    ),
     Axis("pref_scale", "HRI preference scale", ("vmax", "raw"), "vmax", ("vmax",), "hri"),
 )
 """The swept choices, in the order of a setting's values (docs/method.md §13 gives the ranges)."""
@@ -131,8 +149,11 @@ class Setting:
 
     def changes(self) -> dict[str, Value]:
         """The axes on which this setting differs from the default, with its values there."""
-        return {axis.key: value for axis, value in zip(AXES, self.values, strict=True)
-                if value != axis.default}
+        return {
+            axis.key: value
+            for axis, value in zip(AXES, self.values, strict=True)
+            if value != axis.default
+        }
 
     def label(self) -> str:
         """``default``, or the changes from it: ``reading: m=1, exclusion=none``."""
@@ -260,8 +281,10 @@ class Grid:
 
     def settings(self) -> list[Setting]:
         """Every combination, in axis order (the first axis varies slowest)."""
-        return [Setting(values) for values in
-                itertools.product(*(self.values[axis.key] for axis in AXES))]
+        return [
+            Setting(values)
+            for values in itertools.product(*(self.values[axis.key] for axis in AXES))
+        ]
 
     def worlds(self) -> list[World]:
         return list(dict.fromkeys(s.world() for s in self.settings()))
@@ -310,8 +333,7 @@ class ClaimMap:
     def held(self, setting: Setting) -> int:
         return sum(self.verdicts[setting])
 
-    def share(self, claim: int, where: Callable[[Setting], bool] = lambda s: True
-              ) -> float:
+    def share(self, claim: int, where: Callable[[Setting], bool] = lambda s: True) -> float:
         """The share of settings (those ``where`` accepts) under which claim ``claim`` holds."""
         chosen = [v[claim] for s, v in self.verdicts.items() if where(s)]
         return sum(chosen) / len(chosen) if chosen else math.nan
@@ -341,8 +363,7 @@ class ClaimMap:
         return counts
 
 
-def build_map(settings: Iterable[Setting], runs: Mapping[RunKey, Sequence[RunResult]]
-              ) -> ClaimMap:
+def build_map(settings: Iterable[Setting], runs: Mapping[RunKey, Sequence[RunResult]]) -> ClaimMap:
     """Decide every setting (:func:`decide`); every setting must yield the same claims."""
     claims: list[tuple[str, str]] | None = None
     verdicts: dict[Setting, list[bool]] = {}

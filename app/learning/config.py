@@ -34,8 +34,15 @@ def _number(name: str, value: object) -> float:
     return number
 
 
-def _in_range(name: str, value: object, low: float, high: float, *, low_open: bool = False,
-              high_open: bool = False) -> None:
+def _in_range(
+    name: str,
+    value: object,
+    low: float,
+    high: float,
+    *,
+    low_open: bool = False,
+    high_open: bool = False,
+) -> None:
     v = _number(name, value)
     too_low = v <= low if low_open else v < low
     too_high = v >= high if high_open else v > high
@@ -85,8 +92,12 @@ class Params:
         for f in dataclasses.fields(cls):
             # JSON has one number type: accept 2 for a float parameter, keep ints as ints.
             value = data.get(f.name)
-            if f.type in ("float", float) and isinstance(value, int) \
-                    and not isinstance(value, bool) and abs(value) < 2**53:
+            if (
+                f.type in ("float", float)
+                and isinstance(value, int)
+                and not isinstance(value, bool)
+                and abs(value) < 2**53
+            ):
                 data[f.name] = float(value)
         return cls(**data)
 

@@ -155,12 +155,23 @@ def run_user(
             decision = learner.select_action(Observation(context, state, episode), rng)
             batch = decision.chain_transitions(episode)
             reaction = respond(
-                space, profile, context, decision.state, decision.action,
+                space,
+                profile,
+                context,
+                decision.state,
+                decision.action,
                 uniforms[e, 2 * step : 2 * step + 2],
             )
             batch.append(
-                Transition(episode, context, decision.state, decision.action, reaction.reward,
-                           reaction.next_state, reaction.signal)
+                Transition(
+                    episode,
+                    context,
+                    decision.state,
+                    decision.action,
+                    reaction.reward,
+                    reaction.next_state,
+                    reaction.signal,
+                )
             )
             learner.update(batch)
             for t in batch:
@@ -250,8 +261,13 @@ def summarize(
         for u in range(res.reward.shape[0]):
             sl = slice(start, stop)
             per_method.setdefault(res.method, []).append(
-                episode_metrics(res.initiated[u, sl], res.interaction[u, sl], res.success[u, sl],
-                                res.queries[u, sl], res.reward[u, sl])
+                episode_metrics(
+                    res.initiated[u, sl],
+                    res.interaction[u, sl],
+                    res.success[u, sl],
+                    res.queries[u, sl],
+                    res.reward[u, sl],
+                )
             )
     out: dict[str, dict[str, tuple[float, float]]] = {}
     for method, rows in per_method.items():

@@ -38,8 +38,16 @@ from .space import Action, ActionKind, NegotiationSpace, StateKind
 from .state import StateFormatError
 from .types import FloatArray, Polarity, Transition
 
-__all__ = ["CONTRADICTIONS", "PREFER_SLACK", "Guidance", "Rule", "RuleKind", "Verdict",
-           "guidance_from_state", "verdict"]
+__all__ = [
+    "CONTRADICTIONS",
+    "PREFER_SLACK",
+    "Guidance",
+    "Rule",
+    "RuleKind",
+    "Verdict",
+    "guidance_from_state",
+    "verdict",
+]
 
 PREFER_SLACK = 0.01
 """Share of each draw along a ``prefers`` path left to the learner's own distribution."""
@@ -94,8 +102,9 @@ class Rule:
         names = [s.name for s in mission.services]
         if self.kind is RuleKind.QUIET:
             if self.service is not None or self.detail is not None:
-                raise ValueError("quiet takes no service or detail: the robot does not "
-                                 "initiate at all there.")
+                raise ValueError(
+                    "quiet takes no service or detail: the robot does not initiate at all there."
+                )
             return
         if self.service is None:
             raise ValueError(f"{self.kind.value} needs a service: one of {', '.join(names)}.")
@@ -103,18 +112,28 @@ class Rule:
             raise ValueError(f"service must be one of {', '.join(names)}; got {self.service!r}.")
         details = mission.service(self.service).details
         if self.detail is None and self.kind is RuleKind.PREFERS:
-            raise ValueError(f"prefers needs a detail of {self.service}: one of "
-                             f"{', '.join(details)}.")
+            raise ValueError(
+                f"prefers needs a detail of {self.service}: one of {', '.join(details)}."
+            )
         if self.detail is not None and self.detail not in details:
-            raise ValueError(f"detail of {self.service} must be one of {', '.join(details)}; "
-                             f"got {self.detail!r}.")
+            raise ValueError(
+                f"detail of {self.service} must be one of {', '.join(details)}; "
+                f"got {self.detail!r}."
+            )
 
     def to_dict(self) -> dict[str, Any]:
         return {
-            "id": self.id, "kind": self.kind.value, "time_slot": self.time_slot,
-            "situation": self.situation, "service": self.service, "detail": self.detail,
-            "since": self.since, "meta": dict(self.meta), "confirmed": self.confirmed,
-            "contradicted": self.contradicted, "streak": self.streak,
+            "id": self.id,
+            "kind": self.kind.value,
+            "time_slot": self.time_slot,
+            "situation": self.situation,
+            "service": self.service,
+            "detail": self.detail,
+            "since": self.since,
+            "meta": dict(self.meta),
+            "confirmed": self.confirmed,
+            "contradicted": self.contradicted,
+            "streak": self.streak,
             "overridden_at": self.overridden_at,
         }
 
@@ -123,12 +142,20 @@ class Rule:
         """The rule of ``to_dict``'s document; ``ValueError`` if it is not one."""
         try:
             meta = doc.get("meta", {})
-            rule = cls(id=str(doc["id"]), kind=RuleKind(doc["kind"]),
-                       time_slot=str(doc["time_slot"]), situation=str(doc["situation"]),
-                       service=doc.get("service"), detail=doc.get("detail"),
-                       since=doc.get("since", 0), meta=dict(meta),
-                       confirmed=doc.get("confirmed", 0), contradicted=doc.get("contradicted", 0),
-                       streak=doc.get("streak", 0), overridden_at=doc.get("overridden_at"))
+            rule = cls(
+                id=str(doc["id"]),
+                kind=RuleKind(doc["kind"]),
+                time_slot=str(doc["time_slot"]),
+                situation=str(doc["situation"]),
+                service=doc.get("service"),
+                detail=doc.get("detail"),
+                since=doc.get("since", 0),
+                meta=dict(meta),
+                confirmed=doc.get("confirmed", 0),
+                contradicted=doc.get("contradicted", 0),
+                streak=doc.get("streak", 0),
+                overridden_at=doc.get("overridden_at"),
+            )
         except (KeyError, TypeError, ValueError) as exc:
             raise ValueError(f"not a correction: {exc}") from None
         for name in ("since", "confirmed", "contradicted", "streak"):
@@ -136,7 +163,8 @@ class Rule:
             if isinstance(value, bool) or not isinstance(value, int) or value < 0:
                 raise ValueError(f"{name} must be a whole number >= 0.")
         if rule.overridden_at is not None and (
-                isinstance(rule.overridden_at, bool) or not isinstance(rule.overridden_at, int)):
+            isinstance(rule.overridden_at, bool) or not isinstance(rule.overridden_at, int)
+        ):
             raise ValueError("overridden_at must be a whole number or null.")
         for name in ("service", "detail"):
             if getattr(rule, name) is not None and not isinstance(getattr(rule, name), str):
@@ -172,8 +200,11 @@ def verdict(space: NegotiationSpace, rule: Rule, tr: Transition) -> Verdict:
         return Verdict.CONFIRMS if nxt.service == rule.service else Verdict.CONTRADICTS
     if kind is ActionKind.QUERY_TYPE and nxt.kind is StateKind.TYPE_KNOWN:
         return Verdict.CONFIRMS if nxt.service == rule.service else Verdict.CONTRADICTS
-    if kind is ActionKind.QUERY_DETAIL and nxt.kind is StateKind.DETAIL_KNOWN \
-            and act.service == rule.service:
+    if (
+        kind is ActionKind.QUERY_DETAIL
+        and nxt.kind is StateKind.DETAIL_KNOWN
+        and act.service == rule.service
+    ):
         return Verdict.CONFIRMS if nxt.detail == rule.detail else Verdict.CONTRADICTS
     return Verdict.NEUTRAL
 
@@ -226,15 +257,21 @@ class Guidance:
         for r in self._rules.values():
             detail = r.detail
             if detail is not None and r.service is not None:
-                detail = renames.details.get(f"{r.service}/{detail}",
-                                             renames.details.get(detail, detail))
-            out.append(replace(
-                r, meta=dict(r.meta),
-                time_slot=renames.time_slots.get(r.time_slot, r.time_slot),
-                situation=renames.situations.get(r.situation, r.situation),
-                service=None if r.service is None else renames.services.get(r.service,
-                                                                            r.service),
-                detail=detail))
+                detail = renames.details.get(
+                    f"{r.service}/{detail}", renames.details.get(detail, detail)
+                )
+            out.append(
+                replace(
+                    r,
+                    meta=dict(r.meta),
+                    time_slot=renames.time_slots.get(r.time_slot, r.time_slot),
+                    situation=renames.situations.get(r.situation, r.situation),
+                    service=None
+                    if r.service is None
+                    else renames.services.get(r.service, r.service),
+                    detail=detail,
+                )
+            )
         return Guidance(out)
 
     # -- the person's answers ------------------------------------------------------------------
@@ -260,8 +297,9 @@ class Guidance:
             self._compiled.clear()
 
     # -- decisions -----------------------------------------------------------------------------
-    def adjust(self, space: NegotiationSpace, context: int, state: int,
-               probabilities: FloatArray) -> FloatArray:
+    def adjust(
+        self, space: NegotiationSpace, context: int, state: int, probabilities: FloatArray
+    ) -> FloatArray:
         """The distribution over ``state``'s actions once the rules of ``context`` apply."""
         overlay = self._overlay(space, context)
         if overlay is None:
@@ -273,7 +311,7 @@ class Guidance:
             out = probabilities * PREFER_SLACK
             out[target - actions.start] += 1.0 - PREFER_SLACK
         if overlay.restricts:
-            mask = overlay.allowed[actions.start:actions.stop]
+            mask = overlay.allowed[actions.start : actions.stop]
             if not mask.all() and mask.any():  # none allowed: the person settled it; serve
                 out = np.where(mask, out, 0.0)
                 total = float(out.sum())
@@ -338,7 +376,8 @@ def _compile(space: NegotiationSpace, context: int, rules: Iterable[Rule]) -> _O
             space.OBSERVE: space.INITIATE,
             space.ENGAGED: space.action_index(_action(ActionKind.INFER_TYPE, rule.service)),
             space.type_known_state(rule.service): space.action_index(
-                _action(ActionKind.INFER_DETAIL, rule.service, rule.detail)),
+                _action(ActionKind.INFER_DETAIL, rule.service, rule.detail)
+            ),
         }
     restricts = not bool(allowed.all())
     if not path and not restricts:
@@ -363,7 +402,7 @@ def _live(space: NegotiationSpace, allowed: np.ndarray) -> np.ndarray:
         live[end] = True
         for s in range(space.n_states):
             acts = space.actions_of(s)
-            live[s] = bool(allowed[acts.start:acts.stop].any())
+            live[s] = bool(allowed[acts.start : acts.stop].any())
         changed = False
         for p in range(space.n_actions):
             if not allowed[p] or p == space.PASS:

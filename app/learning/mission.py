@@ -254,9 +254,7 @@ class Mission:
         for service in self.services:
             if service.name == name:
                 return service
-        raise ValueError(
-            f"unknown service {name!r}; allowed: {[s.name for s in self.services]}"
-        )
+        raise ValueError(f"unknown service {name!r}; allowed: {[s.name for s in self.services]}")
 
     # -- (de)serialization ---------------------------------------------------------------------
     def to_dict(self) -> dict[str, Any]:
@@ -296,7 +294,12 @@ class Mission:
         if not isinstance(data, Mapping):
             raise MissionError("the mission must be a JSON object.")
         allowed = {
-            "name", "situations", "unavailable_situations", "time_slots", "services", "rewards",
+            "name",
+            "situations",
+            "unavailable_situations",
+            "time_slots",
+            "services",
+            "rewards",
             "gamma",
         }
         unknown = sorted(set(data) - allowed)

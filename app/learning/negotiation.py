@@ -50,18 +50,25 @@ class Response(StrEnum):
 
 
 _R = Response
-EXPECTS: Mapping[ActionKind, tuple[Response, ...]] = MappingProxyType({
-    ActionKind.INITIATE: (_R.ACCEPTED, _R.REJECTED, _R.TERMINATED),
-    ActionKind.PASS: (_R.HUMAN_REQUEST, _R.NONE),
-    ActionKind.QUERY_TYPE: (_R.ANSWERED, _R.TERMINATED),
-    ActionKind.QUERY_DETAIL: (_R.ANSWERED, _R.TERMINATED),
-    ActionKind.PERFORM: (_R.ACCEPTED, _R.REJECTED, _R.TERMINATED),
-})
+EXPECTS: Mapping[ActionKind, tuple[Response, ...]] = MappingProxyType(
+    {
+        ActionKind.INITIATE: (_R.ACCEPTED, _R.REJECTED, _R.TERMINATED),
+        ActionKind.PASS: (_R.HUMAN_REQUEST, _R.NONE),
+        ActionKind.QUERY_TYPE: (_R.ANSWERED, _R.TERMINATED),
+        ActionKind.QUERY_DETAIL: (_R.ANSWERED, _R.TERMINATED),
+        ActionKind.PERFORM: (_R.ACCEPTED, _R.REJECTED, _R.TERMINATED),
+    }
+)
 """The responses each visible action allows (silent actions take none)."""
 
-INTERACTION_CODE: Mapping[Interaction, int] = MappingProxyType({
-    Interaction.NONE: 0, Interaction.I1: 1, Interaction.I2: 2, Interaction.I3: 3,
-})
+INTERACTION_CODE: Mapping[Interaction, int] = MappingProxyType(
+    {
+        Interaction.NONE: 0,
+        Interaction.I1: 1,
+        Interaction.I2: 2,
+        Interaction.I3: 3,
+    }
+)
 """Small integer codes of the classes, for tables of many episodes (0 is no interaction)."""
 
 
@@ -75,8 +82,14 @@ class Outcome(NamedTuple):
     signal: Polarity
 
 
-def outcome(space: NegotiationSpace, action: int, response: Response | str, *,
-            service: str | None = None, detail: str | None = None) -> Outcome:
+def outcome(
+    space: NegotiationSpace,
+    action: int,
+    response: Response | str,
+    *,
+    service: str | None = None,
+    detail: str | None = None,
+) -> Outcome:
     """The transition and reward of ``response`` to the visible ``action`` (a pair index).
 
     ``service`` is the service the person named: with ``human_request`` (``None``: they spoke
@@ -95,8 +108,9 @@ def outcome(space: NegotiationSpace, action: int, response: Response | str, *,
     except ValueError:
         said = None
     if said not in allowed:
-        raise ValueError(f"response to {kind.value} must be one of "
-                         f"{', '.join(allowed)}; got {response!r}.")
+        raise ValueError(
+            f"response to {kind.value} must be one of {', '.join(allowed)}; got {response!r}."
+        )
     rw = space.mission.rewards
     query = rw.query if space.is_query[action] else 0.0
     end = space.END
@@ -173,8 +187,15 @@ class Tally:
     queries: int = 0
     reward: float = 0.0
 
-    def step(self, space: NegotiationSpace, state: int, action: int, reward: float,
-             next_state: int, signal: Polarity = Polarity.NEUTRAL) -> None:
+    def step(
+        self,
+        space: NegotiationSpace,
+        state: int,
+        action: int,
+        reward: float,
+        next_state: int,
+        signal: Polarity = Polarity.NEUTRAL,
+    ) -> None:
         """Count one executed step (silent ones too): its reward, where it led, and the signal
         of the person's response (silent steps have none)."""
         self.reward += reward

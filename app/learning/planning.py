@@ -46,8 +46,13 @@ def pair_levels(succ: IntArray, state_start: IntArray, n_states: int) -> IntArra
     lower levels only, and value iteration leaves it unchanged from sweep ``level`` on.
     """
     L = n_states
-    if len(state_start) != L or L == 0 or int(state_start[0]) != 0 \
-            or np.any(np.diff(state_start) <= 0) or int(state_start[-1]) >= succ.shape[0]:
+    if (
+        len(state_start) != L
+        or L == 0
+        or int(state_start[0]) != 0
+        or np.any(np.diff(state_start) <= 0)
+        or int(state_start[-1]) >= succ.shape[0]
+    ):
         return None
     # A state's height is one more than the highest level of its pairs (END's is 0). Relaxed
     # from 0, the heights settle after at most L rounds when there is no cycle, and keep
@@ -138,12 +143,22 @@ def value_iteration(
     """
     plan = _sweeps(space)
     q = np.where(fixed, fixed_value, reward) if fixed is not None else reward.copy()
-    if plan is None or q.shape[:-1] != transition.shape[:-2] \
-            or (fixed is not None and not abs(fixed_value) <= _FINITE_BOUND) \
-            or not float(np.abs(reward).max(initial=0.0)) <= _FINITE_BOUND:
-        return sweep_value_iteration(space, reward, transition, gamma=gamma, tol=tol,
-                                     max_sweeps=max_sweeps, fixed=fixed,
-                                     fixed_value=fixed_value)
+    if (
+        plan is None
+        or q.shape[:-1] != transition.shape[:-2]
+        or (fixed is not None and not abs(fixed_value) <= _FINITE_BOUND)
+        or not float(np.abs(reward).max(initial=0.0)) <= _FINITE_BOUND
+    ):
+        return sweep_value_iteration(
+            space,
+            reward,
+            transition,
+            gamma=gamma,
+            tol=tol,
+            max_sweeps=max_sweeps,
+            fixed=fixed,
+            fixed_value=fixed_value,
+        )
     # V is kept state-major, (L + 1, ...), V(END) = 0: its successor rows are then one take,
     # and seen batch-major they have the strides of the full sweeps' ``v[..., succ]``, so the
     # einsum adds up each pair's terms in the same order.

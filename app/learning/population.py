@@ -95,8 +95,9 @@ class Person:
         """The routines and response parameters in force at ``event`` (0-based)."""
         return self.profiles[int(self.schedule[event])]
 
-    def respond(self, space: NegotiationSpace, event: int, state: int, action: int,
-                uniforms: np.ndarray) -> tuple[Reaction, bool]:
+    def respond(
+        self, space: NegotiationSpace, event: int, state: int, action: int, uniforms: np.ndarray
+    ) -> tuple[Reaction, bool]:
         """The person's reaction to a visible action at ``event``, and whether it was random.
 
         ``uniforms`` are the step's four numbers: the reaction and an abort (as
@@ -137,8 +138,7 @@ def _random_reaction(space: NegotiationSpace, state: int, action: int, u: float)
 # -- the oracle -------------------------------------------------------------------------------
 
 
-def oracle_action(space: NegotiationSpace, need: Need | None, available: bool,
-                  state: int) -> int:
+def oracle_action(space: NegotiationSpace, need: Need | None, available: bool, state: int) -> int:
     """The oracle's action in ``state``, knowing the person's current ``need``.
 
     OBSERVE: initiate when there is a need and the person is available, else pass. ENGAGED:
@@ -158,8 +158,7 @@ def oracle_action(space: NegotiationSpace, need: Need | None, available: bool,
         service = next(s for s in mission.services if s.name == info.service)
         wanted = need is not None and mission.services[need.service].name == info.service
         d = need.detail if wanted and need is not None else 0
-        return space.action_index(Action(ActionKind.INFER_DETAIL, info.service,
-                                         service.details[d]))
+        return space.action_index(Action(ActionKind.INFER_DETAIL, info.service, service.details[d]))
     actions = space.actions_of(state)  # REQUEST: respond; DETAIL_KNOWN: perform
     return actions.start
 
@@ -179,7 +178,7 @@ def run_oracle(space: NegotiationSpace, person: Person, uniforms: np.ndarray) ->
                 total += float(space.silent_reward[action])
                 state = int(space.silent_next[action])
                 continue
-            cols = uniforms[e, STEP_UNIFORMS * step: STEP_UNIFORMS * (step + 1)]
+            cols = uniforms[e, STEP_UNIFORMS * step : STEP_UNIFORMS * (step + 1)]
             reaction, _ = person.respond(space, e, state, action, cols)
             total += reaction.reward
             state, step = reaction.next_state, step + 1
@@ -187,8 +186,9 @@ def run_oracle(space: NegotiationSpace, person: Person, uniforms: np.ndarray) ->
     return out
 
 
-def run_learner(learner: TabularLearner[Any], person: Person, uniforms: np.ndarray,
-                rng: np.random.Generator) -> FloatArray:
+def run_learner(
+    learner: TabularLearner[Any], person: Person, uniforms: np.ndarray, rng: np.random.Generator
+) -> FloatArray:
     """A fresh learner through ``person``'s events; its reward per episode (as the paper's
     experiments count it: silent steps included)."""
     space = learner.space
@@ -201,10 +201,19 @@ def run_learner(learner: TabularLearner[Any], person: Person, uniforms: np.ndarr
             assert STEP_UNIFORMS * (step + 1) <= uniforms.shape[1], "too long an episode"
             decision = learner.select_action(Observation(context, state, episode), rng)
             batch = decision.chain_transitions(episode)
-            cols = uniforms[e, STEP_UNIFORMS * step: STEP_UNIFORMS * (step + 1)]
+            cols = uniforms[e, STEP_UNIFORMS * step : STEP_UNIFORMS * (step + 1)]
             reaction, _ = person.respond(space, e, decision.state, decision.action, cols)
-            batch.append(Transition(episode, context, decision.state, decision.action,
-                                    reaction.reward, reaction.next_state, reaction.signal))
+            batch.append(
+                Transition(
+                    episode,
+                    context,
+                    decision.state,
+                    decision.action,
+                    reaction.reward,
+                    reaction.next_state,
+                    reaction.signal,
+                )
+            )
             learner.update(batch)
             for t in batch:
                 tally.step(space, t.state, t.action, t.reward, t.next_state, t.signal)
@@ -242,19 +251,28 @@ class Family:
 
 
 def _available(mission: Mission) -> list[int]:
-    return [c for c in range(mission.n_contexts)
-            if mission.context_names(c)[1] not in mission.unavailable_situations]
+    return [
+        c
+        for c in range(mission.n_contexts)
+        if mission.context_names(c)[1] not in mission.unavailable_situations
+    ]
 
 
-def _steady(profile: UserProfile, mission: Mission, rng: np.random.Generator,
-            n_events: int) -> Person:
+def _steady(
+    profile: UserProfile, mission: Mission, rng: np.random.Generator, n_events: int
+) -> Person:
     """A person whose routines never change."""
     contexts = event_stream([profile], [0], mission, n_events, rng, p_need=P_NEED)
     return Person((profile,), np.zeros(n_events, dtype=np.int64), contexts)
 
 
-def _switched(before: UserProfile, after: UserProfile, mission: Mission,
-              rng: np.random.Generator, n_events: int) -> Person:
+def _switched(
+    before: UserProfile,
+    after: UserProfile,
+    mission: Mission,
+    rng: np.random.Generator,
+    n_events: int,
+) -> Person:
     """A person whose routines are ``before`` until the change event and ``after`` from it."""
     at = change_event(n_events)
     contexts = event_stream([before, after], [0, at], mission, n_events, rng, p_need=P_NEED)
@@ -262,8 +280,7 @@ def _switched(before: UserProfile, after: UserProfile, mission: Mission,
     return Person((before, after), schedule, contexts, change_at=at)
 
 
-def _paper(mission: Mission, rng: np.random.Generator, n: int, n_events: int
-           ) -> tuple[Person, ...]:
+def _paper(mission: Mission, rng: np.random.Generator, n: int, n_events: int) -> tuple[Person, ...]:
     out = []
     for _ in range(n):
         before = random_profile(mission, rng)
@@ -271,14 +288,18 @@ def _paper(mission: Mission, rng: np.random.Generator, n: int, n_events: int
     return tuple(out)
 
 
-def _individual(mission: Mission, rng: np.random.Generator, n: int, n_events: int
-                ) -> tuple[Person, ...]:
+def _individual(
+    mission: Mission, rng: np.random.Generator, n: int, n_events: int
+) -> tuple[Person, ...]:
     out = []
     for _ in range(n):
         profile = random_profile(mission, rng, n_needs=(2, 3, 4, 5, 6))
-        profile = replace(profile, p_acc=float(rng.uniform(0.85, 1.0)),
-                          p_self=float(rng.uniform(0.3, 0.7)),
-                          eps_fb=float(rng.uniform(0.0, 0.1)))
+        profile = replace(
+            profile,
+            p_acc=float(rng.uniform(0.85, 1.0)),
+            p_self=float(rng.uniform(0.3, 0.7)),
+            eps_fb=float(rng.uniform(0.0, 0.1)),
+        )
         out.append(_steady(profile, mission, rng, n_events))
     return tuple(out)
 
@@ -288,8 +309,7 @@ def _random_need(mission: Mission, rng: np.random.Generator, context: int) -> Ne
     return Need(context, k, int(rng.integers(len(mission.services[k].details))))
 
 
-def _home(mission: Mission, rng: np.random.Generator, n: int, n_events: int
-          ) -> tuple[Person, ...]:
+def _home(mission: Mission, rng: np.random.Generator, n: int, n_events: int) -> tuple[Person, ...]:
     available = _available(mission)
     n_shared = min(int(rng.integers(3, 5)), max(1, len(available) - 2))
     chosen = [int(c) for c in rng.permutation(np.asarray(available))]
@@ -298,8 +318,11 @@ def _home(mission: Mission, rng: np.random.Generator, n: int, n_events: int
     out = []
     for _ in range(n):
         own_count = min(int(rng.integers(1, 3)), n_shared - 1, len(rest))
-        own_contexts = rng.choice(np.asarray(rest), size=own_count, replace=False) if own_count \
+        own_contexts = (
+            rng.choice(np.asarray(rest), size=own_count, replace=False)
+            if own_count
             else np.zeros(0, dtype=np.int64)
+        )
         own = [_random_need(mission, rng, int(c)) for c in own_contexts]
         out.append(_steady(UserProfile(tuple(shared + own)), mission, rng, n_events))
     return tuple(out)
@@ -318,8 +341,9 @@ def _changed(need: Need, mission: Mission, rng: np.random.Generator) -> Need:
     return replace(need, service=k, detail=int(rng.integers(len(mission.services[k].details))))
 
 
-def _abrupt(mission: Mission, rng: np.random.Generator, n: int, n_events: int
-            ) -> tuple[Person, ...]:
+def _abrupt(
+    mission: Mission, rng: np.random.Generator, n: int, n_events: int
+) -> tuple[Person, ...]:
     out = []
     for _ in range(n):
         before = random_profile(mission, rng)
@@ -331,16 +355,18 @@ def _abrupt(mission: Mission, rng: np.random.Generator, n: int, n_events: int
     return tuple(out)
 
 
-def _gradual(mission: Mission, rng: np.random.Generator, n: int, n_events: int
-             ) -> tuple[Person, ...]:
+def _gradual(
+    mission: Mission, rng: np.random.Generator, n: int, n_events: int
+) -> tuple[Person, ...]:
     at = change_event(n_events)
     ramp = max(1, min(RAMP, n_events - at))
     out = []
     for _ in range(n):
         base = random_profile(mission, rng)
-        drifting = sorted(int(i) for i in rng.choice(len(base.needs),
-                                                     size=math.ceil(len(base.needs) / 2),
-                                                     replace=False))
+        drifting = sorted(
+            int(i)
+            for i in rng.choice(len(base.needs), size=math.ceil(len(base.needs) / 2), replace=False)
+        )
         new = {i: _changed(base.needs[i], mission, rng) for i in drifting}
         # One profile per subset of drifting routines already changed (bit j: drifting[j]).
         profiles = []
@@ -359,17 +385,19 @@ def _gradual(mission: Mission, rng: np.random.Generator, n: int, n_events: int
     return tuple(out)
 
 
-def _with(params: Callable[[np.random.Generator], Mapping[str, float]],
-          n_needs: Sequence[int] = (3, 4, 5), p_random: Callable[[np.random.Generator], float]
-          | None = None) -> Generator:
+def _with(
+    params: Callable[[np.random.Generator], Mapping[str, float]],
+    n_needs: Sequence[int] = (3, 4, 5),
+    p_random: Callable[[np.random.Generator], float] | None = None,
+) -> Generator:
     """A steady family: random routines, response parameters drawn by ``params``."""
 
-    def generate(mission: Mission, rng: np.random.Generator, n: int, n_events: int
-                 ) -> tuple[Person, ...]:
+    def generate(
+        mission: Mission, rng: np.random.Generator, n: int, n_events: int
+    ) -> tuple[Person, ...]:
         out = []
         for _ in range(n):
-            profile = replace(random_profile(mission, rng, n_needs=n_needs),
-                              **params(rng))  # type: ignore[arg-type]
+            profile = replace(random_profile(mission, rng, n_needs=n_needs), **params(rng))  # type: ignore[arg-type]
             person = _steady(profile, mission, rng, n_events)
             if p_random is not None:
                 person = replace(person, p_random=p_random(rng))
@@ -379,30 +407,70 @@ def _with(params: Callable[[np.random.Generator], Mapping[str, float]],
     return generate
 
 
-FAMILIES: Mapping[str, Family] = MappingProxyType({f.name: f for f in (
-    Family("paper", "the simulated users of the paper's experiments (§11): 3–5 routines; about "
-           "half of them change at the change event", _paper, changes=True),
-    Family("individual", "2–6 routines drawn at random per person, and their own answering "
-           "habits (accepts offers 85–100 %, speaks first 30–70 %, refuses the right service "
-           "0–10 %); no change", _individual),
-    Family("home", "residents of one home: 3–4 routines shared by all, plus 1–2 of their own "
-           "in other contexts (never as many as the shared ones); no change", _home),
-    Family("abrupt", "3–5 routines; at the change event half of them (rounded up) switch at "
-           "once to another detail or service in the same context", _abrupt, changes=True),
-    Family("gradual", "3–5 routines; from the change event half of them drift: over 40 events "
-           "the new routine is wanted ever more often (at event change+j with chance "
-           "(j+1)/40), then always", _gradual, changes=True),
-    Family("noisy", "3–5 routines; 10–20 % of their answers (to offers, questions and "
-           "services) are random; no change",
-           _with(lambda rng: {}, p_random=lambda rng: float(rng.uniform(*NOISE_RANGE)))),
-    Family("shy", "3–5 routines; never speak first (they wait to be offered); no change",
-           _with(lambda rng: {"p_self": 0.0})),
-    Family("refusing", "3–5 routines; often refuse an offer even when they need something "
-           "(accept 40–60 %); no change",
-           _with(lambda rng: {"p_acc": float(rng.uniform(*REFUSE_RANGE))})),
-    Family("many", "6–9 routines (in as many contexts, when the mission has them); no change",
-           _with(lambda rng: {}, n_needs=(6, 7, 8, 9))),
-)})
+FAMILIES: Mapping[str, Family] = MappingProxyType(
+    {
+        f.name: f
+        for f in (
+            Family(
+                "paper",
+                "the simulated users of the paper's experiments (§11): 3–5 routines; about "
+                "half of them change at the change event",
+                _paper,
+                changes=True,
+            ),
+            Family(
+                "individual",
+                "2–6 routines drawn at random per person, and their own answering "
+                "habits (accepts offers 85–100 %, speaks first 30–70 %, refuses the right service "
+                "0–10 %); no change",
+                _individual,
+            ),
+            Family(
+                "home",
+                "residents of one home: 3–4 routines shared by all, plus 1–2 of their own "
+                "in other contexts (never as many as the shared ones); no change",
+                _home,
+            ),
+            Family(
+                "abrupt",
+                "3–5 routines; at the change event half of them (rounded up) switch at "
+                "once to another detail or service in the same context",
+                _abrupt,
+                changes=True,
+            ),
+            Family(
+                "gradual",
+                "3–5 routines; from the change event half of them drift: over 40 events "
+                "the new routine is wanted ever more often (at event change+j with chance "
+                "(j+1)/40), then always",
+                _gradual,
+                changes=True,
+            ),
+            Family(
+                "noisy",
+                "3–5 routines; 10–20 % of their answers (to offers, questions and "
+                "services) are random; no change",
+                _with(lambda rng: {}, p_random=lambda rng: float(rng.uniform(*NOISE_RANGE))),
+            ),
+            Family(
+                "shy",
+                "3–5 routines; never speak first (they wait to be offered); no change",
+                _with(lambda rng: {"p_self": 0.0}),
+            ),
+            Family(
+                "refusing",
+                "3–5 routines; often refuse an offer even when they need something "
+                "(accept 40–60 %); no change",
+                _with(lambda rng: {"p_acc": float(rng.uniform(*REFUSE_RANGE))}),
+            ),
+            Family(
+                "many",
+                "6–9 routines (in as many contexts, when the mission has them); no change",
+                _with(lambda rng: {}, n_needs=(6, 7, 8, 9)),
+            ),
+        )
+    }
+)
 """The families of the robustness suite, by name (docs/method.md §12, "Robustness")."""
 
 
@@ -424,16 +492,24 @@ def _seq(*words: int) -> np.random.Generator:
     return np.random.default_rng(np.random.SeedSequence([int(w) for w in words]))
 
 
-def people(family: Family, mission: Mission, seed: int, n_persons: int, n_events: int
-           ) -> tuple[tuple[Person, ...], list[np.ndarray]]:
+def people(
+    family: Family, mission: Mission, seed: int, n_persons: int, n_events: int
+) -> tuple[tuple[Person, ...], list[np.ndarray]]:
     """The persons of ``family`` for ``seed`` and their coin flips (the same for every learner)."""
     persons = family.generate(mission, _seq(seed, family.key, 0), n_persons, n_events)
     flips = [uniforms_for(_seq(seed, family.key, 1, p), n_events) for p in range(n_persons)]
     return persons, flips
 
 
-def run_family(family: Family, seed: int, methods: Sequence[tuple[str, str, Mapping[str, Any]]],
-               mission: Mission, *, n_persons: int, n_events: int) -> FamilyRun:
+def run_family(
+    family: Family,
+    seed: int,
+    methods: Sequence[tuple[str, str, Mapping[str, Any]]],
+    mission: Mission,
+    *,
+    n_persons: int,
+    n_events: int,
+) -> FamilyRun:
     """The oracle and every method (label, algorithm, params) through the same persons.
 
     A learner's generator depends on (seed, family, person, label) only, so adding a method

@@ -40,8 +40,14 @@ from .learners.base import TabularLearner
 from .mission import Mission
 from .types import FloatArray
 
-__all__ = ["DEFAULT_STRENGTH", "FRESH_ONLY", "MIN_SUPPORT", "PRIOR_TABLES", "PriorSpec",
-           "population_prior"]
+__all__ = [
+    "DEFAULT_STRENGTH",
+    "FRESH_ONLY",
+    "MIN_SUPPORT",
+    "PRIOR_TABLES",
+    "PriorSpec",
+    "population_prior",
+]
 
 DEFAULT_STRENGTH = 4.0  # pseudo-samples per pair that every contributor has evidence on
 MIN_SUPPORT = 3  # the fewest contributors with evidence on a pair for it to enter the prior
@@ -72,8 +78,12 @@ PRIOR_TABLES: Mapping[str, PriorSpec] = {
 
 
 def population_prior(
-    algorithm: str, params: Mapping[str, Any] | None, mission: Mission,
-    contributors: Sequence[TabularLearner[Any]], *, strength: float = DEFAULT_STRENGTH,
+    algorithm: str,
+    params: Mapping[str, Any] | None,
+    mission: Mission,
+    contributors: Sequence[TabularLearner[Any]],
+    *,
+    strength: float = DEFAULT_STRENGTH,
     min_support: int = MIN_SUPPORT,
 ) -> TabularLearner[Any]:
     """A new learner of ``algorithm`` (with ``params``) for ``mission`` that starts from the
@@ -96,7 +106,9 @@ def population_prior(
         counts, sums = _counts_and_sums(
             [getattr(o, spec.counts) for o in contributors],
             [getattr(o, spec.sums) for o in contributors] if spec.sums else None,
-            strength=strength, min_support=min_support)
+            strength=strength,
+            min_support=min_support,
+        )
         getattr(learner, spec.counts)[...] = counts
         if spec.sums is not None and sums is not None:
             getattr(learner, spec.sums)[...] = sums
@@ -104,26 +116,34 @@ def population_prior(
             getattr(learner, name)[...] = counts.sum(axis=-1)
     for name in spec.values:
         table = getattr(learner, name)
-        table[...] = _values([getattr(o, name) for o in contributors],
-                             [o.visits for o in contributors], table,
-                             min_support=min_support)
+        table[...] = _values(
+            [getattr(o, name) for o in contributors],
+            [o.visits for o in contributors],
+            table,
+            min_support=min_support,
+        )
     for name in spec.pooled:
-        getattr(learner, name)[...] = _pooled([getattr(o, name) for o in contributors],
-                                              strength=strength, min_support=min_support)
+        getattr(learner, name)[...] = _pooled(
+            [getattr(o, name) for o in contributors], strength=strength, min_support=min_support
+        )
     learner._cache.clear()
     return learner
 
 
-def _counts_and_sums(counts: Sequence[FloatArray], sums: Sequence[FloatArray] | None, *,
-                     strength: float, min_support: int) -> tuple[FloatArray, FloatArray | None]:
+def _counts_and_sums(
+    counts: Sequence[FloatArray],
+    sums: Sequence[FloatArray] | None,
+    *,
+    strength: float,
+    min_support: int,
+) -> tuple[FloatArray, FloatArray | None]:
     n = np.stack([np.asarray(c, dtype=np.float64) for c in counts])  # (K, C, P, ..., M)
     k, c, p = n.shape[:3]
     flat = n.reshape(k, c, p, -1)
     total = flat.sum(axis=-1)  # (K, C, P)
     has = total > 0.0
     support = has.sum(axis=0)  # (C, P)
-    shares = np.divide(flat, total[..., None], out=np.zeros_like(flat),
-                       where=has[..., None])
+    shares = np.divide(flat, total[..., None], out=np.zeros_like(flat), where=has[..., None])
     mean_share = shares.sum(axis=0) / np.maximum(support, 1)[..., None]
     weight = strength * support / k  # pseudo-samples per pair
     weight[support < min_support] = 0.0
@@ -140,8 +160,13 @@ def _counts_and_sums(counts: Sequence[FloatArray], sums: Sequence[FloatArray] | 
     return prior_counts, prior_sums
 
 
-def _values(tables: Sequence[FloatArray], visits: Sequence[np.ndarray], initial: FloatArray, *,
-            min_support: int) -> FloatArray:
+def _values(
+    tables: Sequence[FloatArray],
+    visits: Sequence[np.ndarray],
+    initial: FloatArray,
+    *,
+    min_support: int,
+) -> FloatArray:
     q = np.stack([np.asarray(t, dtype=np.float64) for t in tables])
     seen = np.stack([np.asarray(v) > 0 for v in visits])
     support = seen.sum(axis=0)

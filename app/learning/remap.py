@@ -109,8 +109,13 @@ class Renames:
         return any(getattr(self, s) for s in _SECTIONS)
 
 
-def _injective(section: str, mapping: Mapping[str, str | None], keys: Mapping[str, str],
-               what: str, where: str = "") -> None:
+def _injective(
+    section: str,
+    mapping: Mapping[str, str | None],
+    keys: Mapping[str, str],
+    what: str,
+    where: str = "",
+) -> None:
     """Raise if two old names land on one new name (``keys``: renamed old name -> its key)."""
     owner: dict[str, str] = {}
     for old, new in mapping.items():
@@ -126,15 +131,20 @@ def _injective(section: str, mapping: Mapping[str, str | None], keys: Mapping[st
         owner[new] = old
 
 
-def _simple_map(section: str, what: str, old: tuple[str, ...], new: tuple[str, ...],
-                renames: Mapping[str, str]) -> dict[str, str | None]:
+def _simple_map(
+    section: str, what: str, old: tuple[str, ...], new: tuple[str, ...], renames: Mapping[str, str]
+) -> dict[str, str | None]:
     for key, target in renames.items():
         if key not in old:
-            raise RenamesError(f"renames.{section}.{key}: there is no {what} {key!r} in the old "
-                               f"mission; its {section.replace('_', ' ')}: {list(old)}.")
+            raise RenamesError(
+                f"renames.{section}.{key}: there is no {what} {key!r} in the old "
+                f"mission; its {section.replace('_', ' ')}: {list(old)}."
+            )
         if target not in new:
-            raise RenamesError(f"renames.{section}.{key}: {target!r} is not a {what} of the new "
-                               f"mission; its {section.replace('_', ' ')}: {list(new)}.")
+            raise RenamesError(
+                f"renames.{section}.{key}: {target!r} is not a {what} of the new "
+                f"mission; its {section.replace('_', ' ')}: {list(new)}."
+            )
     out: dict[str, str | None] = {}
     for name in old:
         target = renames.get(name, name)
@@ -155,12 +165,23 @@ class _Names:
     @classmethod
     def build(cls, old: Mission, new: Mission, renames: Renames | None) -> _Names:
         r = renames or Renames()
-        slots = _simple_map("time_slots", "time slot", tuple(s.name for s in old.time_slots),
-                            tuple(s.name for s in new.time_slots), r.time_slots)
-        situations = _simple_map("situations", "situation", old.situations, new.situations,
-                                 r.situations)
-        services = _simple_map("services", "service", tuple(s.name for s in old.services),
-                               tuple(s.name for s in new.services), r.services)
+        slots = _simple_map(
+            "time_slots",
+            "time slot",
+            tuple(s.name for s in old.time_slots),
+            tuple(s.name for s in new.time_slots),
+            r.time_slots,
+        )
+        situations = _simple_map(
+            "situations", "situation", old.situations, new.situations, r.situations
+        )
+        services = _simple_map(
+            "services",
+            "service",
+            tuple(s.name for s in old.services),
+            tuple(s.name for s in new.services),
+            r.services,
+        )
         new_details = {s.name: s.details for s in new.services}
         old_details = {s.name: s.details for s in old.services}
         qualified: dict[tuple[str, str], tuple[str, str]] = {}  # (service, detail) -> (target, key)
@@ -169,17 +190,23 @@ class _Names:
             if "/" in key:
                 owner, _, name = key.partition("/")
                 if owner not in old_details:
-                    raise RenamesError(f"renames.details.{key}: there is no service {owner!r} "
-                                       f"in the old mission; its services: {list(old_details)}.")
+                    raise RenamesError(
+                        f"renames.details.{key}: there is no service {owner!r} "
+                        f"in the old mission; its services: {list(old_details)}."
+                    )
                 if name not in old_details[owner]:
-                    raise RenamesError(f"renames.details.{key}: {owner} has no detail "
-                                       f"{name!r} in the old mission; its details: "
-                                       f"{list(old_details[owner])}.")
+                    raise RenamesError(
+                        f"renames.details.{key}: {owner} has no detail "
+                        f"{name!r} in the old mission; its details: "
+                        f"{list(old_details[owner])}."
+                    )
                 qualified[(owner, name)] = (target, key)
             else:
                 if not any(key in d for d in old_details.values()):
-                    raise RenamesError(f"renames.details.{key}: no service of the old mission "
-                                       f"has the detail {key!r}.")
+                    raise RenamesError(
+                        f"renames.details.{key}: no service of the old mission "
+                        f"has the detail {key!r}."
+                    )
                 plain[key] = target
         details: dict[tuple[str, str], str | None] = {}
         for service in old.services:
@@ -199,9 +226,13 @@ class _Names:
                     per[detail] = None
                     continue
                 if key and target not in new_details[image]:
-                    hint = "" if "/" in key else (
-                        f" (a plain key renames {detail!r} under every service that has it; "
-                        f"'{service.name}/{detail}' names one)"
+                    hint = (
+                        ""
+                        if "/" in key
+                        else (
+                            f" (a plain key renames {detail!r} under every service that has it; "
+                            f"'{service.name}/{detail}' names one)"
+                        )
                     )
                     raise RenamesError(
                         f"renames.details.{key}: {target!r} is not a detail of {image} in the "
@@ -248,8 +279,9 @@ class SpaceMap:
     removed pair).
     """
 
-    def __init__(self, old: NegotiationSpace, new: NegotiationSpace,
-                 renames: Renames | None = None) -> None:
+    def __init__(
+        self, old: NegotiationSpace, new: NegotiationSpace, renames: Renames | None = None
+    ) -> None:
         self.old, self.new = old, new
         names = _Names.build(old.mission, new.mission, renames)
         self.names = names
@@ -285,8 +317,9 @@ class SpaceMap:
         for arr in (contexts, states, actions, columns):
             arr.setflags(write=False)
         # Flat (source, target) positions of the kept entries, per table shape (``_copy``).
-        self._flat: dict[tuple[str, tuple[int, ...], tuple[int, ...]],
-                         tuple[IntArray, IntArray]] = {}
+        self._flat: dict[
+            tuple[str, tuple[int, ...], tuple[int, ...]], tuple[IntArray, IntArray]
+        ] = {}
         self.contexts: IntArray = contexts
         self.states: IntArray = states
         self.actions: IntArray = actions
@@ -317,8 +350,9 @@ class SpaceMap:
         """A successor state: any local state or END (which stays END)."""
         return self._get(self.states, s, "next_state")
 
-    def sample(self, context: int, state: int, action: int, next_state: int
-               ) -> tuple[int, int, int, int] | None:
+    def sample(
+        self, context: int, state: int, action: int, next_state: int
+    ) -> tuple[int, int, int, int] | None:
         """(context, state, action, next_state) in the new space, or None if any part is gone."""
         c, s = self.context(context), self.state(state)
         a, n = self.action(action), self.next_state(next_state)
@@ -346,8 +380,9 @@ class SpaceMap:
 
 
 # -- moving a learner ---------------------------------------------------------------------------
-def _axis_indices(code: str, smap: SpaceMap, shape_old: tuple[int, ...]
-                  ) -> list[tuple[list[np.ndarray], list[np.ndarray]]]:
+def _axis_indices(
+    code: str, smap: SpaceMap, shape_old: tuple[int, ...]
+) -> list[tuple[list[np.ndarray], list[np.ndarray]]]:
     """Blocks of (old indices per axis, new indices per axis) covering every kept entry."""
     c_old, c_new = smap.kept_contexts()
     fixed_old: list[np.ndarray] = []
@@ -380,8 +415,9 @@ def _axis_indices(code: str, smap: SpaceMap, shape_old: tuple[int, ...]
     return blocks
 
 
-def _flat_indices(code: str, smap: SpaceMap, shape_old: tuple[int, ...],
-                  shape_new: tuple[int, ...]) -> tuple[IntArray, IntArray]:
+def _flat_indices(
+    code: str, smap: SpaceMap, shape_old: tuple[int, ...], shape_new: tuple[int, ...]
+) -> tuple[IntArray, IntArray]:
     """The kept entries of a table of shape code ``code`` as flat positions in the old and the
     new table, computed once per map and shape (a change moves many learners alike)."""
     key = (code, shape_old, shape_new)
@@ -408,12 +444,14 @@ def _copy(source: np.ndarray, target: np.ndarray, code: str, smap: SpaceMap) -> 
 _MAPS: dict[tuple[str, str, str], SpaceMap] = {}  # the maps of the latest changes
 
 
-def _space_map(learner: TabularLearner[Any], new: Mission, renames: Renames | None
-               ) -> SpaceMap:
+def _space_map(learner: TabularLearner[Any], new: Mission, renames: Renames | None) -> SpaceMap:
     """The map of ``learner``'s mission onto ``new``, shared by the learners of one change
     (a space depends on its mission only, and a mission is named by its fingerprint)."""
-    key = (learner.mission.fingerprint, new.fingerprint,
-           json.dumps(renames.to_dict() if renames else {}, sort_keys=True))
+    key = (
+        learner.mission.fingerprint,
+        new.fingerprint,
+        json.dumps(renames.to_dict() if renames else {}, sort_keys=True),
+    )
     found = _MAPS.get(key)
     if found is None:
         found = SpaceMap(learner.space, space_for(new), renames)
@@ -455,8 +493,9 @@ def remap_learner(learner: L, new: Mission, renames: Renames | None = None) -> L
     return fresh
 
 
-def _rescale_sums(old: TabularLearner[Any], new: TabularLearner[Any], sums: str, counts: str,
-                  smap: SpaceMap) -> None:
+def _rescale_sums(
+    old: TabularLearner[Any], new: TabularLearner[Any], sums: str, counts: str, smap: SpaceMap
+) -> None:
     """Scale the kept reward sums by (count kept / count before) of the same samples."""
     count_code = old._exported()[counts][1]
     m_axis = count_code.index("M")
@@ -485,12 +524,20 @@ class NamesDiff:
         return bool(self.added or self.removed or self.renamed)
 
     def counts(self) -> dict[str, int]:
-        return {"kept": len(self.kept), "added": len(self.added), "removed": len(self.removed),
-                "renamed": len(self.renamed)}
+        return {
+            "kept": len(self.kept),
+            "added": len(self.added),
+            "removed": len(self.removed),
+            "renamed": len(self.renamed),
+        }
 
     def to_dict(self) -> dict[str, Any]:
-        return {"kept": list(self.kept), "added": list(self.added), "removed": list(self.removed),
-                "renamed": [{"old": o, "new": n} for o, n in self.renamed]}
+        return {
+            "kept": list(self.kept),
+            "added": list(self.added),
+            "removed": list(self.removed),
+            "renamed": [{"old": o, "new": n} for o, n in self.renamed],
+        }
 
 
 def _names_diff(mapping: Mapping[str, str | None], new: tuple[str, ...]) -> NamesDiff:
@@ -523,13 +570,26 @@ class MissionDiff:
     @property
     def unchanged(self) -> bool:
         """Nothing a learner's tables or values depend on differs."""
-        return not (any(d.changed for d in (self.time_slots, self.situations, self.services,
-                                             self.details, self.contexts))
-                    or self.rewards_changed or self.gamma_changed)
+        return not (
+            any(
+                d.changed
+                for d in (
+                    self.time_slots,
+                    self.situations,
+                    self.services,
+                    self.details,
+                    self.contexts,
+                )
+            )
+            or self.rewards_changed
+            or self.gamma_changed
+        )
 
     def counts(self) -> dict[str, dict[str, int]]:
-        return {name: getattr(self, name).counts() for name in
-                ("time_slots", "situations", "services", "details", "contexts")}
+        return {
+            name: getattr(self, name).counts()
+            for name in ("time_slots", "situations", "services", "details", "contexts")
+        }
 
     def to_dict(self) -> dict[str, Any]:
         out: dict[str, Any] = {"old": self.old, "new": self.new}
@@ -563,14 +623,17 @@ def diff_missions(old: Mission, new: Mission, renames: Renames | None = None) ->
         time_slots=_names_diff(names.time_slots, tuple(s.name for s in new.time_slots)),
         situations=_names_diff(names.situations, new.situations),
         services=_names_diff(names.services, tuple(s.name for s in new.services)),
-        details=_names_diff(details, tuple(
-            f"{s.name}/{d}" for s in new.services for d in s.details
-        )),
-        contexts=_names_diff(contexts, tuple(
-            "/".join(new.context_names(c)) for c in range(new.n_contexts)
-        )),
-        pairs={"kept": kept_pairs, "added": smap.new.n_actions - kept_pairs,
-               "removed": smap.old.n_actions - kept_pairs},
+        details=_names_diff(
+            details, tuple(f"{s.name}/{d}" for s in new.services for d in s.details)
+        ),
+        contexts=_names_diff(
+            contexts, tuple("/".join(new.context_names(c)) for c in range(new.n_contexts))
+        ),
+        pairs={
+            "kept": kept_pairs,
+            "added": smap.new.n_actions - kept_pairs,
+            "removed": smap.old.n_actions - kept_pairs,
+        },
         rewards_changed=old.rewards != new.rewards,
         gamma_changed=old.gamma != new.gamma,
     )

@@ -71,7 +71,8 @@ class UserProfile:
 
 def _available_contexts(mission: Mission) -> list[int]:
     return [
-        c for c in range(mission.n_contexts)
+        c
+        for c in range(mission.n_contexts)
         if mission.context_names(c)[1] not in mission.unavailable_situations
     ]
 
@@ -178,8 +179,9 @@ def respond(
     need = profile.need_at(context)
     kind = space.actions[action].kind
     if kind not in EXPECTS:
-        raise ValueError(f"{space.action_name(action)} is silent: the person does not respond "
-                         "to it.")
+        raise ValueError(
+            f"{space.action_name(action)} is silent: the person does not respond to it."
+        )
     service: str | None = None
     detail: str | None = None
     # The person may end the dialog at any step; a robot that stays passive starts no dialog.
@@ -211,8 +213,12 @@ def respond(
                 assert need is not None
                 said, detail = Response.ANSWERED, wanted.details[need.detail]
         else:  # perform
-            right = (wanted is not None and need is not None and info.service == wanted.name
-                     and info.detail == wanted.details[need.detail])
+            right = (
+                wanted is not None
+                and need is not None
+                and info.service == wanted.name
+                and info.detail == wanted.details[need.detail]
+            )
             said = Response.ACCEPTED if right and u >= profile.eps_fb else Response.REJECTED
     result = outcome(space, action, said, service=service, detail=detail)
     return Reaction(said, result.reward, result.next_state, result.signal, service, detail)

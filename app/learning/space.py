@@ -171,15 +171,22 @@ class NegotiationSpace:
         self.is_query = np.asarray([a.kind in QUERY_KINDS for a in actions], dtype=bool)
         self.root_actions = (0, 1)
         self.INITIATE, self.PASS = self.root_actions
-        self._succ_column = [
-            {int(s): j for j, s in enumerate(row)} for row in succ
-        ]
+        self._succ_column = [{int(s): j for j, s in enumerate(row)} for row in succ]
         self._detail_state = detail_state
         self._service_index = {s.name: k for k, s in enumerate(services)}
         self._action_index = {a: p for p, a in enumerate(actions)}
-        for arr in (self.pair_state, self.state_start, self.state_count, self.succ, self.succ_mask,
-                    self.end_column, self.silent, self.silent_next, self.silent_reward,
-                    self.is_query):
+        for arr in (
+            self.pair_state,
+            self.state_start,
+            self.state_count,
+            self.succ,
+            self.succ_mask,
+            self.end_column,
+            self.silent,
+            self.silent_next,
+            self.silent_reward,
+            self.is_query,
+        ):
             arr.setflags(write=False)
 
     # -- lookups -------------------------------------------------------------------------------

@@ -81,8 +81,9 @@ def decode_array(
     try:
         inflater = zlib.decompressobj()
         # Never inflate more than the array can hold (a small document must not become gigabytes).
-        raw = inflater.decompress(base64.b64decode(data.encode("ascii"), validate=True),
-                                  expected + 1)
+        raw = inflater.decompress(
+            base64.b64decode(data.encode("ascii"), validate=True), expected + 1
+        )
     except (binascii.Error, zlib.error, UnicodeEncodeError, ValueError):
         raise StateFormatError(f"{where}.data is not valid zlib+base64.") from None
     if len(raw) != expected:
@@ -102,8 +103,9 @@ def _raw(doc: Mapping[str, Any]) -> tuple[Any, Any, bytes]:
 def same_state(a: Mapping[str, Any], b: Mapping[str, Any]) -> bool:
     """Whether two state documents hold the same learner: equal field for field, with arrays
     compared by their contents (one array can be compressed into different bytes)."""
-    if {k: v for k, v in a.items() if k != "arrays"} != \
-            {k: v for k, v in b.items() if k != "arrays"}:
+    if {k: v for k, v in a.items() if k != "arrays"} != {
+        k: v for k, v in b.items() if k != "arrays"
+    }:
         return False
     arrays_a, arrays_b = a.get("arrays"), b.get("arrays")
     if not isinstance(arrays_a, Mapping) or not isinstance(arrays_b, Mapping):

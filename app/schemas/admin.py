@@ -9,8 +9,16 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from .common import ClientId
 
-__all__ = ["FleetList", "FleetOut", "FleetPriorIn", "FleetPriorOut", "KeyCreated", "KeyIn",
-           "KeyList", "KeyOut"]
+__all__ = [
+    "FleetList",
+    "FleetOut",
+    "FleetPriorIn",
+    "FleetPriorOut",
+    "KeyCreated",
+    "KeyIn",
+    "KeyList",
+    "KeyOut",
+]
 
 Role = Literal["robot", "staff", "admin"]
 
@@ -18,16 +26,20 @@ Role = Literal["robot", "staff", "admin"]
 class KeyIn(BaseModel):
     model_config = ConfigDict(
         extra="forbid",
-        json_schema_extra={"examples": [{"role": "staff", "fleet": "care-home-north",
-                                         "name": "night shift"}]},
+        json_schema_extra={
+            "examples": [{"role": "staff", "fleet": "care-home-north", "name": "night shift"}]
+        },
     )
 
-    role: Role = Field(description="robot: serves the fleet's users; staff: also looks after "
-                       "them (models, history, audit log, reset, export, import, delete) and "
-                       "uses the console for its fleet; admin: the whole deployment.")
+    role: Role = Field(
+        description="robot: serves the fleet's users; staff: also looks after "
+        "them (models, history, audit log, reset, export, import, delete) and "
+        "uses the console for its fleet; admin: the whole deployment."
+    )
     fleet: ClientId = Field(default="default", description="The fleet the key belongs to.")
-    name: str | None = Field(default=None, max_length=200,
-                             description="A label for people, e.g. 'robot7'.")
+    name: str | None = Field(
+        default=None, max_length=200, description="A label for people, e.g. 'robot7'."
+    )
 
 
 class KeyOut(BaseModel):
@@ -43,8 +55,10 @@ class KeyOut(BaseModel):
 
 
 class KeyCreated(KeyOut):
-    secret: str = Field(description="The key itself, shown this once: it is stored hashed and "
-                        "cannot be shown again.")
+    secret: str = Field(
+        description="The key itself, shown this once: it is stored hashed and "
+        "cannot be shown again."
+    )
 
 
 class KeyList(BaseModel):
@@ -73,15 +87,19 @@ class FleetPriorOut(BaseModel):
 
     fleet: str
     enabled: bool = Field(description="The fleet's switch (on unless its staff turned it off).")
-    in_force: list[str] = Field(description="The learners (algorithms) whose newcomers start "
-                                "from the prior now: enabled, with enough contributors.")
-    contributors: dict[str, int] = Field(description="Per algorithm, the people who can "
-                                         "contribute now (at most max_contributors).")
+    in_force: list[str] = Field(
+        description="The learners (algorithms) whose newcomers start "
+        "from the prior now: enabled, with enough contributors."
+    )
+    contributors: dict[str, int] = Field(
+        description="Per algorithm, the people who can contribute now (at most max_contributors)."
+    )
     min_contributors: int
     min_episodes: int
     max_contributors: int
-    strength: float = Field(description="The weight of the prior, in a newcomer's own answers "
-                            "per negotiation step.")
+    strength: float = Field(
+        description="The weight of the prior, in a newcomer's own answers per negotiation step."
+    )
     mission_version: int = Field(description="The contributors' models are laid out for it.")
     shared: str = Field(description="What the prior takes from the contributors' models.")
     updated_at: dt.datetime | None

@@ -24,13 +24,18 @@ class AuditEntryOut(BaseModel):
     id: str = Field(description="Opaque; entries are listed newest first.")
     at: dt.datetime
     actor: AuditActor
-    action: str = Field(examples=["user.delete"], description="user.delete, model.reset, "
-                        "model.export, model.import, model.rebuild (attune models rebuild "
-                        "--save), key.create or key.revoke.")
+    action: str = Field(
+        examples=["user.delete"],
+        description="user.delete, model.reset, "
+        "model.export, model.import, model.rebuild (attune models rebuild "
+        "--save), key.create or key.revoke.",
+    )
     target: str = Field(description="The user id (user.*, model.*) or key id (key.*).")
     fleet: str | None = Field(description="The target's fleet.")
-    detail: dict[str, Any] | None = Field(description="Facts of the action (the model version "
-                                          "it produced, the episodes a deletion removed, ...).")
+    detail: dict[str, Any] | None = Field(
+        description="Facts of the action (the model version "
+        "it produced, the episodes a deletion removed, ...)."
+    )
 
 
 class AuditList(Page):

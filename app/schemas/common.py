@@ -4,8 +4,16 @@ from typing import Annotated, Any
 
 from pydantic import BaseModel, ConfigDict, Field, StringConstraints
 
-__all__ = ["CLIENT_ID_PATTERN", "MAX_POSITION", "ActionOut", "ClientId", "ErrorOut", "Page",
-           "ProbabilityOut", "position_of"]
+__all__ = [
+    "CLIENT_ID_PATTERN",
+    "MAX_POSITION",
+    "ActionOut",
+    "ClientId",
+    "ErrorOut",
+    "Page",
+    "ProbabilityOut",
+    "position_of",
+]
 
 CLIENT_ID_PATTERN = r"^[A-Za-z0-9._:-]{1,128}$"
 # Episode and audit cursors are positions (a user's episode index, an audit entry's id), which
@@ -19,6 +27,8 @@ def position_of(cursor: str) -> int | None:
         return None
     value = int(cursor)
     return value if value <= MAX_POSITION else None
+
+
 ClientId = Annotated[str, StringConstraints(pattern=CLIENT_ID_PATTERN)]
 
 
@@ -29,11 +39,13 @@ class ErrorOut(BaseModel):
     detail: str = Field(examples=["No user 'lin' in your fleet."])
     # exclude_if rather than a wrap serializer: the OpenAPI schema keeps the fields
     fields: list[dict[str, Any]] | None = Field(
-        default=None, description="Validation errors only: where and what.",
+        default=None,
+        description="Validation errors only: where and what.",
         exclude_if=lambda v: v is None,
     )
     request_id: str | None = Field(
-        default=None, examples=["3f1c9d2e8b7a4c6d9e0f1a2b3c4d5e6f"],
+        default=None,
+        examples=["3f1c9d2e8b7a4c6d9e0f1a2b3c4d5e6f"],
         description="The request's id, as in its X-Request-ID response header and in the "
         "service's log lines of that request.",
         exclude_if=lambda v: v is None,
@@ -43,10 +55,14 @@ class ErrorOut(BaseModel):
 class ActionOut(BaseModel):
     """An action of the negotiation: ``kind``, and ``service``/``detail`` where it has them."""
 
-    model_config = ConfigDict(json_schema_extra={"examples": [{"kind": "initiate"},
-                                                              {"kind": "perform",
-                                                               "service": "ProvideDrink",
-                                                               "detail": "tea"}]})
+    model_config = ConfigDict(
+        json_schema_extra={
+            "examples": [
+                {"kind": "initiate"},
+                {"kind": "perform", "service": "ProvideDrink", "detail": "tea"},
+            ]
+        }
+    )
 
     kind: str
     service: str | None = Field(default=None, exclude_if=lambda v: v is None)

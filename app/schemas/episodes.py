@@ -39,10 +39,18 @@ class RequestIn(BaseModel):
 class EpisodeIn(BaseModel):
     model_config = ConfigDict(
         extra="forbid",
-        json_schema_extra={"examples": [{
-            "event_id": "robot7-000123", "occurred_at": "2026-11-22T15:10:00+08:00",
-            "situation": "stretching", "initiator": "robot", "request": None,
-            "robot_id": "robot7"}]},
+        json_schema_extra={
+            "examples": [
+                {
+                    "event_id": "robot7-000123",
+                    "occurred_at": "2026-11-22T15:10:00+08:00",
+                    "situation": "stretching",
+                    "initiator": "robot",
+                    "request": None,
+                    "robot_id": "robot7",
+                }
+            ]
+        },
     )
 
     event_id: ClientId = Field(description="The robot's id of the event; repeating it replays.")
@@ -101,16 +109,26 @@ class EpisodeCreated(BaseModel):
     total_reward: float
     decision: DecisionOut | None
     mission_version: int | None = Field(
-        default=None, description="The fleet's mission version the episode runs under "
-        "(absent in answers stored before missions had versions).")
+        default=None,
+        description="The fleet's mission version the episode runs under "
+        "(absent in answers stored before missions had versions).",
+    )
 
 
 class OutcomeIn(BaseModel):
     model_config = ConfigDict(
         extra="forbid",
-        json_schema_extra={"examples": [{"decision_id": "dec_0123456789abcdef0123456789abcdef",
-                                         "response": "answered", "service": "ProvideDrink",
-                                         "detail": None, "feedback": "positive"}]},
+        json_schema_extra={
+            "examples": [
+                {
+                    "decision_id": "dec_0123456789abcdef0123456789abcdef",
+                    "response": "answered",
+                    "service": "ProvideDrink",
+                    "detail": None,
+                    "feedback": "positive",
+                }
+            ]
+        },
     )
 
     decision_id: str = Field(max_length=64)
@@ -127,8 +145,10 @@ EpisodeStatus = Literal["open", "closed", "interrupted"]
 
 class EpisodeBrief(BaseModel):
     episode_id: str
-    status: EpisodeStatus = Field(description="interrupted: closed by a change of the fleet's "
-                                  "mission before it ended; it takes no more outcomes.")
+    status: EpisodeStatus = Field(
+        description="interrupted: closed by a change of the fleet's "
+        "mission before it ended; it takes no more outcomes."
+    )
     state: str
     total_reward: float
 

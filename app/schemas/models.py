@@ -8,7 +8,12 @@ from pydantic import BaseModel, ConfigDict, Field
 from .common import ActionOut, ClientId
 
 __all__ = [
-    "ActionBelief", "ContextModel", "MissionOut", "ModelOut", "StartedFrom", "StateModel",
+    "ActionBelief",
+    "ContextModel",
+    "MissionOut",
+    "ModelOut",
+    "StartedFrom",
+    "StateModel",
     "StatsOut",
 ]
 
@@ -39,10 +44,13 @@ class ContextModel(BaseModel):
 class StartedFrom(BaseModel):
     kind: Literal["fresh", "imported", "fleet_prior"] = Field(
         description="What the model started from (since its last reset or import): a new "
-        "learner, an imported document, or the fleet's prior.")
+        "learner, an imported document, or the fleet's prior."
+    )
     contributors: int | None = Field(
-        default=None, description="fleet_prior: how many of the fleet's people the prior "
-        "averaged; otherwise null.")
+        default=None,
+        description="fleet_prior: how many of the fleet's people the prior "
+        "averaged; otherwise null.",
+    )
 
 
 class ModelOut(BaseModel):
@@ -51,8 +59,9 @@ class ModelOut(BaseModel):
     params: dict[str, Any]
     version: int
     episodes: int
-    mission_version: int = Field(description="The fleet's mission version the model is laid "
-                                 "out for.")
+    mission_version: int = Field(
+        description="The fleet's mission version the model is laid out for."
+    )
     started_from: StartedFrom
     contexts: list[ContextModel]
 
@@ -91,21 +100,27 @@ class MissionOut(BaseModel):
 class FleetMissionOut(MissionOut):
     fleet: str = Field(description="Whose mission this is.")
     version: int = Field(description="1, 2, 3...: up by one with every change.")
-    fingerprint: str = Field(description="Names the mission's contents; learner states "
-                             "exported under this version carry it.")
+    fingerprint: str = Field(
+        description="Names the mission's contents; learner states "
+        "exported under this version carry it."
+    )
 
 
 class MissionVersion(BaseModel):
     version: int
     name: str
     fingerprint: str
-    created_at: dt.datetime | None = Field(description="null: not stored yet (the fleet has "
-                                           "no users and uses the deployment's default).")
+    created_at: dt.datetime | None = Field(
+        description="null: not stored yet (the fleet has "
+        "no users and uses the deployment's default)."
+    )
     change_id: str | None
-    renames: dict[str, Any] | None = Field(description="What the change carried across a "
-                                           "rename, from the previous version.")
-    set_by: str | None = Field(description="The key that set it (null: the default, stored "
-                               "with the fleet's first user).")
+    renames: dict[str, Any] | None = Field(
+        description="What the change carried across a rename, from the previous version."
+    )
+    set_by: str | None = Field(
+        description="The key that set it (null: the default, stored with the fleet's first user)."
+    )
     stored: bool
     mission: MissionOut
 
@@ -122,27 +137,52 @@ class Renames(BaseModel):
     time_slots: dict[str, str] = {}
     situations: dict[str, str] = {}
     services: dict[str, str] = {}
-    details: dict[str, str] = Field(default={}, description='Old name to new; "cha": "tea" '
-                                    'renames the detail under every service that has it, '
-                                    '"ProvideDrink/cha": "tea" under one.')
+    details: dict[str, str] = Field(
+        default={},
+        description='Old name to new; "cha": "tea" '
+        "renames the detail under every service that has it, "
+        '"ProvideDrink/cha": "tea" under one.',
+    )
 
 
 class MissionChangeIn(BaseModel):
-    model_config = ConfigDict(extra="forbid", json_schema_extra={"examples": [{
-        "change_id": "care-menu-2026-12", "renames": {"details": {"cha": "tea"}},
-        "mission": {"name": "care-home", "situations": ["waking", "resting", "visiting"],
-                    "unavailable_situations": ["resting"],
-                    "time_slots": [{"name": "day", "start": "07:00", "end": "21:00"},
-                                   {"name": "night", "start": "21:00", "end": "07:00"}],
-                    "services": [{"name": "ProvideDrink", "details": ["tea", "cocoa"]}],
-                    "rewards": {"positive": 1.0, "accepted_service": 5.0, "negative": -2.0,
-                                "query": -0.5},
-                    "gamma": 0.9}}]})
+    model_config = ConfigDict(
+        extra="forbid",
+        json_schema_extra={
+            "examples": [
+                {
+                    "change_id": "care-menu-2026-12",
+                    "renames": {"details": {"cha": "tea"}},
+                    "mission": {
+                        "name": "care-home",
+                        "situations": ["waking", "resting", "visiting"],
+                        "unavailable_situations": ["resting"],
+                        "time_slots": [
+                            {"name": "day", "start": "07:00", "end": "21:00"},
+                            {"name": "night", "start": "21:00", "end": "07:00"},
+                        ],
+                        "services": [{"name": "ProvideDrink", "details": ["tea", "cocoa"]}],
+                        "rewards": {
+                            "positive": 1.0,
+                            "accepted_service": 5.0,
+                            "negative": -2.0,
+                            "query": -0.5,
+                        },
+                        "gamma": 0.9,
+                    },
+                }
+            ]
+        },
+    )
 
-    change_id: ClientId = Field(description="Makes the change idempotent: the same change_id "
-                                "with the same body answers as the first time.")
-    mission: dict[str, Any] = Field(description="The mission document (as GET /v1/mission "
-                                    "answers it, without fleet, version and fingerprint).")
+    change_id: ClientId = Field(
+        description="Makes the change idempotent: the same change_id "
+        "with the same body answers as the first time."
+    )
+    mission: dict[str, Any] = Field(
+        description="The mission document (as GET /v1/mission "
+        "answers it, without fleet, version and fingerprint)."
+    )
     renames: Renames | None = None
 
 
@@ -151,9 +191,10 @@ class MissionChanged(BaseModel):
     version: int = Field(description="The version in force now.")
     previous_version: int | None = Field(description="null: the fleet had none stored.")
     fingerprint: str
-    changed: bool = Field(description="false: the mission was already this one (no new "
-                          "version).")
+    changed: bool = Field(description="false: the mission was already this one (no new version).")
     users_moved: int = Field(description="Models carried to the new version.")
     episodes_interrupted: int = Field(description="Open episodes closed as interrupted.")
-    diff: dict[str, Any] | None = Field(description="What the change kept, added, removed "
-                                        "and renamed (null for a fleet's first version).")
+    diff: dict[str, Any] | None = Field(
+        description="What the change kept, added, removed "
+        "and renamed (null for a fleet's first version)."
+    )

@@ -10,8 +10,18 @@ from pydantic import BaseModel, ConfigDict, Field
 from .common import ClientId
 from .models import StartedFrom
 
-__all__ = ["Certainty", "ChangeOut", "CorrectionIn", "CorrectionList", "CorrectionOut",
-           "EvidenceOut", "ProfileContext", "ProfileOut", "RobotWill", "Wanted"]
+__all__ = [
+    "Certainty",
+    "ChangeOut",
+    "CorrectionIn",
+    "CorrectionList",
+    "CorrectionOut",
+    "EvidenceOut",
+    "ProfileContext",
+    "ProfileOut",
+    "RobotWill",
+    "Wanted",
+]
 
 Certainty = Literal["unknown", "tentative", "confident"]
 CorrectionKind = Literal["prefers", "avoid", "quiet"]
@@ -31,9 +41,12 @@ class EvidenceOut(BaseModel):
     answered: int = Field(description="Questions of the robot the person answered.")
     last_seen: dt.datetime | None = Field(
         description="The latest episode here, in the person's local time (the offset the "
-        "robot sent with it).")
-    support: int = Field(description="Of the person's last answers here (up to 8), how many "
-                         "agree with what they are believed to want.")
+        "robot sent with it)."
+    )
+    support: int = Field(
+        description="Of the person's last answers here (up to 8), how many "
+        "agree with what they are believed to want."
+    )
     recent: int = Field(description="How many answers that is out of.")
 
 
@@ -41,11 +54,14 @@ class RobotWill(BaseModel):
     """What the robot will most likely do when it meets the person here."""
 
     action: Literal["offer", "wait_to_be_asked", "stay_away"]
-    service: str | None = Field(description="What it would bring if it offers (None: it would "
-                                "ask first, or it does not offer).")
+    service: str | None = Field(
+        description="What it would bring if it offers (None: it would "
+        "ask first, or it does not offer)."
+    )
     detail: str | None
-    asks_first: bool = Field(description="It would most likely ask what the person wants "
-                             "before bringing anything.")
+    asks_first: bool = Field(
+        description="It would most likely ask what the person wants before bringing anything."
+    )
     probability: float = Field(description="Chance that it offers on its own.")
 
 
@@ -57,8 +73,9 @@ class ChangeOut(BaseModel):
     before: Wanted | None
     now: Wanted | None
     by: Literal["person"] = "person"
-    overrides: str | None = Field(default=None, description="The staff correction the "
-                                  "person's answers overrode, if any.")
+    overrides: str | None = Field(
+        default=None, description="The staff correction the person's answers overrode, if any."
+    )
 
 
 class ProfileContext(BaseModel):
@@ -69,7 +86,8 @@ class ProfileContext(BaseModel):
     wants: Wanted | None
     certainty: Certainty
     source: Literal["person", "staff"] | None = Field(
-        description="Where the belief comes from: the person's answers, or a staff correction.")
+        description="Where the belief comes from: the person's answers, or a staff correction."
+    )
     evidence: EvidenceOut
     robot_will: RobotWill
     summary: str
@@ -80,14 +98,22 @@ class ProfileContext(BaseModel):
 class CorrectionIn(BaseModel):
     model_config = ConfigDict(
         extra="forbid",
-        json_schema_extra={"examples": [{
-            "correction_id": "c-2026-11-30-001", "time_slot": "morning",
-            "situation": "arriving", "kind": "prefers", "service": "ProvideDrink",
-            "detail": "coffee", "note": "Her daughter says she always has coffee first."}]},
+        json_schema_extra={
+            "examples": [
+                {
+                    "correction_id": "c-2026-11-30-001",
+                    "time_slot": "morning",
+                    "situation": "arriving",
+                    "kind": "prefers",
+                    "service": "ProvideDrink",
+                    "detail": "coffee",
+                    "note": "Her daughter says she always has coffee first.",
+                }
+            ]
+        },
     )
 
-    correction_id: ClientId = Field(description="Your id of the correction; repeating it "
-                                    "replays.")
+    correction_id: ClientId = Field(description="Your id of the correction; repeating it replays.")
     time_slot: str = Field(max_length=64)
     situation: str = Field(max_length=64)
     kind: CorrectionKind
@@ -108,7 +134,8 @@ class CorrectionOut(BaseModel):
     created_at: dt.datetime
     status: Literal["in_force", "overridden", "lifted", "idle"] = Field(
         description="in_force; overridden (the person's own answers contradicted a prefers); "
-        "lifted (by staff); idle (the fleet's mission no longer has its names).")
+        "lifted (by staff); idle (the fleet's mission no longer has its names)."
+    )
     overridden_at: dt.datetime | None = None
     lifted_at: dt.datetime | None = None
     lifted_by: str | None = None
@@ -124,10 +151,14 @@ class ProfileOut(BaseModel):
     display_name: str | None
     episodes: int = Field(description="All the person's episodes, open ones included.")
     open_episodes: int
-    utc_offset: int | None = Field(description="Minutes east of UTC of the person's latest "
-                                   "event: the local time the profile speaks in.")
-    started_from: StartedFrom = Field(description="What the model started from: as in GET "
-                                      ".../model.")
+    utc_offset: int | None = Field(
+        description="Minutes east of UTC of the person's latest "
+        "event: the local time the profile speaks in."
+    )
+    started_from: StartedFrom = Field(
+        description="What the model started from: as in GET .../model."
+    )
     contexts: list[ProfileContext]
-    corrections: list[CorrectionOut] = Field(description="The corrections in force or "
-                                             "overridden (lifted ones: GET .../corrections).")
+    corrections: list[CorrectionOut] = Field(
+        description="The corrections in force or overridden (lifted ones: GET .../corrections)."
+    )

@@ -13,28 +13,39 @@ __all__ = ["LearnerSpec", "UserIn", "UserList", "UserOut"]
 class LearnerSpec(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
-    algorithm: str = Field(default="dts-adapt",
-                           description="dts-adapt (the default), hri, rmax, qlearning or dts.",
-                           examples=["dts-adapt"])
-    params: dict[str, Any] = Field(default_factory=dict, examples=[{"tau": 0.01}],
-                                   description="The algorithm's parameters; omitted ones keep "
-                                   "their defaults.")
+    algorithm: str = Field(
+        default="dts-adapt",
+        description="dts-adapt (the default), hri, rmax, qlearning or dts.",
+        examples=["dts-adapt"],
+    )
+    params: dict[str, Any] = Field(
+        default_factory=dict,
+        examples=[{"tau": 0.01}],
+        description="The algorithm's parameters; omitted ones keep their defaults.",
+    )
 
 
 class UserIn(BaseModel):
     model_config = ConfigDict(
         extra="forbid",
-        json_schema_extra={"examples": [{"display_name": "Mrs. Lin",
-                                         "learner": {"algorithm": "hri",
-                                                     "params": {"tau": 0.01}}}]},
+        json_schema_extra={
+            "examples": [
+                {
+                    "display_name": "Mrs. Lin",
+                    "learner": {"algorithm": "hri", "params": {"tau": 0.01}},
+                }
+            ]
+        },
     )
 
     display_name: str | None = Field(default=None, max_length=200)
     learner: LearnerSpec | None = None
     fleet_prior: bool | None = Field(
-        default=None, description="Whether the person takes part in the fleet's prior: a new "
+        default=None,
+        description="Whether the person takes part in the fleet's prior: a new "
         "user starts from it, and the user's model adds to it. false: neither. Omitted: true "
-        "for a new user, unchanged for an existing one.")
+        "for a new user, unchanged for an existing one.",
+    )
 
 
 class UserOut(BaseModel):

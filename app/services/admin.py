@@ -21,15 +21,23 @@ __all__ = ["add_key", "fleets", "keys", "remove_key"]
 
 
 def _out(key: KeyRow) -> KeyOut:
-    return KeyOut(key_id=key.id, role=key.role, fleet=key.fleet, name=key.name,
-                  prefix=key.prefix, created_at=key.created_at, revoked_at=key.revoked_at)
+    return KeyOut(
+        key_id=key.id,
+        role=key.role,
+        fleet=key.fleet,
+        name=key.name,
+        prefix=key.prefix,
+        created_at=key.created_at,
+        revoked_at=key.revoked_at,
+    )
 
 
 def add_key(session: Session, principal: Principal, body: KeyIn) -> KeyCreated:
     """A new key; its secret is in this answer only."""
     require_admin(principal)
-    key, secret = create_key(session, role=body.role, fleet=body.fleet, name=body.name,
-                             actor=principal)
+    key, secret = create_key(
+        session, role=body.role, fleet=body.fleet, name=body.name, actor=principal
+    )
     return KeyCreated(**_out(key).model_dump(), secret=secret)
 
 
@@ -50,6 +58,14 @@ def fleets(session: Session, principal: Principal) -> FleetList:
     users = users_repo.fleet_counts(session)
     live = keys_repo.live_counts(session)
     names = sorted(set(users) | set(live))
-    return FleetList(items=[
-        FleetOut(fleet=f, users=users.get(f, (0, 0))[0], keys=live.get(f, 0),
-                 episodes=users.get(f, (0, 0))[1]) for f in names])
+    return FleetList(
+        items=[
+            FleetOut(
+                fleet=f,
+                users=users.get(f, (0, 0))[0],
+                keys=live.get(f, 0),
+                episodes=users.get(f, (0, 0))[1],
+            )
+            for f in names
+        ]
+    )

@@ -22,34 +22,65 @@ from .context import Principal
 
 __all__ = ["ACTIONS", "CLI", "list_audit", "record"]
 
-ACTIONS = ("user.delete", "model.reset", "model.export", "model.import", "model.rebuild",
-           "key.create", "key.revoke", "mission.set", "correction.add", "correction.lift",
-           "fleet.prior")
+ACTIONS = (
+    "user.delete",
+    "model.reset",
+    "model.export",
+    "model.import",
+    "model.rebuild",
+    "key.create",
+    "key.revoke",
+    "mission.set",
+    "correction.add",
+    "correction.lift",
+    "fleet.prior",
+)
 CLI = Principal("cli", "admin", "default")  # an operator at the machine (``attune keys ...``)
 
 
-def record(session: Session, actor: Principal, action: str, *, target: str,
-           fleet: str | None, detail: dict[str, Any] | None = None) -> None:
+def record(
+    session: Session,
+    actor: Principal,
+    action: str,
+    *,
+    target: str,
+    fleet: str | None,
+    detail: dict[str, Any] | None = None,
+) -> None:
     """Add the entry of an admin action to the current transaction."""
     if action not in ACTIONS:
         raise ValueError(f"unknown audit action {action!r}")
-    repo.add(session, AuditRow(
-        id=None, at=utcnow(), actor_key_id=actor.key_id, actor_role=actor.role,
-        actor_fleet=actor.fleet, action=action, target=target, fleet=fleet, detail=detail,
-    ))
+    repo.add(
+        session,
+        AuditRow(
+            id=None,
+            at=utcnow(),
+            actor_key_id=actor.key_id,
+            actor_role=actor.role,
+            actor_fleet=actor.fleet,
+            action=action,
+            target=target,
+            fleet=fleet,
+            detail=detail,
+        ),
+    )
 
 
 def _out(entry: AuditRow) -> AuditEntryOut:
     return AuditEntryOut(
-        id=str(entry.id), at=entry.at,
-        actor=AuditActor(key_id=entry.actor_key_id, role=entry.actor_role,
-                         fleet=entry.actor_fleet),
-        action=entry.action, target=entry.target, fleet=entry.fleet, detail=entry.detail,
+        id=str(entry.id),
+        at=entry.at,
+        actor=AuditActor(key_id=entry.actor_key_id, role=entry.actor_role, fleet=entry.actor_fleet),
+        action=entry.action,
+        target=entry.target,
+        fleet=entry.fleet,
+        detail=entry.detail,
     )
 
 
-def list_audit(session: Session, principal: Principal, *, limit: int, cursor: str | None
-               ) -> AuditList:
+def list_audit(
+    session: Session, principal: Principal, *, limit: int, cursor: str | None
+) -> AuditList:
     """Admin actions, newest first, a page at a time: of every fleet for an admin, of its own
     fleet for its staff."""
     if not principal.manages:
@@ -59,8 +90,13 @@ def list_audit(session: Session, principal: Principal, *, limit: int, cursor: st
         before = position_of(cursor)
         if before is None:
             raise ValidationFailed("cursor is not one this API returned.")
-    rows = repo.list_page(session, before_id=before, limit=limit + 1,
-                          fleet=None if principal.is_admin else principal.fleet)
+    rows = repo.list_page(
+        session,
+        before_id=before,
+        limit=limit + 1,
+        fleet=None if principal.is_admin else principal.fleet,
+    )
     more = len(rows) > limit
-    return AuditList(items=[_out(e) for e in rows[:limit]],
-                     next_cursor=str(rows[limit - 1].id) if more else None)
+    return AuditList(
+        items=[_out(e) for e in rows[:limit]], next_cursor=str(rows[limit - 1].id) if more else None
+    )

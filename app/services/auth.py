@@ -17,8 +17,17 @@ from app.errors import Forbidden, NotFound, Unauthorized, ValidationFailed
 from . import audit
 from .context import KeyCache, Principal, after_commit
 
-__all__ = ["ROLES", "authenticate", "bearer_digest", "create_key", "hash_secret", "list_keys",
-           "require_admin", "require_manager", "revoke_key"]
+__all__ = [
+    "ROLES",
+    "authenticate",
+    "bearer_digest",
+    "create_key",
+    "hash_secret",
+    "list_keys",
+    "require_admin",
+    "require_manager",
+    "revoke_key",
+]
 
 ROLES = ("robot", "staff", "admin")
 _FLEET = re.compile(r"^[A-Za-z0-9._:-]{1,128}$")
@@ -31,7 +40,11 @@ def hash_secret(secret: str) -> str:
 
 
 def create_key(
-    session: Session, *, role: str, fleet: str = "default", name: str | None = None,
+    session: Session,
+    *,
+    role: str,
+    fleet: str = "default",
+    name: str | None = None,
     actor: Principal | None = None,
 ) -> tuple[KeyRow, str]:
     """A new key and its secret; the secret is not stored and cannot be shown again.
@@ -47,12 +60,24 @@ def create_key(
         raise ValidationFailed("fleet must match ^[A-Za-z0-9._:-]{1,128}$.")
     secret = SECRET_PREFIX + secrets.token_urlsafe(32)
     key = KeyRow(
-        id="key_" + secrets.token_hex(8), prefix=secret[:12], secret_hash=hash_secret(secret),
-        role=role, fleet=fleet, name=name, created_at=utcnow(), revoked_at=None,
+        id="key_" + secrets.token_hex(8),
+        prefix=secret[:12],
+        secret_hash=hash_secret(secret),
+        role=role,
+        fleet=fleet,
+        name=name,
+        created_at=utcnow(),
+        revoked_at=None,
     )
     repo.add(session, key)
-    audit.record(session, actor, "key.create", target=key.id, fleet=fleet,
-                 detail={"role": role, "name": name})
+    audit.record(
+        session,
+        actor,
+        "key.create",
+        target=key.id,
+        fleet=fleet,
+        detail={"role": role, "name": name},
+    )
     return key, secret
 
 
@@ -60,8 +85,9 @@ def list_keys(session: Session) -> list[KeyRow]:
     return repo.list_all(session)
 
 
-def revoke_key(session: Session, key_id: str, *, actor: Principal | None = None,
-               keys: KeyCache | None = None) -> tuple[KeyRow, bool]:
+def revoke_key(
+    session: Session, key_id: str, *, actor: Principal | None = None, keys: KeyCache | None = None
+) -> tuple[KeyRow, bool]:
     """Revoke a key (its requests get 401 from now on); ``actor`` as for ``create_key``.
     Returns the key and whether this call revoked it (False: it was revoked already).
 
@@ -71,8 +97,9 @@ def revoke_key(session: Session, key_id: str, *, actor: Principal | None = None,
     require_admin(actor)
     key = repo.get(session, key_id)
     if key is None:
-        raise NotFound(f"No key {key_id!r}; GET /v1/admin/keys and `attune keys list` show "
-                       "the ids.")
+        raise NotFound(
+            f"No key {key_id!r}; GET /v1/admin/keys and `attune keys list` show the ids."
+        )
     if key.revoked_at is None:
         key.revoked_at = utcnow()
         repo.revoke(session, key.id, key.revoked_at)
@@ -103,8 +130,11 @@ def authenticate(session: Session, authorization: str | None) -> Principal:
     # prefix of a digest says nothing about the secret that makes it. The final equality is
     # checked with compare_digest, whose time does not depend on where two values differ, so
     # no step of the check compares the secret itself byte by byte with an early exit.
-    if key is None or not hmac.compare_digest(key.secret_hash, digest) \
-            or key.revoked_at is not None:
+    if (
+        key is None
+        or not hmac.compare_digest(key.secret_hash, digest)
+        or key.revoked_at is not None
+    ):
         raise Unauthorized("Unknown or revoked API key.")
     return Principal(key.id, key.role, key.fleet)
 

@@ -26,8 +26,17 @@ from .context import Principal, ServiceContext
 from .episodes import get_trace
 from .users import user_out, visible_user
 
-__all__ = ["RECENT_EPISODES", "UserActivity", "UserPage", "episode_offsets", "find_users",
-           "latest_trace_in_context", "mission_version", "open_episodes", "user_mission"]
+__all__ = [
+    "RECENT_EPISODES",
+    "UserActivity",
+    "UserPage",
+    "episode_offsets",
+    "find_users",
+    "latest_trace_in_context",
+    "mission_version",
+    "open_episodes",
+    "user_mission",
+]
 
 RECENT_EPISODES = 100  # "recent": the last 100 episodes, the paper's block size (Table II)
 
@@ -57,7 +66,12 @@ class UserPage:
 
 
 def find_users(
-    session: Session, principal: Principal, *, text: str | None, page: int, per_page: int,
+    session: Session,
+    principal: Principal,
+    *,
+    text: str | None,
+    page: int,
+    per_page: int,
     window: int = RECENT_EPISODES,
 ) -> UserPage:
     """Users whose id or display name contains ``text`` (any case), by user id, one page.
@@ -71,17 +85,23 @@ def find_users(
         raise ValidationFailed("search text must be at most 200 characters.")
     fleet = None if principal.is_admin else principal.fleet
     total = repo.count_users(session, fleet=fleet, text=text)
-    users = repo.search_users(session, fleet=fleet, text=text, offset=(page - 1) * per_page,
-                              limit=per_page)
+    users = repo.search_users(
+        session, fleet=fleet, text=text, offset=(page - 1) * per_page, limit=per_page
+    )
     activity = repo.recent_activity(session, [u.id for u in users], window=window)
     items = []
     for user in users:
         a = activity[user.id]
-        items.append(UserActivity(
-            user=user_out(user), recent_episodes=a.episodes, recent_missions=a.missions,
-            recent_success_rate=a.successes / a.missions if a.missions else None,
-            last_activity=a.last_at, utc_offset=a.utc_offset,
-        ))
+        items.append(
+            UserActivity(
+                user=user_out(user),
+                recent_episodes=a.episodes,
+                recent_missions=a.missions,
+                recent_success_rate=a.successes / a.missions if a.missions else None,
+                last_activity=a.last_at,
+                utc_offset=a.utc_offset,
+            )
+        )
     return UserPage(items=items, total=total, page=page, per_page=per_page)
 
 
@@ -119,8 +139,14 @@ def user_mission(session: Session, ctx: ServiceContext, user: UserOut | UserRow)
 
 
 def latest_trace_in_context(
-    session: Session, ctx: ServiceContext, principal: Principal, user_id: str, *,
-    time_slot: str, situation: str, fleet: str | None = None,
+    session: Session,
+    ctx: ServiceContext,
+    principal: Principal,
+    user_id: str,
+    *,
+    time_slot: str,
+    situation: str,
+    fleet: str | None = None,
 ) -> EpisodeTrace | None:
     """The trace of the user's most recent episode in (time slot, situation), if any."""
     user = visible_user(session, principal, user_id, fleet=fleet)

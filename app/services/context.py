@@ -22,8 +22,15 @@ from app.settings import Settings
 
 from .mission_book import MissionBook
 
-__all__ = ["KeyCache", "LearnerCache", "Principal", "ServiceContext", "after_commit", "body_hash",
-           "rng_for"]
+__all__ = [
+    "KeyCache",
+    "LearnerCache",
+    "Principal",
+    "ServiceContext",
+    "after_commit",
+    "body_hash",
+    "rng_for",
+]
 
 
 @dataclass(frozen=True, slots=True)
@@ -63,8 +70,9 @@ class KeyCache:
     the dict's single operations are atomic, and a race only re-reads a key.
     """
 
-    def __init__(self, seconds: float, clock: Callable[[], float] = time.monotonic,
-                 size: int = 10_000) -> None:
+    def __init__(
+        self, seconds: float, clock: Callable[[], float] = time.monotonic, size: int = 10_000
+    ) -> None:
         self.seconds, self.clock, self.size = seconds, clock, size
         self._items: dict[str, tuple[Principal, float]] = {}
 
@@ -144,11 +152,15 @@ class ServiceContext:
 
     @classmethod
     def from_settings(cls, settings: Settings) -> ServiceContext:
-        mission = (
-            load_mission(settings.mission_path) if settings.mission_path else office_mission()
+        mission = load_mission(settings.mission_path) if settings.mission_path else office_mission()
+        return cls(
+            settings,
+            mission,
+            space_for(mission),
+            LearnerCache(settings.model_cache_size),
+            KeyCache(settings.key_cache_seconds),
+            MissionBook(mission),
         )
-        return cls(settings, mission, space_for(mission), LearnerCache(settings.model_cache_size),
-                   KeyCache(settings.key_cache_seconds), MissionBook(mission))
 
 
 def rng_for(seed: int, seed_key: str, draw: int) -> np.random.Generator:
@@ -159,8 +171,9 @@ def rng_for(seed: int, seed_key: str, draw: int) -> np.random.Generator:
     Deriving it per decision (instead of carrying a generator's state) lets any worker draw the
     next decision and lets ``attune models rebuild`` redraw every past one.
     """
-    return np.random.Generator(np.random.PCG64(
-        np.random.SeedSequence(seed, spawn_key=(*_seed_words(seed_key), draw))))
+    return np.random.Generator(
+        np.random.PCG64(np.random.SeedSequence(seed, spawn_key=(*_seed_words(seed_key), draw)))
+    )
 
 
 @functools.lru_cache(maxsize=65536)

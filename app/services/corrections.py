@@ -32,8 +32,16 @@ from .context import Principal, ServiceContext, body_hash
 from .learners import Rules, load_learner, save_learner
 from .users import visible_user
 
-__all__ = ["add_correction", "correction_views", "lift_correction", "list_corrections",
-           "rule_of", "rules_for", "rules_resolver", "settle_rows"]
+__all__ = [
+    "add_correction",
+    "correction_views",
+    "lift_correction",
+    "list_corrections",
+    "rule_of",
+    "rules_for",
+    "rules_resolver",
+    "settle_rows",
+]
 
 
 def _head(session: Session, user: UserRow) -> ModelRow:
@@ -47,8 +55,13 @@ def rule_of(row: CorrectionRow, since: int) -> Rule:
     """The learning core's rule of a stored correction, made when the learner had seen
     ``since`` episodes."""
     return Rule(
-        id=row.correction_id, kind=RuleKind(row.kind), time_slot=row.time_slot,
-        situation=row.situation, service=row.service, detail=row.detail, since=since,
+        id=row.correction_id,
+        kind=RuleKind(row.kind),
+        time_slot=row.time_slot,
+        situation=row.situation,
+        service=row.service,
+        detail=row.detail,
+        since=since,
         meta={"author": row.actor_key_id, "at": _stamp(row.created_at), "note": row.note},
     )
 
@@ -65,12 +78,13 @@ def rules_resolver(session: Session, user_pk: int) -> Rules:
     def resolve(sample: SampleRow) -> Rule:
         nonlocal loaded
         if loaded is None:
-            loaded = {row.id: row for row in repo.for_user(session, user_pk)
-                      if row.id is not None}
+            loaded = {row.id: row for row in repo.for_user(session, user_pk) if row.id is not None}
         row = loaded.get(sample.action)
         if row is None:
-            raise ValueError(f"version {sample.version} names correction row {sample.action}, "
-                             "which is not stored")
+            raise ValueError(
+                f"version {sample.version} names correction row {sample.action}, "
+                "which is not stored"
+            )
         return rule_of(row, sample.episode)
 
     return resolve
@@ -81,9 +95,15 @@ def rules_for(row: CorrectionRow, since: int) -> Callable[[SampleRow], Rule]:
     return lambda _sample: rule
 
 
-def add_correction(session: Session, ctx: ServiceContext, principal: Principal, user_id: str,
-                   body: CorrectionIn, *, fleet: str | None = None
-                   ) -> tuple[CorrectionOut, bool]:
+def add_correction(
+    session: Session,
+    ctx: ServiceContext,
+    principal: Principal,
+    user_id: str,
+    body: CorrectionIn,
+    *,
+    fleet: str | None = None,
+) -> tuple[CorrectionOut, bool]:
     """Put a correction in force (staff of the fleet, admin); idempotent on
     ``correction_id``: (the correction, True) when made, (it, False) for a repeat."""
     require_manager(principal)
@@ -92,8 +112,9 @@ def add_correction(session: Session, ctx: ServiceContext, principal: Principal, 
     earlier = repo.by_id(session, user.id, body.correction_id)
     if earlier is not None:
         if earlier.request_hash != digest:
-            raise Conflict(f"correction_id {body.correction_id!r} was already used with "
-                           "another body.")
+            raise Conflict(
+                f"correction_id {body.correction_id!r} was already used with another body."
+            )
         model = _head(session, user)
         learner = load_learner(session, ctx, user.fleet, user.id, model, for_write=False)
         return _out(session, user, earlier, learner.guidance, learner), False
@@ -101,10 +122,21 @@ def add_correction(session: Session, ctx: ServiceContext, principal: Principal, 
     learner = load_learner(session, ctx, user.fleet, user.id, model, for_write=True)
     now = utcnow()
     row = CorrectionRow(
-        id=None, user_pk=user.id, correction_id=body.correction_id, kind=body.kind,
-        time_slot=body.time_slot, situation=body.situation, service=body.service,
-        detail=body.detail, note=body.note, actor_key_id=principal.key_id, created_at=now,
-        model_version=model.version + 1, lifted_at=None, lifted_by=None, request_hash=digest,
+        id=None,
+        user_pk=user.id,
+        correction_id=body.correction_id,
+        kind=body.kind,
+        time_slot=body.time_slot,
+        situation=body.situation,
+        service=body.service,
+        detail=body.detail,
+        note=body.note,
+        actor_key_id=principal.key_id,
+        created_at=now,
+        model_version=model.version + 1,
+        lifted_at=None,
+        lifted_by=None,
+        request_hash=digest,
         response={},
     )
     try:
@@ -113,27 +145,65 @@ def add_correction(session: Session, ctx: ServiceContext, principal: Principal, 
         ctx.cache.drop(user.id)
         raise ValidationFailed(str(exc)) from None
     made = CorrectionOut(
-        correction_id=row.correction_id, kind=body.kind, time_slot=row.time_slot,
-        situation=row.situation, service=row.service, detail=row.detail, note=row.note,
-        author=row.actor_key_id, created_at=now, status="in_force",
-        model_version=row.model_version)
+        correction_id=row.correction_id,
+        kind=body.kind,
+        time_slot=row.time_slot,
+        situation=row.situation,
+        service=row.service,
+        detail=row.detail,
+        note=row.note,
+        author=row.actor_key_id,
+        created_at=now,
+        status="in_force",
+        model_version=row.model_version,
+    )
     row.response = made.model_dump(mode="json")
     row_id = repo.add(session, row)
     context = learner.mission.context_index(body.time_slot, body.situation)
-    sample = SampleRow(user.id, 0, "correction", learner.episodes, context, 0, row_id, 0.0,
-                       None, 0, model.mission_version)
-    save_learner(session, ctx, user.id, model, learner, [sample],
-                 rules=rules_for(row, learner.episodes))
-    audit.record(session, principal, "correction.add", target=user_id, fleet=user.fleet,
-                 detail={"correction_id": body.correction_id, "kind": body.kind,
-                         "time_slot": body.time_slot, "situation": body.situation,
-                         "service": body.service, "detail": body.detail,
-                         "version": model.version})
+    sample = SampleRow(
+        user.id,
+        0,
+        "correction",
+        learner.episodes,
+        context,
+        0,
+        row_id,
+        0.0,
+        None,
+        0,
+        model.mission_version,
+    )
+    save_learner(
+        session, ctx, user.id, model, learner, [sample], rules=rules_for(row, learner.episodes)
+    )
+    audit.record(
+        session,
+        principal,
+        "correction.add",
+        target=user_id,
+        fleet=user.fleet,
+        detail={
+            "correction_id": body.correction_id,
+            "kind": body.kind,
+            "time_slot": body.time_slot,
+            "situation": body.situation,
+            "service": body.service,
+            "detail": body.detail,
+            "version": model.version,
+        },
+    )
     return _out(session, user, row, learner.guidance, learner), True
 
 
-def lift_correction(session: Session, ctx: ServiceContext, principal: Principal, user_id: str,
-                    correction_id: str, *, fleet: str | None = None) -> CorrectionOut:
+def lift_correction(
+    session: Session,
+    ctx: ServiceContext,
+    principal: Principal,
+    user_id: str,
+    correction_id: str,
+    *,
+    fleet: str | None = None,
+) -> CorrectionOut:
     """Lift a correction (staff of the fleet, admin); lifting a lifted one changes nothing."""
     require_manager(principal)
     user = visible_user(session, principal, user_id, fleet=fleet, lock=True)
@@ -146,19 +216,36 @@ def lift_correction(session: Session, ctx: ServiceContext, principal: Principal,
         return _out(session, user, row, learner.guidance, learner)
     learner = load_learner(session, ctx, user.fleet, user.id, model, for_write=True)
     context = _context_or_zero(learner, row)
-    sample = SampleRow(user.id, 0, "lift", learner.episodes, context, 0, row.id, 0.0, None, 0,
-                       model.mission_version)
-    save_learner(session, ctx, user.id, model, learner, [sample],
-                 rules=rules_for(row, learner.episodes))
+    sample = SampleRow(
+        user.id,
+        0,
+        "lift",
+        learner.episodes,
+        context,
+        0,
+        row.id,
+        0.0,
+        None,
+        0,
+        model.mission_version,
+    )
+    save_learner(
+        session, ctx, user.id, model, learner, [sample], rules=rules_for(row, learner.episodes)
+    )
     row.lifted_at, row.lifted_by = utcnow(), principal.key_id
     repo.lift(session, row.id, at=row.lifted_at, by=principal.key_id)
-    audit.record(session, principal, "correction.lift", target=user_id, fleet=user.fleet,
-                 detail={"correction_id": correction_id, "version": model.version})
+    audit.record(
+        session,
+        principal,
+        "correction.lift",
+        target=user_id,
+        fleet=user.fleet,
+        detail={"correction_id": correction_id, "version": model.version},
+    )
     return _out(session, user, row, learner.guidance, learner)
 
 
-def settle_rows(session: Session, principal: Principal, user: UserRow,
-                guidance: Guidance) -> None:
+def settle_rows(session: Session, principal: Principal, user: UserRow, guidance: Guidance) -> None:
     """After the model was replaced (a reset, an import): the stored corrections are lifted
     when the new model does not hold them, and in force again when it does."""
     now = utcnow()
@@ -166,8 +253,7 @@ def settle_rows(session: Session, principal: Principal, user: UserRow,
         held = guidance.get(row.correction_id) is not None
         if row.id is None or held == (row.lifted_at is None):
             continue
-        repo.lift(session, row.id, at=None if held else now,
-                  by=None if held else principal.key_id)
+        repo.lift(session, row.id, at=None if held else now, by=None if held else principal.key_id)
 
 
 def _context_or_zero(learner: TabularLearner[Any], row: CorrectionRow) -> int:
@@ -177,8 +263,14 @@ def _context_or_zero(learner: TabularLearner[Any], row: CorrectionRow) -> int:
         return 0
 
 
-def list_corrections(session: Session, ctx: ServiceContext, principal: Principal, user_id: str,
-                     *, fleet: str | None = None) -> CorrectionList:
+def list_corrections(
+    session: Session,
+    ctx: ServiceContext,
+    principal: Principal,
+    user_id: str,
+    *,
+    fleet: str | None = None,
+) -> CorrectionList:
     """Every correction of the user, lifted ones too, oldest first (staff, admin, robots of the
     fleet may read them)."""
     user = visible_user(session, principal, user_id, fleet=fleet)
@@ -187,8 +279,9 @@ def list_corrections(session: Session, ctx: ServiceContext, principal: Principal
     return CorrectionList(items=correction_views(session, user, learner))
 
 
-def correction_views(session: Session, user: UserRow, learner: TabularLearner[Any],
-                     *, lifted: bool = True) -> list[CorrectionOut]:
+def correction_views(
+    session: Session, user: UserRow, learner: TabularLearner[Any], *, lifted: bool = True
+) -> list[CorrectionOut]:
     """The user's corrections with their status in ``learner``; rules the model holds without
     a stored row (imported from another user's export) are listed too."""
     rows = repo.for_user(session, user.id)
@@ -200,24 +293,39 @@ def correction_views(session: Session, user: UserRow, learner: TabularLearner[An
     return [c for c in out if lifted or c.status != "lifted"]
 
 
-def _out(session: Session, user: UserRow, row: CorrectionRow, guidance: Guidance,
-         learner: TabularLearner[Any]) -> CorrectionOut:
+def _out(
+    session: Session,
+    user: UserRow,
+    row: CorrectionRow,
+    guidance: Guidance,
+    learner: TabularLearner[Any],
+) -> CorrectionOut:
     rule = guidance.get(row.correction_id)
     status, overridden_at = _status(session, user, rule, learner)
     if row.lifted_at is not None:
         status = "lifted"
     names = rule if rule is not None else row  # a mission change may have renamed them
     return CorrectionOut(
-        correction_id=row.correction_id, kind=row.kind,  # type: ignore[arg-type]
-        time_slot=names.time_slot, situation=names.situation, service=names.service,
-        detail=names.detail, note=row.note, author=row.actor_key_id, created_at=row.created_at,
-        status=status, overridden_at=overridden_at, lifted_at=row.lifted_at,
-        lifted_by=row.lifted_by, model_version=row.model_version,
+        correction_id=row.correction_id,
+        kind=row.kind,  # type: ignore[arg-type]
+        time_slot=names.time_slot,
+        situation=names.situation,
+        service=names.service,
+        detail=names.detail,
+        note=row.note,
+        author=row.actor_key_id,
+        created_at=row.created_at,
+        status=status,
+        overridden_at=overridden_at,
+        lifted_at=row.lifted_at,
+        lifted_by=row.lifted_by,
+        model_version=row.model_version,
     )
 
 
-def _from_rule(session: Session, user: UserRow, rule: Any, learner: TabularLearner[Any]
-               ) -> CorrectionOut:
+def _from_rule(
+    session: Session, user: UserRow, rule: Any, learner: TabularLearner[Any]
+) -> CorrectionOut:
     status, overridden_at = _status(session, user, rule, learner)
     meta = rule.meta
     try:
@@ -225,16 +333,24 @@ def _from_rule(session: Session, user: UserRow, rule: Any, learner: TabularLearn
     except ValueError:
         created = utcnow()
     return CorrectionOut(
-        correction_id=rule.id, kind=rule.kind.value, time_slot=rule.time_slot,
-        situation=rule.situation, service=rule.service, detail=rule.detail,
-        note=meta.get("note"), author=str(meta.get("author") or "imported"),
-        created_at=created, status=status, overridden_at=overridden_at,
+        correction_id=rule.id,
+        kind=rule.kind.value,
+        time_slot=rule.time_slot,
+        situation=rule.situation,
+        service=rule.service,
+        detail=rule.detail,
+        note=meta.get("note"),
+        author=str(meta.get("author") or "imported"),
+        created_at=created,
+        status=status,
+        overridden_at=overridden_at,
         model_version=0,
     )
 
 
-def _status(session: Session, user: UserRow, rule: Rule | None,
-            learner: TabularLearner[Any]) -> tuple[Any, dt.datetime | None]:
+def _status(
+    session: Session, user: UserRow, rule: Rule | None, learner: TabularLearner[Any]
+) -> tuple[Any, dt.datetime | None]:
     if rule is None:
         return "lifted", None
     try:

@@ -26,8 +26,17 @@ from app.learning.learners import TabularLearner
 
 from .context import ServiceContext, after_commit
 
-__all__ = ["Mover", "Rules", "StartOver", "fresh_learner", "load_learner", "replay", "save_learner",
-           "save_move", "transition_samples"]
+__all__ = [
+    "Mover",
+    "Rules",
+    "StartOver",
+    "fresh_learner",
+    "load_learner",
+    "replay",
+    "save_learner",
+    "save_move",
+    "transition_samples",
+]
 
 StartOver = Literal["fresh", "imported"]
 # The staff correction a "correction" or "lift" sample of the journal names (app.learning.guidance)
@@ -46,9 +55,14 @@ def fresh_learner(
         raise ValidationFailed(str(exc)) from None
 
 
-def replay(learner: TabularLearner[Any], samples: Iterable[SampleRow], *,
-           layout: int, move: Mover | None = None, rules: Rules | None = None,
-           ) -> tuple[TabularLearner[Any], int, int]:
+def replay(
+    learner: TabularLearner[Any],
+    samples: Iterable[SampleRow],
+    *,
+    layout: int,
+    move: Mover | None = None,
+    rules: Rules | None = None,
+) -> tuple[TabularLearner[Any], int, int]:
     """Teach ``learner`` (laid out for mission version ``layout``) journal entries in order,
     one call per model version (as they were taught), following the moves to other mission
     versions with ``move`` and the staff corrections with ``rules``; returns (the learner, its
@@ -59,8 +73,10 @@ def replay(learner: TabularLearner[Any], samples: Iterable[SampleRow], *,
         if group[0].kind == "mission":
             target = group[0].mission_version
             if move is None:
-                raise ValueError(f"version {group[0].version} moves the model to mission "
-                                 f"version {target}, and no mover was given")
+                raise ValueError(
+                    f"version {group[0].version} moves the model to mission "
+                    f"version {target}, and no mover was given"
+                )
             learner, layout = move(learner, layout, target), target
         else:
             _teach(learner, group, rules)
@@ -68,15 +84,17 @@ def replay(learner: TabularLearner[Any], samples: Iterable[SampleRow], *,
     return learner, layout, writes
 
 
-def _teach(learner: TabularLearner[Any], samples: Sequence[SampleRow],
-           rules: Rules | None = None) -> None:
+def _teach(
+    learner: TabularLearner[Any], samples: Sequence[SampleRow], rules: Rules | None = None
+) -> None:
     first = samples[0]
     if first.kind == "mission":
         raise ValueError("a move to another mission version is not taught; see replay")
     if first.kind in ("correction", "lift"):
         if rules is None:
-            raise ValueError(f"version {first.version} is a staff correction, and no rules "
-                             "were given")
+            raise ValueError(
+                f"version {first.version} is a staff correction, and no rules were given"
+            )
         rule = rules(first)
         if first.kind == "correction":
             learner.correct(rule)
@@ -87,8 +105,20 @@ def _teach(learner: TabularLearner[Any], samples: Sequence[SampleRow],
     elif first.kind == "feedback":
         learner.feedback(first.episode, first.context, first.action, first.reward)
     else:
-        learner.update([Transition(s.episode, s.context, s.state, s.action, s.reward,
-                                   _next_state(s), Polarity(s.signal)) for s in samples])
+        learner.update(
+            [
+                Transition(
+                    s.episode,
+                    s.context,
+                    s.state,
+                    s.action,
+                    s.reward,
+                    _next_state(s),
+                    Polarity(s.signal),
+                )
+                for s in samples
+            ]
+        )
 
 
 def _next_state(sample: SampleRow) -> int:
@@ -97,16 +127,37 @@ def _next_state(sample: SampleRow) -> int:
     return sample.next_state
 
 
-def transition_samples(user_pk: int, transitions: Sequence[Transition],
-                       mission_version: int) -> list[SampleRow]:
+def transition_samples(
+    user_pk: int, transitions: Sequence[Transition], mission_version: int
+) -> list[SampleRow]:
     """The journal entries of one ``update`` call (the version is set when saved)."""
-    return [SampleRow(user_pk, 0, "transition", t.episode, t.context, t.state, t.action,
-                      float(t.reward), t.next_state, int(t.signal), mission_version)
-            for t in transitions]
+    return [
+        SampleRow(
+            user_pk,
+            0,
+            "transition",
+            t.episode,
+            t.context,
+            t.state,
+            t.action,
+            float(t.reward),
+            t.next_state,
+            int(t.signal),
+            mission_version,
+        )
+        for t in transitions
+    ]
 
 
-def load_learner(session: Session, ctx: ServiceContext, fleet: str, user_pk: int,
-                 model: ModelRow, *, for_write: bool) -> TabularLearner[Any]:
+def load_learner(
+    session: Session,
+    ctx: ServiceContext,
+    fleet: str,
+    user_pk: int,
+    model: ModelRow,
+    *,
+    for_write: bool,
+) -> TabularLearner[Any]:
     """The learner of user ``user_pk`` (of ``fleet``) at ``model.version``, laid out for the
     model's mission version.
 
@@ -121,32 +172,57 @@ def load_learner(session: Session, ctx: ServiceContext, fleet: str, user_pk: int
     mission = ctx.missions.get(session, fleet, model.mission_version).mission
     learner = learner_from_state(repo.snapshot(session, user_pk), mission)
     if model.version > model.state_version:  # a move always stores a snapshot: no move here
-        learner, _, _ = replay(learner, repo.samples_since(session, user_pk,
-                                                            model.state_version),
-                               layout=model.mission_version)
+        learner, _, _ = replay(
+            learner,
+            repo.samples_since(session, user_pk, model.state_version),
+            layout=model.mission_version,
+        )
     return learner
 
 
-def save_move(session: Session, ctx: ServiceContext, user_pk: int, model: ModelRow,
-              learner: TabularLearner[Any], mission_version: int) -> None:
+def save_move(
+    session: Session,
+    ctx: ServiceContext,
+    user_pk: int,
+    model: ModelRow,
+    learner: TabularLearner[Any],
+    mission_version: int,
+) -> None:
     """Store the user's learner carried to ``mission_version``: one version on, journalled as
     a "mission" sample, with a snapshot (a snapshot is always laid out for the model's mission
     version)."""
     model.version += 1
     model.mission_version = mission_version
-    repo.advance(session, user_pk, version=model.version, updated_at=utcnow(),
-                 state=learner.to_state(), mission_version=mission_version)
+    repo.advance(
+        session,
+        user_pk,
+        version=model.version,
+        updated_at=utcnow(),
+        state=learner.to_state(),
+        mission_version=mission_version,
+    )
     model.state_version = model.version
-    repo.add_samples(session, [SampleRow(user_pk, model.version, "mission", 0, 0, 0, 0, 0.0,
-                                         None, 0, mission_version)])
+    repo.add_samples(
+        session,
+        [SampleRow(user_pk, model.version, "mission", 0, 0, 0, 0, 0.0, None, 0, mission_version)],
+    )
     version = model.version
     after_commit(session, lambda: ctx.cache.put(user_pk, version, learner))
 
 
-def save_learner(session: Session, ctx: ServiceContext, user_pk: int, model: ModelRow,
-                 learner: TabularLearner[Any], samples: Sequence[SampleRow] = (), *,
-                 snapshot: bool = False, start_over: StartOver | None = None,
-                 episode_offset: int | None = None, rules: Rules | None = None) -> None:
+def save_learner(
+    session: Session,
+    ctx: ServiceContext,
+    user_pk: int,
+    model: ModelRow,
+    learner: TabularLearner[Any],
+    samples: Sequence[SampleRow] = (),
+    *,
+    snapshot: bool = False,
+    start_over: StartOver | None = None,
+    episode_offset: int | None = None,
+    rules: Rules | None = None,
+) -> None:
     """Store a write's change of the user's model: one version on.
 
     With ``samples`` (the transitions of one report, or one feedback): teach them to
@@ -169,10 +245,16 @@ def save_learner(session: Session, ctx: ServiceContext, user_pk: int, model: Mod
         if episode_offset is not None:
             model.episode_offset = episode_offset
         state = learner.to_state()
-        repo.replace(session, user_pk, version=model.version, state=state,
-                     base_state=state if start_over == "imported" else None,
-                     episode_offset=model.episode_offset,
-                     mission_version=model.mission_version, updated_at=utcnow())
+        repo.replace(
+            session,
+            user_pk,
+            version=model.version,
+            state=state,
+            base_state=state if start_over == "imported" else None,
+            episode_offset=model.episode_offset,
+            mission_version=model.mission_version,
+            updated_at=utcnow(),
+        )
         model.base_mission_version = model.mission_version
     elif samples or snapshot:
         if samples:
@@ -180,8 +262,13 @@ def save_learner(session: Session, ctx: ServiceContext, user_pk: int, model: Mod
             snapshot = snapshot or samples[0].kind in ("correction", "lift")
         model.version += 1
         due = snapshot or model.version - model.state_version >= ctx.settings.snapshot_every
-        repo.advance(session, user_pk, version=model.version, updated_at=utcnow(),
-                     state=learner.to_state() if due else None)
+        repo.advance(
+            session,
+            user_pk,
+            version=model.version,
+            updated_at=utcnow(),
+            state=learner.to_state() if due else None,
+        )
         if due:
             model.state_version = model.version
         for s in samples:

@@ -53,5 +53,9 @@ class MissionBook:
 
 def _stored(row: MissionRow) -> Stored:
     mission = Mission.from_dict(row.document, source=f"mission {row.fleet} v{row.version}")
-    return Stored(row.version, mission, space_for(mission),
-                  Renames.from_dict(row.renames) if row.renames else Renames())
+    return Stored(
+        row.version,
+        mission,
+        space_for(mission),
+        Renames.from_dict(row.renames) if row.renames else Renames(),
+    )

@@ -45,14 +45,34 @@ from .context import Principal, ServiceContext
 from .learners import load_learner, save_move
 from .mission_book import Stored
 
-__all__ = ["LIMITS", "ChangePreview", "change_of", "change_result", "check_limits",
-           "current_version", "fleet_mission", "list_missions", "mission_of", "move_learner",
-           "parse_mission", "preview_change", "set_mission", "space_map", "user_layout"]
+__all__ = [
+    "LIMITS",
+    "ChangePreview",
+    "change_of",
+    "change_result",
+    "check_limits",
+    "current_version",
+    "fleet_mission",
+    "list_missions",
+    "mission_of",
+    "move_learner",
+    "parse_mission",
+    "preview_change",
+    "set_mission",
+    "space_map",
+    "user_layout",
+]
 
 # Sizes a mission may have: every user's model holds tables of (contexts x pairs), and pairs
 # grow with the services and details.
-LIMITS = {"time_slots": 12, "situations": 16, "contexts": 96, "services": 16,
-          "details_per_service": 16, "details": 64}
+LIMITS = {
+    "time_slots": 12,
+    "situations": 16,
+    "contexts": 96,
+    "services": 16,
+    "details_per_service": 16,
+    "details": 64,
+}
 
 
 def mission_of(session: Session, ctx: ServiceContext, fleet: str, version: int) -> Stored:
@@ -65,8 +85,9 @@ def user_layout(session: Session, ctx: ServiceContext, fleet: str, model: ModelR
     return ctx.missions.get(session, fleet, model.mission_version)
 
 
-def current_version(session: Session, ctx: ServiceContext, fleet: str, *,
-                    for_new_user: bool = False) -> int:
+def current_version(
+    session: Session, ctx: ServiceContext, fleet: str, *, for_new_user: bool = False
+) -> int:
     """The version of ``fleet``'s mission in force. ``for_new_user``: a user is being created
     in the fleet: the fleet's mission is locked first (a change waits, or is waited for), and
     a fleet with none stored gets the default as its version 1."""
@@ -80,14 +101,30 @@ def current_version(session: Session, ctx: ServiceContext, fleet: str, *,
     return 1
 
 
-def _row(fleet: str, version: int, mission: Mission, *, renames: Renames | None = None,
-         change_id: str | None = None, request_hash: str | None = None,
-         response: dict[str, Any] | None = None, actor: str | None = None) -> MissionRow:
-    return MissionRow(fleet=fleet, version=version, name=mission.name,
-                      fingerprint=mission.fingerprint, document=mission.to_dict(),
-                      renames=renames.to_dict() if renames else None,
-                      change_id=change_id, request_hash=request_hash, response=response,
-                      actor_key_id=actor, created_at=utcnow())
+def _row(
+    fleet: str,
+    version: int,
+    mission: Mission,
+    *,
+    renames: Renames | None = None,
+    change_id: str | None = None,
+    request_hash: str | None = None,
+    response: dict[str, Any] | None = None,
+    actor: str | None = None,
+) -> MissionRow:
+    return MissionRow(
+        fleet=fleet,
+        version=version,
+        name=mission.name,
+        fingerprint=mission.fingerprint,
+        document=mission.to_dict(),
+        renames=renames.to_dict() if renames else None,
+        change_id=change_id,
+        request_hash=request_hash,
+        response=response,
+        actor_key_id=actor,
+        created_at=utcnow(),
+    )
 
 
 def parse_mission(doc: Any, *, where: str = "mission") -> Mission:
@@ -103,17 +140,25 @@ def parse_mission(doc: Any, *, where: str = "mission") -> Mission:
 def check_limits(mission: Mission, *, where: str = "mission") -> None:
     """422 naming the first size over :data:`LIMITS`."""
     details = [len(s.details) for s in mission.services]
-    sizes = {"time_slots": len(mission.time_slots), "situations": len(mission.situations),
-             "contexts": mission.n_contexts, "services": len(mission.services),
-             "details_per_service": max(details), "details": sum(details)}
+    sizes = {
+        "time_slots": len(mission.time_slots),
+        "situations": len(mission.situations),
+        "contexts": mission.n_contexts,
+        "services": len(mission.services),
+        "details_per_service": max(details),
+        "details": sum(details),
+    }
     for name, size in sizes.items():
         if size > LIMITS[name]:
-            raise ValidationFailed(f"{where}: {size} {name.replace('_', ' ')} is more than the "
-                                   f"{LIMITS[name]} a mission may have.")
+            raise ValidationFailed(
+                f"{where}: {size} {name.replace('_', ' ')} is more than the "
+                f"{LIMITS[name]} a mission may have."
+            )
 
 
-def space_map(session: Session, ctx: ServiceContext, fleet: str, old: int, new: int
-              ) -> list[SpaceMap]:
+def space_map(
+    session: Session, ctx: ServiceContext, fleet: str, old: int, new: int
+) -> list[SpaceMap]:
     """The steps from version ``old`` to ``new`` (each maps one version's indices onto the
     next's)."""
     steps = []
@@ -124,8 +169,14 @@ def space_map(session: Session, ctx: ServiceContext, fleet: str, old: int, new: 
     return steps
 
 
-def move_learner(session: Session, ctx: ServiceContext, fleet: str,
-                 learner: TabularLearner[Any], old: int, new: int) -> TabularLearner[Any]:
+def move_learner(
+    session: Session,
+    ctx: ServiceContext,
+    fleet: str,
+    learner: TabularLearner[Any],
+    old: int,
+    new: int,
+) -> TabularLearner[Any]:
     """``learner`` (laid out for version ``old``) carried to version ``new``, one version at a
     time."""
     for version in range(old + 1, new + 1):
@@ -140,8 +191,9 @@ def _check_fleet(principal: Principal, fleet: str) -> None:
         raise Forbidden("Staff keys manage their own fleet's mission only.")
 
 
-def fleet_mission(session: Session, ctx: ServiceContext, principal: Principal,
-                  fleet: str | None) -> dict[str, Any]:
+def fleet_mission(
+    session: Session, ctx: ServiceContext, principal: Principal, fleet: str | None
+) -> dict[str, Any]:
     """``GET /v1/mission``: the caller's fleet's mission in force (an admin may name a
     fleet)."""
     if fleet is not None and fleet != principal.fleet and not principal.is_admin:
@@ -149,33 +201,55 @@ def fleet_mission(session: Session, ctx: ServiceContext, principal: Principal,
     name = fleet or principal.fleet
     version = current_version(session, ctx, name)
     stored = mission_of(session, ctx, name, version)
-    return {**stored.mission.to_dict(), "fleet": name, "version": version,
-            "fingerprint": stored.mission.fingerprint}
+    return {
+        **stored.mission.to_dict(),
+        "fleet": name,
+        "version": version,
+        "fingerprint": stored.mission.fingerprint,
+    }
 
 
-def list_missions(session: Session, ctx: ServiceContext, principal: Principal,
-                  fleet: str) -> dict[str, Any]:
+def list_missions(
+    session: Session, ctx: ServiceContext, principal: Principal, fleet: str
+) -> dict[str, Any]:
     """Every version of a fleet's mission, newest first (staff of the fleet, admins)."""
     _check_fleet(principal, fleet)
     rows = repo.list_versions(session, fleet)
     items = [_version_out(r) for r in rows]
     if not items:  # nothing stored yet: the default is what the fleet would get
-        items = [{"version": 1, "name": ctx.missions.default.name,
-                  "fingerprint": ctx.missions.default.fingerprint, "created_at": None,
-                  "change_id": None, "renames": None, "set_by": None, "stored": False,
-                  "mission": ctx.missions.default.to_dict()}]
+        items = [
+            {
+                "version": 1,
+                "name": ctx.missions.default.name,
+                "fingerprint": ctx.missions.default.fingerprint,
+                "created_at": None,
+                "change_id": None,
+                "renames": None,
+                "set_by": None,
+                "stored": False,
+                "mission": ctx.missions.default.to_dict(),
+            }
+        ]
     return {"fleet": fleet, "current_version": items[0]["version"], "items": items}
 
 
 def _version_out(row: MissionRow) -> dict[str, Any]:
-    return {"version": row.version, "name": row.name, "fingerprint": row.fingerprint,
-            "created_at": row.created_at.isoformat().replace("+00:00", "Z"),
-            "change_id": row.change_id, "renames": row.renames, "set_by": row.actor_key_id,
-            "stored": True, "mission": row.document}
+    return {
+        "version": row.version,
+        "name": row.name,
+        "fingerprint": row.fingerprint,
+        "created_at": row.created_at.isoformat().replace("+00:00", "Z"),
+        "change_id": row.change_id,
+        "renames": row.renames,
+        "set_by": row.actor_key_id,
+        "stored": True,
+        "mission": row.document,
+    }
 
 
-def _parse_change(principal: Principal, fleet: str, mission_doc: Any,
-                  renames_doc: Mapping[str, Any] | None) -> tuple[Mission, Renames]:
+def _parse_change(
+    principal: Principal, fleet: str, mission_doc: Any, renames_doc: Mapping[str, Any] | None
+) -> tuple[Mission, Renames]:
     """The caller may change ``fleet``'s mission; the mission and renames as validated (422
     naming what is wrong)."""
     _check_fleet(principal, fleet)
@@ -186,9 +260,16 @@ def _parse_change(principal: Principal, fleet: str, mission_doc: Any,
         raise ValidationFailed(str(exc)) from None
 
 
-def set_mission(session: Session, ctx: ServiceContext, principal: Principal, fleet: str, *,
-                change_id: str, mission_doc: Any, renames_doc: Mapping[str, Any] | None
-                ) -> tuple[dict[str, Any], bool]:
+def set_mission(
+    session: Session,
+    ctx: ServiceContext,
+    principal: Principal,
+    fleet: str,
+    *,
+    change_id: str,
+    mission_doc: Any,
+    renames_doc: Mapping[str, Any] | None,
+) -> tuple[dict[str, Any], bool]:
     """Make ``mission_doc`` the fleet's mission: a new version, every model of the fleet moved
     to it in this transaction. (response, replayed). Idempotent on ``change_id``."""
     mission, renames = _parse_change(principal, fleet, mission_doc, renames_doc)
@@ -209,9 +290,16 @@ def set_mission(session: Session, ctx: ServiceContext, principal: Principal, fle
     except ValueError as exc:
         raise ValidationFailed(str(exc)) from None
     if mission.fingerprint == old.mission.fingerprint and not renames:
-        return {"fleet": fleet, "version": current, "previous_version": current,
-                "fingerprint": mission.fingerprint, "changed": False, "users_moved": 0,
-                "episodes_interrupted": 0, "diff": None}, False
+        return {
+            "fleet": fleet,
+            "version": current,
+            "previous_version": current,
+            "fingerprint": mission.fingerprint,
+            "changed": False,
+            "users_moved": 0,
+            "episodes_interrupted": 0,
+            "diff": None,
+        }, False
     version = current + 1
     diff = diff_missions(old.mission, mission, renames).to_dict()
     moved = interrupted = 0
@@ -219,21 +307,48 @@ def set_mission(session: Session, ctx: ServiceContext, principal: Principal, fle
     for user_pk in repo.models_behind(session, fleet, version):
         interrupted += episodes_repo.interrupt_open(session, user_pk, at=utcnow())
         moved += 1
-    out = {"fleet": fleet, "version": version, "previous_version": current,
-           "fingerprint": mission.fingerprint, "changed": True, "users_moved": moved,
-           "episodes_interrupted": interrupted, "diff": diff}
-    repo.add(session, _row(fleet, version, mission, renames=renames, change_id=change_id,
-                           request_hash=digest, response=out, actor=principal.key_id))
+    out = {
+        "fleet": fleet,
+        "version": version,
+        "previous_version": current,
+        "fingerprint": mission.fingerprint,
+        "changed": True,
+        "users_moved": moved,
+        "episodes_interrupted": interrupted,
+        "diff": diff,
+    }
+    repo.add(
+        session,
+        _row(
+            fleet,
+            version,
+            mission,
+            renames=renames,
+            change_id=change_id,
+            request_hash=digest,
+            response=out,
+            actor=principal.key_id,
+        ),
+    )
     for user_pk in repo.models_behind(session, fleet, version):
         model = models_repo.head(session, user_pk)
         assert model is not None  # joined on the model row
         learner = load_learner(session, ctx, fleet, user_pk, model, for_write=True)
-        moved_learner = move_learner(session, ctx, fleet, learner, model.mission_version,
-                                     version)
+        moved_learner = move_learner(session, ctx, fleet, learner, model.mission_version, version)
         save_move(session, ctx, user_pk, model, moved_learner, version)
-    audit.record(session, principal, "mission.set", target=fleet, fleet=fleet,
-                 detail={"version": version, "previous_version": current,
-                         "users_moved": moved, "episodes_interrupted": interrupted})
+    audit.record(
+        session,
+        principal,
+        "mission.set",
+        target=fleet,
+        fleet=fleet,
+        detail={
+            "version": version,
+            "previous_version": current,
+            "users_moved": moved,
+            "episodes_interrupted": interrupted,
+        },
+    )
     return out, False
 
 
@@ -261,8 +376,15 @@ class ChangePreview:
         return (self.version or 1) + 1 if self.changed else self.version or 1
 
 
-def preview_change(session: Session, ctx: ServiceContext, principal: Principal, fleet: str, *,
-                   mission_doc: Any, renames_doc: Mapping[str, Any] | None) -> ChangePreview:
+def preview_change(
+    session: Session,
+    ctx: ServiceContext,
+    principal: Principal,
+    fleet: str,
+    *,
+    mission_doc: Any,
+    renames_doc: Mapping[str, Any] | None,
+) -> ChangePreview:
     """The change :func:`set_mission` would make (same checks, same 422 messages), read
     only."""
     mission, renames = _parse_change(principal, fleet, mission_doc, renames_doc)
@@ -277,20 +399,21 @@ def preview_change(session: Session, ctx: ServiceContext, principal: Principal, 
     if current is not None and changed:
         moved = len(repo.models_behind(session, fleet, current + 1))
         interrupted = repo.open_episodes(session, fleet)
-    return ChangePreview(fleet, current, old, mission, renames, diff, changed, moved,
-                         interrupted)
+    return ChangePreview(fleet, current, old, mission, renames, diff, changed, moved, interrupted)
 
 
-def change_of(session: Session, principal: Principal, fleet: str, change_id: str
-              ) -> dict[str, Any] | None:
+def change_of(
+    session: Session, principal: Principal, fleet: str, change_id: str
+) -> dict[str, Any] | None:
     """What the change ``change_id`` of the fleet answered, None if it was never made."""
     _check_fleet(principal, fleet)
     row = repo.by_change(session, fleet, change_id)
     return None if row is None else dict(row.response or {})
 
 
-def change_result(session: Session, principal: Principal, fleet: str, version: int
-                  ) -> dict[str, Any] | None:
+def change_result(
+    session: Session, principal: Principal, fleet: str, version: int
+) -> dict[str, Any] | None:
     """What the change that made version ``version`` of the fleet's mission answered (users
     moved, episodes interrupted), None for a version not made by a change."""
     _check_fleet(principal, fleet)
@@ -302,4 +425,3 @@ def body_hash_of(change_id: str, mission: Mission, renames: Renames) -> str:
     """A fingerprint of a change request as understood (the mission as validated)."""
     doc = {"change_id": change_id, "mission": mission.to_dict(), "renames": renames.to_dict()}
     return hashlib.sha256(json.dumps(doc, sort_keys=True).encode()).hexdigest()
-

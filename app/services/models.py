@@ -39,8 +39,18 @@ from .learners import fresh_learner, load_learner, replay, save_learner
 from .prior import started_from
 from .users import visible_user
 
-__all__ = ["RebuildReport", "every_user", "export_model", "fleets_with", "import_model",
-           "model_view", "rebuild_model", "reset_model", "snapshot_model", "stats"]
+__all__ = [
+    "RebuildReport",
+    "every_user",
+    "export_model",
+    "fleets_with",
+    "import_model",
+    "model_view",
+    "rebuild_model",
+    "reset_model",
+    "snapshot_model",
+    "stats",
+]
 
 
 def _num(x: float) -> float | None:
@@ -55,16 +65,23 @@ def _head(session: Session, user: UserRow) -> ModelRow:
 
 
 def model_view(
-    session: Session, ctx: ServiceContext, principal: Principal, user_id: str, *,
-    time_slot: str | None, situation: str | None, fleet: str | None = None,
+    session: Session,
+    ctx: ServiceContext,
+    principal: Principal,
+    user_id: str,
+    *,
+    time_slot: str | None,
+    situation: str | None,
+    fleet: str | None = None,
 ) -> ModelOut:
     user = visible_user(session, principal, user_id, fleet=fleet)
     model = _head(session, user)
     layout = ctx.missions.get(session, user.fleet, model.mission_version)
     mission, space = layout.mission, layout.space
     if time_slot is not None and time_slot not in [t.name for t in mission.time_slots]:
-        raise ValidationFailed(f"time_slot must be one of "
-                               f"{', '.join(t.name for t in mission.time_slots)}.")
+        raise ValidationFailed(
+            f"time_slot must be one of {', '.join(t.name for t in mission.time_slots)}."
+        )
     if situation is not None and situation not in mission.situations:
         raise ValidationFailed(f"situation must be one of {', '.join(mission.situations)}.")
     learner = load_learner(session, ctx, user.fleet, user.id, model, for_write=False)
@@ -82,7 +99,8 @@ def model_view(
             info = space.state_info(s)
             actions = [
                 ActionBelief(
-                    action=ActionOut(**action_out(space, a)), q=float(view.q[a]),
+                    action=ActionOut(**action_out(space, a)),
+                    q=float(view.q[a]),
                     visits=int(view.visits[a]),
                     kept_visits=None if view.kept_visits is None else float(view.kept_visits[a]),
                     since_last=int(view.since_last[a]),
@@ -91,35 +109,65 @@ def model_view(
                 )
                 for a in space.actions_of(s)
             ]
-            states.append(StateModel(state=info.kind.value, service=info.service,
-                                     detail=info.detail, actions=actions))
+            states.append(
+                StateModel(
+                    state=info.kind.value, service=info.service, detail=info.detail, actions=actions
+                )
+            )
         contexts.append(ContextModel(time_slot=slot, situation=sit, states=states))
-    return ModelOut(user_id=user.user_id, algorithm=user.algorithm, params=dict(user.params),
-                    version=model.version, episodes=user.episode_count,
-                    mission_version=model.mission_version,
-                    started_from=StartedFrom(**started_from(session, user.id)), contexts=contexts)
+    return ModelOut(
+        user_id=user.user_id,
+        algorithm=user.algorithm,
+        params=dict(user.params),
+        version=model.version,
+        episodes=user.episode_count,
+        mission_version=model.mission_version,
+        started_from=StartedFrom(**started_from(session, user.id)),
+        contexts=contexts,
+    )
 
 
-def stats(session: Session, principal: Principal, user_id: str, *, last: int | None,
-          fleet: str | None = None) -> StatsOut:
+def stats(
+    session: Session,
+    principal: Principal,
+    user_id: str,
+    *,
+    last: int | None,
+    fleet: str | None = None,
+) -> StatsOut:
     user = visible_user(session, principal, user_id, fleet=fleet)
     rows = episodes_repo.metric_rows(session, user.id, last=last)
-    interaction = np.asarray([INTERACTION_CODE[Interaction(r.interaction_class)] for r in rows],
-                             dtype=np.int64)
+    interaction = np.asarray(
+        [INTERACTION_CODE[Interaction(r.interaction_class)] for r in rows], dtype=np.int64
+    )
     reward = np.asarray([r.total_reward for r in rows], dtype=np.float64)
-    m = episode_metrics(np.asarray([r.initiated for r in rows], dtype=bool), interaction,
-                        np.asarray([r.success for r in rows], dtype=bool),
-                        np.asarray([r.queries for r in rows], dtype=np.int64), reward)
+    m = episode_metrics(
+        np.asarray([r.initiated for r in rows], dtype=bool),
+        interaction,
+        np.asarray([r.success for r in rows], dtype=bool),
+        np.asarray([r.queries for r in rows], dtype=np.int64),
+        reward,
+    )
     return StatsOut(
-        episodes=len(rows), missions=int(m["missions"]),
-        interaction_rate=_num(m["interaction_rate"]), success_rate=_num(m["success_rate"]),
-        queries_per_mission=_num(m["queries_per_mission"]), total_reward=float(reward.sum()),
+        episodes=len(rows),
+        missions=int(m["missions"]),
+        interaction_rate=_num(m["interaction_rate"]),
+        success_rate=_num(m["success_rate"]),
+        queries_per_mission=_num(m["queries_per_mission"]),
+        total_reward=float(reward.sum()),
         cumulative_reward=[0.0, *np.cumsum(reward).tolist()],
     )
 
 
-def reset_model(session: Session, ctx: ServiceContext, principal: Principal, user_id: str, *,
-                fleet: str | None = None, drop_corrections: bool = False) -> None:
+def reset_model(
+    session: Session,
+    ctx: ServiceContext,
+    principal: Principal,
+    user_id: str,
+    *,
+    fleet: str | None = None,
+    drop_corrections: bool = False,
+) -> None:
     """Forget what was learned; the staff corrections in force stay, unless
     ``drop_corrections``."""
     require_manager(principal)
@@ -133,45 +181,83 @@ def reset_model(session: Session, ctx: ServiceContext, principal: Principal, use
         fresh.guidance = old.guidance.copy()
         kept = len(fresh.guidance)
     # A fresh learner that keeps corrections is the base a rebuild starts from, as an import is
-    save_learner(session, ctx, user.id, model, fresh,
-                 start_over="imported" if kept else "fresh")
+    save_learner(session, ctx, user.id, model, fresh, start_over="imported" if kept else "fresh")
     corrections.settle_rows(session, principal, user, fresh.guidance)
-    audit.record(session, principal, "model.reset", target=user_id, fleet=user.fleet,
-                 detail={"version": model.version, "corrections_kept": kept})
+    audit.record(
+        session,
+        principal,
+        "model.reset",
+        target=user_id,
+        fleet=user.fleet,
+        detail={"version": model.version, "corrections_kept": kept},
+    )
 
 
-def export_model(session: Session, ctx: ServiceContext, principal: Principal, user_id: str, *,
-                 fleet: str | None = None) -> dict[str, Any]:
+def export_model(
+    session: Session,
+    ctx: ServiceContext,
+    principal: Principal,
+    user_id: str,
+    *,
+    fleet: str | None = None,
+) -> dict[str, Any]:
     require_manager(principal)
     user = visible_user(session, principal, user_id, fleet=fleet)
     model = _head(session, user)
-    audit.record(session, principal, "model.export", target=user_id, fleet=user.fleet,
-                 detail={"version": model.version})
+    audit.record(
+        session,
+        principal,
+        "model.export",
+        target=user_id,
+        fleet=user.fleet,
+        detail={"version": model.version},
+    )
     if model.state_version == model.version:  # the stored document is the model: as it is
         return models_repo.snapshot(session, user.id)
     return load_learner(session, ctx, user.fleet, user.id, model, for_write=False).to_state()
 
 
-def import_model(session: Session, ctx: ServiceContext, principal: Principal, user_id: str,
-                 doc: Any, *, fleet: str | None = None) -> ModelOut:
+def import_model(
+    session: Session,
+    ctx: ServiceContext,
+    principal: Principal,
+    user_id: str,
+    doc: Any,
+    *,
+    fleet: str | None = None,
+) -> ModelOut:
     require_manager(principal)
     user = visible_user(session, principal, user_id, fleet=fleet, lock=True)
     model = _head(session, user)
     learner = _imported(session, ctx, user.fleet, model.mission_version, doc)
     user.algorithm, user.params = learner.algorithm, learner.params.to_dict()
     users_repo.save_profile(session, user)
-    save_learner(session, ctx, user.id, model, learner, start_over="imported",
-                 episode_offset=max(model.episode_offset,
-                                    learner.episodes - user.episode_count))
+    save_learner(
+        session,
+        ctx,
+        user.id,
+        model,
+        learner,
+        start_over="imported",
+        episode_offset=max(model.episode_offset, learner.episodes - user.episode_count),
+    )
     corrections.settle_rows(session, principal, user, learner.guidance)
-    audit.record(session, principal, "model.import", target=user_id, fleet=user.fleet,
-                 detail={"algorithm": learner.algorithm, "version": model.version})
-    return model_view(session, ctx, principal, user_id, time_slot=None, situation=None,
-                      fleet=user.fleet)
+    audit.record(
+        session,
+        principal,
+        "model.import",
+        target=user_id,
+        fleet=user.fleet,
+        detail={"algorithm": learner.algorithm, "version": model.version},
+    )
+    return model_view(
+        session, ctx, principal, user_id, time_slot=None, situation=None, fleet=user.fleet
+    )
 
 
-def _imported(session: Session, ctx: ServiceContext, fleet: str, layout: int, doc: Any
-              ) -> TabularLearner[Any]:
+def _imported(
+    session: Session, ctx: ServiceContext, fleet: str, layout: int, doc: Any
+) -> TabularLearner[Any]:
     """An exported learner state, carried to the fleet's mission version ``layout`` if it was
     learned under an earlier version of the fleet's mission; or 422."""
     meta = doc.get("mission") if isinstance(doc, dict) else None
@@ -203,8 +289,15 @@ class RebuildReport:
     rebuilt: dict[str, Any] = field(default_factory=dict)
 
 
-def rebuild_model(session: Session, ctx: ServiceContext, principal: Principal, user_id: str, *,
-                  save: bool = False, fleet: str | None = None) -> RebuildReport:
+def rebuild_model(
+    session: Session,
+    ctx: ServiceContext,
+    principal: Principal,
+    user_id: str,
+    *,
+    save: bool = False,
+    fleet: str | None = None,
+) -> RebuildReport:
     """Replay the user's history onto a fresh learner (or the imported base) and redraw every
     decision from the same seed stream; the result must equal the stored model. With ``save``,
     a rebuilt model that differs is stored (one version on, audited)."""
@@ -213,8 +306,11 @@ def rebuild_model(session: Session, ctx: ServiceContext, principal: Principal, u
     base = models_repo.base_state(session, user.id)
     layout = model.base_mission_version
     mission = ctx.missions.get(session, user.fleet, layout).mission
-    learner: TabularLearner[Any] = (learner_from_state(base, mission) if base
-                                    else fresh_learner(user.algorithm, dict(user.params), mission))
+    learner: TabularLearner[Any] = (
+        learner_from_state(base, mission)
+        if base
+        else fresh_learner(user.algorithm, dict(user.params), mission)
+    )
     samples = models_repo.samples_since(session, user.id, model.base_version)
     report = RebuildReport(user_id, model.version, samples=len(samples))
     taught = 0
@@ -228,21 +324,26 @@ def rebuild_model(session: Session, ctx: ServiceContext, principal: Principal, u
         upto = taught
         while upto < len(samples) and samples[upto].version <= version:
             upto += 1
-        learner, layout, writes = replay(learner, samples[taught:upto], layout=layout,
-                                         move=move, rules=rules)
+        learner, layout, writes = replay(
+            learner, samples[taught:upto], layout=layout, move=move, rules=rules
+        )
         report.writes += writes
         taught = upto
 
     for decision, context, seq in episodes_repo.decisions_for_rebuild(
-            session, user.id, model.base_version):
+        session, user.id, model.base_version
+    ):
         teach_through(decision.model_version)
         drawn_steps = [s for s in decision.chain if not s.get("forced")]
         start = drawn_steps[0]["state"] if drawn_steps else decision.state
         assert decision.draw is not None
-        again = learner.select_action(Observation(context, start, seq),
-                                      rng_for(ctx.settings.seed, user.seed_key, decision.draw))
-        same = np.allclose(again.probabilities, decision.probabilities, rtol=0, atol=1e-12) \
-            and (decision.forced or again.action == decision.action)
+        again = learner.select_action(
+            Observation(context, start, seq),
+            rng_for(ctx.settings.seed, user.seed_key, decision.draw),
+        )
+        same = np.allclose(again.probabilities, decision.probabilities, rtol=0, atol=1e-12) and (
+            decision.forced or again.action == decision.action
+        )
         report.decisions += 1
         if not same:
             report.mismatched_decisions.append(decision.id)
@@ -252,14 +353,28 @@ def rebuild_model(session: Session, ctx: ServiceContext, principal: Principal, u
     report.identical = same_state(report.rebuilt, stored) and not report.mismatched_decisions
     if save and not report.identical:
         save_learner(session, ctx, user.id, model, learner, snapshot=True)
-        audit.record(session, principal, "model.rebuild", target=user_id, fleet=user.fleet,
-                     detail={"version": model.version,
-                             "mismatched_decisions": len(report.mismatched_decisions)})
+        audit.record(
+            session,
+            principal,
+            "model.rebuild",
+            target=user_id,
+            fleet=user.fleet,
+            detail={
+                "version": model.version,
+                "mismatched_decisions": len(report.mismatched_decisions),
+            },
+        )
     return report
 
 
-def snapshot_model(session: Session, ctx: ServiceContext, principal: Principal, user_id: str, *,
-                   fleet: str | None = None) -> bool:
+def snapshot_model(
+    session: Session,
+    ctx: ServiceContext,
+    principal: Principal,
+    user_id: str,
+    *,
+    fleet: str | None = None,
+) -> bool:
     """Store the user's learner state as of its current version (the journal since the last
     snapshot replayed onto it); the model does not change. False when it was current."""
     require_manager(principal)
@@ -268,8 +383,7 @@ def snapshot_model(session: Session, ctx: ServiceContext, principal: Principal, 
     if model.state_version == model.version:
         return False
     learner = load_learner(session, ctx, user.fleet, user.id, model, for_write=False)
-    models_repo.store_snapshot(session, user.id, version=model.version,
-                               state=learner.to_state())
+    models_repo.store_snapshot(session, user.id, version=model.version, state=learner.to_state())
     return True
 
 

@@ -29,13 +29,21 @@ from .context import Principal, ServiceContext
 from .learners import fresh_learner, load_learner
 from .missions import current_version
 
-__all__ = ["SHARED", "fleet_prior_view", "prior_enabled", "set_fleet_prior", "started_from",
-           "starting_learner"]
+__all__ = [
+    "SHARED",
+    "fleet_prior_view",
+    "prior_enabled",
+    "set_fleet_prior",
+    "started_from",
+    "starting_learner",
+]
 
-SHARED = ("per negotiation step of each context: the contributors' rates of each outcome and "
-          "mean rewards, averaged with each person counting once, at a fixed weight; a step "
-          "enters only when at least 3 contributors have evidence on it. Nothing else: no "
-          "episode counts, no times, no open episodes, no staff corrections.")
+SHARED = (
+    "per negotiation step of each context: the contributors' rates of each outcome and "
+    "mean rewards, averaged with each person counting once, at a fixed weight; a step "
+    "enters only when at least 3 contributors have evidence on it. Nothing else: no "
+    "episode counts, no times, no open episodes, no staff corrections."
+)
 
 
 def prior_enabled(session: Session, fleet: str) -> bool:
@@ -43,18 +51,30 @@ def prior_enabled(session: Session, fleet: str) -> bool:
     return True if row is None else row.prior_enabled
 
 
-def _contributors(session: Session, ctx: ServiceContext, fleet: str, algorithm: str,
-                  mission_version: int) -> list[int]:
+def _contributors(
+    session: Session, ctx: ServiceContext, fleet: str, algorithm: str, mission_version: int
+) -> list[int]:
     s = ctx.settings
     return models_repo.prior_contributors(
-        session, fleet=fleet, algorithm=algorithm, mission_version=mission_version,
+        session,
+        fleet=fleet,
+        algorithm=algorithm,
+        mission_version=mission_version,
         min_episodes=s.prior_min_episodes,
-        limit=max(s.prior_max_contributors, s.prior_min_contributors))
+        limit=max(s.prior_max_contributors, s.prior_min_contributors),
+    )
 
 
-def starting_learner(session: Session, ctx: ServiceContext, fleet: str, algorithm: str,
-                     params: dict[str, Any] | None, mission_version: int, *, takes_part: bool
-                     ) -> tuple[TabularLearner[Any], Origin]:
+def starting_learner(
+    session: Session,
+    ctx: ServiceContext,
+    fleet: str,
+    algorithm: str,
+    params: dict[str, Any] | None,
+    mission_version: int,
+    *,
+    takes_part: bool,
+) -> tuple[TabularLearner[Any], Origin]:
     """The learner a new user of ``fleet`` starts with, and where it came from: the fleet's
     prior when it is in force for this user, else a fresh learner (422 for a bad algorithm or
     parameters, either way)."""
@@ -70,8 +90,9 @@ def starting_learner(session: Session, ctx: ServiceContext, fleet: str, algorith
         model = models_repo.head(session, pk)
         assert model is not None  # every user is created with its model
         learners.append(load_learner(session, ctx, fleet, pk, model, for_write=False))
-    prior = population_prior(algorithm, fresh.params.to_dict(), mission, learners,
-                             strength=ctx.settings.prior_strength)
+    prior = population_prior(
+        algorithm, fresh.params.to_dict(), mission, learners, strength=ctx.settings.prior_strength
+    )
     return prior, Origin("fleet_prior", len(learners))
 
 
@@ -80,39 +101,55 @@ def started_from(session: Session, user_pk: int) -> dict[str, Any]:
     return {"kind": made.kind, "contributors": made.contributors}
 
 
-def fleet_prior_view(session: Session, ctx: ServiceContext, principal: Principal,
-                     fleet: str) -> dict[str, Any]:
+def fleet_prior_view(
+    session: Session, ctx: ServiceContext, principal: Principal, fleet: str
+) -> dict[str, Any]:
     """``GET /v1/admin/fleets/{fleet}/prior`` (the fleet's staff, admins)."""
     _check_fleet(principal, fleet)
     row = repo.get(session, fleet)
     enabled = True if row is None else row.prior_enabled
     version = current_version(session, ctx, fleet)
     s = ctx.settings
-    counts = {name: len(_contributors(session, ctx, fleet, name, version))
-              for name in sorted(ALGORITHMS)}
+    counts = {
+        name: len(_contributors(session, ctx, fleet, name, version)) for name in sorted(ALGORITHMS)
+    }
     return {
-        "fleet": fleet, "enabled": enabled,
-        "in_force": sorted(n for n, k in counts.items()
-                           if enabled and n not in FRESH_ONLY
-                           and k >= s.prior_min_contributors),
-        "contributors": counts, "min_contributors": s.prior_min_contributors,
-        "min_episodes": s.prior_min_episodes, "max_contributors": s.prior_max_contributors,
-        "strength": s.prior_strength, "mission_version": version, "shared": SHARED,
+        "fleet": fleet,
+        "enabled": enabled,
+        "in_force": sorted(
+            n
+            for n, k in counts.items()
+            if enabled and n not in FRESH_ONLY and k >= s.prior_min_contributors
+        ),
+        "contributors": counts,
+        "min_contributors": s.prior_min_contributors,
+        "min_episodes": s.prior_min_episodes,
+        "max_contributors": s.prior_max_contributors,
+        "strength": s.prior_strength,
+        "mission_version": version,
+        "shared": SHARED,
         "updated_at": None if row is None else row.updated_at,
         "updated_by": None if row is None else row.updated_by,
     }
 
 
-def set_fleet_prior(session: Session, ctx: ServiceContext, principal: Principal, fleet: str,
-                    *, enabled: bool) -> dict[str, Any]:
+def set_fleet_prior(
+    session: Session, ctx: ServiceContext, principal: Principal, fleet: str, *, enabled: bool
+) -> dict[str, Any]:
     """``PUT /v1/admin/fleets/{fleet}/prior``: turn the fleet's prior on or off for the
     fleet's next newcomers (models made from it before keep it)."""
     _check_fleet(principal, fleet)
     row = repo.get(session, fleet)
     if row is None or row.prior_enabled != enabled:
         repo.set_prior(session, fleet, enabled=enabled, now=utcnow(), actor=principal.key_id)
-        audit.record(session, principal, "fleet.prior", target=fleet, fleet=fleet,
-                     detail={"enabled": enabled})
+        audit.record(
+            session,
+            principal,
+            "fleet.prior",
+            target=fleet,
+            fleet=fleet,
+            detail={"enabled": enabled},
+        )
     return fleet_prior_view(session, ctx, principal, fleet)
 
 

@@ -41,8 +41,14 @@ from .users import visible_user
 __all__ = ["profile_view", "words"]
 
 
-def profile_view(session: Session, ctx: ServiceContext, principal: Principal, user_id: str, *,
-                 fleet: str | None = None) -> ProfileOut:
+def profile_view(
+    session: Session,
+    ctx: ServiceContext,
+    principal: Principal,
+    user_id: str,
+    *,
+    fleet: str | None = None,
+) -> ProfileOut:
     """The profile of ``user_id`` (robots, staff of the fleet, admins)."""
     user = visible_user(session, principal, user_id, fleet=fleet)
     model = models_repo.head(session, user.id)
@@ -73,37 +79,67 @@ def profile_view(session: Session, ctx: ServiceContext, principal: Principal, us
         eps = per_context.get((slot, situation), [])
         evidence = [
             episode_evidence(
-                space_of(ep.mission_version), ep.seq,
+                space_of(ep.mission_version),
+                ep.seq,
                 [Answer(a.action, a.response, a.service, a.detail) for a in by_seq[ep.seq]],
-                request=Item(ep.request_service, ep.request_detail)
-                if ep.request_service else None)
+                request=Item(ep.request_service, ep.request_detail) if ep.request_service else None,
+            )
             for ep in eps
         ]
-        rules = [r for r in learner.guidance.rules
-                 if (r.time_slot, r.situation) == (slot, situation)]
-        contexts.append(_context(
-            learner, c, now, slot, situation, eps, evidence, belief(evidence), rules,
-            when_of, user.display_name or user.user_id))
+        rules = [
+            r for r in learner.guidance.rules if (r.time_slot, r.situation) == (slot, situation)
+        ]
+        contexts.append(
+            _context(
+                learner,
+                c,
+                now,
+                slot,
+                situation,
+                eps,
+                evidence,
+                belief(evidence),
+                rules,
+                when_of,
+                user.display_name or user.user_id,
+            )
+        )
     last = episodes[-1] if episodes else None
     return ProfileOut(
-        user_id=user.user_id, display_name=user.display_name, episodes=len(episodes),
+        user_id=user.user_id,
+        display_name=user.display_name,
+        episodes=len(episodes),
         open_episodes=sum(ep.status == "open" for ep in episodes),
         utc_offset=last.utc_offset if last else None,
-        started_from=StartedFrom(**started_from(session, user.id)), contexts=contexts,
+        started_from=StartedFrom(**started_from(session, user.id)),
+        contexts=contexts,
         corrections=corrections,
     )
 
 
-def _context(learner: TabularLearner[Any], c: int, now: int, slot: str, situation: str,
-             eps: list[HistoryEpisode], evidence: list[EpisodeEvidence], found: Belief,
-             rules: list[Rule], when_of: dict[int, dt.datetime], name: str | None
-             ) -> ProfileContext:
+def _context(
+    learner: TabularLearner[Any],
+    c: int,
+    now: int,
+    slot: str,
+    situation: str,
+    eps: list[HistoryEpisode],
+    evidence: list[EpisodeEvidence],
+    found: Belief,
+    rules: list[Rule],
+    when_of: dict[int, dt.datetime],
+    name: str | None,
+) -> ProfileContext:
     seq_time = {ep.seq: local_time(ep.occurred_at, ep.utc_offset) for ep in eps}
     wants, certainty, source = found.wants, found.certainty, "person" if found.wants else None
     change = None
     if found.change is not None:
-        change = ChangeOut(at=seq_time.get(found.change.seq), episode=found.change.seq,
-                           before=_wanted(found.change.before), now=_wanted(found.change.now))
+        change = ChangeOut(
+            at=seq_time.get(found.change.seq),
+            episode=found.change.seq,
+            before=_wanted(found.change.before),
+            now=_wanted(found.change.now),
+        )
     prefers = [r for r in rules if r.kind is RuleKind.PREFERS]
     standing = [r for r in prefers if r.in_force and _fits(learner, r)]
     if standing:
@@ -116,11 +152,15 @@ def _context(learner: TabularLearner[Any], c: int, now: int, slot: str, situatio
             rule = overridden[-1]
             assert rule.service is not None
             change = ChangeOut(
-                at=when_of.get(rule.overridden_at or 0), episode=_seq_of(eps, rule, learner),
+                at=when_of.get(rule.overridden_at or 0),
+                episode=_seq_of(eps, rule, learner),
                 before=Wanted(service=rule.service, detail=rule.detail),
-                now=_wanted(found.wants), overrides=rule.id)
+                now=_wanted(found.wants),
+                overrides=rule.id,
+            )
     turned_down = found.wants is None and any(
-        e.refused_offer for e in [e for e in evidence if e.relevant][-3:])
+        e.refused_offer for e in [e for e in evidence if e.relevant][-3:]
+    )
     will = _robot_will(learner, c, now, rules, turned_down)
     ev = EvidenceOut(
         accepted=sum(e.accepted for e in evidence),
@@ -133,11 +173,17 @@ def _context(learner: TabularLearner[Any], c: int, now: int, slot: str, situatio
     )
     summary = _summary(name, slot, situation, wants, certainty, source, will, ev, change)
     return ProfileContext(
-        time_slot=slot, situation=situation, episodes=len(eps),
-        open_episodes=sum(ep.status == "open" for ep in eps), wants=_wanted(wants),
+        time_slot=slot,
+        situation=situation,
+        episodes=len(eps),
+        open_episodes=sum(ep.status == "open" for ep in eps),
+        wants=_wanted(wants),
         certainty=certainty,  # type: ignore[arg-type]
         source=source,  # type: ignore[arg-type]
-        evidence=ev, robot_will=will, summary=summary, changed=change,
+        evidence=ev,
+        robot_will=will,
+        summary=summary,
+        changed=change,
         corrections=[r.id for r in rules],
     )
 
@@ -161,8 +207,9 @@ def _wanted(item: Item | None) -> Wanted | None:
     return None if item is None else Wanted(service=item.service, detail=item.detail)
 
 
-def _robot_will(learner: TabularLearner[Any], c: int, now: int, rules: list[Rule],
-                turned_down: bool) -> RobotWill:
+def _robot_will(
+    learner: TabularLearner[Any], c: int, now: int, rules: list[Rule], turned_down: bool
+) -> RobotWill:
     """The most likely course of the robot's next decision here, from the learner's action
     distribution (``explain``, corrections applied)."""
     space = learner.space
@@ -170,12 +217,17 @@ def _robot_will(learner: TabularLearner[Any], c: int, now: int, rules: list[Rule
     offer = float(p[space.INITIATE])
     if offer < 0.5:
         quiet = any(r.kind is RuleKind.QUIET for r in rules if _fits(learner, r))
-        return RobotWill(action="stay_away" if quiet or turned_down else "wait_to_be_asked",
-                         service=None, detail=None, asks_first=False, probability=offer)
+        return RobotWill(
+            action="stay_away" if quiet or turned_down else "wait_to_be_asked",
+            service=None,
+            detail=None,
+            asks_first=False,
+            probability=offer,
+        )
     service = detail = None
     asks = False
     engaged = space.actions_of(space.ENGAGED)
-    best = engaged.start + int(p[engaged.start:engaged.stop].argmax())
+    best = engaged.start + int(p[engaged.start : engaged.stop].argmax())
     act = space.actions[best]
     if act.kind is ActionKind.QUERY_TYPE:
         asks = True
@@ -183,18 +235,23 @@ def _robot_will(learner: TabularLearner[Any], c: int, now: int, rules: list[Rule
         service = act.service
         assert service is not None
         typed = space.actions_of(space.type_known_state(service))
-        pick = space.actions[typed.start + int(p[typed.start:typed.stop].argmax())]
+        pick = space.actions[typed.start + int(p[typed.start : typed.stop].argmax())]
         if pick.kind is ActionKind.QUERY_DETAIL:
             asks = True
         else:
             detail = pick.detail
-    return RobotWill(action="offer", service=service, detail=detail, asks_first=asks,
-                     probability=offer)
+    return RobotWill(
+        action="offer", service=service, detail=detail, asks_first=asks, probability=offer
+    )
 
 
 _AT = {"noon": "At noon", "midday": "At midday", "night": "At night", "midnight": "At midnight"}
-_SITUATION_WORDS = {"arriving": "on arrival", "working": "while working",
-                    "stretching": "while stretching", "busy": "while busy"}
+_SITUATION_WORDS = {
+    "arriving": "on arrival",
+    "working": "while working",
+    "stretching": "while stretching",
+    "busy": "while busy",
+}
 
 
 def words(name: str | None) -> str:
@@ -210,9 +267,17 @@ def _thing(item: Item | Wanted) -> str:
     return words(item.detail) if item.detail else words(item.service)
 
 
-def _summary(name: str | None, slot: str, situation: str, wants: Item | None, certainty: str,
-             source: str | None, will: RobotWill, ev: EvidenceOut,
-             change: ChangeOut | None) -> str:
+def _summary(
+    name: str | None,
+    slot: str,
+    situation: str,
+    wants: Item | None,
+    certainty: str,
+    source: str | None,
+    will: RobotWill,
+    ev: EvidenceOut,
+    change: ChangeOut | None,
+) -> str:
     who = name or "this person"
     when = _AT.get(slot, f"In the {words(slot)}")
     where = f"{when}, {_SITUATION_WORDS.get(situation, 'when ' + words(situation))}"
@@ -230,7 +295,7 @@ def _summary(name: str | None, slot: str, situation: str, wants: Item | None, ce
     if wants is None:
         said = f"{where}, there is not enough to say yet what {who} wants"
         if change is not None and change.before is not None:
-            said = (f"{where}, {who} no longer seems to want {_thing(change.before)}")
+            said = f"{where}, {who} no longer seems to want {_thing(change.before)}"
         return f"{said}; {does}."
     if source == "staff":
         return f"{where}, staff say {who} wants {_thing(wants)}; {does} (staff correction)."

@@ -28,8 +28,17 @@ from .learners import fresh_learner, save_learner
 from .missions import current_version
 from .prior import starting_learner
 
-__all__ = ["create_user", "delete_user", "fleet_of", "get_user", "list_users", "no_user",
-           "put_user", "user_out", "visible_user"]
+__all__ = [
+    "create_user",
+    "delete_user",
+    "fleet_of",
+    "get_user",
+    "list_users",
+    "no_user",
+    "put_user",
+    "user_out",
+    "visible_user",
+]
 
 
 def no_user(user_id: str) -> NotFound:
@@ -46,13 +55,18 @@ def fleet_of(principal: Principal, fleet: str | None, user_id: str) -> str:
     raise no_user(user_id)
 
 
-def visible_user(session: Session, principal: Principal, user_id: str, *,
-                 fleet: str | None = None, lock: bool = False) -> UserRow:
+def visible_user(
+    session: Session,
+    principal: Principal,
+    user_id: str,
+    *,
+    fleet: str | None = None,
+    lock: bool = False,
+) -> UserRow:
     """The user ``user_id`` of the fleet the request means (locked for the transaction with
     ``lock``), or 404."""
     in_fleet = fleet_of(principal, fleet, user_id)
-    user = (repo.lock(session, in_fleet, user_id) if lock
-            else repo.get(session, in_fleet, user_id))
+    user = repo.lock(session, in_fleet, user_id) if lock else repo.get(session, in_fleet, user_id)
     if user is None:
         raise no_user(user_id)
     return user
@@ -60,43 +74,75 @@ def visible_user(session: Session, principal: Principal, user_id: str, *,
 
 def user_out(user: UserRow) -> UserOut:
     return UserOut(
-        user_id=user.user_id, fleet=user.fleet, display_name=user.display_name,
+        user_id=user.user_id,
+        fleet=user.fleet,
+        display_name=user.display_name,
         learner=LearnerSpec(algorithm=user.algorithm, params=dict(user.params)),
-        created_at=user.created_at, episodes=user.episode_count, fleet_prior=user.fleet_prior,
+        created_at=user.created_at,
+        episodes=user.episode_count,
+        fleet_prior=user.fleet_prior,
     )
 
 
-def create_user(session: Session, ctx: ServiceContext, fleet: str, user_id: str, *,
-                spec: LearnerSpec | None = None, display_name: str | None = None,
-                fleet_prior: bool | None = None) -> bool:
+def create_user(
+    session: Session,
+    ctx: ServiceContext,
+    fleet: str,
+    user_id: str,
+    *,
+    spec: LearnerSpec | None = None,
+    display_name: str | None = None,
+    fleet_prior: bool | None = None,
+) -> bool:
     """Create the user in ``fleet`` unless the fleet has that id; True when created. (Two
     requests creating the same user at once: one creates it, both go on.) The model starts from
     the fleet's prior when it is in force for the user (``app.services.prior``), else fresh."""
     spec = spec or LearnerSpec()
     takes_part = fleet_prior is not False
     version = current_version(session, ctx, fleet, for_new_user=True)
-    learner, origin = starting_learner(session, ctx, fleet, spec.algorithm, spec.params,
-                                       version, takes_part=takes_part)
+    learner, origin = starting_learner(
+        session, ctx, fleet, spec.algorithm, spec.params, version, takes_part=takes_part
+    )
     state = learner.to_state()
-    return repo.create(session, user_id=user_id, fleet=fleet, algorithm=spec.algorithm,
-                       params=learner.params.to_dict(), display_name=display_name,
-                       state=state, mission_version=version, now=utcnow(),
-                       fleet_prior=takes_part,
-                       base=(state, origin.contributors or 0)
-                       if origin.kind == "fleet_prior" else None)
+    return repo.create(
+        session,
+        user_id=user_id,
+        fleet=fleet,
+        algorithm=spec.algorithm,
+        params=learner.params.to_dict(),
+        display_name=display_name,
+        state=state,
+        mission_version=version,
+        now=utcnow(),
+        fleet_prior=takes_part,
+        base=(state, origin.contributors or 0) if origin.kind == "fleet_prior" else None,
+    )
 
 
 def put_user(
-    session: Session, ctx: ServiceContext, principal: Principal, user_id: str, body: UserIn,
-    *, reset_model: bool, fleet: str | None = None,
+    session: Session,
+    ctx: ServiceContext,
+    principal: Principal,
+    user_id: str,
+    body: UserIn,
+    *,
+    reset_model: bool,
+    fleet: str | None = None,
 ) -> tuple[UserOut, bool]:
     """Create or update a user of the caller's fleet (an admin's: of ``fleet``); (user,
     created)."""
     in_fleet = fleet_of(principal, fleet, user_id)
     created = False
     if repo.lock(session, in_fleet, user_id) is None:
-        created = create_user(session, ctx, in_fleet, user_id, spec=body.learner,
-                              display_name=body.display_name, fleet_prior=body.fleet_prior)
+        created = create_user(
+            session,
+            ctx,
+            in_fleet,
+            user_id,
+            spec=body.learner,
+            display_name=body.display_name,
+            fleet_prior=body.fleet_prior,
+        )
     user = visible_user(session, principal, user_id, fleet=in_fleet, lock=True)
     if created:
         return user_out(user), True
@@ -107,9 +153,11 @@ def put_user(
     if body.learner is not None:
         model = models_repo.head(session, user.id)
         assert model is not None  # every user is created with its model
-        learner = fresh_learner(body.learner.algorithm, body.learner.params,
-                                ctx.missions.get(session, user.fleet,
-                                                 model.mission_version).mission)
+        learner = fresh_learner(
+            body.learner.algorithm,
+            body.learner.params,
+            ctx.missions.get(session, user.fleet, model.mission_version).mission,
+        )
         params = learner.params.to_dict()
         if (body.learner.algorithm, params) != (user.algorithm, dict(user.params)):
             if user.episode_count > 0 and not reset_model:
@@ -123,8 +171,9 @@ def put_user(
     return user_out(user), False
 
 
-def get_user(session: Session, principal: Principal, user_id: str, *,
-             fleet: str | None = None) -> UserOut:
+def get_user(
+    session: Session, principal: Principal, user_id: str, *, fleet: str | None = None
+) -> UserOut:
     return user_out(visible_user(session, principal, user_id, fleet=fleet))
 
 
@@ -140,21 +189,27 @@ def _after(cursor: str | None, fleet: str | None) -> tuple[str, str] | None:
         return None
     try:
         # validate=True: characters outside the alphabet are refused, not silently dropped
-        text = base64.b64decode(cursor + "=" * (-len(cursor) % 4), altchars=b"-_",
-                                validate=True).decode()
+        text = base64.b64decode(
+            cursor + "=" * (-len(cursor) % 4), altchars=b"-_", validate=True
+        ).decode()
     except (binascii.Error, UnicodeDecodeError, ValueError):
         text = ""
     in_fleet, slash, user_id = text.rpartition("/")
     if not slash:
         in_fleet = fleet or ""
     if not re.fullmatch(CLIENT_ID_PATTERN, user_id) or (
-            in_fleet and not re.fullmatch(CLIENT_ID_PATTERN, in_fleet)):
+        in_fleet and not re.fullmatch(CLIENT_ID_PATTERN, in_fleet)
+    ):
         raise ValidationFailed("cursor is not one this API returned.")
     return in_fleet, user_id
 
 
 def list_users(
-    session: Session, principal: Principal, *, limit: int, cursor: str | None,
+    session: Session,
+    principal: Principal,
+    *,
+    limit: int,
+    cursor: str | None,
     fleet: str | None = None,
 ) -> UserList:
     """The users of the caller's fleet, a page at a time; an admin's: of every fleet (by fleet,
@@ -168,11 +223,23 @@ def list_users(
     return UserList(items=items, next_cursor=_cursor(rows[limit - 1]) if more else None)
 
 
-def delete_user(session: Session, ctx: ServiceContext, principal: Principal, user_id: str, *,
-                fleet: str | None = None) -> None:
+def delete_user(
+    session: Session,
+    ctx: ServiceContext,
+    principal: Principal,
+    user_id: str,
+    *,
+    fleet: str | None = None,
+) -> None:
     require_manager(principal)
     user = visible_user(session, principal, user_id, fleet=fleet, lock=True)
-    audit.record(session, principal, "user.delete", target=user_id, fleet=user.fleet,
-                 detail={"episodes": user.episode_count})
+    audit.record(
+        session,
+        principal,
+        "user.delete",
+        target=user_id,
+        fleet=user.fleet,
+        detail={"episodes": user.episode_count},
+    )
     repo.delete_user(session, user)
     ctx.cache.drop(user.id)

@@ -30,8 +30,9 @@ _MESSAGE = "audit_log entries are append only: they are never changed or removed
 
 def upgrade() -> None:
     with op.batch_alter_table("learner_models") as batch:
-        batch.add_column(sa.Column("state_version", sa.Integer(), nullable=False,
-                                   server_default="0"))
+        batch.add_column(
+            sa.Column("state_version", sa.Integer(), nullable=False, server_default="0")
+        )
     op.execute("UPDATE learner_models SET state_version = version")
     if op.get_bind().dialect.name == "postgresql":
         op.execute(f"""
@@ -57,11 +58,15 @@ def downgrade() -> None:
         for event in ("update", "delete"):
             op.execute(f"DROP TRIGGER audit_log_no_{event}")
     # Before this revision the stored state is the model itself: every state must be current.
-    behind = op.get_bind().execute(sa.text(
-        "SELECT count(*) FROM learner_models WHERE state_version <> version")).scalar()
+    behind = (
+        op.get_bind()
+        .execute(sa.text("SELECT count(*) FROM learner_models WHERE state_version <> version"))
+        .scalar()
+    )
     if behind:
         raise RuntimeError(
             f"{behind} stored learner states are older than their models; run "
-            "`attune models snapshot --all` with this version of Attune first, then downgrade.")
+            "`attune models snapshot --all` with this version of Attune first, then downgrade."
+        )
     with op.batch_alter_table("learner_models") as batch:
         batch.drop_column("state_version")

@@ -53,8 +53,10 @@ def upgrade() -> None:
     for table in CHILDREN:
         with op.batch_alter_table(table) as batch:
             batch.add_column(sa.Column("user_pk", sa.Integer(), nullable=True))
-        op.execute(f"UPDATE {table} SET user_pk = "
-                   f"(SELECT users.id FROM users WHERE users.user_id = {table}.user_id)")
+        op.execute(
+            f"UPDATE {table} SET user_pk = "
+            f"(SELECT users.id FROM users WHERE users.user_id = {table}.user_id)"
+        )
 
     # 3. Let go of the old key: the children's foreign keys, keys and indexes on user_id.
     with op.batch_alter_table("learner_models") as batch:
@@ -80,46 +82,60 @@ def upgrade() -> None:
     if _postgresql():  # new users are numbered by a sequence, after the ones there are
         op.execute("CREATE SEQUENCE users_id_seq OWNED BY users.id")
         op.execute("ALTER TABLE users ALTER COLUMN id SET DEFAULT nextval('users_id_seq')")
-        op.execute("SELECT setval('users_id_seq', COALESCE((SELECT max(id) FROM users), 0) + 1,"
-                   " false)")
+        op.execute(
+            "SELECT setval('users_id_seq', COALESCE((SELECT max(id) FROM users), 0) + 1, false)"
+        )
 
     # 5. The children on the new key.
     with op.batch_alter_table("learner_models") as batch:
         batch.alter_column("user_pk", existing_type=sa.Integer(), nullable=False)
         batch.drop_column("user_id")
         batch.create_primary_key("pk_learner_models", ["user_pk"])
-        batch.create_foreign_key("fk_learner_models_user_pk_users", "users", ["user_pk"],
-                                 ["id"], ondelete="CASCADE")
+        batch.create_foreign_key(
+            "fk_learner_models_user_pk_users", "users", ["user_pk"], ["id"], ondelete="CASCADE"
+        )
     with op.batch_alter_table("episodes") as batch:
         batch.alter_column("user_pk", existing_type=sa.Integer(), nullable=False)
         batch.drop_column("user_id")
-        batch.create_foreign_key("fk_episodes_user_pk_users", "users", ["user_pk"], ["id"],
-                                 ondelete="CASCADE")
+        batch.create_foreign_key(
+            "fk_episodes_user_pk_users", "users", ["user_pk"], ["id"], ondelete="CASCADE"
+        )
         batch.create_unique_constraint("uq_episodes_user_pk_event_id", ["user_pk", "event_id"])
         batch.create_unique_constraint("uq_episodes_user_pk_seq", ["user_pk", "seq"])
     with op.batch_alter_table("samples") as batch:
         batch.alter_column("user_pk", existing_type=sa.Integer(), nullable=False)
         batch.drop_column("user_id")
-        batch.create_foreign_key("fk_samples_user_pk_users", "users", ["user_pk"], ["id"],
-                                 ondelete="CASCADE")
+        batch.create_foreign_key(
+            "fk_samples_user_pk_users", "users", ["user_pk"], ["id"], ondelete="CASCADE"
+        )
         batch.create_index("ix_samples_user_version", ["user_pk", "version"])
         batch.create_index("ix_samples_user_episode", ["user_pk", "episode"])
 
 
 def downgrade() -> None:
-    shared = op.get_bind().execute(sa.text(
-        "SELECT user_id FROM users GROUP BY user_id HAVING count(*) > 1 ORDER BY user_id"
-    )).scalars().all()
+    shared = (
+        op.get_bind()
+        .execute(
+            sa.text(
+                "SELECT user_id FROM users GROUP BY user_id HAVING count(*) > 1 ORDER BY user_id"
+            )
+        )
+        .scalars()
+        .all()
+    )
     if shared:
         raise RuntimeError(
             f"{len(shared)} user ids are in more than one fleet ({', '.join(shared[:5])}"
             f"{', ...' if len(shared) > 5 else ''}); before this revision a user id named one "
-            "user in the whole deployment. Rename or delete them, then downgrade.")
+            "user in the whole deployment. Rename or delete them, then downgrade."
+        )
     for table in CHILDREN:
         with op.batch_alter_table(table) as batch:
             batch.add_column(sa.Column("user_id", sa.String(length=128), nullable=True))
-        op.execute(f"UPDATE {table} SET user_id = "
-                   f"(SELECT users.user_id FROM users WHERE users.id = {table}.user_pk)")
+        op.execute(
+            f"UPDATE {table} SET user_id = "
+            f"(SELECT users.user_id FROM users WHERE users.id = {table}.user_pk)"
+        )
     with op.batch_alter_table("learner_models") as batch:
         batch.drop_constraint("fk_learner_models_user_pk_users", type_="foreignkey")
         batch.drop_constraint("pk_learner_models", type_="primary")
@@ -145,19 +161,22 @@ def downgrade() -> None:
         batch.alter_column("user_id", existing_type=sa.String(length=128), nullable=False)
         batch.drop_column("user_pk")
         batch.create_primary_key("pk_learner_models", ["user_id"])
-        batch.create_foreign_key("fk_learner_models_user_id_users", "users", ["user_id"],
-                                 ["user_id"], ondelete="CASCADE")
+        batch.create_foreign_key(
+            "fk_learner_models_user_id_users", "users", ["user_id"], ["user_id"], ondelete="CASCADE"
+        )
     with op.batch_alter_table("episodes") as batch:
         batch.alter_column("user_id", existing_type=sa.String(length=128), nullable=False)
         batch.drop_column("user_pk")
-        batch.create_foreign_key("fk_episodes_user_id_users", "users", ["user_id"],
-                                 ["user_id"], ondelete="CASCADE")
+        batch.create_foreign_key(
+            "fk_episodes_user_id_users", "users", ["user_id"], ["user_id"], ondelete="CASCADE"
+        )
         batch.create_unique_constraint("uq_episodes_user_id_event_id", ["user_id", "event_id"])
         batch.create_unique_constraint("uq_episodes_user_id_seq", ["user_id", "seq"])
     with op.batch_alter_table("samples") as batch:
         batch.alter_column("user_id", existing_type=sa.String(length=128), nullable=False)
         batch.drop_column("user_pk")
-        batch.create_foreign_key("fk_samples_user_id_users", "users", ["user_id"], ["user_id"],
-                                 ondelete="CASCADE")
+        batch.create_foreign_key(
+            "fk_samples_user_id_users", "users", ["user_id"], ["user_id"], ondelete="CASCADE"
+        )
         batch.create_index("ix_samples_user_version", ["user_id", "version"])
         batch.create_index("ix_samples_user_episode", ["user_id", "episode"])

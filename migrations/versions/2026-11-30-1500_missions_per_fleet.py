@@ -41,12 +41,14 @@ def upgrade() -> None:
     bind = op.get_bind()
 
     # Every stored model must have been learned for the deployment's mission.
-    models = sa.table("learner_models", sa.column("user_pk", sa.Integer()),
-                      sa.column("state", LearnerStateType()))
+    models = sa.table(
+        "learner_models", sa.column("user_pk", sa.Integer()), sa.column("state", LearnerStateType())
+    )
     users = sa.table("users", sa.column("id", sa.Integer()), sa.column("fleet", sa.String()))
     wrong: dict[str, int] = {}
-    for fleet, state in bind.execute(sa.select(users.c.fleet, models.c.state).join(
-            models, models.c.user_pk == users.c.id)):
+    for fleet, state in bind.execute(
+        sa.select(users.c.fleet, models.c.state).join(models, models.c.user_pk == users.c.id)
+    ):
         meta = state.get("mission") if isinstance(state, dict) else None
         if not isinstance(meta, dict) or meta.get("fingerprint") != mission.fingerprint:
             wrong[fleet] = wrong.get(fleet, 0) + 1
@@ -55,7 +57,8 @@ def upgrade() -> None:
         raise RuntimeError(
             f"{sum(wrong.values())} models were learned for another mission than "
             f"{mission.name!r} ({'ATTUNE_MISSION_PATH=' + path if path else 'the built-in'}): "
-            f"{listed}. Run the upgrade with the ATTUNE_MISSION_PATH the service runs with.")
+            f"{listed}. Run the upgrade with the ATTUNE_MISSION_PATH the service runs with."
+        )
 
     table = op.create_table(
         "fleet_missions",
@@ -73,35 +76,56 @@ def upgrade() -> None:
         sa.Column("created_at", sa.DateTime(timezone=True), nullable=False),
         sa.PrimaryKeyConstraint("id", name=op.f("pk_fleet_missions")),
         sa.UniqueConstraint("fleet", "version", name=op.f("uq_fleet_missions_fleet_version")),
-        sa.UniqueConstraint("fleet", "change_id",
-                            name=op.f("uq_fleet_missions_fleet_change_id")),
+        sa.UniqueConstraint("fleet", "change_id", name=op.f("uq_fleet_missions_fleet_change_id")),
     )
     fleets = bind.execute(sa.text("SELECT DISTINCT fleet FROM users ORDER BY fleet")).scalars()
     now = dt.datetime.now(dt.UTC)
-    op.bulk_insert(table, [
-        {"fleet": fleet, "version": 1, "name": mission.name, "fingerprint": mission.fingerprint,
-         "document": mission.to_dict(), "renames": None, "change_id": None,
-         "request_hash": None, "response": None, "actor_key_id": None, "created_at": now}
-        for fleet in fleets])
+    op.bulk_insert(
+        table,
+        [
+            {
+                "fleet": fleet,
+                "version": 1,
+                "name": mission.name,
+                "fingerprint": mission.fingerprint,
+                "document": mission.to_dict(),
+                "renames": None,
+                "change_id": None,
+                "request_hash": None,
+                "response": None,
+                "actor_key_id": None,
+                "created_at": now,
+            }
+            for fleet in fleets
+        ],
+    )
 
     for name in VERSIONED:
         with op.batch_alter_table(name) as batch:
-            batch.add_column(sa.Column("mission_version", sa.Integer(), nullable=False,
-                                       server_default="1"))
+            batch.add_column(
+                sa.Column("mission_version", sa.Integer(), nullable=False, server_default="1")
+            )
     with op.batch_alter_table("learner_models") as batch:
-        batch.add_column(sa.Column("base_mission_version", sa.Integer(), nullable=False,
-                                   server_default="1"))
+        batch.add_column(
+            sa.Column("base_mission_version", sa.Integer(), nullable=False, server_default="1")
+        )
 
 
 def downgrade() -> None:
-    changed = op.get_bind().execute(sa.text(
-        "SELECT DISTINCT fleet FROM fleet_missions WHERE version > 1 ORDER BY fleet"
-    )).scalars().all()
+    changed = (
+        op.get_bind()
+        .execute(
+            sa.text("SELECT DISTINCT fleet FROM fleet_missions WHERE version > 1 ORDER BY fleet")
+        )
+        .scalars()
+        .all()
+    )
     if changed:
         raise RuntimeError(
             f"{len(changed)} fleets changed their missions ({', '.join(changed[:5])}"
             f"{', ...' if len(changed) > 5 else ''}); before this revision a deployment had one "
-            "mission. Downgrading would lose which version each model and episode belongs to.")
+            "mission. Downgrading would lose which version each model and episode belongs to."
+        )
     with op.batch_alter_table("learner_models") as batch:
         batch.drop_column("base_mission_version")
     for name in VERSIONED:

@@ -42,11 +42,13 @@ def upgrade() -> None:
         sa.Column("lifted_by", sa.String(length=40), nullable=True),
         sa.Column("request_hash", sa.String(length=64), nullable=False),
         sa.Column("response", sa.JSON(), nullable=False),
-        sa.ForeignKeyConstraint(["user_pk"], ["users.id"],
-                                name=op.f("fk_corrections_user_pk_users"), ondelete="CASCADE"),
+        sa.ForeignKeyConstraint(
+            ["user_pk"], ["users.id"], name=op.f("fk_corrections_user_pk_users"), ondelete="CASCADE"
+        ),
         sa.PrimaryKeyConstraint("id", name=op.f("pk_corrections")),
-        sa.UniqueConstraint("user_pk", "correction_id",
-                            name=op.f("uq_corrections_user_pk_correction_id")),
+        sa.UniqueConstraint(
+            "user_pk", "correction_id", name=op.f("uq_corrections_user_pk_correction_id")
+        ),
     )
     with op.batch_alter_table("episodes") as batch:
         batch.add_column(sa.Column("utc_offset", sa.Integer(), nullable=True))
@@ -58,7 +60,8 @@ def downgrade() -> None:
     if made:
         raise RuntimeError(
             f"{made} staff corrections are stored; the previous revision cannot replay them. "
-            "Export the models you need, delete the corrections' users or keep this revision.")
+            "Export the models you need, delete the corrections' users or keep this revision."
+        )
     with op.batch_alter_table("episodes") as batch:
         batch.drop_column("utc_offset")
     op.drop_table("corrections")

@@ -35,24 +35,27 @@ def upgrade() -> None:
         sa.PrimaryKeyConstraint("fleet", name=op.f("pk_fleet_settings")),
     )
     with op.batch_alter_table("users") as batch:
-        batch.add_column(sa.Column("fleet_prior", sa.Boolean(), nullable=False,
-                                   server_default=sa.true()))
+        batch.add_column(
+            sa.Column("fleet_prior", sa.Boolean(), nullable=False, server_default=sa.true())
+        )
     with op.batch_alter_table("learner_models") as batch:
-        batch.add_column(sa.Column("base_origin", sa.String(length=16), nullable=False,
-                                   server_default="fresh"))
+        batch.add_column(
+            sa.Column("base_origin", sa.String(length=16), nullable=False, server_default="fresh")
+        )
         batch.add_column(sa.Column("base_contributors", sa.Integer(), nullable=True))
-    op.execute("UPDATE learner_models SET base_origin = 'imported' "
-               "WHERE base_state IS NOT NULL")
+    op.execute("UPDATE learner_models SET base_origin = 'imported' WHERE base_state IS NOT NULL")
 
 
 def downgrade() -> None:
     bind = op.get_bind()
-    grown = bind.execute(sa.text(
-        "SELECT COUNT(*) FROM learner_models WHERE base_origin = 'fleet_prior'")).scalar_one()
+    grown = bind.execute(
+        sa.text("SELECT COUNT(*) FROM learner_models WHERE base_origin = 'fleet_prior'")
+    ).scalar_one()
     if grown:
         raise RuntimeError(
             f"{grown} models started from their fleet's prior; the previous revision would take "
-            "that base for an imported model. Reset those models or keep this revision.")
+            "that base for an imported model. Reset those models or keep this revision."
+        )
     with op.batch_alter_table("learner_models") as batch:
         batch.drop_column("base_contributors")
         batch.drop_column("base_origin")

@@ -47,8 +47,11 @@ USER_ROUTES = [
 ]
 EPISODE_ROUTES = [
     ("GET", "/v1/episodes/{episode}", None),
-    ("POST", "/v1/episodes/{episode}/outcomes", {"decision_id": "{decision}",
-                                                "response": "accepted"}),
+    (
+        "POST",
+        "/v1/episodes/{episode}/outcomes",
+        {"decision_id": "{decision}", "response": "accepted"},
+    ),
     ("POST", "/v1/episodes/{episode}/feedback", {"feedback_id": "f1", "feedback": "positive"}),
 ]
 ADMIN_ROUTES = [
@@ -57,8 +60,16 @@ ADMIN_ROUTES = [
     ("GET", "/v1/users/{user}/model/export", None),
     ("PUT", "/v1/users/{user}/model", {"format": "attune.learner-state"}),
     ("GET", "/v1/admin/audit", None),
-    ("POST", "/v1/users/{user}/corrections", {"correction_id": "c1", "time_slot": "afternoon",
-                                               "situation": "stretching", "kind": "quiet"}),
+    (
+        "POST",
+        "/v1/users/{user}/corrections",
+        {
+            "correction_id": "c1",
+            "time_slot": "afternoon",
+            "situation": "stretching",
+            "kind": "quiet",
+        },
+    ),
     ("DELETE", "/v1/users/{user}/corrections/c1", None),
 ]
 OPEN_ROUTES = [("GET", "/v1/users", None), ("GET", "/v1/mission", None)]
@@ -81,8 +92,7 @@ def _call(client: TestClient, method: str, path: str, body: Any, ids: dict[str, 
 def lin(robot: TestClient) -> dict[str, str]:
     """User lin of fleet default with one open episode: the ids the routes need."""
     ep = start(robot, "lin", "lin-1")
-    return {"user": "lin", "episode": ep["episode_id"],
-            "decision": ep["decision"]["decision_id"]}
+    return {"user": "lin", "episode": ep["episode_id"], "decision": ep["decision"]["decision_id"]}
 
 
 ALL_ROUTES = USER_ROUTES + EPISODE_ROUTES + ADMIN_ROUTES + OPEN_ROUTES
@@ -91,16 +101,27 @@ ALL_ROUTES = USER_ROUTES + EPISODE_ROUTES + ADMIN_ROUTES + OPEN_ROUTES
 @pytest.mark.one_engine
 class TestNoKey:
     @pytest.mark.parametrize(("method", "path", "body"), ALL_ROUTES)
-    def test_every_route_needs_a_key(self, client: TestClient, lin: dict[str, str],
-                                     method: str, path: str, body: Any) -> None:
+    def test_every_route_needs_a_key(
+        self, client: TestClient, lin: dict[str, str], method: str, path: str, body: Any
+    ) -> None:
         assert_error(_call(client, method, path, body, lin), 401, "Unauthorized")
 
-    @pytest.mark.parametrize("header", ["", "Bearer", "Bearer ", "Basic abc", "att_x",
-                                        "Bearer att_unknown", "Bearer " + "a" * 5000])
-    def test_malformed_or_unknown_keys(self, app: FastAPI, lin: dict[str, str],
-                                       header: str) -> None:
-        with TestClient(app, headers={"Authorization": header},
-                        raise_server_exceptions=False) as c:
+    @pytest.mark.parametrize(
+        "header",
+        [
+            "",
+            "Bearer",
+            "Bearer ",
+            "Basic abc",
+            "att_x",
+            "Bearer att_unknown",
+            "Bearer " + "a" * 5000,
+        ],
+    )
+    def test_malformed_or_unknown_keys(
+        self, app: FastAPI, lin: dict[str, str], header: str
+    ) -> None:
+        with TestClient(app, headers={"Authorization": header}, raise_server_exceptions=False) as c:
             assert_error(c.get("/v1/users/lin"), 401, "Unauthorized")
 
     def test_probes_need_no_key(self, client: TestClient) -> None:
@@ -109,12 +130,18 @@ class TestNoKey:
 
 
 class TestRevokedKey:
-    def test_every_route_refuses_a_revoked_key(self, app: FastAPI, db: Database,
-                                               make_key: MakeKey, lin: dict[str, str],
-                                               key_clock: ManualClock) -> None:
+    def test_every_route_refuses_a_revoked_key(
+        self,
+        app: FastAPI,
+        db: Database,
+        make_key: MakeKey,
+        lin: dict[str, str],
+        key_clock: ManualClock,
+    ) -> None:
         secret = make_key("admin", name="to-revoke")
-        with TestClient(app, headers={"Authorization": f"Bearer {secret}"},
-                        raise_server_exceptions=False) as c:
+        with TestClient(
+            app, headers={"Authorization": f"Bearer {secret}"}, raise_server_exceptions=False
+        ) as c:
             assert c.get("/v1/users/lin").status_code == 200
             with db.transaction() as session:
                 [key] = [k for k in list_keys(session) if k.name == "to-revoke"]
@@ -135,12 +162,14 @@ class TestKeyCache:
             revoke_key(session, key.id)
 
     def test_a_revocation_from_outside_takes_effect_within_the_bound(
-            self, app: FastAPI, db: Database, make_key: MakeKey, key_clock: ManualClock) -> None:
+        self, app: FastAPI, db: Database, make_key: MakeKey, key_clock: ManualClock
+    ) -> None:
         bound = app.state.settings.key_cache_seconds
         assert bound > 0  # the default keeps keys a few seconds
         secret = make_key("robot", name="cached")
-        with TestClient(app, headers={"Authorization": f"Bearer {secret}"},
-                        raise_server_exceptions=False) as c:
+        with TestClient(
+            app, headers={"Authorization": f"Bearer {secret}"}, raise_server_exceptions=False
+        ) as c:
             assert c.get("/v1/users").status_code == 200
             self._revoked_outside(db, "cached")
             key_clock.advance(bound * 0.9)
@@ -149,23 +178,27 @@ class TestKeyCache:
             assert_error(c.get("/v1/users"), 401, "Unauthorized")
 
     def test_a_revocation_in_the_worker_takes_effect_at_once(
-            self, app: FastAPI, db: Database, make_key: MakeKey, key_clock: ManualClock) -> None:
+        self, app: FastAPI, db: Database, make_key: MakeKey, key_clock: ManualClock
+    ) -> None:
         secret = make_key("robot", name="cached")
-        with TestClient(app, headers={"Authorization": f"Bearer {secret}"},
-                        raise_server_exceptions=False) as c:
+        with TestClient(
+            app, headers={"Authorization": f"Bearer {secret}"}, raise_server_exceptions=False
+        ) as c:
             assert c.get("/v1/users").status_code == 200
             with db.transaction() as session:
                 [key] = [k for k in list_keys(session) if k.name == "cached"]
                 revoke_key(session, key.id, keys=app.state.ctx.keys)
             assert_error(c.get("/v1/users"), 401, "Unauthorized")
 
-    def test_no_cache_reads_every_key(self, settings: Settings, empty_tables: None,
-                                      make_key: MakeKey) -> None:
+    def test_no_cache_reads_every_key(
+        self, settings: Settings, empty_tables: None, make_key: MakeKey
+    ) -> None:
         app = create_app(settings.model_copy(update={"key_cache_seconds": 0}))
         try:
             secret = make_key("robot", name="uncached")
-            with TestClient(app, headers={"Authorization": f"Bearer {secret}"},
-                            raise_server_exceptions=False) as c:
+            with TestClient(
+                app, headers={"Authorization": f"Bearer {secret}"}, raise_server_exceptions=False
+            ) as c:
                 assert c.get("/v1/users").status_code == 200
                 self._revoked_outside(app.state.db, "uncached")
                 assert_error(c.get("/v1/users"), 401, "Unauthorized")
@@ -176,14 +209,16 @@ class TestKeyCache:
 class TestRobotOnAdminRoutes:
     @pytest.mark.one_engine
     @pytest.mark.parametrize(("method", "path", "body"), ADMIN_ROUTES)
-    def test_forbidden(self, robot: TestClient, lin: dict[str, str], method: str, path: str,
-                       body: Any) -> None:
+    def test_forbidden(
+        self, robot: TestClient, lin: dict[str, str], method: str, path: str, body: Any
+    ) -> None:
         assert_error(_call(robot, method, path, body, lin), 403, "Forbidden")
         assert robot.get("/v1/users/lin").status_code == 200  # nothing was deleted
 
     @pytest.mark.parametrize(("method", "path", "body"), ADMIN_ROUTES[:4])
-    def test_admin_may(self, admin: TestClient, lin: dict[str, str], method: str, path: str,
-                       body: Any) -> None:
+    def test_admin_may(
+        self, admin: TestClient, lin: dict[str, str], method: str, path: str, body: Any
+    ) -> None:
         if method == "PUT":  # import what was exported
             body = admin.get("/v1/users/lin/model/export").json()
         r = _call(admin, method, path, body, lin)
@@ -194,35 +229,56 @@ class TestOtherFleet:
     # Routes naming a user or episode of lin's fleet that another fleet cannot reach. PUT of a
     # user and POST of an episode are missing here: from another fleet they mean that fleet's
     # own `lin` (TestSameIdsInTwoFleets).
-    ABSENT = [r for r in USER_ROUTES + EPISODE_ROUTES
-              if (r[0], r[1]) not in {("PUT", "/v1/users/{user}"),
-                                      ("POST", "/v1/users/{user}/episodes")}]
+    ABSENT = [
+        r
+        for r in USER_ROUTES + EPISODE_ROUTES
+        if (r[0], r[1]) not in {("PUT", "/v1/users/{user}"), ("POST", "/v1/users/{user}/episodes")}
+    ]
 
     @pytest.mark.parametrize(("method", "path", "body"), ABSENT)
     def test_another_fleets_resources_are_absent(
-            self, other_robot: TestClient, robot: TestClient, lin: dict[str, str],
-            method: str, path: str, body: Any) -> None:
+        self,
+        other_robot: TestClient,
+        robot: TestClient,
+        lin: dict[str, str],
+        method: str,
+        path: str,
+        body: Any,
+    ) -> None:
         before = robot.get("/v1/users/lin").json()
         r = _call(other_robot, method, path, body, lin)
         body_out = assert_error(r, 404, "NotFound")
         assert "lin" not in body_out["detail"] or "No user" in body_out["detail"]
         assert robot.get("/v1/users/lin").json() == before  # and nothing changed
 
-    def test_the_same_404_as_a_user_that_does_not_exist(self, other_robot: TestClient,
-                                                        lin: dict[str, str]) -> None:
+    def test_the_same_404_as_a_user_that_does_not_exist(
+        self, other_robot: TestClient, lin: dict[str, str]
+    ) -> None:
         hidden = other_robot.get("/v1/users/lin")
         absent = other_robot.get("/v1/users/nobody")
-        assert (hidden.status_code, hidden.json()["error"]) == \
-            (absent.status_code, absent.json()["error"])
-        assert hidden.json()["detail"].replace("lin", "X") == \
-            absent.json()["detail"].replace("nobody", "X")
+        assert (hidden.status_code, hidden.json()["error"]) == (
+            absent.status_code,
+            absent.json()["error"],
+        )
+        assert hidden.json()["detail"].replace("lin", "X") == absent.json()["detail"].replace(
+            "nobody", "X"
+        )
 
     @pytest.mark.parametrize(("method", "path", "body"), ADMIN_ROUTES[:4])
     def test_an_admin_of_any_fleet_reaches_every_fleet(
-            self, app: FastAPI, make_key: MakeKey, lin: dict[str, str], method: str,
-            path: str, body: Any) -> None:
-        with TestClient(app, headers={"Authorization": f"Bearer {make_key('admin', 'other')}"},
-                        raise_server_exceptions=False) as other_admin:
+        self,
+        app: FastAPI,
+        make_key: MakeKey,
+        lin: dict[str, str],
+        method: str,
+        path: str,
+        body: Any,
+    ) -> None:
+        with TestClient(
+            app,
+            headers={"Authorization": f"Bearer {make_key('admin', 'other')}"},
+            raise_server_exceptions=False,
+        ) as other_admin:
             in_default = {"fleet": "default"}
             if method == "PUT":
                 body = other_admin.get("/v1/users/lin/model/export", params=in_default).json()
@@ -232,29 +288,30 @@ class TestOtherFleet:
             # Without ?fleet= an admin means its own key's fleet, where there is no lin.
             assert_error(other_admin.request(method, target, json=body), 404, "NotFound")
 
-    def test_listing_shows_only_the_own_fleet(self, robot: TestClient,
-                                              other_robot: TestClient, admin: TestClient,
-                                              lin: dict[str, str]) -> None:
+    def test_listing_shows_only_the_own_fleet(
+        self, robot: TestClient, other_robot: TestClient, admin: TestClient, lin: dict[str, str]
+    ) -> None:
         start(other_robot, "ming", "ming-1")
         assert [u["user_id"] for u in robot.get("/v1/users").json()["items"]] == ["lin"]
-        assert [u["user_id"] for u in other_robot.get("/v1/users").json()["items"]] == \
-            ["ming"]
-        assert {u["user_id"] for u in admin.get("/v1/users").json()["items"]} == \
-            {"lin", "ming"}
+        assert [u["user_id"] for u in other_robot.get("/v1/users").json()["items"]] == ["ming"]
+        assert {u["user_id"] for u in admin.get("/v1/users").json()["items"]} == {"lin", "ming"}
 
     def test_naming_another_fleet_is_answered_as_a_missing_user(
-            self, other_robot: TestClient, lin: dict[str, str]) -> None:
+        self, other_robot: TestClient, lin: dict[str, str]
+    ) -> None:
         """Only admins choose a fleet; anyone else naming lin's fleet finds no lin there."""
         named = other_robot.get("/v1/users/lin", params={"fleet": "default"})
         absent = other_robot.get("/v1/users/nobody", params={"fleet": "default"})
         assert_error(named, 404, "NotFound")
-        assert named.json()["detail"].replace("lin", "X") == \
-            absent.json()["detail"].replace("nobody", "X")
+        assert named.json()["detail"].replace("lin", "X") == absent.json()["detail"].replace(
+            "nobody", "X"
+        )
 
 
 class TestSameIdsInTwoFleets:
     def test_another_fleet_makes_its_own_user_of_the_same_id(
-            self, robot: TestClient, other_robot: TestClient, lin: dict[str, str]) -> None:
+        self, robot: TestClient, other_robot: TestClient, lin: dict[str, str]
+    ) -> None:
         before = robot.get("/v1/users/lin").json()
         made = other_robot.put("/v1/users/lin", json={"display_name": "Lin of other"})
         assert made.status_code == 201, made.text
@@ -272,8 +329,9 @@ class TestSameIdsInTwoFleets:
 # -- abuse limits ------------------------------------------------------------------------------
 @pytest.fixture
 def limited_app(settings: Settings, empty_tables: None) -> Iterator[FastAPI]:
-    application = create_app(settings.model_copy(update={"rate_limit_per_s": 1.0,
-                                                         "rate_limit_burst": 3}))
+    application = create_app(
+        settings.model_copy(update={"rate_limit_per_s": 1.0, "rate_limit_burst": 3})
+    )
     yield application
     application.state.db.dispose()
 
@@ -285,8 +343,9 @@ class TestRateLimit:
         with db.transaction() as session:
             one = auth.create_key(session, role="robot")[1]
             two = auth.create_key(session, role="robot")[1]
-        with TestClient(limited_app, headers={"Authorization": f"Bearer {one}"},
-                        raise_server_exceptions=False) as c:
+        with TestClient(
+            limited_app, headers={"Authorization": f"Bearer {one}"}, raise_server_exceptions=False
+        ) as c:
             codes = [c.get("/v1/users").status_code for _ in range(5)]
             assert codes[:3] == [200, 200, 200]
             assert 429 in codes[3:]
@@ -295,8 +354,9 @@ class TestRateLimit:
             assert r.headers["Retry-After"].isdigit()
             assert int(r.headers["Retry-After"]) >= 1
             assert c.get("/healthz").status_code == 200  # probes are never limited
-        with TestClient(limited_app, headers={"Authorization": f"Bearer {two}"},
-                        raise_server_exceptions=False) as c:
+        with TestClient(
+            limited_app, headers={"Authorization": f"Bearer {two}"}, raise_server_exceptions=False
+        ) as c:
             assert c.get("/v1/users").status_code == 200  # another key has its own bucket
 
     def test_the_bucket_refills(self) -> None:
@@ -345,11 +405,17 @@ class TestOverload:
                 async def receive() -> Any:
                     return {"type": "http.request", "body": b""}
 
-                await mw({"type": "http", "path": path, "method": "GET", "headers": []},
-                         receive, send)
+                await mw(
+                    {"type": "http", "path": path, "method": "GET", "headers": []}, receive, send
+                )
                 start_msg = sent[0]
-                results.append((path, start_msg["status"],
-                                {k.decode(): v.decode() for k, v in start_msg["headers"]}))
+                results.append(
+                    (
+                        path,
+                        start_msg["status"],
+                        {k.decode(): v.decode() for k, v in start_msg["headers"]},
+                    )
+                )
 
             held = [asyncio.create_task(call("/v1/users")) for _ in range(2)]
             await asyncio.sleep(0)
@@ -369,8 +435,9 @@ class TestOverload:
         assert shed[0][2]["retry-after"] == "1"
         assert sorted(r[1] for r in results) == [200, 200, 200, 503]
 
-    def test_the_503_is_the_contract_error_body(self, settings: Settings,
-                                                empty_tables: None) -> None:
+    def test_the_503_is_the_contract_error_body(
+        self, settings: Settings, empty_tables: None
+    ) -> None:
         application = create_app(settings.model_copy(update={"max_in_flight": 1}))
         try:
             with TestClient(application, raise_server_exceptions=False) as c:
@@ -401,14 +468,18 @@ class TestBodyLimit:
         assert_error(robot.post("/v1/users/lin/episodes", json=big), 413, "PayloadTooLarge")
 
     def test_413_before_authentication(self, client: TestClient) -> None:
-        r = client.post("/v1/users/lin/episodes", content=b"x" * (70 * 1024),
-                        headers={"Content-Type": "application/json"})
+        r = client.post(
+            "/v1/users/lin/episodes",
+            content=b"x" * (70 * 1024),
+            headers={"Content-Type": "application/json"},
+        )
         assert_error(r, 413, "PayloadTooLarge")
 
 
 class TestKeyCheck:
-    def test_the_stored_digest_must_match(self, db: Database, make_key: MakeKey,
-                                          monkeypatch: pytest.MonkeyPatch) -> None:
+    def test_the_stored_digest_must_match(
+        self, db: Database, make_key: MakeKey, monkeypatch: pytest.MonkeyPatch
+    ) -> None:
         """The final check compares digests with compare_digest, whatever the lookup said."""
         secret = make_key("robot")
         with db.transaction() as session:
@@ -419,8 +490,9 @@ class TestKeyCheck:
             with pytest.raises(Unauthorized):
                 auth.authenticate(session, f"Bearer {secret}")
 
-    def test_compared_in_constant_time(self, monkeypatch: pytest.MonkeyPatch, db: Database,
-                                       make_key: MakeKey) -> None:
+    def test_compared_in_constant_time(
+        self, monkeypatch: pytest.MonkeyPatch, db: Database, make_key: MakeKey
+    ) -> None:
         secret = make_key("robot")
         seen: list[tuple[str, str]] = []
         real = hmac.compare_digest
@@ -436,8 +508,9 @@ class TestKeyCheck:
 
 
 class TestAudit:
-    def test_admin_actions_are_logged_who_what_when(self, admin: TestClient, robot: TestClient,
-                                                    lin: dict[str, str], db: Database) -> None:
+    def test_admin_actions_are_logged_who_what_when(
+        self, admin: TestClient, robot: TestClient, lin: dict[str, str], db: Database
+    ) -> None:
         before = dt.datetime.now(dt.UTC)
         doc = admin.get("/v1/users/lin/model/export").json()
         assert admin.put("/v1/users/lin/model", json=doc).status_code == 200
@@ -448,9 +521,13 @@ class TestAudit:
             revoke_key(session, key.id)  # the command line's revocation
         items = admin.get("/v1/admin/audit").json()["items"]
         actions = [(e["action"], e["target"]) for e in items]
-        assert actions[:5] == [("key.revoke", key.id), ("user.delete", "lin"),
-                               ("model.reset", "lin"), ("model.import", "lin"),
-                               ("model.export", "lin")]
+        assert actions[:5] == [
+            ("key.revoke", key.id),
+            ("user.delete", "lin"),
+            ("model.reset", "lin"),
+            ("model.import", "lin"),
+            ("model.export", "lin"),
+        ]
         for e in items[1:5]:
             assert e["actor"]["role"] == "admin"
             assert e["actor"]["key_id"].startswith("key_")
@@ -461,9 +538,9 @@ class TestAudit:
         # key creation is an admin action too (the fixtures made the keys)
         assert {e["action"] for e in items[5:]} == {"key.create"}
 
-    def test_failed_or_forbidden_actions_leave_no_entry(self, admin: TestClient,
-                                                        robot: TestClient,
-                                                        lin: dict[str, str]) -> None:
+    def test_failed_or_forbidden_actions_leave_no_entry(
+        self, admin: TestClient, robot: TestClient, lin: dict[str, str]
+    ) -> None:
         count = len(admin.get("/v1/admin/audit?limit=500").json()["items"])
         assert robot.delete("/v1/users/lin").status_code == 403
         assert admin.delete("/v1/users/nobody").status_code == 404
@@ -477,8 +554,9 @@ class TestAudit:
         seen: list[str] = []
         cursor = None
         for _ in range(10):
-            page = admin.get("/v1/admin/audit", params={"limit": 2, **(
-                {"cursor": cursor} if cursor else {})}).json()
+            page = admin.get(
+                "/v1/admin/audit", params={"limit": 2, **({"cursor": cursor} if cursor else {})}
+            ).json()
             seen += [e["target"] for e in page["items"] if e["action"] == "model.reset"]
             cursor = page["next_cursor"]
             if cursor is None:
@@ -486,23 +564,30 @@ class TestAudit:
         assert seen == [f"u{i}" for i in reversed(range(5))]
         assert_error(admin.get("/v1/admin/audit?cursor=abc"), 422, "ValidationError")
 
-    def test_entries_are_append_only(self, db: Database, admin: TestClient,
-                                     lin: dict[str, str]) -> None:
+    def test_entries_are_append_only(
+        self, db: Database, admin: TestClient, lin: dict[str, str]
+    ) -> None:
         from sqlalchemy import text
         from sqlalchemy.exc import DatabaseError
 
         admin.delete("/v1/users/lin/model")
-        for statement in ("UPDATE audit_log SET action = 'model.export'",
-                          "DELETE FROM audit_log"):
-            with pytest.raises(DatabaseError, match="append only"), \
-                    db.transaction() as session:
+        for statement in ("UPDATE audit_log SET action = 'model.export'", "DELETE FROM audit_log"):
+            with pytest.raises(DatabaseError, match="append only"), db.transaction() as session:
                 session.execute(text(statement))
-        assert [e["action"] for e in admin.get("/v1/admin/audit").json()["items"]] == \
-            ["model.reset", "key.create", "key.create"]
+        assert [e["action"] for e in admin.get("/v1/admin/audit").json()["items"]] == [
+            "model.reset",
+            "key.create",
+            "key.create",
+        ]
 
-    def test_storing_a_rebuilt_model_is_logged(self, admin: TestClient, robot: TestClient,
-                                               lin: dict[str, str], db: Database,
-                                               settings: Settings) -> None:
+    def test_storing_a_rebuilt_model_is_logged(
+        self,
+        admin: TestClient,
+        robot: TestClient,
+        lin: dict[str, str],
+        db: Database,
+        settings: Settings,
+    ) -> None:
         from sqlalchemy import update
         from typer.testing import CliRunner
 
@@ -514,19 +599,36 @@ class TestAudit:
 
         kind = robot.get(f"/v1/episodes/{lin['episode']}").json()["decisions"][0]["action"]
         response = "accepted" if kind["kind"] == "initiate" else "none"
-        assert robot.post(f"/v1/episodes/{lin['episode']}/outcomes", json={
-            "decision_id": lin["decision"], "response": response}).status_code == 200
+        assert (
+            robot.post(
+                f"/v1/episodes/{lin['episode']}/outcomes",
+                json={"decision_id": lin["decision"], "response": response},
+            ).status_code
+            == 200
+        )
         with db.transaction() as session:  # the stored model no longer matches its history
-            session.execute(update(LearnerModel).where(
-                    LearnerModel.user_pk == user_pk(session, "lin")).values(
-                state=fresh_learner("hri", None, ServiceContext.from_settings(
-                    settings).mission).to_state(), state_version=LearnerModel.version))
-        result = CliRunner().invoke(cli.app, ["models", "rebuild", "lin", "--save"], env={
-            "ATTUNE_DATABASE_URL": settings.database_url, "ATTUNE_SEED": "0"})
+            session.execute(
+                update(LearnerModel)
+                .where(LearnerModel.user_pk == user_pk(session, "lin"))
+                .values(
+                    state=fresh_learner(
+                        "hri", None, ServiceContext.from_settings(settings).mission
+                    ).to_state(),
+                    state_version=LearnerModel.version,
+                )
+            )
+        result = CliRunner().invoke(
+            cli.app,
+            ["models", "rebuild", "lin", "--save"],
+            env={"ATTUNE_DATABASE_URL": settings.database_url, "ATTUNE_SEED": "0"},
+        )
         with warnings.catch_warnings():  # the command leaves its connections to the collector
             warnings.simplefilter("ignore", ResourceWarning)
             gc.collect()
         assert result.exit_code == 1, result.output
         entry = admin.get("/v1/admin/audit").json()["items"][0]
-        assert (entry["action"], entry["target"], entry["actor"]["key_id"]) == \
-            ("model.rebuild", "lin", "cli")
+        assert (entry["action"], entry["target"], entry["actor"]["key_id"]) == (
+            "model.rebuild",
+            "lin",
+            "cli",
+        )

@@ -24,11 +24,13 @@ SITUATIONS = ("arriving", "working", "stretching", "busy")
 def state(client: TestClient, ep: dict[str, Any]) -> tuple[Any, ...]:
     """Everything a refused write could have touched."""
     uid = ep["user_id"]
-    return (client.get(f"/v1/episodes/{ep['episode_id']}").json(),
-            client.get(f"/v1/users/{uid}").json(),
-            client.get(f"/v1/users/{uid}/model").json(),
-            client.get(f"/v1/users/{uid}/stats").json(),
-            client.get("/v1/users").json())
+    return (
+        client.get(f"/v1/episodes/{ep['episode_id']}").json(),
+        client.get(f"/v1/users/{uid}").json(),
+        client.get(f"/v1/users/{uid}/model").json(),
+        client.get(f"/v1/users/{uid}/stats").json(),
+        client.get("/v1/users").json(),
+    )
 
 
 @pytest.fixture
@@ -39,8 +41,9 @@ def ep(robot: TestClient) -> dict[str, Any]:
 
 @pytest.mark.one_engine
 class TestEpisodeBodies:
-    def test_unknown_situation_lists_the_situations(self, robot: TestClient,
-                                                    ep: dict[str, Any]) -> None:
+    def test_unknown_situation_lists_the_situations(
+        self, robot: TestClient, ep: dict[str, Any]
+    ) -> None:
         before = state(robot, ep)
         r = robot.post("/v1/users/lin/episodes", json=event("e1", situation="sleeping"))
         body = assert_error(r, 422, "ValidationError")
@@ -53,47 +56,60 @@ class TestEpisodeBodies:
         assert_error(r, 422, "ValidationError")
         assert robot.get("/v1/users/newbie").status_code == 404
 
-    @pytest.mark.parametrize("raw", [
-        b"{", b"{\"event_id\": \"e1\",}", b"not json", b"\xff\xfe\x00", b"",
-        b"{\"event_id\": " + b"[" * 5000 + b"]" * 5000 + b"}",
-        b"{\"event_id\": " + b"9" * 5000 + b"}",
-    ])
-    def test_malformed_json_is_400_or_422(self, robot: TestClient, ep: dict[str, Any],
-                                          raw: bytes) -> None:
+    @pytest.mark.parametrize(
+        "raw",
+        [
+            b"{",
+            b'{"event_id": "e1",}',
+            b"not json",
+            b"\xff\xfe\x00",
+            b"",
+            b'{"event_id": ' + b"[" * 5000 + b"]" * 5000 + b"}",
+            b'{"event_id": ' + b"9" * 5000 + b"}",
+        ],
+    )
+    def test_malformed_json_is_400_or_422(
+        self, robot: TestClient, ep: dict[str, Any], raw: bytes
+    ) -> None:
         before = state(robot, ep)
-        r = robot.post("/v1/users/lin/episodes", content=raw,
-                       headers={"Content-Type": "application/json"})
+        r = robot.post(
+            "/v1/users/lin/episodes", content=raw, headers={"Content-Type": "application/json"}
+        )
         assert_error(r, (400, 422))
         assert state(robot, ep) == before
 
-    @pytest.mark.parametrize("change", [
-        {"situation": 5},
-        {"situation": None},
-        {"situation": ["working"]},
-        {"situation": ""},
-        {"occurred_at": "2026-11-22T15:10:00"},  # no offset
-        {"occurred_at": "yesterday"},
-        {"occurred_at": "2026-13-45T99:00:00+08:00"},
-        {"occurred_at": 1763795400},
-        {"occurred_at": None},
-        {"occurred_at": "0001-01-01T00:00:00+14:00"},
-        {"occurred_at": "9999-12-31T23:59:59-12:00"},
-        {"initiator": "cat"},
-        {"initiator": None},
-        {"event_id": ""},
-        {"event_id": "has space"},
-        {"event_id": "x" * 129},
-        {"event_id": "ünïcode"},
-        {"event_id": 7},
-        {"robot_id": "r 7"},
-        {"request": "tea"},
-        {"request": {"service": 3}},
-        {"request": {"service": "ProvideDrink", "extra": 1}},
-        {"colour": "blue"},
-        {"situation": "busy\u0000"},
-    ])
-    def test_wrong_values_are_422(self, robot: TestClient, ep: dict[str, Any],
-                                  change: dict[str, Any]) -> None:
+    @pytest.mark.parametrize(
+        "change",
+        [
+            {"situation": 5},
+            {"situation": None},
+            {"situation": ["working"]},
+            {"situation": ""},
+            {"occurred_at": "2026-11-22T15:10:00"},  # no offset
+            {"occurred_at": "yesterday"},
+            {"occurred_at": "2026-13-45T99:00:00+08:00"},
+            {"occurred_at": 1763795400},
+            {"occurred_at": None},
+            {"occurred_at": "0001-01-01T00:00:00+14:00"},
+            {"occurred_at": "9999-12-31T23:59:59-12:00"},
+            {"initiator": "cat"},
+            {"initiator": None},
+            {"event_id": ""},
+            {"event_id": "has space"},
+            {"event_id": "x" * 129},
+            {"event_id": "ünïcode"},
+            {"event_id": 7},
+            {"robot_id": "r 7"},
+            {"request": "tea"},
+            {"request": {"service": 3}},
+            {"request": {"service": "ProvideDrink", "extra": 1}},
+            {"colour": "blue"},
+            {"situation": "busy\u0000"},
+        ],
+    )
+    def test_wrong_values_are_422(
+        self, robot: TestClient, ep: dict[str, Any], change: dict[str, Any]
+    ) -> None:
         before = state(robot, ep)
         r = robot.post("/v1/users/lin/episodes", json={**event("e-new"), **change})
         assert_error(r, 422, "ValidationError")
@@ -102,44 +118,53 @@ class TestEpisodeBodies:
 
     @pytest.mark.parametrize("missing", ["event_id", "occurred_at", "situation"])
     def test_missing_required_fields_are_422_naming_the_field(
-            self, robot: TestClient, ep: dict[str, Any], missing: str) -> None:
+        self, robot: TestClient, ep: dict[str, Any], missing: str
+    ) -> None:
         body = event("e-new")
         del body[missing]
         r = robot.post("/v1/users/lin/episodes", json=body)
         err = assert_error(r, 422, "ValidationError")
         assert missing in err["detail"]
 
-    @pytest.mark.parametrize("raw", ["[]", "null", "3", "\"str\"", "true"])
+    @pytest.mark.parametrize("raw", ["[]", "null", "3", '"str"', "true"])
     def test_a_body_that_is_not_an_object_is_422(self, robot: TestClient, raw: str) -> None:
-        r = robot.post("/v1/users/lin/episodes", content=raw,
-                       headers={"Content-Type": "application/json"})
+        r = robot.post(
+            "/v1/users/lin/episodes", content=raw, headers={"Content-Type": "application/json"}
+        )
         assert_error(r, 422, "ValidationError")
         assert robot.get("/v1/users/lin").status_code == 404
 
     def test_a_json_body_sent_as_text_plain_is_refused(self, robot: TestClient) -> None:
-        r = robot.post("/v1/users/lin/episodes", content=json.dumps(event("e1")),
-                       headers={"Content-Type": "text/plain"})
+        r = robot.post(
+            "/v1/users/lin/episodes",
+            content=json.dumps(event("e1")),
+            headers={"Content-Type": "text/plain"},
+        )
         assert_error(r, 415, "UnsupportedMediaType")
         assert robot.get("/v1/users/lin").status_code == 404
 
 
 class TestOutcomeAndFeedbackBodies:
     @pytest.mark.one_engine
-    @pytest.mark.parametrize("body", [
-        {},
-        {"response": "accepted"},
-        {"decision_id": "dec_x"},
-        {"decision_id": 5, "response": "accepted"},
-        {"decision_id": "d" * 65, "response": "accepted"},
-        {"decision_id": "dec_x", "response": "ACCEPTED"},
-        {"decision_id": "dec_x", "response": None},
-        {"decision_id": "dec_x", "response": "accepted", "feedback": "meh"},
-        {"decision_id": "dec_x", "response": "accepted", "feedback": 1},
-        {"decision_id": "dec_x", "response": "accepted", "mood": "happy"},
-        {"decision_id": "dec_x", "response": "accepted", "service": ["ProvideDrink"]},
-    ])
-    def test_bad_outcome_bodies_are_422(self, robot: TestClient, ep: dict[str, Any],
-                                        body: dict[str, Any]) -> None:
+    @pytest.mark.parametrize(
+        "body",
+        [
+            {},
+            {"response": "accepted"},
+            {"decision_id": "dec_x"},
+            {"decision_id": 5, "response": "accepted"},
+            {"decision_id": "d" * 65, "response": "accepted"},
+            {"decision_id": "dec_x", "response": "ACCEPTED"},
+            {"decision_id": "dec_x", "response": None},
+            {"decision_id": "dec_x", "response": "accepted", "feedback": "meh"},
+            {"decision_id": "dec_x", "response": "accepted", "feedback": 1},
+            {"decision_id": "dec_x", "response": "accepted", "mood": "happy"},
+            {"decision_id": "dec_x", "response": "accepted", "service": ["ProvideDrink"]},
+        ],
+    )
+    def test_bad_outcome_bodies_are_422(
+        self, robot: TestClient, ep: dict[str, Any], body: dict[str, Any]
+    ) -> None:
         before = state(robot, ep)
         r = robot.post(f"/v1/episodes/{ep['episode_id']}/outcomes", json=body)
         assert_error(r, 422, "ValidationError")
@@ -148,28 +173,40 @@ class TestOutcomeAndFeedbackBodies:
     @pytest.mark.one_engine
     def test_malformed_outcome_json(self, robot: TestClient, ep: dict[str, Any]) -> None:
         before = state(robot, ep)
-        r = robot.post(f"/v1/episodes/{ep['episode_id']}/outcomes", content=b"{\"decision",
-                       headers={"Content-Type": "application/json"})
+        r = robot.post(
+            f"/v1/episodes/{ep['episode_id']}/outcomes",
+            content=b'{"decision',
+            headers={"Content-Type": "application/json"},
+        )
         assert_error(r, (400, 422))
         assert state(robot, ep) == before
 
-    def test_nul_in_a_decision_id_is_not_a_server_error(self, robot: TestClient,
-                                                        ep: dict[str, Any]) -> None:
+    def test_nul_in_a_decision_id_is_not_a_server_error(
+        self, robot: TestClient, ep: dict[str, Any]
+    ) -> None:
         before = state(robot, ep)
-        r = robot.post(f"/v1/episodes/{ep['episode_id']}/outcomes",
-                       json={"decision_id": "dec\u0000", "response": "accepted"})
+        r = robot.post(
+            f"/v1/episodes/{ep['episode_id']}/outcomes",
+            json={"decision_id": "dec\u0000", "response": "accepted"},
+        )
         assert_error(r, (409, 422))
         assert state(robot, ep) == before
 
     @pytest.mark.one_engine
-    @pytest.mark.parametrize("body", [
-        {}, {"feedback_id": "f1"}, {"feedback_id": "f1", "feedback": "good"},
-        {"feedback_id": "f 1", "feedback": "positive"}, {"feedback_id": None,
-                                                         "feedback": "positive"},
-        {"feedback_id": "f1", "feedback": "positive", "score": 5},
-    ])
-    def test_bad_feedback_bodies_are_422(self, robot: TestClient, ep: dict[str, Any],
-                                         body: dict[str, Any]) -> None:
+    @pytest.mark.parametrize(
+        "body",
+        [
+            {},
+            {"feedback_id": "f1"},
+            {"feedback_id": "f1", "feedback": "good"},
+            {"feedback_id": "f 1", "feedback": "positive"},
+            {"feedback_id": None, "feedback": "positive"},
+            {"feedback_id": "f1", "feedback": "positive", "score": 5},
+        ],
+    )
+    def test_bad_feedback_bodies_are_422(
+        self, robot: TestClient, ep: dict[str, Any], body: dict[str, Any]
+    ) -> None:
         before = state(robot, ep)
         r = robot.post(f"/v1/episodes/{ep['episode_id']}/feedback", json=body)
         assert_error(r, 422, "ValidationError")
@@ -177,32 +214,39 @@ class TestOutcomeAndFeedbackBodies:
 
 
 class TestUserBodies:
-    @pytest.mark.parametrize("body", [
-        {"display_name": 5},
-        {"display_name": "x" * 201},
-        {"learner": "hri"},
-        {"learner": {"algorithm": 5}},
-        {"learner": {"algorithm": "hri", "params": [1]}},
-        {"learner": {"algorithm": "hri", "params": {"tau": 1e999}}},
-        {"learner": {"algorithm": "hri", "params": {"tau": float("nan")}}},
-        {"learner": {"algorithm": "hri", "params": {"vi_max_sweeps": 10**30}}},
-        {"learner": {"algorithm": "hri", "extra": 1}},
-        {"nickname": "Lin"},
-    ])
-    def test_bad_user_bodies_are_422(self, robot: TestClient, ep: dict[str, Any],
-                                     body: dict[str, Any]) -> None:
+    @pytest.mark.parametrize(
+        "body",
+        [
+            {"display_name": 5},
+            {"display_name": "x" * 201},
+            {"learner": "hri"},
+            {"learner": {"algorithm": 5}},
+            {"learner": {"algorithm": "hri", "params": [1]}},
+            {"learner": {"algorithm": "hri", "params": {"tau": 1e999}}},
+            {"learner": {"algorithm": "hri", "params": {"tau": float("nan")}}},
+            {"learner": {"algorithm": "hri", "params": {"vi_max_sweeps": 10**30}}},
+            {"learner": {"algorithm": "hri", "extra": 1}},
+            {"nickname": "Lin"},
+        ],
+    )
+    def test_bad_user_bodies_are_422(
+        self, robot: TestClient, ep: dict[str, Any], body: dict[str, Any]
+    ) -> None:
         before = state(robot, ep)
-        r = robot.put("/v1/users/lin", content=json.dumps(body),
-                      headers={"Content-Type": "application/json"})
+        r = robot.put(
+            "/v1/users/lin", content=json.dumps(body), headers={"Content-Type": "application/json"}
+        )
         assert_error(r, 422, "ValidationError")
         assert state(robot, ep) == before
-        r = robot.put("/v1/users/fresh", content=json.dumps(body),
-                      headers={"Content-Type": "application/json"})
+        r = robot.put(
+            "/v1/users/fresh",
+            content=json.dumps(body),
+            headers={"Content-Type": "application/json"},
+        )
         assert_error(r, 422, "ValidationError")
         assert robot.get("/v1/users/fresh").status_code == 404
 
-    def test_nul_in_display_name_is_never_a_500(self, robot: TestClient,
-                                                engine_name: str) -> None:
+    def test_nul_in_display_name_is_never_a_500(self, robot: TestClient, engine_name: str) -> None:
         r = robot.put("/v1/users/lin", json={"display_name": "Mrs.\u0000Lin"})
         if r.status_code == 201:
             assert r.json()["display_name"] == "Mrs.\u0000Lin"
@@ -213,12 +257,14 @@ class TestUserBodies:
 
 @pytest.mark.one_engine
 class TestBodyLimit:
-    def test_content_length_over_the_limit_is_413(self, robot: TestClient,
-                                                  ep: dict[str, Any]) -> None:
+    def test_content_length_over_the_limit_is_413(
+        self, robot: TestClient, ep: dict[str, Any]
+    ) -> None:
         before = state(robot, ep)
         raw = b"{" + b" " * (LIMIT + 10) + b"}"
-        r = robot.post("/v1/users/lin/episodes", content=raw,
-                       headers={"Content-Type": "application/json"})
+        r = robot.post(
+            "/v1/users/lin/episodes", content=raw, headers={"Content-Type": "application/json"}
+        )
         assert_error(r, 413, "PayloadTooLarge")
         assert state(robot, ep) == before
 
@@ -231,18 +277,20 @@ class TestBodyLimit:
         assert_error(r, 413, "PayloadTooLarge")
         assert state(robot, ep) == before
 
-    def test_a_streamed_body_without_length_is_413(self, robot: TestClient,
-                                                   ep: dict[str, Any]) -> None:
+    def test_a_streamed_body_without_length_is_413(
+        self, robot: TestClient, ep: dict[str, Any]
+    ) -> None:
         before = state(robot, ep)
 
         def chunks() -> Iterator[bytes]:
-            yield b"{\"event_id\": \"e-big\", \"robot_id\": \""
+            yield b'{"event_id": "e-big", "robot_id": "'
             for _ in range(20):
                 yield b"r" * 8192
-            yield b"\"}"
+            yield b'"}'
 
-        r = robot.post("/v1/users/lin/episodes", content=chunks(),
-                       headers={"Content-Type": "application/json"})
+        r = robot.post(
+            "/v1/users/lin/episodes", content=chunks(), headers={"Content-Type": "application/json"}
+        )
         assert_error(r, 413, "PayloadTooLarge")
         assert state(robot, ep) == before
 
@@ -267,9 +315,14 @@ class TestPathIds:
     @pytest.mark.parametrize("uid", BAD_USER_IDS)
     def test_bad_user_ids_are_422(self, admin: TestClient, uid: str) -> None:
         routes: list[tuple[str, str, dict[str, Any] | None]] = [
-            ("PUT", "", {}), ("GET", "", None), ("DELETE", "", None),
-            ("POST", "/episodes", event("e1")), ("GET", "/episodes", None),
-            ("GET", "/model", None), ("GET", "/stats", None), ("DELETE", "/model", None),
+            ("PUT", "", {}),
+            ("GET", "", None),
+            ("DELETE", "", None),
+            ("POST", "/episodes", event("e1")),
+            ("GET", "/episodes", None),
+            ("GET", "/model", None),
+            ("GET", "/stats", None),
+            ("DELETE", "/model", None),
             ("GET", "/model/export", None),
         ]
         for method, suffix, body in routes:
@@ -285,27 +338,44 @@ class TestPathIds:
         assert robot.get(f"/v1/users/{uid}").json()["user_id"] == uid
 
     @pytest.mark.parametrize("eid", ["ep%00x", "x" * 129, "%C3%BC", "ep_nope"])
-    def test_bad_episode_ids_are_404_or_422(self, robot: TestClient, ep: dict[str, Any],
-                                            eid: str) -> None:
+    def test_bad_episode_ids_are_404_or_422(
+        self, robot: TestClient, ep: dict[str, Any], eid: str
+    ) -> None:
         before = state(robot, ep)
         assert_error(robot.get(f"/v1/episodes/{eid}"), (404, 422))
-        assert_error(robot.post(f"/v1/episodes/{eid}/outcomes",
-                                json={"decision_id": "d", "response": "accepted"}), (404, 422))
-        assert_error(robot.post(f"/v1/episodes/{eid}/feedback",
-                                json={"feedback_id": "f", "feedback": "positive"}), (404, 422))
+        assert_error(
+            robot.post(
+                f"/v1/episodes/{eid}/outcomes", json={"decision_id": "d", "response": "accepted"}
+            ),
+            (404, 422),
+        )
+        assert_error(
+            robot.post(
+                f"/v1/episodes/{eid}/feedback", json={"feedback_id": "f", "feedback": "positive"}
+            ),
+            (404, 422),
+        )
         assert state(robot, ep) == before
 
     @pytest.mark.one_engine
-    @pytest.mark.parametrize("query", [
-        "cursor=AA", "cursor=%C2%B2", "cursor=%00", "cursor=" + "x" * 300, "limit=1e3",
-    ])
+    @pytest.mark.parametrize(
+        "query",
+        [
+            "cursor=AA",
+            "cursor=%C2%B2",
+            "cursor=%00",
+            "cursor=" + "x" * 300,
+            "limit=1e3",
+        ],
+    )
     def test_bad_list_queries(self, robot: TestClient, ep: dict[str, Any], query: str) -> None:
         assert_error(robot.get(f"/v1/users?{query}"), 422, "ValidationError")
         assert_error(robot.get(f"/v1/users/lin/episodes?{query}"), 422, "ValidationError")
 
     @pytest.mark.one_engine
-    @pytest.mark.parametrize("query", ["time_slot=dawn", "situation=sleeping",
-                                       "time_slot=%00", "situation=" + "x" * 100])
+    @pytest.mark.parametrize(
+        "query", ["time_slot=dawn", "situation=sleeping", "time_slot=%00", "situation=" + "x" * 100]
+    )
     def test_bad_model_filters(self, robot: TestClient, ep: dict[str, Any], query: str) -> None:
         assert_error(robot.get(f"/v1/users/lin/model?{query}"), 422, "ValidationError")
 
@@ -317,14 +387,21 @@ class TestPathIds:
 
 class TestAuth:
     @pytest.mark.one_engine
-    @pytest.mark.parametrize("headers", [
-        {}, {"Authorization": "Bearer att_nope"}, {"Authorization": "Basic xyz"},
-        {"Authorization": "Bearer"}, {"Authorization": "Bearer "}, {"Authorization": "att_x"},
-        {"Authorization": "Bearer " + "k" * 5000},
-    ])
-    def test_missing_or_unknown_key_is_401(self, app: FastAPI, robot: TestClient,
-                                           ep: dict[str, Any],
-                                           headers: dict[str, str]) -> None:
+    @pytest.mark.parametrize(
+        "headers",
+        [
+            {},
+            {"Authorization": "Bearer att_nope"},
+            {"Authorization": "Basic xyz"},
+            {"Authorization": "Bearer"},
+            {"Authorization": "Bearer "},
+            {"Authorization": "att_x"},
+            {"Authorization": "Bearer " + "k" * 5000},
+        ],
+    )
+    def test_missing_or_unknown_key_is_401(
+        self, app: FastAPI, robot: TestClient, ep: dict[str, Any], headers: dict[str, str]
+    ) -> None:
         before = state(robot, ep)
         routes: list[tuple[str, str, dict[str, Any] | None]] = [
             ("GET", "/v1/mission", None),
@@ -345,16 +422,27 @@ class TestAuth:
         assert state(robot, ep) == before
 
     @pytest.mark.one_engine
-    def test_401_on_episode_routes(self, client: TestClient, robot: TestClient,
-                                   ep: dict[str, Any]) -> None:
+    def test_401_on_episode_routes(
+        self, client: TestClient, robot: TestClient, ep: dict[str, Any]
+    ) -> None:
         before = state(robot, ep)
         eid = ep["episode_id"]
         assert_error(client.get(f"/v1/episodes/{eid}"), 401, "Unauthorized")
-        assert_error(client.post(f"/v1/episodes/{eid}/outcomes", json={
-            "decision_id": ep["decision"]["decision_id"], "response": "accepted"}),
-            401, "Unauthorized")
-        assert_error(client.post(f"/v1/episodes/{eid}/feedback", json={
-            "feedback_id": "f", "feedback": "positive"}), 401, "Unauthorized")
+        assert_error(
+            client.post(
+                f"/v1/episodes/{eid}/outcomes",
+                json={"decision_id": ep["decision"]["decision_id"], "response": "accepted"},
+            ),
+            401,
+            "Unauthorized",
+        )
+        assert_error(
+            client.post(
+                f"/v1/episodes/{eid}/feedback", json={"feedback_id": "f", "feedback": "positive"}
+            ),
+            401,
+            "Unauthorized",
+        )
         assert state(robot, ep) == before
 
     @pytest.mark.one_engine
@@ -363,12 +451,19 @@ class TestAuth:
         with TestClient(app, headers={"Authorization": f"bearer {key}"}) as c:
             assert c.get("/v1/users").status_code == 200
 
-    def test_a_revoked_key_is_401(self, app: FastAPI, db: Database, make_key: Any,
-                                  robot: TestClient, ep: dict[str, Any],
-                                  key_clock: Any) -> None:
+    def test_a_revoked_key_is_401(
+        self,
+        app: FastAPI,
+        db: Database,
+        make_key: Any,
+        robot: TestClient,
+        ep: dict[str, Any],
+        key_clock: Any,
+    ) -> None:
         secret = make_key("robot", name="to-revoke")
-        with TestClient(app, headers={"Authorization": f"Bearer {secret}"},
-                        raise_server_exceptions=False) as c:
+        with TestClient(
+            app, headers={"Authorization": f"Bearer {secret}"}, raise_server_exceptions=False
+        ) as c:
             assert c.get("/v1/users/lin").status_code == 200
             with db.transaction() as session:
                 [key] = [k for k in list_keys(session) if k.name == "to-revoke"]
@@ -377,21 +472,33 @@ class TestAuth:
             key_clock.advance(app.state.settings.key_cache_seconds)
             before = state(robot, ep)
             assert_error(c.get("/v1/users/lin"), 401, "Unauthorized")
-            assert_error(c.post("/v1/users/lin/episodes", json=event("e-revoked")), 401,
-                         "Unauthorized")
-            assert_error(c.post(f"/v1/episodes/{ep['episode_id']}/outcomes", json={
-                "decision_id": ep["decision"]["decision_id"], "response": "accepted"}),
-                401, "Unauthorized")
+            assert_error(
+                c.post("/v1/users/lin/episodes", json=event("e-revoked")), 401, "Unauthorized"
+            )
+            assert_error(
+                c.post(
+                    f"/v1/episodes/{ep['episode_id']}/outcomes",
+                    json={"decision_id": ep["decision"]["decision_id"], "response": "accepted"},
+                ),
+                401,
+                "Unauthorized",
+            )
             assert state(robot, ep) == before
         assert robot.get("/v1/users/lin").status_code == 200  # other keys still work
 
     @pytest.mark.one_engine
-    @pytest.mark.parametrize(("method", "path"), [
-        ("DELETE", "/v1/users/lin"), ("DELETE", "/v1/users/lin/model"),
-        ("GET", "/v1/users/lin/model/export"), ("PUT", "/v1/users/lin/model"),
-    ])
-    def test_robot_is_403_on_admin_routes(self, robot: TestClient, ep: dict[str, Any],
-                                          method: str, path: str) -> None:
+    @pytest.mark.parametrize(
+        ("method", "path"),
+        [
+            ("DELETE", "/v1/users/lin"),
+            ("DELETE", "/v1/users/lin/model"),
+            ("GET", "/v1/users/lin/model/export"),
+            ("PUT", "/v1/users/lin/model"),
+        ],
+    )
+    def test_robot_is_403_on_admin_routes(
+        self, robot: TestClient, ep: dict[str, Any], method: str, path: str
+    ) -> None:
         before = state(robot, ep)
         r = robot.request(method, path, json={} if method == "PUT" else None)
         assert_error(r, 403, "Forbidden")
@@ -400,12 +507,17 @@ class TestAuth:
 
 @pytest.mark.one_engine
 class TestUnknownRoutes:
-    @pytest.mark.parametrize(("method", "path"), [
-        ("GET", "/nope"), ("GET", "/v1/nope"), ("GET", "/v2/users"), ("POST", "/v1/things"),
-        ("GET", "/v1/users/lin/nope"),
-    ])
-    def test_unknown_route_is_404_json(self, robot: TestClient, method: str,
-                                       path: str) -> None:
+    @pytest.mark.parametrize(
+        ("method", "path"),
+        [
+            ("GET", "/nope"),
+            ("GET", "/v1/nope"),
+            ("GET", "/v2/users"),
+            ("POST", "/v1/things"),
+            ("GET", "/v1/users/lin/nope"),
+        ],
+    )
+    def test_unknown_route_is_404_json(self, robot: TestClient, method: str, path: str) -> None:
         assert_error(robot.request(method, path), 404, "NotFound")
 
     def test_unknown_route_without_key_is_404_json(self, client: TestClient) -> None:
@@ -418,8 +530,19 @@ class TestUnknownRoutes:
 
 # A broad sweep: every write route with many bad bodies; never a 500, always the error shape.
 BAD_BODIES: list[Any] = [
-    None, [], [1, 2], "x", 0, 1.5, True, {}, {"": ""}, {"a": {"b": {"c": []}}},
-    {"event_id": None}, {"decision_id": "x" * 10_000}, {"feedback_id": "\u0000"},
+    None,
+    [],
+    [1, 2],
+    "x",
+    0,
+    1.5,
+    True,
+    {},
+    {"": ""},
+    {"a": {"b": {"c": []}}},
+    {"event_id": None},
+    {"decision_id": "x" * 10_000},
+    {"feedback_id": "\u0000"},
     {"learner": {"algorithm": "hri", "params": {"tau": "0.01"}}},
     {"learner": {"algorithm": "hri", "params": {"tau": 10**400}}},
     {"learner": {"algorithm": "qlearning", "params": {"alpha": -1}}},
@@ -427,23 +550,35 @@ BAD_BODIES: list[Any] = [
     {"situation": "working", "occurred_at": "2026-11-22T15:10:00+25:00", "event_id": "e"},
     {"format": "attune.learner-state", "format_version": 1, "algorithm": "hri"},
     {"format": "attune.learner-state", "format_version": 99},
-    {"format": "attune.learner-state", "format_version": 1, "algorithm": "hri",
-     "mission": "office", "params": {}, "arrays": [], "pending": [], "episodes": 0,
-     "version": 0},
+    {
+        "format": "attune.learner-state",
+        "format_version": 1,
+        "algorithm": "hri",
+        "mission": "office",
+        "params": {},
+        "arrays": [],
+        "pending": [],
+        "episodes": 0,
+        "version": 0,
+    },
 ]
 
 
 @pytest.mark.parametrize("body", BAD_BODIES, ids=[f"body{i}" for i in range(len(BAD_BODIES))])
 def test_no_bad_body_is_a_server_error(admin: TestClient, ep: dict[str, Any], body: Any) -> None:
     """Every write route with this body: never a 500, the error shape, nothing changed."""
-    routes = [("PUT", "/v1/users/lin"), ("POST", "/v1/users/lin/episodes"),
-              ("POST", f"/v1/episodes/{ep['episode_id']}/outcomes"),
-              ("POST", f"/v1/episodes/{ep['episode_id']}/feedback"),
-              ("PUT", "/v1/users/lin/model")]
+    routes = [
+        ("PUT", "/v1/users/lin"),
+        ("POST", "/v1/users/lin/episodes"),
+        ("POST", f"/v1/episodes/{ep['episode_id']}/outcomes"),
+        ("POST", f"/v1/episodes/{ep['episode_id']}/feedback"),
+        ("PUT", "/v1/users/lin/model"),
+    ]
     before = state(admin, ep)
     for method, path in routes:
-        r = admin.request(method, path, content=json.dumps(body),
-                          headers={"Content-Type": "application/json"})
+        r = admin.request(
+            method, path, content=json.dumps(body), headers={"Content-Type": "application/json"}
+        )
         assert r.status_code != 500, (method, path, r.text)
         if r.status_code >= 400:
             assert_error(r, r.status_code)

@@ -44,8 +44,14 @@ THREADS = 8
 DEADLINE_S = 150.0  # the whole run; each request may also wait out the SQLite busy timeout
 SLOT_TIMES = {"morning": "09:30", "noon": "12:15", "afternoon": "15:10", "evening": "20:45"}
 SITUATIONS = MISSION.situations
-OTHER_RESPONSE = {"accepted": "rejected", "rejected": "accepted", "terminated": "accepted",
-                  "answered": "terminated", "none": "human_request", "human_request": "none"}
+OTHER_RESPONSE = {
+    "accepted": "rejected",
+    "rejected": "accepted",
+    "terminated": "accepted",
+    "answered": "terminated",
+    "none": "human_request",
+    "human_request": "none",
+}
 
 
 Who = tuple[str, str]  # (fleet, user id)
@@ -68,11 +74,13 @@ class Record:
 class Robot:
     """One thread: a robot of each fleet (one key per fleet), taking turns."""
 
-    def __init__(self, base_url: str, keys: dict[str, str], seed: int,
-                 deadline: float) -> None:
-        self.https = {fleet: httpx.Client(base_url=base_url, timeout=60.0,
-                                          headers={"Authorization": f"Bearer {key}"})
-                      for fleet, key in keys.items()}
+    def __init__(self, base_url: str, keys: dict[str, str], seed: int, deadline: float) -> None:
+        self.https = {
+            fleet: httpx.Client(
+                base_url=base_url, timeout=60.0, headers={"Authorization": f"Bearer {key}"}
+            )
+            for fleet, key in keys.items()
+        }
         self.http = self.https[FLEETS[0]]
         self.rng = random.Random(seed)
         self.deadline = deadline
@@ -84,8 +92,9 @@ class Robot:
         self.rec.statuses.append((url, r.status_code, r.text if r.status_code >= 500 else ""))
         return r
 
-    def write(self, url: str, body: dict[str, Any], conflicting: dict[str, Any],
-              status: int) -> dict[str, Any]:
+    def write(
+        self, url: str, body: dict[str, Any], conflicting: dict[str, Any], status: int
+    ) -> dict[str, Any]:
         """One acknowledged write; every 5th sent twice, one in ten followed by a conflict."""
         self.rec.writes += 1
         n = self.rec.writes
@@ -95,8 +104,9 @@ class Robot:
         first: dict[str, Any] = r.json()
         if n % 5 == 0:
             again = self.post(url, body)
-            self.rec.replays.append((first, again.status_code,
-                                     again.headers.get("Idempotent-Replay"), again.json()))
+            self.rec.replays.append(
+                (first, again.status_code, again.headers.get("Idempotent-Replay"), again.json())
+            )
         if n % 10 == 3:
             clash = self.post(url, conflicting)
             self.rec.conflicts.append((clash.status_code, clash.json()))
@@ -104,19 +114,24 @@ class Robot:
 
     def respond(self, decision: dict[str, Any]) -> dict[str, Any]:
         """Seeded answers of a cooperative person that always run the episode to its end."""
-        return {"decision_id": decision["decision_id"],
-                **people.answer(decision["action"], picky=False, rng=self.rng, asks=0.5,
-                                precise=0.5)}
+        return {
+            "decision_id": decision["decision_id"],
+            **people.answer(decision["action"], picky=False, rng=self.rng, asks=0.5, precise=0.5),
+        }
 
     def episode(self, fleet: str, user_id: str, k: int) -> None:
         self.http = self.https[fleet]
         who = (fleet, user_id)
         slot = list(SLOT_TIMES)[k % len(SLOT_TIMES)]
         situation = SITUATIONS[k % len(SITUATIONS)]
-        body = {"event_id": f"{user_id}-{k:03d}",
-                "occurred_at": f"2026-11-{1 + k % 28:02d}T{SLOT_TIMES[slot]}:00+08:00",
-                "situation": situation, "initiator": "robot", "request": None,
-                "robot_id": f"robot-{threading.get_ident()}"}
+        body = {
+            "event_id": f"{user_id}-{k:03d}",
+            "occurred_at": f"2026-11-{1 + k % 28:02d}T{SLOT_TIMES[slot]}:00+08:00",
+            "situation": situation,
+            "initiator": "robot",
+            "request": None,
+            "robot_id": f"robot-{threading.get_ident()}",
+        }
         other = {**body, "situation": SITUATIONS[(k + 1) % len(SITUATIONS)]}
         ep = self.write(f"/v1/users/{user_id}/episodes", body, other, 201)
         assert ep["context"] == {"time_slot": slot, "situation": situation}
@@ -141,8 +156,13 @@ class Robot:
         raise AssertionError(f"episode {episode_id} did not end within 6 steps")
 
 
-def run_robot(base_url: str, keys: dict[str, str], seed: int,
-              jobs: list[tuple[str, str, int]], deadline: float) -> Record:
+def run_robot(
+    base_url: str,
+    keys: dict[str, str],
+    seed: int,
+    jobs: list[tuple[str, str, int]],
+    deadline: float,
+) -> Record:
     robot = Robot(base_url, keys, seed, deadline)
     try:
         for fleet, user_id, k in jobs:
@@ -156,7 +176,8 @@ def run_robot(base_url: str, keys: dict[str, str], seed: int,
 def rebuild(settings: Settings, fleet: str, user_id: str) -> tuple[int, dict[str, Any]]:
     """``attune models rebuild USER_ID --fleet FLEET``: (exit code, its JSON summary line)."""
     result = CliRunner().invoke(
-        cli.app, ["models", "rebuild", user_id, "--fleet", fleet],
+        cli.app,
+        ["models", "rebuild", user_id, "--fleet", fleet],
         env={"ATTUNE_DATABASE_URL": settings.database_url, "ATTUNE_SEED": "0"},
     )
     with warnings.catch_warnings():  # the command leaves its connections to the collector
@@ -169,15 +190,17 @@ def rebuild(settings: Settings, fleet: str, user_id: str) -> tuple[int, dict[str
 
 
 def test_concurrent_robots_with_retries_and_conflicts(
-        app: FastAPI, db: Database, make_key: MakeKey, settings: Settings,
-        engine_name: str) -> None:
+    app: FastAPI, db: Database, make_key: MakeKey, settings: Settings, engine_name: str
+) -> None:
     everyone = [(fleet, user) for fleet in FLEETS for user in USERS]
     jobs = [(fleet, user, k) for fleet, user in everyone for k in range(PER_USER)]
     random.Random(2026).shuffle(jobs)
     per_thread = [jobs[t::THREADS] for t in range(THREADS)]
     # Several threads act for each user, and every thread for both fleets.
-    assert all(sum(who in {(f, u) for f, u, _ in chunk} for chunk in per_thread) >= THREADS // 2
-               for who in everyone)
+    assert all(
+        sum(who in {(f, u) for f, u, _ in chunk} for chunk in per_thread) >= THREADS // 2
+        for who in everyone
+    )
     assert all({f for f, _, _ in chunk} == set(FLEETS) for chunk in per_thread)
     keys = [{fleet: make_key("robot", fleet) for fleet in FLEETS} for _ in range(THREADS)]
     began = time.monotonic()
@@ -185,26 +208,37 @@ def test_concurrent_robots_with_retries_and_conflicts(
     with serving(app) as base_url:
         initial = {}
         for fleet, user_id in everyone:
-            with httpx.Client(base_url=base_url, timeout=60.0,
-                              headers={"Authorization": f"Bearer {keys[0][fleet]}"}) as http:
+            with httpx.Client(
+                base_url=base_url,
+                timeout=60.0,
+                headers={"Authorization": f"Bearer {keys[0][fleet]}"},
+            ) as http:
                 made = http.put(f"/v1/users/{user_id}", json={})
                 assert made.status_code == 201, made.text
                 assert made.json()["fleet"] == fleet
-                initial[fleet, user_id] = \
-                    http.get(f"/v1/users/{user_id}/model").json()["version"]
+                initial[fleet, user_id] = http.get(f"/v1/users/{user_id}/model").json()["version"]
         with ThreadPoolExecutor(max_workers=THREADS) as pool:
-            futures = [pool.submit(run_robot, base_url, keys[t], t, per_thread[t], deadline)
-                       for t in range(THREADS)]
-            records = [f.result(timeout=max(1.0, deadline - time.monotonic()))
-                       for f in futures]
+            futures = [
+                pool.submit(run_robot, base_url, keys[t], t, per_thread[t], deadline)
+                for t in range(THREADS)
+            ]
+            records = [f.result(timeout=max(1.0, deadline - time.monotonic())) for f in futures]
         driven = time.monotonic() - began
         views = {}
         for fleet, user_id in everyone:
-            elsewhere, = set(FLEETS) - {fleet}
-            with httpx.Client(base_url=base_url, timeout=60.0,
-                              headers={"Authorization": f"Bearer {keys[0][fleet]}"}) as http, \
-                    httpx.Client(base_url=base_url, timeout=60.0, headers={
-                        "Authorization": f"Bearer {keys[0][elsewhere]}"}) as other:
+            (elsewhere,) = set(FLEETS) - {fleet}
+            with (
+                httpx.Client(
+                    base_url=base_url,
+                    timeout=60.0,
+                    headers={"Authorization": f"Bearer {keys[0][fleet]}"},
+                ) as http,
+                httpx.Client(
+                    base_url=base_url,
+                    timeout=60.0,
+                    headers={"Authorization": f"Bearer {keys[0][elsewhere]}"},
+                ) as other,
+            ):
                 traces = []
                 for rec in records:
                     for episode_id in rec.episodes.get((fleet, user_id), []):
@@ -218,9 +252,11 @@ def test_concurrent_robots_with_retries_and_conflicts(
                 stats = http.get(f"/v1/users/{user_id}/stats")
                 assert user.status_code == model.status_code == stats.status_code == 200
                 views[fleet, user_id] = (traces, user.json(), model.json(), stats.json())
-    print(f"\n{engine_name}: {sum(r.writes for r in records)} acknowledged writes, "
-          f"{sum(len(r.statuses) for r in records)} requests by {THREADS} threads in "
-          f"{driven:.1f} s")
+    print(
+        f"\n{engine_name}: {sum(r.writes for r in records)} acknowledged writes, "
+        f"{sum(len(r.statuses) for r in records)} requests by {THREADS} threads in "
+        f"{driven:.1f} s"
+    )
 
     # No server errors (on SQLite, a 503 would mean a writer waited out the busy timeout).
     errors = [s for rec in records for s in rec.statuses if s[1] >= 500]
@@ -245,17 +281,18 @@ def test_concurrent_robots_with_retries_and_conflicts(
         who = (fleet, user_id)
         episode_ids = [e for rec in records for e in rec.episodes.get(who, [])]
         decision_ids = [d for rec in records for d in rec.decisions.get(who, [])]
-        answered = {d: resp for rec in records
-                    for d, resp in rec.answered.get(who, {}).items()}
+        answered = {d: resp for rec in records for d, resp in rec.answered.get(who, {}).items()}
         assert len(episode_ids) == len(set(episode_ids)) == PER_USER
         assert len(decision_ids) == len(set(decision_ids)) == len(answered)
         with db.transaction(write=False) as s:
             pk = user_pk(s, user_id, fleet)
             stored_eps = s.scalars(select(Episode).where(Episode.user_pk == pk)).all()
-            stored = s.scalars(select(Decision).join(Episode, Episode.id == Decision.episode_id)
-                               .where(Episode.user_pk == pk)).all()
-            count = s.scalar(select(func.count()).select_from(Episode)
-                             .where(Episode.user_pk == pk))
+            stored = s.scalars(
+                select(Decision)
+                .join(Episode, Episode.id == Decision.episode_id)
+                .where(Episode.user_pk == pk)
+            ).all()
+            count = s.scalar(select(func.count()).select_from(Episode).where(Episode.user_pk == pk))
             # Stored exactly once, and what was stored is the acknowledged body, not a conflict.
             assert count == PER_USER
             assert sorted(e.id for e in stored_eps) == sorted(episode_ids)
@@ -275,8 +312,9 @@ def test_concurrent_robots_with_retries_and_conflicts(
         trace_answered = sum(d["response"] is not None for t in traces for d in t["decisions"])
         trace_silent = sum(len(d["chain"]) for t in traces for d in t["decisions"])
         assert (trace_answered, trace_silent) == (len(answered), silent)
-        visits = sum(a["visits"] for c in model["contexts"] for st in c["states"]
-                     for a in st["actions"])
+        visits = sum(
+            a["visits"] for c in model["contexts"] for st in c["states"] for a in st["actions"]
+        )
         assert visits == trace_answered + trace_silent
         # One model change per acknowledged outcome (an episode's start from OBSERVE teaches
         # nothing: its first decision has no silent steps); replays and conflicts change nothing.

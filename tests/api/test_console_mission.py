@@ -19,8 +19,10 @@ from tests.support.fixtures import MakeKey
 from .helpers import start
 
 FLEET = "north"
-SERVICES = ("ProvideDrink: tea, coffee, water\nBriefInformation: news, weather, stocks\n"
-            "ArrangeSchedule: today_agenda, next_meeting, set_reminder")
+SERVICES = (
+    "ProvideDrink: tea, coffee, water\nBriefInformation: news, weather, stocks\n"
+    "ArrangeSchedule: today_agenda, next_meeting, set_reminder"
+)
 COCOA = SERVICES.replace("water", "water, cocoa")
 
 
@@ -39,8 +41,12 @@ class Console:
     def form(self, path: str = "/admin/mission", **fields: str) -> dict[str, str]:
         """The page's hidden fields (CSRF token, change id, base version) and ``fields``."""
         text = self.page(path).text
-        hidden = dict(re.findall(r'<input type="hidden" name="(\w+)" value="([^"]*)"',
-                                 text.split('id="mission-form"')[1]))
+        hidden = dict(
+            re.findall(
+                r'<input type="hidden" name="(\w+)" value="([^"]*)"',
+                text.split('id="mission-form"')[1],
+            )
+        )
         return {**{k: html.unescape(v) for k, v in hidden.items()}, **fields}
 
     def post(self, form: dict[str, str], path: str = "/admin/mission") -> httpx.Response:
@@ -49,8 +55,10 @@ class Console:
 
 
 def errors(r: httpx.Response) -> dict[str, str]:
-    return {k: html.unescape(v) for k, v in
-            re.findall(r'<p class="field-error" id="error-(\w+)">(.*?)</p>', r.text)}
+    return {
+        k: html.unescape(v)
+        for k, v in re.findall(r'<p class="field-error" id="error-(\w+)">(.*?)</p>', r.text)
+    }
 
 
 def changes(r: httpx.Response, where: str) -> list[str]:
@@ -71,8 +79,10 @@ def console(app: FastAPI, make_key: MakeKey) -> Iterator[Console]:
 def test_the_page_shows_the_mission_in_plain_words(console: Console) -> None:
     text = console.page().text
     assert 'id="current-version">1<' in text
-    assert '<tr data-service="ProvideDrink"><th scope="row">ProvideDrink</th>' \
-           '<td class="choices">tea, coffee, water</td>' in text
+    assert (
+        '<tr data-service="ProvideDrink"><th scope="row">ProvideDrink</th>'
+        '<td class="choices">tea, coffee, water</td>' in text
+    )
     assert re.search(r'data-situation="busy">busy <span class="badge"[^>]*>do not disturb', text)
     assert not re.search(r'data-situation="working">working <span', text)
     assert '<th scope="row">evening</th><td>18:00</td><td>06:00</td>' in text
@@ -80,8 +90,10 @@ def test_the_page_shows_the_mission_in_plain_words(console: Console) -> None:
     assert 'href="/admin/mission' in text
     assert 'aria-current="page">Mission' in text
     # The form holds the mission as staff write it.
-    assert f'<textarea id="services" name="services" rows="4" spellcheck="false" ' \
-           f'aria-describedby="hint-services">{SERVICES}</textarea>' in text
+    assert (
+        f'<textarea id="services" name="services" rows="4" spellcheck="false" '
+        f'aria-describedby="hint-services">{SERVICES}</textarea>' in text
+    )
     assert 'name="time_slots"' in text
     assert "morning 06:00-11:00\nnoon 11:00-14:00" in text
 
@@ -98,8 +110,12 @@ def test_preview_then_apply_adds_a_choice(console: Console) -> None:
     assert "<b>1</b> conversation in progress will be interrupted" in impact
     assert console.robot.get("/v1/mission").json()["version"] == 1  # nothing stored yet
     # The confirmation form carries what was typed.
-    confirm = dict(re.findall(r'<input type="hidden" name="(\w+)" value="([^"]*)"',
-                              preview.text.split('id="confirm-form"')[1].split("</form>")[0]))
+    confirm = dict(
+        re.findall(
+            r'<input type="hidden" name="(\w+)" value="([^"]*)"',
+            preview.text.split('id="confirm-form"')[1].split("</form>")[0],
+        )
+    )
     confirm = {k: html.unescape(v) for k, v in confirm.items()}
     assert confirm["step"] == "confirm"
     assert confirm["services"] == COCOA
@@ -126,10 +142,13 @@ def test_preview_then_apply_adds_a_choice(console: Console) -> None:
 def test_renames_and_other_changes_in_words(console: Console) -> None:
     form = console.form(
         services=SERVICES.replace("tea", "chai").replace("ArrangeSchedule", "Agenda"),
-        situations="arriving, working, resting, busy", do_not_disturb="busy, resting",
+        situations="arriving, working, resting, busy",
+        do_not_disturb="busy, resting",
         time_slots="morning 06:00-11:00\nnoon 11:00-14:00\nafternoon 14:00-19:00\n"
-                   "night 19:00-06:00",
-        renames="tea -> chai\nArrangeSchedule -> Agenda\nevening -> night", gamma="0.8")
+        "night 19:00-06:00",
+        renames="tea -> chai\nArrangeSchedule -> Agenda\nevening -> night",
+        gamma="0.8",
+    )
     preview = console.post(form)
     assert preview.status_code == 200, preview.text
     assert changes(preview, "preview-changes") == [
@@ -147,36 +166,63 @@ def test_renames_and_other_changes_in_words(console: Console) -> None:
     assert console.post(confirm).status_code == 303
     model = console.robot.get("/v1/users/lin/model").json()
     assert model["mission_version"] == 2
-    assert {c["time_slot"] for c in model["contexts"]} == {"morning", "noon", "afternoon",
-                                                           "night"}
+    assert {c["time_slot"] for c in model["contexts"]} == {"morning", "noon", "afternoon", "night"}
 
 
-@pytest.mark.parametrize(("fields", "where", "message"), [
-    ({"services": "ProvideDrink tea"}, "services",
-     "Line 1, 'ProvideDrink tea': write a service and its choices as "
-     "'ProvideDrink: tea, coffee, water'."),
-    ({"services": "ProvideDrink: tea, hot water"}, "services",
-     "ProvideDrink, choice 2: 'hot water' is not a valid name"),
-    ({"services": "ProvideDrink: tea, tea"}, "services",
-     "ProvideDrink, choice 2: the name 'tea' is used twice."),
-    ({"do_not_disturb": "asleep"}, "do_not_disturb",
-     "Do-not-disturb situation 1: 'asleep' is not one of the situations"),
-    ({"time_slots": "day 06:00-20:00"}, "time_slots",
-     "No slot covers 00:00; the slots must cover the whole day."),
-    ({"time_slots": "day from six"}, "time_slots",
-     "'day from six': write a time slot as its name and its local hours"),
-    ({"renames": "chai -> tea"}, "renames",
-     "'chai -> tea': the mission in force has no service, choice, situation or time slot "
-     "named 'chai'."),
-    ({"renames": "tea -> cocoa"}, "renames",
-     "Rename of tea: 'cocoa' is not a choice of ProvideDrink in the new mission"),
-    ({"gamma": "1"}, "gamma", "The discount must be in [0, 1), got 1.0."),
-    ({"reward_negative": "2"}, "reward_negative", "Must be below 0, got 2.0."),
-    ({"reward_query": "a lot"}, "reward_query", "'a lot' is not a number."),
-])
+@pytest.mark.parametrize(
+    ("fields", "where", "message"),
+    [
+        (
+            {"services": "ProvideDrink tea"},
+            "services",
+            "Line 1, 'ProvideDrink tea': write a service and its choices as "
+            "'ProvideDrink: tea, coffee, water'.",
+        ),
+        (
+            {"services": "ProvideDrink: tea, hot water"},
+            "services",
+            "ProvideDrink, choice 2: 'hot water' is not a valid name",
+        ),
+        (
+            {"services": "ProvideDrink: tea, tea"},
+            "services",
+            "ProvideDrink, choice 2: the name 'tea' is used twice.",
+        ),
+        (
+            {"do_not_disturb": "asleep"},
+            "do_not_disturb",
+            "Do-not-disturb situation 1: 'asleep' is not one of the situations",
+        ),
+        (
+            {"time_slots": "day 06:00-20:00"},
+            "time_slots",
+            "No slot covers 00:00; the slots must cover the whole day.",
+        ),
+        (
+            {"time_slots": "day from six"},
+            "time_slots",
+            "'day from six': write a time slot as its name and its local hours",
+        ),
+        (
+            {"renames": "chai -> tea"},
+            "renames",
+            "'chai -> tea': the mission in force has no service, choice, situation or time slot "
+            "named 'chai'.",
+        ),
+        (
+            {"renames": "tea -> cocoa"},
+            "renames",
+            "Rename of tea: 'cocoa' is not a choice of ProvideDrink in the new mission",
+        ),
+        ({"gamma": "1"}, "gamma", "The discount must be in [0, 1), got 1.0."),
+        ({"reward_negative": "2"}, "reward_negative", "Must be below 0, got 2.0."),
+        ({"reward_query": "a lot"}, "reward_query", "'a lot' is not a number."),
+    ],
+)
 @pytest.mark.parametrize("step", ["preview", "confirm"])
-def test_mistakes_come_back_next_to_the_field(console: Console, fields: dict[str, str],
-                                              where: str, message: str, step: str) -> None:
+def test_mistakes_come_back_next_to_the_field(
+    console: Console, fields: dict[str, str], where: str, message: str, step: str
+) -> None:
     form = console.form(**fields, step=step)
     r = console.post(form)
     assert r.status_code == 422, r.text
@@ -186,8 +232,11 @@ def test_mistakes_come_back_next_to_the_field(console: Console, fields: dict[str
     assert 'id="form-errors" data-status="422"' in r.text
     for name, value in fields.items():  # the form keeps what was typed
         assert html.escape(value) in r.text, name
-    assert f'id="error-{where}"' in r.text.split(f'name="{where}"')[1].split("</div>")[0] \
-        or where.startswith("reward") or where == "gamma"
+    assert (
+        f'id="error-{where}"' in r.text.split(f'name="{where}"')[1].split("</div>")[0]
+        or where.startswith("reward")
+        or where == "gamma"
+    )
     assert console.robot.get("/v1/mission").json()["version"] == 1
 
 
@@ -218,8 +267,7 @@ def test_the_form_needs_the_pages_token(console: Console) -> None:
     for bad in ({**form, "csrf": ""}, {**form, "csrf": "0" * 64}):
         r = console.post(bad)
         assert r.status_code == 403
-    r = console.client.post("/admin/mission", data=form,
-                            headers={"origin": "http://evil.example"})
+    r = console.client.post("/admin/mission", data=form, headers={"origin": "http://evil.example"})
     assert r.status_code == 403
     assert console.robot.get("/v1/mission").json()["version"] == 1
 
@@ -233,8 +281,9 @@ def test_admins_choose_the_fleet(app: FastAPI, make_key: MakeKey, console: Conso
         assert f'<option value="{FLEET}" selected>' in r.text
         assert '<label for="fleet-choice">Fleet</label>' in r.text
         text = r.text.split('id="mission-form"')[1]
-        form: dict[str, Any] = dict(re.findall(
-            r'<input type="hidden" name="(\w+)" value="([^"]*)"', text))
+        form: dict[str, Any] = dict(
+            re.findall(r'<input type="hidden" name="(\w+)" value="([^"]*)"', text)
+        )
         form.update(services=COCOA, step="confirm")
         done = client.post(f"/admin/mission?fleet={FLEET}", data=form)
         assert done.status_code == 303
@@ -246,8 +295,9 @@ def test_admins_choose_the_fleet(app: FastAPI, make_key: MakeKey, console: Conso
     assert 'data-status="403"' in r.text
 
 
-def test_a_fleet_without_users_previews_its_change_as_version_2(app: FastAPI,
-                                                                make_key: MakeKey) -> None:
+def test_a_fleet_without_users_previews_its_change_as_version_2(
+    app: FastAPI, make_key: MakeKey
+) -> None:
     # Version 1 is the default the fleet has until then; the change stores it, then version 2.
     client = TestClient(app, raise_server_exceptions=False, follow_redirects=False)
     client.cookies.set("attune_console", make_key("staff", "south"), path="/admin")
@@ -258,8 +308,12 @@ def test_a_fleet_without_users_previews_its_change_as_version_2(app: FastAPI,
         preview = console.post(form)
         assert preview.status_code == 200, preview.text
         assert "Apply version 2" in preview.text
-        confirm = dict(re.findall(r'<input type="hidden" name="(\w+)" value="([^"]*)"',
-                                  preview.text.split('id="confirm-form"')[1].split("</form>")[0]))
+        confirm = dict(
+            re.findall(
+                r'<input type="hidden" name="(\w+)" value="([^"]*)"',
+                preview.text.split('id="confirm-form"')[1].split("</form>")[0],
+            )
+        )
         done = console.post({k: html.unescape(v) for k, v in confirm.items()})
         assert done.status_code == 303, done.text
         assert done.headers["location"].endswith("&done=2")

@@ -55,13 +55,19 @@ class Console:
 def _play(robot: TestClient) -> None:
     """Three finished episodes in (afternoon, stretching), then one left open."""
     for n in range(3):
-        episode = start(robot, "lin", f"e{n}", situation="stretching",
-                        occurred_at=f"2026-11-2{n}T15:10:00+08:00")
+        episode = start(
+            robot,
+            "lin",
+            f"e{n}",
+            situation="stretching",
+            occurred_at=f"2026-11-2{n}T15:10:00+08:00",
+        )
         decision = episode["decision"]
         while decision is not None:
             fields = people.answer(decision["action"], need=people.TEA)
-            decision = answer(robot, episode["episode_id"], decision["decision_id"],
-                              **fields)["decision"]
+            decision = answer(robot, episode["episode_id"], decision["decision_id"], **fields)[
+                "decision"
+            ]
     start(robot, "lin", "open", situation="working", occurred_at="2026-11-23T09:30:00+08:00")
 
 
@@ -73,8 +79,9 @@ def console(app: FastAPI, make_key: MakeKey) -> Iterator[Console]:
     client = TestClient(app, raise_server_exceptions=False, follow_redirects=False)
     client.cookies.set("attune_console", staff, path="/admin")
     with robot, api, client:
-        made = robot.put("/v1/users/lin", json={"display_name": "Mrs. Lin",
-                                                "learner": {"algorithm": "hri"}})
+        made = robot.put(
+            "/v1/users/lin", json={"display_name": "Mrs. Lin", "learner": {"algorithm": "hri"}}
+        )
         assert made.status_code == 201
         _play(robot)
         yield Console(client, api, robot)
@@ -89,8 +96,12 @@ def _text(page: str) -> str:
 
 
 def _cell(page: str, time_slot: str, situation: str) -> str:
-    found = re.search(rf'<td class="pcell[^"]*" data-time-slot="{time_slot}" '
-                      rf'data-situation="{situation}".*?</td>', page, flags=re.S)
+    found = re.search(
+        rf'<td class="pcell[^"]*" data-time-slot="{time_slot}" '
+        rf'data-situation="{situation}".*?</td>',
+        page,
+        flags=re.S,
+    )
     assert found, (time_slot, situation)
     return found.group(0)
 
@@ -107,8 +118,15 @@ def test_the_profile_speaks_in_words_and_counts_as_the_header(console: Console) 
         text = _text(cell)
         if context["wants"] is None and context["certainty"] == "unknown":
             assert "Not enough to say yet" in text
-        assert any(w in text for w in ("Offers it without asking", "Offers help and asks",
-                                       "Waits to be asked", "Stays away")), text
+        assert any(
+            w in text
+            for w in (
+                "Offers it without asking",
+                "Offers help and asks",
+                "Waits to be asked",
+                "Stays away",
+            )
+        ), text
     # The header counts every episode, the open one said apart, as the grid does.
     assert profile["episodes"] == 4
     assert profile["open_episodes"] == 1
@@ -122,38 +140,51 @@ def test_a_box_shows_its_evidence_in_local_time(console: Console) -> None:
     page = console.page("/admin/users/lin?time_slot=afternoon&situation=stretching").text
     evidence = page.split('id="evidence"')[1].split('id="corrections-card"')[0]
     profile = console.api.get("/v1/users/lin/profile").json()
-    context = next(c for c in profile["contexts"]
-                   if (c["time_slot"], c["situation"]) == ("afternoon", "stretching"))
+    context = next(
+        c
+        for c in profile["contexts"]
+        if (c["time_slot"], c["situation"]) == ("afternoon", "stretching")
+    )
     facts = dict(re.findall(r'<dd data-fact="(\w+)">(.*?)</dd>', evidence, flags=re.S))
     assert facts["accepted"].startswith(f"{context['evidence']['accepted']} ")
     assert facts["refused"].startswith(f"{context['evidence']['refused']} ")
     assert facts["last_seen"] == "2026-11-22 15:10 (UTC+8)"
     e = context["evidence"]
-    assert facts["agree"] == (f"{e['support']} of the last {e['recent']} answer"
-                              f"{'' if e['recent'] == 1 else 's'} agree")
-    assert html.escape(context["summary"], quote=False) in html.unescape(evidence) \
-        or context["summary"] in html.unescape(evidence)
+    assert facts["agree"] == (
+        f"{e['support']} of the last {e['recent']} answer{'' if e['recent'] == 1 else 's'} agree"
+    )
+    assert html.escape(context["summary"], quote=False) in html.unescape(evidence) or context[
+        "summary"
+    ] in html.unescape(evidence)
     assert 'id="correction-form"' in evidence
     assert 'aria-current="true"' in _cell(page, "afternoon", "stretching")
 
 
 def test_corrections_through_the_form(console: Console) -> None:
     where = "/admin/users/lin?time_slot=morning&situation=working"
-    form = console.form(where, "correction-form", kind="prefers", service="ProvideDrink",
-                        detail="coffee", note="Her daughter says coffee first.")
+    form = console.form(
+        where,
+        "correction-form",
+        kind="prefers",
+        service="ProvideDrink",
+        detail="coffee",
+        note="Her daughter says coffee first.",
+    )
     assert len(form["correction_id"]) == 32
     assert (form["time_slot"], form["situation"]) == ("morning", "working")
     done = console.post("/admin/users/lin/corrections?fleet=north", form)
     assert done.status_code == 303, done.text
-    assert done.headers["location"] == ("/admin/users/lin?fleet=north&time_slot=morning&"
-                                        "situation=working&done=corrected#evidence")
+    assert done.headers["location"] == (
+        "/admin/users/lin?fleet=north&time_slot=morning&situation=working&done=corrected#evidence"
+    )
     again = console.post("/admin/users/lin/corrections?fleet=north", form)  # a double submit
     assert again.status_code == 303, again.text
     listed = console.api.get("/v1/users/lin/corrections")
     assert listed.status_code == 200, listed.text
     items = listed.json()["items"]
     assert [(c["kind"], c["service"], c["detail"]) for c in items] == [
-        ("prefers", "ProvideDrink", "coffee")]
+        ("prefers", "ProvideDrink", "coffee")
+    ]
     assert items[0]["note"] == "Her daughter says coffee first."
     assert items[0]["author"] in page_key_ids(console)
     page = console.page(done.headers["location"].split("#")[0]).text
@@ -168,79 +199,100 @@ def test_corrections_through_the_form(console: Console) -> None:
 
     # Avoid and quiet, in other boxes; a mistake comes back in words with what was typed.
     where = "/admin/users/lin?time_slot=noon&situation=arriving"
-    bad = console.post("/admin/users/lin/corrections",
-                       console.form(where, "correction-form", kind="avoid", service="",
-                                    note="typed"))
+    bad = console.post(
+        "/admin/users/lin/corrections",
+        console.form(where, "correction-form", kind="avoid", service="", note="typed"),
+    )
     assert bad.status_code == 422
     assert "Choose what the robot should not offer." in html.unescape(bad.text)
     assert ">typed</textarea>" in bad.text
     for kind, service in (("avoid", "BriefInformation"), ("quiet", "")):
-        r = console.post("/admin/users/lin/corrections",
-                         console.form(where, "correction-form", kind=kind, service=service))
+        r = console.post(
+            "/admin/users/lin/corrections",
+            console.form(where, "correction-form", kind=kind, service=service),
+        )
         assert r.status_code == 303, r.text
     page = console.page("/admin/users/lin").text
-    rows = re.findall(r'<tr data-correction-id="([^"]+)" data-status="(\w+)">(.*?)</tr>', page,
-                      flags=re.S)
+    rows = re.findall(
+        r'<tr data-correction-id="([^"]+)" data-status="(\w+)">(.*?)</tr>', page, flags=re.S
+    )
     assert len(rows) == 3
-    words = [re.search(r'<td class="what">(.*?)</td>', r[2]).group(1)  # type: ignore[union-attr]
-             for r in rows]
-    assert sorted(words) == sorted(["Prefers Provide drink (coffee)",
-                                    "Do not offer Brief information",
-                                    "Quiet: the robot does not offer help"])
+    words = [
+        re.search(r'<td class="what">(.*?)</td>', r[2]).group(1)  # type: ignore[union-attr]
+        for r in rows
+    ]
+    assert sorted(words) == sorted(
+        [
+            "Prefers Provide drink (coffee)",
+            "Do not offer Brief information",
+            "Quiet: the robot does not offer help",
+        ]
+    )
 
     # Lifting one: its button's form posts the page's token.
     quiet = next(r[0] for r, w in zip(rows, words, strict=True) if w.startswith("Quiet"))
     token = re.search(r'name="csrf" value="([0-9a-f]{64})"', page)
     assert token
-    lifted = console.post(f"/admin/users/lin/corrections/{quiet}/lift?fleet=north",
-                          {"csrf": token.group(1)})
+    lifted = console.post(
+        f"/admin/users/lin/corrections/{quiet}/lift?fleet=north", {"csrf": token.group(1)}
+    )
     assert lifted.status_code == 303, lifted.text
     assert "done=lifted" in lifted.headers["location"]
     page = console.page("/admin/users/lin").text
     assert "Quiet: the robot does not offer help" not in page
-    assert len(re.findall(r'<tr data-correction-id=', page)) == 2
+    assert len(re.findall(r"<tr data-correction-id=", page)) == 2
     # Without the page's token: refused, nothing changes.
     other = rows[0][0]
     refused = console.post(f"/admin/users/lin/corrections/{other}/lift", {"csrf": "0" * 64})
     assert refused.status_code == 403
-    assert len(re.findall(r'<tr data-correction-id=', console.page("/admin/users/lin").text)) == 2
+    assert len(re.findall(r"<tr data-correction-id=", console.page("/admin/users/lin").text)) == 2
 
 
 def page_key_ids(console: Console) -> list[str]:
     """The key id the console shows as signed in."""
-    found = re.search(r'<span class="who"[^>]*>key ([^<]+)</span>',
-                      console.page("/admin/users").text)
+    found = re.search(
+        r'<span class="who"[^>]*>key ([^<]+)</span>', console.page("/admin/users").text
+    )
     assert found
     return [found.group(1).strip()]
 
 
-def test_episode_times_are_local_and_say_utc_when_unknown(console: Console, db: Database
-                                                          ) -> None:
+def test_episode_times_are_local_and_say_utc_when_unknown(console: Console, db: Database) -> None:
     with db.transaction() as session:  # an episode stored before offsets were kept
         session.execute(update(Episode).where(Episode.event_id == "e0").values(utc_offset=None))
     page = console.page("/admin/users/lin/episodes").text
     when = [html.unescape(w) for w in re.findall(r'<span class="when"[^>]*>(.*?)</span>', page)]
-    assert when == ["2026-11-23 09:30 (UTC+8)", "2026-11-22 15:10 (UTC+8)",
-                    "2026-11-21 15:10 (UTC+8)", "2026-11-20 07:10 UTC"]
+    assert when == [
+        "2026-11-23 09:30 (UTC+8)",
+        "2026-11-22 15:10 (UTC+8)",
+        "2026-11-21 15:10 (UTC+8)",
+        "2026-11-20 07:10 UTC",
+    ]
     contexts = re.findall(r'<span class="context">(.*?)</span>', page)
     assert contexts == ["morning, working"] + ["afternoon, stretching"] * 3
     assert "in progress" in page
-    assert re.sub(r"\s+", " ", _text(page.split('id="episode-count"')[1].split("</span>")[0])
-                  ).strip().endswith("4 episodes (1 open)")
+    assert (
+        re.sub(r"\s+", " ", _text(page.split('id="episode-count"')[1].split("</span>")[0]))
+        .strip()
+        .endswith("4 episodes (1 open)")
+    )
 
 
 def test_staff_pages_hold_no_engineers_words(console: Console) -> None:
-    form = console.form("/admin/users/lin?time_slot=afternoon&situation=stretching",
-                        "correction-form", kind="prefers", service="ProvideDrink",
-                        detail="tea")
+    form = console.form(
+        "/admin/users/lin?time_slot=afternoon&situation=stretching",
+        "correction-form",
+        kind="prefers",
+        service="ProvideDrink",
+        detail="tea",
+    )
     assert console.post("/admin/users/lin/corrections", form).status_code == 303
     episodes = console.page("/admin/users/lin/episodes").text
     first = re.search(r'data-trace-url="([^"]+)"', episodes)
     assert first
     pages = {
         "profile": console.page("/admin/users/lin").text,
-        "evidence": console.page("/admin/users/lin?time_slot=afternoon&situation=stretching"
-                                 ).text,
+        "evidence": console.page("/admin/users/lin?time_slot=afternoon&situation=stretching").text,
         "users": console.page("/admin/users").text,
         "episodes": episodes,
         "trace": console.page(html.unescape(first.group(1))).text,
@@ -260,25 +312,41 @@ def test_staff_pages_hold_no_engineers_words(console: Console) -> None:
     assert "ΔQ" in why
 
 
-@pytest.mark.parametrize(("fields", "message"), [
-    ({"kind": "prefers", "service": ""}, "Choose what the person prefers."),
-    ({"kind": "prefers", "service": "ProvideDrink", "detail": ""},
-     "Choose which Provide drink the person prefers: tea, coffee or water."),
-    ({"kind": "avoid", "service": "ProvideDrink", "detail": "news"},
-     "“news” is not a choice of Provide drink: choose tea, coffee or water."),
-    ({"kind": "avoid", "service": "Massage"},
-     "The robots of fleet north do not offer “Massage” any more: choose another service."),
-    ({"kind": "sing"}, "Choose what to correct: what the person prefers, what the robot "
-                       "should not offer, or that the robot should stay quiet here."),
-])
-def test_mistakes_come_back_in_words(console: Console, fields: dict[str, str],
-                                     message: str) -> None:
+@pytest.mark.parametrize(
+    ("fields", "message"),
+    [
+        ({"kind": "prefers", "service": ""}, "Choose what the person prefers."),
+        (
+            {"kind": "prefers", "service": "ProvideDrink", "detail": ""},
+            "Choose which Provide drink the person prefers: tea, coffee or water.",
+        ),
+        (
+            {"kind": "avoid", "service": "ProvideDrink", "detail": "news"},
+            "“news” is not a choice of Provide drink: choose tea, coffee or water.",
+        ),
+        (
+            {"kind": "avoid", "service": "Massage"},
+            "The robots of fleet north do not offer “Massage” any more: choose another service.",
+        ),
+        (
+            {"kind": "sing"},
+            "Choose what to correct: what the person prefers, what the robot "
+            "should not offer, or that the robot should stay quiet here.",
+        ),
+    ],
+)
+def test_mistakes_come_back_in_words(
+    console: Console, fields: dict[str, str], message: str
+) -> None:
     where = "/admin/users/lin?time_slot=evening&situation=working"
-    r = console.post("/admin/users/lin/corrections",
-                     console.form(where, "correction-form", note="as typed", **fields))
+    r = console.post(
+        "/admin/users/lin/corrections",
+        console.form(where, "correction-form", note="as typed", **fields),
+    )
     assert r.status_code == 422
-    shown = re.search(r'<p class="field-error" id="correction-error" role="alert">(.*?)</p>',
-                      r.text)
+    shown = re.search(
+        r'<p class="field-error" id="correction-error" role="alert">(.*?)</p>', r.text
+    )
     assert shown
     assert html.unescape(shown.group(1)) == message
     assert ">as typed</textarea>" in r.text
@@ -287,17 +355,24 @@ def test_mistakes_come_back_in_words(console: Console, fields: dict[str, str],
 
 def test_a_correction_the_persons_answers_overrode_says_so(console: Console) -> None:
     where = "/admin/users/lin?time_slot=afternoon&situation=stretching"
-    form = console.form(where, "correction-form", kind="prefers", service="ProvideDrink",
-                        detail="coffee")
+    form = console.form(
+        where, "correction-form", kind="prefers", service="ProvideDrink", detail="coffee"
+    )
     assert console.post("/admin/users/lin/corrections", form).status_code == 303
     for n in range(4):  # she keeps wanting tea: coffee is turned down
-        episode = start(console.robot, "lin", f"tea-{n}", situation="stretching",
-                        occurred_at=f"2026-11-25T15:{10 + n:02d}:00+08:00")
+        episode = start(
+            console.robot,
+            "lin",
+            f"tea-{n}",
+            situation="stretching",
+            occurred_at=f"2026-11-25T15:{10 + n:02d}:00+08:00",
+        )
         decision = episode["decision"]
         while decision is not None:
             fields = people.answer(decision["action"], need=people.TEA)
-            decision = answer(console.robot, episode["episode_id"], decision["decision_id"],
-                              **fields)["decision"]
+            decision = answer(
+                console.robot, episode["episode_id"], decision["decision_id"], **fields
+            )["decision"]
     (made,) = console.api.get("/v1/users/lin/corrections").json()["items"]
     assert made["status"] == "overridden", made
     page = console.page(where).text
@@ -313,8 +388,11 @@ def test_a_new_person_and_an_unknown_box(console: Console) -> None:
     assert page.count("Not enough to say yet") == 16 + 1  # the boxes, and the legend
     assert 'id="evidence-hint"' in page  # no such box: nothing opened
     assert 'id="no-corrections"' in page
-    assert re.sub(r"\s+", " ", _text(page.split('id="episode-count"')[1].split("</span>")[0])
-                  ).strip().endswith("0 episodes")
+    assert (
+        re.sub(r"\s+", " ", _text(page.split('id="episode-count"')[1].split("</span>")[0]))
+        .strip()
+        .endswith("0 episodes")
+    )
     page = console.page("/admin/users/new?time_slot=noon&situation=busy").text
     facts = dict(re.findall(r'<dd data-fact="(\w+)">(.*?)</dd>', page, flags=re.S))
     assert facts["last_seen"] == "never"

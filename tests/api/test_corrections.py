@@ -22,8 +22,12 @@ TEA = {"service": "ProvideDrink", "detail": "tea"}
 
 
 def correction(cid: str, kind: str = "prefers", **kw: Any) -> dict[str, Any]:
-    body: dict[str, Any] = {"correction_id": cid, "time_slot": SLOT, "situation": SITUATION,
-                            "kind": kind}
+    body: dict[str, Any] = {
+        "correction_id": cid,
+        "time_slot": SLOT,
+        "situation": SITUATION,
+        "kind": kind,
+    }
     if kind == "prefers":
         body.update(TEA)
     body.update(kw)
@@ -34,9 +38,17 @@ def make_user(staff: TestClient, user_id: str = "chen") -> None:
     assert staff.put(f"/v1/users/{user_id}", json={}).status_code in (200, 201)
 
 
-def play(robot: TestClient, user_id: str, n: int, prefix: str, *, need: Any = people.TEA,
-         picky: bool = True, seed: int = 0,
-         situation: str = SITUATION) -> list[list[dict[str, Any]]]:
+def play(
+    robot: TestClient,
+    user_id: str,
+    n: int,
+    prefix: str,
+    *,
+    need: Any = people.TEA,
+    picky: bool = True,
+    seed: int = 0,
+    situation: str = SITUATION,
+) -> list[list[dict[str, Any]]]:
     """``n`` robot-initiated episodes of a person who wants ``need``; the decisions of each."""
     rng = random.Random(seed)
     out = []
@@ -54,23 +66,25 @@ def play(robot: TestClient, user_id: str, n: int, prefix: str, *, need: Any = pe
 
 
 def kinds(steps: list[dict[str, Any]]) -> list[tuple[str, str | None, str | None]]:
-    return [(d["action"]["kind"], d["action"].get("service"), d["action"].get("detail"))
-            for d in steps]
-
+    return [
+        (d["action"]["kind"], d["action"].get("service"), d["action"].get("detail")) for d in steps
+    ]
 
 
 class TestContract:
     def test_made_listed_replayed_and_audited(self, staff: TestClient) -> None:
         make_user(staff)
-        r = staff.post("/v1/users/chen/corrections",
-                       json=correction("c1", note="Her daughter says so."))
+        r = staff.post(
+            "/v1/users/chen/corrections", json=correction("c1", note="Her daughter says so.")
+        )
         assert r.status_code == 201, r.text
         made = r.json()
         assert made["status"] == "in_force"
         assert made["author"]
         assert made["note"] == "Her daughter says so."
-        again = staff.post("/v1/users/chen/corrections",
-                           json=correction("c1", note="Her daughter says so."))
+        again = staff.post(
+            "/v1/users/chen/corrections", json=correction("c1", note="Her daughter says so.")
+        )
         assert again.status_code == 200
         assert again.headers["Idempotent-Replay"] == "true"
         assert again.json()["model_version"] == made["model_version"]
@@ -83,53 +97,55 @@ class TestContract:
         audit = staff.get("/v1/admin/audit").json()["items"]
         assert any(e["action"] == "correction.add" and e["target"] == "chen" for e in audit)
 
-    @pytest.mark.parametrize(("body", "word"), [
-        (correction("x", time_slot="midnight"), "time slot"),
-        (correction("x", situation="sleeping"), "situation"),
-        (correction("x", service="Dance"), "service"),
-        (correction("x", detail="whisky"), "detail"),
-        (correction("x", service=None, detail=None), "needs a service"),
-        (correction("x", detail=None), "needs a detail"),
-        (correction("x", kind="quiet", service="ProvideDrink"), "quiet takes no service"),
-        (correction("x", kind="avoid"), "needs a service"),
-        (correction("x", kind="never"), "kind"),
-        (correction("x/y"), "correction_id"),
-    ])
-    def test_bad_input_is_422(self, staff: TestClient, body: dict[str, Any],
-                              word: str) -> None:
+    @pytest.mark.parametrize(
+        ("body", "word"),
+        [
+            (correction("x", time_slot="midnight"), "time slot"),
+            (correction("x", situation="sleeping"), "situation"),
+            (correction("x", service="Dance"), "service"),
+            (correction("x", detail="whisky"), "detail"),
+            (correction("x", service=None, detail=None), "needs a service"),
+            (correction("x", detail=None), "needs a detail"),
+            (correction("x", kind="quiet", service="ProvideDrink"), "quiet takes no service"),
+            (correction("x", kind="avoid"), "needs a service"),
+            (correction("x", kind="never"), "kind"),
+            (correction("x/y"), "correction_id"),
+        ],
+    )
+    def test_bad_input_is_422(self, staff: TestClient, body: dict[str, Any], word: str) -> None:
         make_user(staff)
         r = staff.post("/v1/users/chen/corrections", json=body)
         assert r.status_code == 422, r.text
         assert word in json.dumps(r.json()), r.json()
         assert staff.get("/v1/users/chen/corrections").json()["items"] == []
 
-    def test_who_may(self, staff: TestClient, robot: TestClient, other_staff: TestClient,
-                     admin: TestClient) -> None:
+    def test_who_may(
+        self, staff: TestClient, robot: TestClient, other_staff: TestClient, admin: TestClient
+    ) -> None:
         make_user(staff)
-        assert robot.post("/v1/users/chen/corrections",
-                          json=correction("r")).status_code == 403
-        assert other_staff.post("/v1/users/chen/corrections",
-                                json=correction("o")).status_code == 404
+        assert robot.post("/v1/users/chen/corrections", json=correction("r")).status_code == 403
+        assert (
+            other_staff.post("/v1/users/chen/corrections", json=correction("o")).status_code == 404
+        )
         assert other_staff.get("/v1/users/chen/profile").status_code == 404
-        assert admin.post("/v1/users/chen/corrections",
-                          json=correction("a")).status_code == 201
+        assert admin.post("/v1/users/chen/corrections", json=correction("a")).status_code == 201
         assert robot.get("/v1/users/chen/profile").status_code == 200
         assert robot.delete("/v1/users/chen/corrections/a").status_code == 403
         assert other_staff.delete("/v1/users/chen/corrections/a").status_code == 404
         assert staff.delete("/v1/users/chen/corrections/nope").status_code == 404
-        assert staff.post("/v1/users/nobody/corrections",
-                          json=correction("n")).status_code == 404
+        assert staff.post("/v1/users/nobody/corrections", json=correction("n")).status_code == 404
 
 
 class TestDecisions:
-    def test_prefers_performs_without_asking(self, staff: TestClient,
-                                             robot: TestClient) -> None:
+    def test_prefers_performs_without_asking(self, staff: TestClient, robot: TestClient) -> None:
         make_user(staff)
-        assert staff.post("/v1/users/chen/corrections",
-                          json=correction("tea")).status_code == 201
+        assert staff.post("/v1/users/chen/corrections", json=correction("tea")).status_code == 201
         episodes = play(robot, "chen", 30, "p", picky=False)
-        direct = [k for k in map(kinds, episodes)
-                  if k == [("initiate", None, None), ("perform", "ProvideDrink", "tea")]]
+        direct = [
+            k
+            for k in map(kinds, episodes)
+            if k == [("initiate", None, None), ("perform", "ProvideDrink", "tea")]
+        ]
         assert len(direct) >= 27  # at least 90 % of the draws
         profile = robot.get("/v1/users/chen/profile").json()
         cell = _cell(profile)
@@ -153,8 +169,7 @@ class TestDecisions:
         [context] = model.json()["contexts"]
         engaged = next(s for s in context["states"] if s["state"] == "ENGAGED")
         for a in engaged["actions"]:
-            if a["action"].get("service") == "ProvideDrink" or a["action"]["kind"] == \
-                    "query_type":
+            if a["action"].get("service") == "ProvideDrink" or a["action"]["kind"] == "query_type":
                 assert a["p"] == 0.0, a
         others = [a["p"] for a in engaged["actions"] if a["p"] > 0]
         assert others
@@ -165,11 +180,13 @@ class TestDecisions:
         body = correction("no-tea", kind="avoid", service="ProvideDrink", detail="tea")
         assert staff.post("/v1/users/chen/corrections", json=body).status_code == 201
         episodes = play(robot, "chen", 25, "d", picky=False)
-        assert all(k != ("perform", "ProvideDrink", "tea")
-                   for steps in episodes for k in kinds(steps))
+        assert all(
+            k != ("perform", "ProvideDrink", "tea") for steps in episodes for k in kinds(steps)
+        )
 
-    def test_quiet_never_initiates_but_answers_requests(self, staff: TestClient,
-                                                        robot: TestClient) -> None:
+    def test_quiet_never_initiates_but_answers_requests(
+        self, staff: TestClient, robot: TestClient
+    ) -> None:
         make_user(staff)
         quiet = correction("hush", kind="quiet", service=None, detail=None)
         assert staff.post("/v1/users/chen/corrections", json=quiet).status_code == 201
@@ -184,8 +201,9 @@ class TestDecisions:
     def test_lifting_restores_the_learner(self, staff: TestClient, robot: TestClient) -> None:
         # HRI: its probabilities are exact (the DTS family's are estimated from posterior
         # draws seeded by the model version, which a correction and its lift move on by two).
-        assert staff.put("/v1/users/chen", json={"learner": {"algorithm": "hri"}}).status_code \
-            == 201
+        assert (
+            staff.put("/v1/users/chen", json={"learner": {"algorithm": "hri"}}).status_code == 201
+        )
         quiet = correction("hush", kind="quiet", service=None, detail=None)
         before = robot.get("/v1/users/chen/model").json()
         assert staff.post("/v1/users/chen/corrections", json=quiet).status_code == 201
@@ -202,8 +220,7 @@ class TestDecisions:
 
     def test_the_person_wins(self, staff: TestClient, robot: TestClient) -> None:
         make_user(staff)
-        assert staff.post("/v1/users/chen/corrections",
-                          json=correction("tea")).status_code == 201
+        assert staff.post("/v1/users/chen/corrections", json=correction("tea")).status_code == 201
         coffee = ("ProvideDrink", "coffee")
         play(robot, "chen", 6, "w", need=coffee)  # turns tea down, asks for coffee
         [item] = staff.get("/v1/users/chen/corrections").json()["items"]
@@ -216,29 +233,31 @@ class TestDecisions:
         assert cell["changed"]["before"] == TEA
         # the robot no longer brings tea without asking nearly always
         episodes = play(robot, "chen", 10, "w2", need=coffee, seed=1)
-        direct_tea = [k for k in map(kinds, episodes)
-                      if ("perform", "ProvideDrink", "tea") in k]
+        direct_tea = [k for k in map(kinds, episodes) if ("perform", "ProvideDrink", "tea") in k]
         assert len(direct_tea) < 9
 
 
 class TestHistory:
-    def test_rebuild_is_identical(self, staff: TestClient, robot: TestClient,
-                                  settings: Settings) -> None:
+    def test_rebuild_is_identical(
+        self, staff: TestClient, robot: TestClient, settings: Settings
+    ) -> None:
         make_user(staff)
         play(robot, "chen", 3, "h1")
         staff.post("/v1/users/chen/corrections", json=correction("tea"))
         play(robot, "chen", 3, "h2", need=("ProvideDrink", "coffee"))
-        staff.post("/v1/users/chen/corrections",
-                   json=correction("hush", kind="quiet", service=None, detail=None,
-                                   time_slot="morning"))
+        staff.post(
+            "/v1/users/chen/corrections",
+            json=correction("hush", kind="quiet", service=None, detail=None, time_slot="morning"),
+        )
         play(robot, "chen", 2, "h3")
         staff.delete("/v1/users/chen/corrections/hush")
         play(robot, "chen", 2, "h4")
         summary = rebuild(settings.database_url, "chen")
         assert summary["identical"] is True, summary
 
-    def test_export_import_and_reset(self, staff: TestClient, robot: TestClient,
-                                     settings: Settings) -> None:
+    def test_export_import_and_reset(
+        self, staff: TestClient, robot: TestClient, settings: Settings
+    ) -> None:
         make_user(staff)
         staff.post("/v1/users/chen/corrections", json=correction("tea"))
         doc = staff.get("/v1/users/chen/model/export").json()
@@ -256,17 +275,18 @@ class TestHistory:
     def test_bad_guidance_in_an_import_is_422(self, staff: TestClient) -> None:
         make_user(staff)
         doc = staff.get("/v1/users/chen/model/export").json()
-        doc["guidance"] = [{"id": "x", "kind": "sometimes", "time_slot": SLOT,
-                            "situation": SITUATION}]
+        doc["guidance"] = [
+            {"id": "x", "kind": "sometimes", "time_slot": SLOT, "situation": SITUATION}
+        ]
         r = staff.put("/v1/users/chen/model", json=doc)
         assert r.status_code == 422
         assert "guidance" in r.text
 
 
-def _cell(profile: dict[str, Any], slot: str = SLOT, situation: str = SITUATION
-          ) -> dict[str, Any]:
-    cells: list[dict[str, Any]] = [c for c in profile["contexts"]
-                                   if (c["time_slot"], c["situation"]) == (slot, situation)]
+def _cell(profile: dict[str, Any], slot: str = SLOT, situation: str = SITUATION) -> dict[str, Any]:
+    cells: list[dict[str, Any]] = [
+        c for c in profile["contexts"] if (c["time_slot"], c["situation"]) == (slot, situation)
+    ]
     assert len(cells) == 1
     return cells[0]
 

@@ -43,8 +43,15 @@ def check_decision(decision: dict[str, Any]) -> None:
         assert step["action"]["kind"] in ("respond", "infer_type", "infer_detail")
 
 
-def first(client: TestClient, kind: str, *, prefix: str, initiator: str = "robot",
-          request: dict[str, Any] | None = None, tries: int = 60) -> dict[str, Any]:
+def first(
+    client: TestClient,
+    kind: str,
+    *,
+    prefix: str,
+    initiator: str = "robot",
+    request: dict[str, Any] | None = None,
+    tries: int = 60,
+) -> dict[str, Any]:
     """A new episode (of a fresh user ``{prefix}{i}``) whose first decision is ``kind``."""
     for i in range(tries):
         ep = start(client, f"{prefix}{i}", "e1", initiator=initiator, request=request)
@@ -55,8 +62,10 @@ def first(client: TestClient, kind: str, *, prefix: str, initiator: str = "robot
 
 def positive(decision: dict[str, Any]) -> dict[str, Any]:
     """An outcome body that moves a decision on without ending the episode (if possible)."""
-    return {"decision_id": decision["decision_id"],
-            **people.answer(decision["action"], picky=False)}
+    return {
+        "decision_id": decision["decision_id"],
+        **people.answer(decision["action"], picky=False),
+    }
 
 
 def outcome(client: TestClient, episode_id: str, body: dict[str, Any]) -> Any:
@@ -65,9 +74,11 @@ def outcome(client: TestClient, episode_id: str, body: dict[str, Any]) -> Any:
 
 def snapshot(client: TestClient, ep: dict[str, Any]) -> tuple[Any, Any, Any]:
     """What a refused write must not change: the trace, the user and its model."""
-    return (client.get(f"/v1/episodes/{ep['episode_id']}").json(),
-            client.get(f"/v1/users/{ep['user_id']}").json(),
-            client.get(f"/v1/users/{ep['user_id']}/model").json())
+    return (
+        client.get(f"/v1/episodes/{ep['episode_id']}").json(),
+        client.get(f"/v1/users/{ep['user_id']}").json(),
+        client.get(f"/v1/users/{ep['user_id']}/model").json(),
+    )
 
 
 def version(client: TestClient, user_id: str) -> int:
@@ -81,8 +92,16 @@ class TestStartEpisode:
         assert r.status_code == 201, r.text
         assert "Idempotent-Replay" not in r.headers
         body = r.json()
-        assert set(body) == {"episode_id", "user_id", "status", "context", "state",
-                             "total_reward", "decision", "mission_version"}
+        assert set(body) == {
+            "episode_id",
+            "user_id",
+            "status",
+            "context",
+            "state",
+            "total_reward",
+            "decision",
+            "mission_version",
+        }
         assert body["mission_version"] == 1  # the fleet's first mission: the default
         assert isinstance(body["episode_id"], str)
         assert body["episode_id"]
@@ -95,25 +114,31 @@ class TestStartEpisode:
         check_decision(decision)
         assert decision["action"]["kind"] in ("initiate", "pass")
         assert decision["chain"] == []
-        assert [p["action"] for p in decision["probabilities"]] == [{"kind": "initiate"},
-                                                                   {"kind": "pass"}]
+        assert [p["action"] for p in decision["probabilities"]] == [
+            {"kind": "initiate"},
+            {"kind": "pass"},
+        ]
 
-    @pytest.mark.parametrize(("occurred_at", "slot"), [
-        ("2026-11-22T09:30:00+08:00", "morning"),
-        ("2026-11-22T01:30:00Z", "evening"),  # the same instant, written in UTC
-        ("2026-11-22T01:30:00+00:00", "evening"),
-        ("2026-11-22T06:00:00+02:00", "morning"),
-        ("2026-11-22T05:59:59+02:00", "evening"),
-        ("2026-11-22T11:00:00-05:00", "noon"),
-        ("2026-11-22T13:59:00+05:30", "noon"),
-        ("2026-11-22T14:00:00+08:00", "afternoon"),
-        ("2026-11-22T17:59:59-08:00", "afternoon"),
-        ("2026-11-22T18:00:00+08:00", "evening"),
-        ("2026-11-22T23:59:59+14:00", "evening"),
-        ("2026-11-22T00:00:00-12:00", "evening"),
-    ])
+    @pytest.mark.parametrize(
+        ("occurred_at", "slot"),
+        [
+            ("2026-11-22T09:30:00+08:00", "morning"),
+            ("2026-11-22T01:30:00Z", "evening"),  # the same instant, written in UTC
+            ("2026-11-22T01:30:00+00:00", "evening"),
+            ("2026-11-22T06:00:00+02:00", "morning"),
+            ("2026-11-22T05:59:59+02:00", "evening"),
+            ("2026-11-22T11:00:00-05:00", "noon"),
+            ("2026-11-22T13:59:00+05:30", "noon"),
+            ("2026-11-22T14:00:00+08:00", "afternoon"),
+            ("2026-11-22T17:59:59-08:00", "afternoon"),
+            ("2026-11-22T18:00:00+08:00", "evening"),
+            ("2026-11-22T23:59:59+14:00", "evening"),
+            ("2026-11-22T00:00:00-12:00", "evening"),
+        ],
+    )
     def test_time_slot_is_picked_by_the_local_time_of_the_offset(
-            self, robot: TestClient, occurred_at: str, slot: str) -> None:
+        self, robot: TestClient, occurred_at: str, slot: str
+    ) -> None:
         ep = start(robot, "lin", "e1", occurred_at=occurred_at, situation="working")
         assert ep["context"] == {"time_slot": slot, "situation": "working"}
         trace = robot.get(f"/v1/episodes/{ep['episode_id']}").json()
@@ -121,8 +146,7 @@ class TestStartEpisode:
 
     @pytest.mark.parametrize("situation", ["arriving", "working", "stretching", "busy"])
     def test_every_situation_is_accepted(self, robot: TestClient, situation: str) -> None:
-        assert start(robot, "lin", "e1", situation=situation)["context"]["situation"] == \
-            situation
+        assert start(robot, "lin", "e1", situation=situation)["context"]["situation"] == situation
 
     def test_user_is_created_on_first_use(self, robot: TestClient) -> None:
         assert robot.get("/v1/users/newbie").status_code == 404
@@ -153,21 +177,31 @@ class TestStartEpisode:
         assert again.json() == first_r.json()
 
     def test_replay_after_the_episode_moved_on_is_still_the_first_answer(
-            self, robot: TestClient) -> None:
+        self, robot: TestClient
+    ) -> None:
         first_r = robot.post("/v1/users/lin/episodes", json=event("e1")).json()
-        answer(robot, first_r["episode_id"], first_r["decision"]["decision_id"],
-               **{k: v for k, v in positive(first_r["decision"]).items()
-                  if k != "decision_id"})
+        answer(
+            robot,
+            first_r["episode_id"],
+            first_r["decision"]["decision_id"],
+            **{k: v for k, v in positive(first_r["decision"]).items() if k != "decision_id"},
+        )
         again = robot.post("/v1/users/lin/episodes", json=event("e1"))
         assert again.status_code == 200
         assert again.json() == first_r
 
-    @pytest.mark.parametrize("change", [
-        {"situation": "working"}, {"occurred_at": "2026-11-22T15:11:00+08:00"},
-        {"initiator": "human"}, {"robot_id": "robot8"},
-    ])
-    def test_same_event_id_with_another_body_is_409(self, robot: TestClient,
-                                                    change: dict[str, Any]) -> None:
+    @pytest.mark.parametrize(
+        "change",
+        [
+            {"situation": "working"},
+            {"occurred_at": "2026-11-22T15:11:00+08:00"},
+            {"initiator": "human"},
+            {"robot_id": "robot8"},
+        ],
+    )
+    def test_same_event_id_with_another_body_is_409(
+        self, robot: TestClient, change: dict[str, Any]
+    ) -> None:
         ep = start(robot, "lin", "e1")
         before = snapshot(robot, ep)
         r = robot.post("/v1/users/lin/episodes", json={**event("e1"), **change})
@@ -186,12 +220,15 @@ class TestStartEpisode:
 
     def test_human_request_with_service_only(self, robot: TestClient) -> None:
         for i in range(8):
-            ep = start(robot, f"h{i}", "e1", initiator="human",
-                       request={"service": "BriefInformation"})
+            ep = start(
+                robot, f"h{i}", "e1", initiator="human", request={"service": "BriefInformation"}
+            )
             decision = ep["decision"]
             check_decision(decision)
-            assert decision["chain"][0]["action"] == {"kind": "respond",
-                                                      "service": "BriefInformation"}
+            assert decision["chain"][0]["action"] == {
+                "kind": "respond",
+                "service": "BriefInformation",
+            }
             assert decision["action"]["kind"] in ("query_detail", "perform")
             assert decision["action"]["service"] == "BriefInformation"
             assert ep["total_reward"] == 1.0
@@ -200,37 +237,44 @@ class TestStartEpisode:
         for i in range(8):
             ep = start(robot, f"h{i}", "e1", initiator="human")
             check_decision(ep["decision"])
-            assert ep["decision"]["action"]["kind"] in ("query_type", "query_detail",
-                                                        "perform")
+            assert ep["decision"]["action"]["kind"] in ("query_type", "query_detail", "perform")
             assert all(s["action"]["kind"] != "respond" for s in ep["decision"]["chain"])
 
     @pytest.mark.one_engine
     def test_request_with_robot_initiator_is_422(self, robot: TestClient) -> None:
-        r = robot.post("/v1/users/lin/episodes",
-                       json=event("e1", initiator="robot", request=TEA))
+        r = robot.post("/v1/users/lin/episodes", json=event("e1", initiator="robot", request=TEA))
         assert_error(r, 422, "ValidationError")
         assert robot.get("/v1/users/lin").status_code == 404
 
     @pytest.mark.one_engine
-    @pytest.mark.parametrize("request_", [
-        {"service": "Massage"}, {"service": "ProvideDrink", "detail": "news"},
-        {"detail": "tea"}, {"service": "ProvideDrink", "size": "large"},
-    ])
+    @pytest.mark.parametrize(
+        "request_",
+        [
+            {"service": "Massage"},
+            {"service": "ProvideDrink", "detail": "news"},
+            {"detail": "tea"},
+            {"service": "ProvideDrink", "size": "large"},
+        ],
+    )
     def test_bad_request_is_422(self, robot: TestClient, request_: dict[str, Any]) -> None:
-        r = robot.post("/v1/users/lin/episodes",
-                       json=event("e1", initiator="human", request=request_))
+        r = robot.post(
+            "/v1/users/lin/episodes", json=event("e1", initiator="human", request=request_)
+        )
         assert_error(r, 422, "ValidationError")
         assert robot.get("/v1/users/lin").status_code == 404
 
     def test_the_same_user_id_in_another_fleet_is_another_person(
-            self, robot: TestClient, other_robot: TestClient) -> None:
+        self, robot: TestClient, other_robot: TestClient
+    ) -> None:
         other_robot.put("/v1/users/far")
         theirs = start(other_robot, "far", "e1")
         before = other_robot.get("/v1/users/far").json()
         ours = start(robot, "far", "e1")  # the same event id: each fleet's far has its own
         assert ours["episode_id"] != theirs["episode_id"]
-        assert "Idempotent-Replay" not in robot.post("/v1/users/far/episodes",
-                                                     json=event("e2")).headers
+        assert (
+            "Idempotent-Replay"
+            not in robot.post("/v1/users/far/episodes", json=event("e2")).headers
+        )
         assert other_robot.get("/v1/users/far").json() == before
         assert robot.get("/v1/users/far").json()["episodes"] == 2
 
@@ -241,29 +285,53 @@ class TestStartEpisode:
 
 
 class TestReportOutcome:
-    @pytest.mark.parametrize(("kind", "prefix", "initiator", "request_", "body"), [
-        ("initiate", "i", "robot", None, {"response": "accepted"}),
-        ("initiate", "i", "robot", None, {"response": "rejected"}),
-        ("initiate", "i", "robot", None, {"response": "terminated"}),
-        ("pass", "p", "robot", None, {"response": "none"}),
-        ("pass", "p", "robot", None, {"response": "human_request"}),
-        ("pass", "p", "robot", None, {"response": "human_request", "service": "ProvideDrink"}),
-        ("pass", "p", "robot", None, {"response": "human_request", **TEA}),
-        ("query_type", "q", "human", None, {"response": "answered",
-                                            "service": "ArrangeSchedule"}),
-        ("query_type", "q", "human", None, {"response": "terminated"}),
-        ("query_detail", "d", "human", {"service": "ProvideDrink"},
-         {"response": "answered", "detail": "coffee"}),
-        ("query_detail", "d", "human", {"service": "ProvideDrink"},
-         {"response": "answered", "service": "ProvideDrink", "detail": "coffee"}),
-        ("query_detail", "d", "human", {"service": "ProvideDrink"}, {"response": "terminated"}),
-        ("perform", "f", "human", TEA, {"response": "accepted"}),
-        ("perform", "f", "human", TEA, {"response": "rejected"}),
-        ("perform", "f", "human", TEA, {"response": "terminated"}),
-    ])
-    def test_each_allowed_response(self, robot: TestClient, kind: str, prefix: str,
-                                   initiator: str, request_: dict[str, Any] | None,
-                                   body: dict[str, Any]) -> None:
+    @pytest.mark.parametrize(
+        ("kind", "prefix", "initiator", "request_", "body"),
+        [
+            ("initiate", "i", "robot", None, {"response": "accepted"}),
+            ("initiate", "i", "robot", None, {"response": "rejected"}),
+            ("initiate", "i", "robot", None, {"response": "terminated"}),
+            ("pass", "p", "robot", None, {"response": "none"}),
+            ("pass", "p", "robot", None, {"response": "human_request"}),
+            ("pass", "p", "robot", None, {"response": "human_request", "service": "ProvideDrink"}),
+            ("pass", "p", "robot", None, {"response": "human_request", **TEA}),
+            (
+                "query_type",
+                "q",
+                "human",
+                None,
+                {"response": "answered", "service": "ArrangeSchedule"},
+            ),
+            ("query_type", "q", "human", None, {"response": "terminated"}),
+            (
+                "query_detail",
+                "d",
+                "human",
+                {"service": "ProvideDrink"},
+                {"response": "answered", "detail": "coffee"},
+            ),
+            (
+                "query_detail",
+                "d",
+                "human",
+                {"service": "ProvideDrink"},
+                {"response": "answered", "service": "ProvideDrink", "detail": "coffee"},
+            ),
+            ("query_detail", "d", "human", {"service": "ProvideDrink"}, {"response": "terminated"}),
+            ("perform", "f", "human", TEA, {"response": "accepted"}),
+            ("perform", "f", "human", TEA, {"response": "rejected"}),
+            ("perform", "f", "human", TEA, {"response": "terminated"}),
+        ],
+    )
+    def test_each_allowed_response(
+        self,
+        robot: TestClient,
+        kind: str,
+        prefix: str,
+        initiator: str,
+        request_: dict[str, Any] | None,
+        body: dict[str, Any],
+    ) -> None:
         ep = first(robot, kind, prefix=prefix, initiator=initiator, request=request_)
         out = answer(robot, ep["episode_id"], ep["decision"]["decision_id"], **body)
         assert set(out) == {"reward", "episode", "decision"}
@@ -276,34 +344,51 @@ class TestReportOutcome:
             assert out["episode"]["status"] == "open"
             check_decision(out["decision"])
         trace = robot.get(f"/v1/episodes/{ep['episode_id']}").json()
-        answered = [d for d in trace["decisions"]
-                    if d["decision_id"] == ep["decision"]["decision_id"]][0]
+        answered = [
+            d for d in trace["decisions"] if d["decision_id"] == ep["decision"]["decision_id"]
+        ][0]
         assert answered["response"] == body["response"]
         if "detail" in body:
             assert answered["detail"] == body["detail"]
 
-    @pytest.mark.parametrize(("kind", "prefix", "initiator", "request_", "response"), [
-        ("initiate", "i", "robot", None, "answered"),
-        ("initiate", "i", "robot", None, "none"),
-        ("initiate", "i", "robot", None, "human_request"),
-        ("pass", "p", "robot", None, "accepted"),
-        ("pass", "p", "robot", None, "terminated"),
-        ("query_type", "q", "human", None, "accepted"),
-        ("query_type", "q", "human", None, "none"),
-        ("query_detail", "d", "human", {"service": "ProvideDrink"}, "rejected"),
-        ("perform", "f", "human", TEA, "answered"),
-        ("perform", "f", "human", TEA, "none"),
-    ])
+    @pytest.mark.parametrize(
+        ("kind", "prefix", "initiator", "request_", "response"),
+        [
+            ("initiate", "i", "robot", None, "answered"),
+            ("initiate", "i", "robot", None, "none"),
+            ("initiate", "i", "robot", None, "human_request"),
+            ("pass", "p", "robot", None, "accepted"),
+            ("pass", "p", "robot", None, "terminated"),
+            ("query_type", "q", "human", None, "accepted"),
+            ("query_type", "q", "human", None, "none"),
+            ("query_detail", "d", "human", {"service": "ProvideDrink"}, "rejected"),
+            ("perform", "f", "human", TEA, "answered"),
+            ("perform", "f", "human", TEA, "none"),
+        ],
+    )
     def test_a_response_not_allowed_is_422_naming_the_allowed_ones(
-            self, robot: TestClient, kind: str, prefix: str, initiator: str,
-            request_: dict[str, Any] | None, response: str) -> None:
+        self,
+        robot: TestClient,
+        kind: str,
+        prefix: str,
+        initiator: str,
+        request_: dict[str, Any] | None,
+        response: str,
+    ) -> None:
         ep = first(robot, kind, prefix=prefix, initiator=initiator, request=request_)
         before = snapshot(robot, ep)
-        r = outcome(robot, ep["episode_id"], {"decision_id": ep["decision"]["decision_id"],
-                                              "response": response, "service": "ProvideDrink",
-                                              "detail": "tea"}
-                    if response in ("answered", "human_request") else
-                    {"decision_id": ep["decision"]["decision_id"], "response": response})
+        r = outcome(
+            robot,
+            ep["episode_id"],
+            {
+                "decision_id": ep["decision"]["decision_id"],
+                "response": response,
+                "service": "ProvideDrink",
+                "detail": "tea",
+            }
+            if response in ("answered", "human_request")
+            else {"decision_id": ep["decision"]["decision_id"], "response": response},
+        )
         body = assert_error(r, 422, "ValidationError")
         if response not in ("answered", "human_request"):
             for allowed in EXPECTS[kind]:
@@ -312,8 +397,11 @@ class TestReportOutcome:
 
     def test_not_allowed_names_the_allowed_ones(self, robot: TestClient) -> None:
         ep = first(robot, "initiate", prefix="i")
-        r = outcome(robot, ep["episode_id"], {"decision_id": ep["decision"]["decision_id"],
-                                              "response": "answered"})
+        r = outcome(
+            robot,
+            ep["episode_id"],
+            {"decision_id": ep["decision"]["decision_id"], "response": "answered"},
+        )
         body = assert_error(r, 422, "ValidationError")
         for allowed in EXPECTS["initiate"]:
             assert allowed in body["detail"]
@@ -322,48 +410,78 @@ class TestReportOutcome:
     def test_unknown_response_word_is_422(self, robot: TestClient) -> None:
         ep = first(robot, "initiate", prefix="i")
         before = snapshot(robot, ep)
-        r = outcome(robot, ep["episode_id"], {"decision_id": ep["decision"]["decision_id"],
-                                              "response": "maybe"})
+        r = outcome(
+            robot,
+            ep["episode_id"],
+            {"decision_id": ep["decision"]["decision_id"], "response": "maybe"},
+        )
         assert_error(r, 422, "ValidationError")
         assert snapshot(robot, ep) == before
 
-    @pytest.mark.parametrize("extra", [
-        {},  # no service
-        {"service": "Massage"},
-        {"service": "ProvideDrink", "detail": "tea"},  # the detail is asked next
-        {"detail": "tea"},
-    ])
-    def test_query_type_answer_needs_a_known_service(self, robot: TestClient,
-                                                     extra: dict[str, Any]) -> None:
+    @pytest.mark.parametrize(
+        "extra",
+        [
+            {},  # no service
+            {"service": "Massage"},
+            {"service": "ProvideDrink", "detail": "tea"},  # the detail is asked next
+            {"detail": "tea"},
+        ],
+    )
+    def test_query_type_answer_needs_a_known_service(
+        self, robot: TestClient, extra: dict[str, Any]
+    ) -> None:
         ep = first(robot, "query_type", prefix="q", initiator="human")
         before = snapshot(robot, ep)
-        r = outcome(robot, ep["episode_id"], {"decision_id": ep["decision"]["decision_id"],
-                                              "response": "answered", **extra})
+        r = outcome(
+            robot,
+            ep["episode_id"],
+            {"decision_id": ep["decision"]["decision_id"], "response": "answered", **extra},
+        )
         body = assert_error(r, 422, "ValidationError")
         if extra.get("service") == "Massage":
             assert "ProvideDrink" in body["detail"]
         assert snapshot(robot, ep) == before
 
-    @pytest.mark.parametrize("extra", [
-        {}, {"detail": "news"}, {"detail": "nope"},
-        {"service": "BriefInformation", "detail": "news"},
-    ])
+    @pytest.mark.parametrize(
+        "extra",
+        [
+            {},
+            {"detail": "news"},
+            {"detail": "nope"},
+            {"service": "BriefInformation", "detail": "news"},
+        ],
+    )
     def test_query_detail_answer_needs_a_detail_of_its_service(
-            self, robot: TestClient, extra: dict[str, Any]) -> None:
-        ep = first(robot, "query_detail", prefix="d", initiator="human",
-                   request={"service": "ProvideDrink"})
+        self, robot: TestClient, extra: dict[str, Any]
+    ) -> None:
+        ep = first(
+            robot,
+            "query_detail",
+            prefix="d",
+            initiator="human",
+            request={"service": "ProvideDrink"},
+        )
         before = snapshot(robot, ep)
-        r = outcome(robot, ep["episode_id"], {"decision_id": ep["decision"]["decision_id"],
-                                              "response": "answered", **extra})
+        r = outcome(
+            robot,
+            ep["episode_id"],
+            {"decision_id": ep["decision"]["decision_id"], "response": "answered", **extra},
+        )
         assert_error(r, 422, "ValidationError")
         assert snapshot(robot, ep) == before
 
     def test_human_request_with_unknown_service_is_422(self, robot: TestClient) -> None:
         ep = first(robot, "pass", prefix="p")
         before = snapshot(robot, ep)
-        r = outcome(robot, ep["episode_id"], {"decision_id": ep["decision"]["decision_id"],
-                                              "response": "human_request",
-                                              "service": "Massage"})
+        r = outcome(
+            robot,
+            ep["episode_id"],
+            {
+                "decision_id": ep["decision"]["decision_id"],
+                "response": "human_request",
+                "service": "Massage",
+            },
+        )
         assert_error(r, 422, "ValidationError")
         assert snapshot(robot, ep) == before
 
@@ -394,7 +512,8 @@ class TestReportOutcome:
 
     @pytest.mark.parametrize("change", [{"response": "rejected"}, {"feedback": "positive"}])
     def test_another_body_for_an_answered_decision_is_409(
-            self, robot: TestClient, change: dict[str, Any]) -> None:
+        self, robot: TestClient, change: dict[str, Any]
+    ) -> None:
         ep = start(robot, "lin", "e1", initiator="human", request=TEA)
         body = {"decision_id": ep["decision"]["decision_id"], "response": "accepted"}
         outcome(robot, ep["episode_id"], body)
@@ -406,11 +525,13 @@ class TestReportOutcome:
         ep = first(robot, "initiate", prefix="i")
         other = start(robot, ep["user_id"], "e2")
         before = snapshot(robot, ep)
-        r = outcome(robot, ep["episode_id"], {"decision_id": other["decision"]["decision_id"],
-                                              "response": "accepted"})
+        r = outcome(
+            robot,
+            ep["episode_id"],
+            {"decision_id": other["decision"]["decision_id"], "response": "accepted"},
+        )
         assert_error(r, 409, "Conflict")
-        r = outcome(robot, ep["episode_id"], {"decision_id": "dec_nope",
-                                              "response": "accepted"})
+        r = outcome(robot, ep["episode_id"], {"decision_id": "dec_nope", "response": "accepted"})
         assert_error(r, 409, "Conflict")
         assert snapshot(robot, ep) == before
 
@@ -419,8 +540,7 @@ class TestReportOutcome:
         out = answer(robot, ep["episode_id"], ep["decision"]["decision_id"], "rejected")
         assert out["decision"] is None
         before = snapshot(robot, ep)
-        r = outcome(robot, ep["episode_id"], {"decision_id": "dec_later",
-                                              "response": "accepted"})
+        r = outcome(robot, ep["episode_id"], {"decision_id": "dec_later", "response": "accepted"})
         assert_error(r, 409, "Conflict")
         assert snapshot(robot, ep) == before
 
@@ -428,26 +548,34 @@ class TestReportOutcome:
         r = outcome(robot, "ep_nope", {"decision_id": "dec_x", "response": "accepted"})
         assert_error(r, 404, "NotFound")
 
-    def test_another_fleets_episode_is_404(self, robot: TestClient,
-                                           other_robot: TestClient) -> None:
+    def test_another_fleets_episode_is_404(
+        self, robot: TestClient, other_robot: TestClient
+    ) -> None:
         ep = start(robot, "lin", "e1", initiator="human", request=TEA)
         before = snapshot(robot, ep)
-        r = outcome(other_robot, ep["episode_id"], {"decision_id": ep["decision"]["decision_id"],
-                                                    "response": "accepted"})
+        r = outcome(
+            other_robot,
+            ep["episode_id"],
+            {"decision_id": ep["decision"]["decision_id"], "response": "accepted"},
+        )
         assert_error(r, 404, "NotFound")
         assert snapshot(robot, ep) == before
 
-    def test_admin_may_answer_any_fleet(self, other_robot: TestClient,
-                                        admin: TestClient) -> None:
+    def test_admin_may_answer_any_fleet(self, other_robot: TestClient, admin: TestClient) -> None:
         ep = start(other_robot, "far", "e1", initiator="human", request=TEA)
         out = answer(admin, ep["episode_id"], ep["decision"]["decision_id"], "accepted")
         assert out["reward"] == 6.0
 
 
 class TestRewards:
-    @pytest.mark.parametrize(("response", "reward"), [
-        ("accepted", 1.0), ("rejected", -2.0), ("terminated", -2.0),
-    ])
+    @pytest.mark.parametrize(
+        ("response", "reward"),
+        [
+            ("accepted", 1.0),
+            ("rejected", -2.0),
+            ("terminated", -2.0),
+        ],
+    )
     def test_initiate(self, robot: TestClient, response: str, reward: float) -> None:
         ep = first(robot, "initiate", prefix="i")
         out = answer(robot, ep["episode_id"], ep["decision"]["decision_id"], response)
@@ -464,17 +592,22 @@ class TestRewards:
         out = answer(robot, ep["episode_id"], ep["decision"]["decision_id"], "none")
         assert out["reward"] == 0.0
         assert out["decision"] is None
-        assert out["episode"] == {"episode_id": ep["episode_id"], "status": "closed",
-                                  "state": "END", "total_reward": 0.0}
+        assert out["episode"] == {
+            "episode_id": ep["episode_id"],
+            "status": "closed",
+            "state": "END",
+            "total_reward": 0.0,
+        }
 
     def test_pass_then_request_responds_first(self, robot: TestClient) -> None:
         ep = first(robot, "pass", prefix="p")
-        out = answer(robot, ep["episode_id"], ep["decision"]["decision_id"], "human_request",
-                     **TEA)
+        out = answer(robot, ep["episode_id"], ep["decision"]["decision_id"], "human_request", **TEA)
         assert out["reward"] == 0.0
         assert out["decision"]["action"] == {"kind": "perform", **TEA}
-        assert out["decision"]["chain"][0]["action"] == {"kind": "respond",
-                                                         "service": "ProvideDrink"}
+        assert out["decision"]["chain"][0]["action"] == {
+            "kind": "respond",
+            "service": "ProvideDrink",
+        }
         assert out["episode"]["total_reward"] == 1.0  # the silent respond step
         done = answer(robot, ep["episode_id"], out["decision"]["decision_id"], "accepted")
         assert done["episode"]["total_reward"] == 7.0
@@ -482,8 +615,13 @@ class TestRewards:
 
     def test_query_answered_is_minus_half(self, robot: TestClient) -> None:
         ep = first(robot, "query_type", prefix="q", initiator="human")
-        out = answer(robot, ep["episode_id"], ep["decision"]["decision_id"], "answered",
-                     service="ProvideDrink")
+        out = answer(
+            robot,
+            ep["episode_id"],
+            ep["decision"]["decision_id"],
+            "answered",
+            service="ProvideDrink",
+        )
         assert out["reward"] == -0.5
         assert out["episode"]["state"] == "TYPE_KNOWN" or out["decision"]["chain"]
         assert out["episode"]["total_reward"] == ep["total_reward"] - 0.5
@@ -496,33 +634,53 @@ class TestRewards:
         assert out["episode"]["status"] == "closed"
 
     def test_query_detail_answered_is_minus_half(self, robot: TestClient) -> None:
-        ep = first(robot, "query_detail", prefix="d", initiator="human",
-                   request={"service": "ProvideDrink"})
-        out = answer(robot, ep["episode_id"], ep["decision"]["decision_id"], "answered",
-                     detail="water")
+        ep = first(
+            robot,
+            "query_detail",
+            prefix="d",
+            initiator="human",
+            request={"service": "ProvideDrink"},
+        )
+        out = answer(
+            robot, ep["episode_id"], ep["decision"]["decision_id"], "answered", detail="water"
+        )
         assert out["reward"] == -0.5
-        assert out["decision"]["action"] == {"kind": "perform", "service": "ProvideDrink",
-                                             "detail": "water"}
+        assert out["decision"]["action"] == {
+            "kind": "perform",
+            "service": "ProvideDrink",
+            "detail": "water",
+        }
         assert out["episode"]["state"] == "DETAIL_KNOWN"
         assert out["episode"]["total_reward"] == 0.5  # respond +1, query -0.5
 
-    @pytest.mark.parametrize(("response", "reward"), [
-        ("accepted", 6.0), ("rejected", -2.0), ("terminated", -2.0),
-    ])
+    @pytest.mark.parametrize(
+        ("response", "reward"),
+        [
+            ("accepted", 6.0),
+            ("rejected", -2.0),
+            ("terminated", -2.0),
+        ],
+    )
     def test_perform(self, robot: TestClient, response: str, reward: float) -> None:
         ep = start(robot, "lin", "e1", initiator="human", request=TEA)
         out = answer(robot, ep["episode_id"], ep["decision"]["decision_id"], response)
         assert out["reward"] == reward
-        assert out["episode"] == {"episode_id": ep["episode_id"], "status": "closed",
-                                  "state": "END", "total_reward": 1.0 + reward}
+        assert out["episode"] == {
+            "episode_id": ep["episode_id"],
+            "status": "closed",
+            "state": "END",
+            "total_reward": 1.0 + reward,
+        }
         assert out["decision"] is None
 
     @pytest.mark.parametrize(("feedback", "reward"), [("positive", 7.0), ("negative", 4.0)])
-    def test_feedback_in_the_outcome_adds_to_the_reward(self, robot: TestClient,
-                                                        feedback: str, reward: float) -> None:
+    def test_feedback_in_the_outcome_adds_to_the_reward(
+        self, robot: TestClient, feedback: str, reward: float
+    ) -> None:
         ep = start(robot, "lin", "e1", initiator="human", request=TEA)
-        out = answer(robot, ep["episode_id"], ep["decision"]["decision_id"], "accepted",
-                     feedback=feedback)
+        out = answer(
+            robot, ep["episode_id"], ep["decision"]["decision_id"], "accepted", feedback=feedback
+        )
         assert out["reward"] == reward
         assert out["episode"]["total_reward"] == 1.0 + reward
         trace = robot.get(f"/v1/episodes/{ep['episode_id']}").json()
@@ -539,8 +697,12 @@ class TestRewards:
             decision = out["decision"]
             check_decision(decision)
             body = positive(decision)
-            out = answer(robot, ep["episode_id"], decision["decision_id"],
-                         **{k: v for k, v in body.items() if k != "decision_id"})
+            out = answer(
+                robot,
+                ep["episode_id"],
+                decision["decision_id"],
+                **{k: v for k, v in body.items() if k != "decision_id"},
+            )
             expected += out["reward"]
             steps += 1
             assert steps <= 4
@@ -559,18 +721,25 @@ class TestFeedback:
         return ep
 
     @pytest.mark.parametrize(("word", "reward"), [("positive", 1.0), ("negative", -2.0)])
-    def test_200_with_reward_and_episode(self, robot: TestClient, word: str,
-                                         reward: float) -> None:
+    def test_200_with_reward_and_episode(self, robot: TestClient, word: str, reward: float) -> None:
         ep = self._closed(robot)
         v = version(robot, "lin")
-        r = robot.post(f"/v1/episodes/{ep['episode_id']}/feedback",
-                       json={"feedback_id": "fb-1", "feedback": word})
+        r = robot.post(
+            f"/v1/episodes/{ep['episode_id']}/feedback",
+            json={"feedback_id": "fb-1", "feedback": word},
+        )
         assert r.status_code == 200, r.text
         assert "Idempotent-Replay" not in r.headers
         body = r.json()
-        assert body == {"reward": reward, "episode": {
-            "episode_id": ep["episode_id"], "status": "closed", "state": "END",
-            "total_reward": 7.0 + reward}}
+        assert body == {
+            "reward": reward,
+            "episode": {
+                "episode_id": ep["episode_id"],
+                "status": "closed",
+                "state": "END",
+                "total_reward": 7.0 + reward,
+            },
+        }
         assert version(robot, "lin") == v + 1
         trace = robot.get(f"/v1/episodes/{ep['episode_id']}").json()
         assert trace["total_reward"] == 7.0 + reward
@@ -613,8 +782,10 @@ class TestFeedback:
         ep = first(robot, "initiate", prefix="i")
         answer(robot, ep["episode_id"], ep["decision"]["decision_id"], "accepted")
         v = version(robot, ep["user_id"])
-        r = robot.post(f"/v1/episodes/{ep['episode_id']}/feedback",
-                       json={"feedback_id": "fb-1", "feedback": "positive"})
+        r = robot.post(
+            f"/v1/episodes/{ep['episode_id']}/feedback",
+            json={"feedback_id": "fb-1", "feedback": "positive"},
+        )
         assert r.status_code == 200, r.text
         assert r.json()["episode"]["status"] == "open"
         assert r.json()["episode"]["total_reward"] == 2.0
@@ -623,30 +794,39 @@ class TestFeedback:
     def test_no_answered_step_yet_is_409(self, robot: TestClient) -> None:
         ep = start(robot, "lin", "e1")
         before = snapshot(robot, ep)
-        r = robot.post(f"/v1/episodes/{ep['episode_id']}/feedback",
-                       json={"feedback_id": "fb-1", "feedback": "positive"})
+        r = robot.post(
+            f"/v1/episodes/{ep['episode_id']}/feedback",
+            json={"feedback_id": "fb-1", "feedback": "positive"},
+        )
         assert_error(r, 409, "Conflict")
         assert snapshot(robot, ep) == before
 
-    def test_unknown_and_foreign_episodes_are_404(self, robot: TestClient,
-                                                  other_robot: TestClient) -> None:
+    def test_unknown_and_foreign_episodes_are_404(
+        self, robot: TestClient, other_robot: TestClient
+    ) -> None:
         ep = self._closed(robot)
         body = {"feedback_id": "fb-1", "feedback": "positive"}
         assert_error(robot.post("/v1/episodes/ep_nope/feedback", json=body), 404, "NotFound")
         before = snapshot(robot, ep)
-        assert_error(other_robot.post(f"/v1/episodes/{ep['episode_id']}/feedback", json=body),
-                     404, "NotFound")
+        assert_error(
+            other_robot.post(f"/v1/episodes/{ep['episode_id']}/feedback", json=body),
+            404,
+            "NotFound",
+        )
         assert snapshot(robot, ep) == before
 
     @pytest.mark.one_engine
-    @pytest.mark.parametrize("body", [
-        {"feedback_id": "fb-1", "feedback": "great"},
-        {"feedback_id": "fb 1", "feedback": "positive"},
-        {"feedback_id": "", "feedback": "positive"},
-        {"feedback": "positive"},
-        {"feedback_id": "fb-1"},
-        {"feedback_id": "fb-1", "feedback": "positive", "extra": 1},
-    ])
+    @pytest.mark.parametrize(
+        "body",
+        [
+            {"feedback_id": "fb-1", "feedback": "great"},
+            {"feedback_id": "fb 1", "feedback": "positive"},
+            {"feedback_id": "", "feedback": "positive"},
+            {"feedback": "positive"},
+            {"feedback_id": "fb-1"},
+            {"feedback_id": "fb-1", "feedback": "positive", "extra": 1},
+        ],
+    )
     def test_bad_bodies_are_422(self, robot: TestClient, body: dict[str, Any]) -> None:
         ep = self._closed(robot)
         before = snapshot(robot, ep)
@@ -662,19 +842,44 @@ class TestGetEpisode:
         r = robot.get(f"/v1/episodes/{ep['episode_id']}")
         assert r.status_code == 200
         trace = r.json()
-        assert set(trace) >= {"episode_id", "user_id", "event_id", "robot_id", "status",
-                              "context", "initiator", "interaction_class", "total_reward",
-                              "decisions", "feedback"}
-        assert (trace["episode_id"], trace["user_id"], trace["event_id"], trace["robot_id"]) \
-            == (ep["episode_id"], "lin", "ev-9", "r2")
+        assert set(trace) >= {
+            "episode_id",
+            "user_id",
+            "event_id",
+            "robot_id",
+            "status",
+            "context",
+            "initiator",
+            "interaction_class",
+            "total_reward",
+            "decisions",
+            "feedback",
+        }
+        assert (trace["episode_id"], trace["user_id"], trace["event_id"], trace["robot_id"]) == (
+            ep["episode_id"],
+            "lin",
+            "ev-9",
+            "r2",
+        )
         assert trace["status"] == "open"
         assert trace["initiator"] == "robot"
         assert trace["context"] == ep["context"]
         assert trace["feedback"] == []
         [d] = trace["decisions"]
-        assert set(d) >= {"decision_id", "state", "action", "probabilities", "chain",
-                          "response", "service", "detail", "feedback", "reward",
-                          "decided_at", "answered_at"}
+        assert set(d) >= {
+            "decision_id",
+            "state",
+            "action",
+            "probabilities",
+            "chain",
+            "response",
+            "service",
+            "detail",
+            "feedback",
+            "reward",
+            "decided_at",
+            "answered_at",
+        }
         assert d["decision_id"] == ep["decision"]["decision_id"]
         assert d["state"] == "OBSERVE"
         assert d["action"] == ep["decision"]["action"]
@@ -685,8 +890,7 @@ class TestGetEpisode:
         assert d["answered_at"] is None
         assert d["decided_at"]
 
-    def test_answered_decisions_carry_response_reward_and_time(
-            self, robot: TestClient) -> None:
+    def test_answered_decisions_carry_response_reward_and_time(self, robot: TestClient) -> None:
         ep = first(robot, "initiate", prefix="i")
         out = answer(robot, ep["episode_id"], ep["decision"]["decision_id"], "accepted")
         trace = robot.get(f"/v1/episodes/{ep['episode_id']}").json()
@@ -700,13 +904,17 @@ class TestGetEpisode:
         assert trace["interaction_class"] == "I2"
         assert trace["total_reward"] == out["episode"]["total_reward"]
 
-    @pytest.mark.parametrize(("kind", "response", "cls"), [
-        ("initiate", "accepted", "I2"), ("initiate", "rejected", "I3"),
-        ("initiate", "terminated", "I3"), ("pass", "none", "none"),
-        ("pass", "human_request", "I1"),
-    ])
-    def test_interaction_class(self, robot: TestClient, kind: str, response: str,
-                               cls: str) -> None:
+    @pytest.mark.parametrize(
+        ("kind", "response", "cls"),
+        [
+            ("initiate", "accepted", "I2"),
+            ("initiate", "rejected", "I3"),
+            ("initiate", "terminated", "I3"),
+            ("pass", "none", "none"),
+            ("pass", "human_request", "I1"),
+        ],
+    )
+    def test_interaction_class(self, robot: TestClient, kind: str, response: str, cls: str) -> None:
         ep = first(robot, kind, prefix=kind[0])
         answer(robot, ep["episode_id"], ep["decision"]["decision_id"], response)
         assert robot.get(f"/v1/episodes/{ep['episode_id']}").json()["interaction_class"] == cls
@@ -725,8 +933,7 @@ class TestGetEpisode:
         assert last["chain"][0]["action"]["kind"] == "respond"
         assert all(d["answered_at"] is not None for d in trace["decisions"])
 
-    def test_unknown_and_foreign_are_404(self, robot: TestClient,
-                                         other_robot: TestClient) -> None:
+    def test_unknown_and_foreign_are_404(self, robot: TestClient, other_robot: TestClient) -> None:
         ep = start(robot, "lin", "e1")
         assert_error(robot.get("/v1/episodes/ep_nope"), 404, "NotFound")
         assert_error(other_robot.get(f"/v1/episodes/{ep['episode_id']}"), 404, "NotFound")

@@ -49,8 +49,14 @@ from .helpers import event
 A, B = "fleet-a", "fleet-b"
 PRINCIPALS = ("none", "revoked", "robot_a", "robot_b", "staff_a", "staff_b", "admin")
 # role and fleet of each caller's key ("none" has no key)
-KEYS = {"revoked": ("admin", "default"), "robot_a": ("robot", A), "robot_b": ("robot", B),
-        "staff_a": ("staff", A), "staff_b": ("staff", B), "admin": ("admin", "default")}
+KEYS = {
+    "revoked": ("admin", "default"),
+    "robot_a": ("robot", A),
+    "robot_b": ("robot", B),
+    "staff_a": ("staff", A),
+    "staff_b": ("staff", B),
+    "admin": ("admin", "default"),
+}
 # The fleet whose ``lin`` a caller addresses: its own; the admin names fleet-a (``{q}``).
 HOME = {"robot_a": A, "staff_a": A, "admin": A, "robot_b": B, "staff_b": B}
 ADMIN_Q = f"?fleet={A}"
@@ -85,20 +91,37 @@ class Row:
 OUTCOME = {"decision_id": "{decision_id}", "response": "{response}"}
 FEEDBACK = {"feedback_id": "matrix-fb", "feedback": "positive"}
 NEW_KEY = {"role": "robot", "fleet": A, "name": "matrix"}
-CORRECTION = {"correction_id": "matrix-c", "time_slot": "afternoon", "situation": "working",
-              "kind": "quiet"}
+CORRECTION = {
+    "correction_id": "matrix-c",
+    "time_slot": "afternoon",
+    "situation": "working",
+    "kind": "quiet",
+}
 # fleet-a's mission with one more detail: every model of fleet-a moves to its version 2.
-COCOA = {"change_id": "matrix-change", "mission": {
-    **office_mission().to_dict(),
-    "services": [{"name": s.name, "details": [*s.details, "cocoa"] if s.name == "ProvideDrink"
-                  else list(s.details)} for s in office_mission().services]}}
+COCOA = {
+    "change_id": "matrix-change",
+    "mission": {
+        **office_mission().to_dict(),
+        "services": [
+            {
+                "name": s.name,
+                "details": [*s.details, "cocoa"] if s.name == "ProvideDrink" else list(s.details),
+            }
+            for s in office_mission().services
+        ],
+    },
+}
 
 # The console's form for the same change: the services as lines, the rest kept as it is.
-MISSION_FORM = {"change_id": "matrix-change", "base_version": "1", "step": "confirm",
-                "services": "\n".join(
-                    f"{s.name}: {', '.join(s.details)}"
-                    + (", cocoa" if s.name == "ProvideDrink" else "")
-                    for s in office_mission().services)}
+MISSION_FORM = {
+    "change_id": "matrix-change",
+    "base_version": "1",
+    "step": "confirm",
+    "services": "\n".join(
+        f"{s.name}: {', '.join(s.details)}" + (", cocoa" if s.name == "ProvideDrink" else "")
+        for s in office_mission().services
+    ),
+}
 
 # The whole matrix at a glance.
 #   none / revoked: no key, a revoked key; rA rB sA sB: robot and staff of fleet-a / fleet-b;
@@ -107,85 +130,136 @@ U = "/v1/users/{user_id}"
 C = "/admin/users/{user_id}"
 MATRIX: list[Row] = [
     #    method    path                                  none  rev   rA   rB   sA   sB  adm
-    Row("GET",    "/healthz",                           (200, 200, 200, 200, 200, 200, 200)),
-    Row("GET",    "/readyz",                            (200, 200, 200, 200, 200, 200, 200)),
-    Row("GET",    "/metrics",                           (200, 200, 200, 200, 200, 200, 200)),
-    Row("GET",    "/v1/mission",                        (401, 401, 200, 200, 200, 200, 200)),
-    Row("GET",    "/v1/users{q}",                       (401, 401, 200, 200, 200, 200, 200)),
-    Row("GET",    U + "{q}",                            (401, 401, 200, 200, 200, 200, 200)),
-    Row("PUT",    U + "{q}",                            (401, 401, 200, 200, 200, 200, 200),
-        json={"display_name": "Renamed"}, writes=True),
-    Row("DELETE", U + "{q}",                            (401, 401, 403, 403, 204, 204, 204),
-        writes=True),
-    Row("POST",   U + "/episodes{q}",                   (401, 401, 201, 201, 201, 201, 201),
-        json=event("matrix-1"), writes=True),
-    Row("GET",    U + "/episodes{q}",                   (401, 401, 200, 200, 200, 200, 200)),
-    Row("GET",    U + "/model{q}",                      (401, 401, 200, 200, 200, 200, 200)),
-    Row("GET",    U + "/stats{q}",                      (401, 401, 200, 200, 200, 200, 200)),
-    Row("DELETE", U + "/model{q}",                      (401, 401, 403, 403, 204, 204, 204),
-        writes=True),
-    Row("GET",    U + "/model/export{q}",               (401, 401, 403, 403, 200, 200, 200)),
-    Row("PUT",    U + "/model{q}",                      (401, 401, 403, 403, 200, 200, 200),
-        json=EXPORT, writes=True),
-    Row("GET",    U + "/profile{q}",                    (401, 401, 200, 200, 200, 200, 200)),
-    Row("GET",    U + "/corrections{q}",                (401, 401, 200, 200, 200, 200, 200)),
-    Row("POST",   U + "/corrections{q}",                (401, 401, 403, 403, 201, 201, 201),
-        json=CORRECTION, writes=True),
-    Row("DELETE", U + "/corrections/world-c{q}",        (401, 401, 403, 403, 204, 204, 204),
-        writes=True, route=U + "/corrections/{correction_id}"),
-    Row("POST",   "/v1/episodes/{open_episode_id}/outcomes",
-                                                        (401, 401, 200, 404, 200, 404, 200),
-        json=OUTCOME, writes=True, route="/v1/episodes/{episode_id}/outcomes"),
-    Row("POST",   "/v1/episodes/{episode_id}/feedback", (401, 401, 200, 404, 200, 404, 200),
-        json=FEEDBACK, writes=True),
-    Row("GET",    "/v1/episodes/{episode_id}",          (401, 401, 200, 404, 200, 404, 200)),
-    Row("GET",    "/v1/admin/audit",                    (401, 401, 403, 403, 200, 200, 200)),
-    Row("POST",   "/v1/admin/keys",                     (401, 401, 403, 403, 403, 403, 201),
-        json=NEW_KEY),
-    Row("GET",    "/v1/admin/keys",                     (401, 401, 403, 403, 403, 403, 200)),
-    Row("DELETE", "/v1/admin/keys/{key_id}",            (401, 401, 403, 403, 403, 403, 204)),
-    Row("GET",    "/v1/admin/fleets",                   (401, 401, 403, 403, 403, 403, 200)),
-    Row("GET",    f"/v1/admin/fleets/{A}/missions",     (401, 401, 403, 403, 200, 403, 200),
-        route="/v1/admin/fleets/{fleet}/missions"),
-    Row("PUT",    f"/v1/admin/fleets/{A}/mission",      (401, 401, 403, 403, 200, 403, 200),
-        json=COCOA, writes=True, route="/v1/admin/fleets/{fleet}/mission"),
+    Row("GET", "/healthz", (200, 200, 200, 200, 200, 200, 200)),
+    Row("GET", "/readyz", (200, 200, 200, 200, 200, 200, 200)),
+    Row("GET", "/metrics", (200, 200, 200, 200, 200, 200, 200)),
+    Row("GET", "/v1/mission", (401, 401, 200, 200, 200, 200, 200)),
+    Row("GET", "/v1/users{q}", (401, 401, 200, 200, 200, 200, 200)),
+    Row("GET", U + "{q}", (401, 401, 200, 200, 200, 200, 200)),
+    Row(
+        "PUT",
+        U + "{q}",
+        (401, 401, 200, 200, 200, 200, 200),
+        json={"display_name": "Renamed"},
+        writes=True,
+    ),
+    Row("DELETE", U + "{q}", (401, 401, 403, 403, 204, 204, 204), writes=True),
+    Row(
+        "POST",
+        U + "/episodes{q}",
+        (401, 401, 201, 201, 201, 201, 201),
+        json=event("matrix-1"),
+        writes=True,
+    ),
+    Row("GET", U + "/episodes{q}", (401, 401, 200, 200, 200, 200, 200)),
+    Row("GET", U + "/model{q}", (401, 401, 200, 200, 200, 200, 200)),
+    Row("GET", U + "/stats{q}", (401, 401, 200, 200, 200, 200, 200)),
+    Row("DELETE", U + "/model{q}", (401, 401, 403, 403, 204, 204, 204), writes=True),
+    Row("GET", U + "/model/export{q}", (401, 401, 403, 403, 200, 200, 200)),
+    Row("PUT", U + "/model{q}", (401, 401, 403, 403, 200, 200, 200), json=EXPORT, writes=True),
+    Row("GET", U + "/profile{q}", (401, 401, 200, 200, 200, 200, 200)),
+    Row("GET", U + "/corrections{q}", (401, 401, 200, 200, 200, 200, 200)),
+    Row(
+        "POST",
+        U + "/corrections{q}",
+        (401, 401, 403, 403, 201, 201, 201),
+        json=CORRECTION,
+        writes=True,
+    ),
+    Row(
+        "DELETE",
+        U + "/corrections/world-c{q}",
+        (401, 401, 403, 403, 204, 204, 204),
+        writes=True,
+        route=U + "/corrections/{correction_id}",
+    ),
+    Row(
+        "POST",
+        "/v1/episodes/{open_episode_id}/outcomes",
+        (401, 401, 200, 404, 200, 404, 200),
+        json=OUTCOME,
+        writes=True,
+        route="/v1/episodes/{episode_id}/outcomes",
+    ),
+    Row(
+        "POST",
+        "/v1/episodes/{episode_id}/feedback",
+        (401, 401, 200, 404, 200, 404, 200),
+        json=FEEDBACK,
+        writes=True,
+    ),
+    Row("GET", "/v1/episodes/{episode_id}", (401, 401, 200, 404, 200, 404, 200)),
+    Row("GET", "/v1/admin/audit", (401, 401, 403, 403, 200, 200, 200)),
+    Row("POST", "/v1/admin/keys", (401, 401, 403, 403, 403, 403, 201), json=NEW_KEY),
+    Row("GET", "/v1/admin/keys", (401, 401, 403, 403, 403, 403, 200)),
+    Row("DELETE", "/v1/admin/keys/{key_id}", (401, 401, 403, 403, 403, 403, 204)),
+    Row("GET", "/v1/admin/fleets", (401, 401, 403, 403, 403, 403, 200)),
+    Row(
+        "GET",
+        f"/v1/admin/fleets/{A}/missions",
+        (401, 401, 403, 403, 200, 403, 200),
+        route="/v1/admin/fleets/{fleet}/missions",
+    ),
+    Row(
+        "PUT",
+        f"/v1/admin/fleets/{A}/mission",
+        (401, 401, 403, 403, 200, 403, 200),
+        json=COCOA,
+        writes=True,
+        route="/v1/admin/fleets/{fleet}/mission",
+    ),
     # Turning a fleet's prior off changes no one's model: only the fleet's next newcomers.
-    Row("GET",    f"/v1/admin/fleets/{A}/prior",        (401, 401, 403, 403, 200, 403, 200),
-        route="/v1/admin/fleets/{fleet}/prior"),
-    Row("PUT",    f"/v1/admin/fleets/{A}/prior",        (401, 401, 403, 403, 200, 403, 200),
-        json={"enabled": False}, route="/v1/admin/fleets/{fleet}/prior"),
+    Row(
+        "GET",
+        f"/v1/admin/fleets/{A}/prior",
+        (401, 401, 403, 403, 200, 403, 200),
+        route="/v1/admin/fleets/{fleet}/prior",
+    ),
+    Row(
+        "PUT",
+        f"/v1/admin/fleets/{A}/prior",
+        (401, 401, 403, 403, 200, 403, 200),
+        json={"enabled": False},
+        route="/v1/admin/fleets/{fleet}/prior",
+    ),
     # The console: a cookie holding the key (staff and admin get it by signing in; robot and
     # revoked keys, refused there, send one made by hand). "none": no cookie, so the pages
     # send the browser to the login form (303).
-    Row("GET",    "/admin",                             (303, 303, 303, 303, 303, 303, 303)),
-    Row("GET",    "/admin/login",                       (200, 200, 200, 200, 200, 200, 200)),
-    Row("POST",   "/admin/login",                       (401, 401, 403, 403, 303, 303, 303),
-        form=LOGIN),
-    Row("POST",   "/admin/logout",                      (303, 303, 303, 303, 303, 303, 303),
-        form=CSRF),
-    Row("GET",    "/admin/users",                       (303, 401, 403, 403, 200, 200, 200)),
-    Row("GET",    C + "{q}",                            (303, 401, 403, 403, 200, 200, 200)),
-    Row("GET",    C + "/details{q}",                    (303, 401, 403, 403, 200, 200, 200)),
-    Row("POST",   C + "/corrections{q}",                (303, 401, 403, 403, 303, 303, 303),
-        form=CORRECT, writes=True),
-    Row("POST",   C + "/corrections/world-c/lift{q}",   (303, 401, 403, 403, 303, 303, 303),
-        form=CSRF, writes=True, route=C + "/corrections/{correction_id}/lift"),
-    Row("GET",    C + "/why{q}",                        (303, 401, 403, 403, 200, 200, 200)),
-    Row("GET",    C + "/episodes{q}",                   (303, 401, 403, 403, 200, 200, 200)),
-    Row("GET",    C + "/episodes/{episode_id}/trace{q}",
-                                                        (303, 401, 403, 403, 200, 404, 200)),
-    Row("GET",    C + "/export{q}",                     (303, 401, 403, 403, 200, 200, 200)),
-    Row("GET",    C + "/reset{q}",                      (303, 401, 403, 403, 200, 200, 200)),
-    Row("POST",   C + "/reset{q}",                      (303, 401, 403, 403, 303, 303, 303),
-        form=CSRF, writes=True),
-    Row("GET",    C + "/delete{q}",                     (303, 401, 403, 403, 200, 200, 200)),
-    Row("POST",   C + "/delete{q}",                     (303, 401, 403, 403, 303, 303, 303),
-        form=CSRF, writes=True),
-    Row("GET",    "/admin/mission{q}",                  (303, 401, 403, 403, 200, 200, 200)),
-    Row("POST",   "/admin/mission{q}",                  (303, 401, 403, 403, 303, 303, 303),
-        form=MISSION, writes=True),
-    Row("GET",    "/admin/nowhere",                     (404, 404, 404, 404, 404, 404, 404),
-        route="/admin/{rest:path}"),
+    Row("GET", "/admin", (303, 303, 303, 303, 303, 303, 303)),
+    Row("GET", "/admin/login", (200, 200, 200, 200, 200, 200, 200)),
+    Row("POST", "/admin/login", (401, 401, 403, 403, 303, 303, 303), form=LOGIN),
+    Row("POST", "/admin/logout", (303, 303, 303, 303, 303, 303, 303), form=CSRF),
+    Row("GET", "/admin/users", (303, 401, 403, 403, 200, 200, 200)),
+    Row("GET", C + "{q}", (303, 401, 403, 403, 200, 200, 200)),
+    Row("GET", C + "/details{q}", (303, 401, 403, 403, 200, 200, 200)),
+    Row(
+        "POST",
+        C + "/corrections{q}",
+        (303, 401, 403, 403, 303, 303, 303),
+        form=CORRECT,
+        writes=True,
+    ),
+    Row(
+        "POST",
+        C + "/corrections/world-c/lift{q}",
+        (303, 401, 403, 403, 303, 303, 303),
+        form=CSRF,
+        writes=True,
+        route=C + "/corrections/{correction_id}/lift",
+    ),
+    Row("GET", C + "/why{q}", (303, 401, 403, 403, 200, 200, 200)),
+    Row("GET", C + "/episodes{q}", (303, 401, 403, 403, 200, 200, 200)),
+    Row("GET", C + "/episodes/{episode_id}/trace{q}", (303, 401, 403, 403, 200, 404, 200)),
+    Row("GET", C + "/export{q}", (303, 401, 403, 403, 200, 200, 200)),
+    Row("GET", C + "/reset{q}", (303, 401, 403, 403, 200, 200, 200)),
+    Row("POST", C + "/reset{q}", (303, 401, 403, 403, 303, 303, 303), form=CSRF, writes=True),
+    Row("GET", C + "/delete{q}", (303, 401, 403, 403, 200, 200, 200)),
+    Row("POST", C + "/delete{q}", (303, 401, 403, 403, 303, 303, 303), form=CSRF, writes=True),
+    Row("GET", "/admin/mission{q}", (303, 401, 403, 403, 200, 200, 200)),
+    Row(
+        "POST", "/admin/mission{q}", (303, 401, 403, 403, 303, 303, 303), form=MISSION, writes=True
+    ),
+    Row("GET", "/admin/nowhere", (404, 404, 404, 404, 404, 404, 404), route="/admin/{rest:path}"),
 ]
 # Served to anyone, key or not: the schema, its two pages and the static files.
 OPEN = {
@@ -228,9 +302,15 @@ class World:
         if not isinstance(value, str):
             return value
         a = self.fleets[A]
-        ids = {"user_id": "lin", "episode_id": a.episode, "open_episode_id": a.open_episode,
-               "decision_id": a.decision, "response": a.response, "key_id": self.victim,
-               "q": ADMIN_Q if who == "admin" else ""}
+        ids = {
+            "user_id": "lin",
+            "episode_id": a.episode,
+            "open_episode_id": a.open_episode,
+            "decision_id": a.decision,
+            "response": a.response,
+            "key_id": self.victim,
+            "q": ADMIN_Q if who == "admin" else "",
+        }
         return re.sub(r"\{(\w+)\}", lambda m: ids[m.group(1)], value)
 
     def cookie(self, who: str) -> str | None:
@@ -274,8 +354,15 @@ class World:
         return out
 
 
-def send(world: World, method: str, path: str, who: str, *, json: Any = None,
-         form: dict[str, str] | None = None) -> httpx.Response:
+def send(
+    world: World,
+    method: str,
+    path: str,
+    who: str,
+    *,
+    json: Any = None,
+    form: dict[str, str] | None = None,
+) -> httpx.Response:
     """One request as ``who``: its key in the Authorization header for the API, in the console's
     cookie for the console (no key or cookie for "none")."""
     client = world.client
@@ -327,8 +414,9 @@ _SAVED: dict[str, Saved] = {}
 
 
 @pytest.fixture
-def world(app: FastAPI, make_key: MakeKey, database_url: str,
-          worker_databases: WorkerDatabases) -> Iterator[World]:
+def world(
+    app: FastAPI, make_key: MakeKey, database_url: str, worker_databases: WorkerDatabases
+) -> Iterator[World]:
     saved = _SAVED.get(database_url)
     if saved is not None:
         worker_databases.tables(database_url).restore(saved.path)
@@ -338,8 +426,7 @@ def world(app: FastAPI, make_key: MakeKey, database_url: str,
     with _built(app, make_key) as w:
         if database_url.startswith("sqlite"):
             path = worker_databases.tables(database_url).save("fleet-matrix")
-            _SAVED[database_url] = Saved(path, dict(w.secrets), w.victim,
-                                         copy.deepcopy(w.fleets))
+            _SAVED[database_url] = Saved(path, dict(w.secrets), w.victim, copy.deepcopy(w.fleets))
         yield w
 
 
@@ -350,33 +437,72 @@ def _built(app: FastAPI, make_key: MakeKey) -> Iterator[World]:
     make_key("robot", A, "victim")
     with TestClient(app, raise_server_exceptions=False, follow_redirects=False) as client:
         w = World(client, secrets, "", {})
-        ids = {k["name"]: k["key_id"] for k in
-               _ok(send(w, "GET", "/v1/admin/keys", "admin"), 200)["items"]}
+        ids = {
+            k["name"]: k["key_id"]
+            for k in _ok(send(w, "GET", "/v1/admin/keys", "admin"), 200)["items"]
+        }
         w.victim = ids["victim"]
         # Used once (the worker keeps it in its key cache), then revoked over HTTP: it stops
         # at once.
         assert send(w, "GET", "/v1/mission", "revoked").status_code == 200
         assert send(w, "DELETE", f"/v1/admin/keys/{ids['revoked']}", "admin").status_code == 204
         for fleet, robot, staff in ((A, "robot_a", "staff_a"), (B, "robot_b", "staff_b")):
-            _ok(send(w, "PUT", "/v1/users/lin", robot, json={"display_name": f"Lin of {fleet}"}),
-                201)
-            first = _ok(send(w, "POST", "/v1/users/lin/episodes", robot,
-                             json=event("lin-1")), 201)
+            _ok(
+                send(w, "PUT", "/v1/users/lin", robot, json={"display_name": f"Lin of {fleet}"}),
+                201,
+            )
+            first = _ok(send(w, "POST", "/v1/users/lin/episodes", robot, json=event("lin-1")), 201)
             episode, decision = first["episode_id"], first["decision"]
-            _ok(send(w, "POST", f"/v1/episodes/{episode}/outcomes", robot, json={
-                "decision_id": decision["decision_id"],
-                "response": _answer(decision["expects"])}), 200)
-            _ok(send(w, "POST", f"/v1/episodes/{episode}/feedback", robot,
-                     json={"feedback_id": "fb-1", "feedback": "positive"}), 200)
-            second = _ok(send(w, "POST", "/v1/users/lin/episodes", robot,
-                              json=event("lin-2", "working")), 201)
-            _ok(send(w, "POST", "/v1/users/lin/corrections", staff, json={
-                **CORRECTION, "correction_id": "world-c", "kind": "avoid",
-                "service": "BriefInformation"}), 201)
+            _ok(
+                send(
+                    w,
+                    "POST",
+                    f"/v1/episodes/{episode}/outcomes",
+                    robot,
+                    json={
+                        "decision_id": decision["decision_id"],
+                        "response": _answer(decision["expects"]),
+                    },
+                ),
+                200,
+            )
+            _ok(
+                send(
+                    w,
+                    "POST",
+                    f"/v1/episodes/{episode}/feedback",
+                    robot,
+                    json={"feedback_id": "fb-1", "feedback": "positive"},
+                ),
+                200,
+            )
+            second = _ok(
+                send(w, "POST", "/v1/users/lin/episodes", robot, json=event("lin-2", "working")),
+                201,
+            )
+            _ok(
+                send(
+                    w,
+                    "POST",
+                    "/v1/users/lin/corrections",
+                    staff,
+                    json={
+                        **CORRECTION,
+                        "correction_id": "world-c",
+                        "kind": "avoid",
+                        "service": "BriefInformation",
+                    },
+                ),
+                201,
+            )
             export = _ok(send(w, "GET", "/v1/users/lin/model/export", staff), 200)
-            w.fleets[fleet] = Fleet(episode, second["episode_id"],
-                                    second["decision"]["decision_id"],
-                                    _answer(second["decision"]["expects"]), export)
+            w.fleets[fleet] = Fleet(
+                episode,
+                second["episode_id"],
+                second["decision"]["decision_id"],
+                _answer(second["decision"]["expects"]),
+                export,
+            )
         _ok(send(w, "POST", "/v1/users/only-a/episodes", "robot_a", json=event("only-1")), 201)
         yield w
 
@@ -421,10 +547,10 @@ def _cells(*, writes: bool) -> Iterator[Any]:
         for who, status in zip(PRINCIPALS, row.expect, strict=True):
             if (row.writes and status < 400 and who in HOME) != writes:
                 continue
-            marks = ([pytest.mark.xfail(strict=True, reason=row.bugs[who])]
-                     if who in row.bugs else [])
-            yield pytest.param(row, who, status, id=f"{row.method} {row.path} {who}",
-                               marks=marks)
+            marks = (
+                [pytest.mark.xfail(strict=True, reason=row.bugs[who])] if who in row.bugs else []
+            )
+            yield pytest.param(row, who, status, id=f"{row.method} {row.path} {who}", marks=marks)
 
 
 def _check_console(r: httpx.Response, row: Row, who: str, status: int) -> None:
@@ -477,7 +603,8 @@ def _check_cell(world: World, row: Row, who: str, status: int) -> None:
         assert_error(r, status)
     after = world.snapshot()
     done = r.status_code < 300 or (
-        r.status_code == 303 and not r.headers["location"].startswith("/admin/login"))
+        r.status_code == 303 and not r.headers["location"].startswith("/admin/login")
+    )
     addressed = HOME.get(who)
     for fleet in (A, B):
         if row.writes and done and fleet == addressed:
@@ -504,53 +631,85 @@ OPEN_EP = "{open_episode_id}"
 ONLY, NOBODY = "/v1/users/only-a", "/v1/users/nobody"
 PROBES: list[Probe] = [
     #      method    hidden                          absent                     rB   sB
-    Probe("GET",    ONLY,                           NOBODY,                    (404, 404)),
-    Probe("GET",    ONLY + "/episodes",             NOBODY + "/episodes",      (404, 404)),
-    Probe("GET",    ONLY + "/model",                NOBODY + "/model",         (404, 404)),
-    Probe("GET",    ONLY + "/stats",                NOBODY + "/stats",         (404, 404)),
-    Probe("DELETE", ONLY,                           NOBODY,                    (403, 404)),
-    Probe("DELETE", ONLY + "/model",                NOBODY + "/model",         (403, 404)),
-    Probe("GET",    ONLY + "/model/export",         NOBODY + "/model/export",  (403, 404)),
-    Probe("PUT",    ONLY + "/model",                NOBODY + "/model",         (403, 404),
-          json=EXPORT),
-    Probe("PUT",    ONLY,                           NOBODY,                    (201, 201),
-          json={"display_name": "Someone"}, creates=True),
-    Probe("POST",   ONLY + "/episodes",             NOBODY + "/episodes",      (201, 201),
-          json=event("probe-1"), creates=True),
-    Probe("GET",    f"/v1/users/lin?fleet={A}",     "/v1/users/lin?fleet=nofleet", (404, 404)),
-    Probe("GET",    f"/v1/users/lin?fleet={A}",     NOBODY,                    (404, 404)),
-    Probe("GET",    f"/v1/users?fleet={A}",         "/v1/users?fleet=nofleet", (404, 404)),
-    Probe("GET",    f"/v1/episodes/{EP}",           f"/v1/episodes/{NEVER}",   (404, 404)),
-    Probe("POST",   f"/v1/episodes/{OPEN_EP}/outcomes", f"/v1/episodes/{NEVER}/outcomes",
-          (404, 404), json=OUTCOME),
-    Probe("POST",   f"/v1/episodes/{EP}/feedback",  f"/v1/episodes/{NEVER}/feedback",
-          (404, 404), json=FEEDBACK),
+    Probe("GET", ONLY, NOBODY, (404, 404)),
+    Probe("GET", ONLY + "/episodes", NOBODY + "/episodes", (404, 404)),
+    Probe("GET", ONLY + "/model", NOBODY + "/model", (404, 404)),
+    Probe("GET", ONLY + "/stats", NOBODY + "/stats", (404, 404)),
+    Probe("DELETE", ONLY, NOBODY, (403, 404)),
+    Probe("DELETE", ONLY + "/model", NOBODY + "/model", (403, 404)),
+    Probe("GET", ONLY + "/model/export", NOBODY + "/model/export", (403, 404)),
+    Probe("PUT", ONLY + "/model", NOBODY + "/model", (403, 404), json=EXPORT),
+    Probe("PUT", ONLY, NOBODY, (201, 201), json={"display_name": "Someone"}, creates=True),
+    Probe(
+        "POST",
+        ONLY + "/episodes",
+        NOBODY + "/episodes",
+        (201, 201),
+        json=event("probe-1"),
+        creates=True,
+    ),
+    Probe("GET", f"/v1/users/lin?fleet={A}", "/v1/users/lin?fleet=nofleet", (404, 404)),
+    Probe("GET", f"/v1/users/lin?fleet={A}", NOBODY, (404, 404)),
+    Probe("GET", f"/v1/users?fleet={A}", "/v1/users?fleet=nofleet", (404, 404)),
+    Probe("GET", f"/v1/episodes/{EP}", f"/v1/episodes/{NEVER}", (404, 404)),
+    Probe(
+        "POST",
+        f"/v1/episodes/{OPEN_EP}/outcomes",
+        f"/v1/episodes/{NEVER}/outcomes",
+        (404, 404),
+        json=OUTCOME,
+    ),
+    Probe(
+        "POST",
+        f"/v1/episodes/{EP}/feedback",
+        f"/v1/episodes/{NEVER}/feedback",
+        (404, 404),
+        json=FEEDBACK,
+    ),
 ]
 CONSOLE_ONLY, CONSOLE_NOBODY = "/admin/users/only-a", "/admin/users/nobody"
 # Staff of B on A's users in the console (robot keys get 403 on every console page).
-CONSOLE_PROBES: list[Probe] = [
-    Probe("GET", CONSOLE_ONLY + tail, CONSOLE_NOBODY + tail, (403, 404))
-    for tail in ("", "/details", "/why", "/episodes", "/export", "/reset", "/delete")
-] + [
-    Probe("POST", CONSOLE_ONLY + tail, CONSOLE_NOBODY + tail, (403, 404), form=True)
-    for tail in ("/reset", "/delete", "/corrections", "/corrections/world-c/lift")
-] + [
-    Probe("GET", f"/admin/users/lin?fleet={A}", "/admin/users/lin?fleet=nofleet", (403, 404)),
-    # Another fleet's mission, or a fleet that does not exist: refused alike (as the API's
-    # GET /v1/admin/fleets/{fleet}/missions refuses staff of another fleet).
-    Probe("GET", f"/admin/mission?fleet={A}", "/admin/mission?fleet=nofleet", (403, 403)),
-    Probe("POST", f"/admin/mission?fleet={A}", "/admin/mission?fleet=nofleet", (403, 403),
-          form=True),
-    Probe("GET", f"/admin/users/lin/episodes/{EP}/trace",
-          f"/admin/users/lin/episodes/{NEVER}/trace", (403, 404)),
-]
+CONSOLE_PROBES: list[Probe] = (
+    [
+        Probe("GET", CONSOLE_ONLY + tail, CONSOLE_NOBODY + tail, (403, 404))
+        for tail in ("", "/details", "/why", "/episodes", "/export", "/reset", "/delete")
+    ]
+    + [
+        Probe("POST", CONSOLE_ONLY + tail, CONSOLE_NOBODY + tail, (403, 404), form=True)
+        for tail in ("/reset", "/delete", "/corrections", "/corrections/world-c/lift")
+    ]
+    + [
+        Probe("GET", f"/admin/users/lin?fleet={A}", "/admin/users/lin?fleet=nofleet", (403, 404)),
+        # Another fleet's mission, or a fleet that does not exist: refused alike (as the API's
+        # GET /v1/admin/fleets/{fleet}/missions refuses staff of another fleet).
+        Probe("GET", f"/admin/mission?fleet={A}", "/admin/mission?fleet=nofleet", (403, 403)),
+        Probe(
+            "POST",
+            f"/admin/mission?fleet={A}",
+            "/admin/mission?fleet=nofleet",
+            (403, 403),
+            form=True,
+        ),
+        Probe(
+            "GET",
+            f"/admin/users/lin/episodes/{EP}/trace",
+            f"/admin/users/lin/episodes/{NEVER}/trace",
+            (403, 404),
+        ),
+    ]
+)
 
 
 def _ids(world: World, hidden: str, absent: str) -> list[tuple[str, str]]:
     """The (hidden, absent) ids a probe's two paths differ by, and so may its two answers."""
     a = world.fleets[A]
-    pairs = [("lin", "nobody"), ("only-a", "nobody"), (a.episode, NEVER),
-             (a.open_episode, NEVER), (A, "nofleet")]
+    pairs = [
+        ("lin", "nobody"),
+        ("only-a", "nobody"),
+        (a.episode, NEVER),
+        (a.open_episode, NEVER),
+        (A, "nofleet"),
+    ]
     return [(one, two) for one, two in pairs if one in hidden and two in absent]
 
 
@@ -572,10 +731,14 @@ def _created(body: dict[str, Any]) -> dict[str, Any]:
     samples its beliefs draws them from the user's own seed stream)."""
     out = {k: v for k, v in body.items() if k not in ("created_at", "episode_id", "user_id")}
     if isinstance(out.get("decision"), dict):
-        out["decision"] = {k: v for k, v in out["decision"].items()
-                           if k not in ("decision_id", "action", "expects")}
+        out["decision"] = {
+            k: v
+            for k, v in out["decision"].items()
+            if k not in ("decision_id", "action", "expects")
+        }
         out["decision"]["probabilities"] = [
-            p["action"] for p in out["decision"].get("probabilities", [])]
+            p["action"] for p in out["decision"].get("probabilities", [])
+        ]
     return out
 
 
@@ -584,16 +747,21 @@ def _probe_cells() -> Iterator[Any]:
         for probe in probes:
             for who in callers:
                 status = probe.expect[0 if who == "robot_b" else 1]
-                marks = ([pytest.mark.xfail(strict=True, reason=probe.bugs[who])]
-                         if who in probe.bugs else [])
-                yield pytest.param(probe, who, status,
-                                   id=f"{probe.method} {probe.hidden} {who}", marks=marks)
+                marks = (
+                    [pytest.mark.xfail(strict=True, reason=probe.bugs[who])]
+                    if who in probe.bugs
+                    else []
+                )
+                yield pytest.param(
+                    probe, who, status, id=f"{probe.method} {probe.hidden} {who}", marks=marks
+                )
 
 
 @pytest.mark.one_engine  # answered before or by the same lookups on both engines
 @pytest.mark.parametrize(("probe", "who", "status"), list(_probe_cells()))
-def test_another_fleets_ids_are_ids_that_never_existed(world: World, probe: Probe, who: str,
-                                                        status: int) -> None:
+def test_another_fleets_ids_are_ids_that_never_existed(
+    world: World, probe: Probe, who: str, status: int
+) -> None:
     only_a = send(world, "GET", "/v1/users/only-a", "robot_a").json()
     before_a = world.snapshot()[A]
     answers = []
@@ -631,9 +799,15 @@ def _model(world: World, fleet: str) -> dict[str, Any]:
     return _ok(send(world, "GET", f"/v1/users/lin/model?fleet={fleet}", "admin"), 200)
 
 
-@pytest.mark.parametrize(("who", "q", "fleet"), [
-    ("staff_a", "", A), ("staff_b", "", B), ("admin", f"?fleet={A}", A),
-    ("admin", f"?fleet={B}", B)])
+@pytest.mark.parametrize(
+    ("who", "q", "fleet"),
+    [
+        ("staff_a", "", A),
+        ("staff_b", "", B),
+        ("admin", f"?fleet={A}", A),
+        ("admin", f"?fleet={B}", B),
+    ],
+)
 def test_a_reset_stays_in_its_fleet(world: World, who: str, q: str, fleet: str) -> None:
     other = B if fleet == A else A
     before = world.snapshot()
@@ -668,8 +842,7 @@ def test_the_admin_names_the_fleet(world: World) -> None:
     for fleet in (A, B):
         lin = _ok(send(world, "GET", f"/v1/users/lin?fleet={fleet}", "admin"), 200)
         assert (lin["fleet"], lin["display_name"]) == (fleet, f"Lin of {fleet}")
-        trace = _ok(send(world, "GET", f"/v1/episodes/{world.fleets[fleet].episode}",
-                         "admin"), 200)
+        trace = _ok(send(world, "GET", f"/v1/episodes/{world.fleets[fleet].episode}", "admin"), 200)
         assert (trace["fleet"], trace["user_id"]) == (fleet, "lin")
     # Without ?fleet: the admin key's own fleet, "default", which has no lin.
     absent = assert_error(send(world, "GET", "/v1/users/lin", "admin"), 404, "NotFound")
@@ -681,7 +854,11 @@ def test_the_admin_names_the_fleet(world: World) -> None:
     assert world.snapshot() == before
     listed = _ok(send(world, "GET", "/v1/users", "admin"), 200)["items"]
     assert [(u["fleet"], u["user_id"]) for u in listed] == [
-        ("default", "lin"), (A, "lin"), (A, "only-a"), (B, "lin")]
+        ("default", "lin"),
+        (A, "lin"),
+        (A, "only-a"),
+        (B, "lin"),
+    ]
     listed = _ok(send(world, "GET", f"/v1/users?fleet={B}", "admin"), 200)["items"]
     assert [(u["fleet"], u["user_id"]) for u in listed] == [(B, "lin")]
     # The keys: revoking one stops it at once.
@@ -707,8 +884,9 @@ def test_lists_and_audit_log_are_per_fleet(world: World) -> None:
         items = _ok(send(world, "GET", "/v1/admin/audit?limit=500", who), 200)["items"]
         assert {e["fleet"] for e in items} == {HOME[who]}, who
         assert ("model.export", "lin") in {(e["action"], e["target"]) for e in items}
-        assert (("model.reset", "lin") in {(e["action"], e["target"]) for e in items}) == \
-            (who == "staff_a")
+        assert (("model.reset", "lin") in {(e["action"], e["target"]) for e in items}) == (
+            who == "staff_a"
+        )
     items = _ok(send(world, "GET", "/v1/admin/audit?limit=500", "admin"), 200)["items"]
     assert {A, B, "default"} <= {e["fleet"] for e in items}
 
@@ -717,8 +895,15 @@ def test_lists_and_audit_log_are_per_fleet(world: World) -> None:
 def test_console_sign_in_by_key_kind(world: World) -> None:
     """docs/console.md and api.md: staff (their fleet) and admin keys sign in; a robot key is
     refused (403), an unknown or revoked one too (401); a refusal sets no session."""
-    for who, status in (("none", 401), ("revoked", 401), ("robot_a", 403), ("robot_b", 403),
-                        ("staff_a", 303), ("staff_b", 303), ("admin", 303)):
+    for who, status in (
+        ("none", 401),
+        ("revoked", 401),
+        ("robot_a", 403),
+        ("robot_b", 403),
+        ("staff_a", 303),
+        ("staff_b", 303),
+        ("admin", 303),
+    ):
         secret = world.secret(who) or ""
         r = send(world, "POST", "/admin/login", who, form={"key": secret})
         assert r.status_code == status, (who, r.text)
@@ -735,17 +920,22 @@ def test_console_sign_in_by_key_kind(world: World) -> None:
     # A console POST needs the token of the signed-in key's own pages: none, or another key's,
     # is refused (403) and changes nothing.
     before = world.snapshot()
-    for who, token in (("staff_b", ""), ("staff_b", world.csrf("staff_a")),
-                       ("admin", world.csrf("staff_a"))):
+    for who, token in (
+        ("staff_b", ""),
+        ("staff_b", world.csrf("staff_a")),
+        ("admin", world.csrf("staff_a")),
+    ):
         q = ADMIN_Q if who == "admin" else ""
         for action in ("reset", "delete"):
             r = send(world, "POST", f"/admin/users/lin/{action}{q}", who, form={"csrf": token})
             assert r.status_code == 403, (who, action, r.status_code)
     assert world.snapshot() == before
     # Staff see their fleet's users, the admin every fleet's.
-    for who, shown, hidden in (("staff_a", ["only-a", f"Lin of {A}"], [f"Lin of {B}"]),
-                               ("staff_b", [f"Lin of {B}"], ["only-a", f"Lin of {A}"]),
-                               ("admin", ["only-a", f"Lin of {A}", f"Lin of {B}"], [])):
+    for who, shown, hidden in (
+        ("staff_a", ["only-a", f"Lin of {A}"], [f"Lin of {B}"]),
+        ("staff_b", [f"Lin of {B}"], ["only-a", f"Lin of {A}"]),
+        ("admin", ["only-a", f"Lin of {A}", f"Lin of {B}"], []),
+    ):
         page = send(world, "GET", "/admin/users", who)
         assert page.status_code == 200, who
         for text in shown:

@@ -26,8 +26,12 @@ VOLATILE = {"date", "x-request-id"}
 def world(admin: TestClient) -> dict[str, str]:
     """User ``lin`` with one episode, for the routes that need ids."""
     ep = start(admin, "lin", "e1", initiator="human", request=TEA)
-    return {"user_id": "lin", "episode_id": ep["episode_id"], "fleet": "default",
-            "correction_id": "c1"}
+    return {
+        "user_id": "lin",
+        "episode_id": ep["episode_id"],
+        "fleet": "default",
+        "correction_id": "c1",
+    }
 
 
 @pytest.fixture
@@ -47,22 +51,35 @@ def _headers(r: Any) -> dict[str, str]:
 
 
 CONSOLE_PAGES = [
-    "/admin", "/admin/login", "/admin/users", "/admin/users/{user_id}",
+    "/admin",
+    "/admin/login",
+    "/admin/users",
+    "/admin/users/{user_id}",
     "/admin/users/{user_id}?time_slot=afternoon&situation=stretching",
     "/admin/users/{user_id}/details",
-    "/admin/users/{user_id}/why", "/admin/users/{user_id}/episodes",
-    "/admin/users/{user_id}/episodes/{episode_id}/trace", "/admin/users/{user_id}/export",
-    "/admin/users/{user_id}/reset", "/admin/users/{user_id}/delete", "/admin/mission",
+    "/admin/users/{user_id}/why",
+    "/admin/users/{user_id}/episodes",
+    "/admin/users/{user_id}/episodes/{episode_id}/trace",
+    "/admin/users/{user_id}/export",
+    "/admin/users/{user_id}/reset",
+    "/admin/users/{user_id}/delete",
+    "/admin/mission",
     "/admin/nowhere",
 ]
-OTHER_PAGES = ["/docs", "/redoc", "/openapi.json", "/static/docs/redoc/LICENSE",
-               "/admin/static/console.css"]
+OTHER_PAGES = [
+    "/docs",
+    "/redoc",
+    "/openapi.json",
+    "/static/docs/redoc/LICENSE",
+    "/admin/static/console.css",
+]
 
 
 @pytest.mark.one_engine
 class TestHead:
     def test_every_get_of_the_api_answers_head_as_its_get(
-            self, app: FastAPI, admin: TestClient, world: dict[str, str]) -> None:
+        self, app: FastAPI, admin: TestClient, world: dict[str, str]
+    ) -> None:
         paths = [p for p, item in app.openapi()["paths"].items() if "get" in item]
         assert len(paths) >= 12, paths
         for template in paths:
@@ -76,8 +93,7 @@ class TestHead:
             assert _headers(head) == _headers(get), path
             assert head.headers["x-request-id"]
 
-    def test_head_keeps_the_status_of_the_get(self, client: TestClient,
-                                              robot: TestClient) -> None:
+    def test_head_keeps_the_status_of_the_get(self, client: TestClient, robot: TestClient) -> None:
         r = client.head("/v1/users/lin")
         assert r.status_code == 401
         assert r.content == b""
@@ -88,7 +104,8 @@ class TestHead:
         assert robot.head("/nope").status_code == 404
 
     def test_console_pages_and_documents_answer_head(
-            self, console: TestClient, world: dict[str, str]) -> None:
+        self, console: TestClient, world: dict[str, str]
+    ) -> None:
         for template in CONSOLE_PAGES + OTHER_PAGES:
             path = _fill(template, world)
             get, head = console.get(path), console.head(path)
@@ -111,9 +128,15 @@ class TestAllow:
         assert "GET, HEAD, PUT, DELETE" in body["detail"]
 
     def test_every_405_of_the_api_lists_the_methods_of_its_path(
-            self, app: FastAPI, robot: TestClient) -> None:
-        ids = {"user_id": "lin", "episode_id": "ep_x", "key_id": "key_x", "fleet": "default",
-               "correction_id": "c1"}
+        self, app: FastAPI, robot: TestClient
+    ) -> None:
+        ids = {
+            "user_id": "lin",
+            "episode_id": "ep_x",
+            "key_id": "key_x",
+            "fleet": "default",
+            "correction_id": "c1",
+        }
         for template, item in app.openapi()["paths"].items():
             methods = {m.upper() for m in item}
             if "GET" in methods:
@@ -123,15 +146,18 @@ class TestAllow:
                 assert_error(r, 405, "MethodNotAllowed")
                 assert set(r.headers["allow"].split(", ")) == methods, (wrong, template)
 
-    @pytest.mark.parametrize(("method", "path", "allow"), [
-        ("POST", "/healthz", "GET, HEAD"),
-        ("DELETE", "/v1/users/lin/episodes", "GET, HEAD, POST"),
-        ("PATCH", "/v1/users/lin/model", "GET, HEAD, PUT, DELETE"),
-        ("POST", "/admin/users/lin", "GET, HEAD"),
-        ("PUT", "/admin/users/lin/reset", "GET, HEAD, POST"),
-        ("POST", "/static/docs/redoc/LICENSE", "GET, HEAD"),
-        ("POST", "/docs", "GET, HEAD"),
-    ])
+    @pytest.mark.parametrize(
+        ("method", "path", "allow"),
+        [
+            ("POST", "/healthz", "GET, HEAD"),
+            ("DELETE", "/v1/users/lin/episodes", "GET, HEAD, POST"),
+            ("PATCH", "/v1/users/lin/model", "GET, HEAD, PUT, DELETE"),
+            ("POST", "/admin/users/lin", "GET, HEAD"),
+            ("PUT", "/admin/users/lin/reset", "GET, HEAD, POST"),
+            ("POST", "/static/docs/redoc/LICENSE", "GET, HEAD"),
+            ("POST", "/docs", "GET, HEAD"),
+        ],
+    )
     def test_allow(self, robot: TestClient, method: str, path: str, allow: str) -> None:
         r = robot.request(method, path)
         assert_error(r, 405, "MethodNotAllowed")
@@ -142,10 +168,16 @@ def _routes_with_bodies(episode_id: str) -> list[tuple[str, str, dict[str, Any]]
     return [
         ("PUT", "/v1/users/lin", {"display_name": "Lin"}),
         ("POST", "/v1/users/lin/episodes", event("e-new")),
-        ("POST", f"/v1/episodes/{episode_id}/outcomes",
-         {"decision_id": "d", "response": "accepted"}),
-        ("POST", f"/v1/episodes/{episode_id}/feedback",
-         {"feedback_id": "f", "feedback": "positive"}),
+        (
+            "POST",
+            f"/v1/episodes/{episode_id}/outcomes",
+            {"decision_id": "d", "response": "accepted"},
+        ),
+        (
+            "POST",
+            f"/v1/episodes/{episode_id}/feedback",
+            {"feedback_id": "f", "feedback": "positive"},
+        ),
         ("PUT", "/v1/users/lin/model", {"format": "attune.learner-state"}),
         ("POST", "/v1/admin/keys", {"role": "robot", "fleet": "default", "name": "r"}),
     ]
@@ -155,7 +187,8 @@ def _routes_with_bodies(episode_id: str) -> list[tuple[str, str, dict[str, Any]]
 class TestContentType:
     @pytest.mark.parametrize("how", ["text/plain", "form", "multipart", "none", "xml"])
     def test_a_body_that_is_not_json_is_415_and_changes_nothing(
-            self, admin: TestClient, world: dict[str, str], how: str) -> None:
+        self, admin: TestClient, world: dict[str, str], how: str
+    ) -> None:
         before = admin.get("/v1/users/lin").json(), admin.get("/v1/users/lin/episodes").json()
         for method, path, body in _routes_with_bodies(world["episode_id"]):
             raw = json.dumps(body)
@@ -168,23 +201,33 @@ class TestContentType:
                 assert "content-type" not in r.request.headers
             else:
                 kind = {"text/plain": "text/plain", "xml": "application/xml"}[how]
-                r = admin.request(method, path, content=raw.encode(),
-                                  headers={"Content-Type": kind})
+                r = admin.request(
+                    method, path, content=raw.encode(), headers={"Content-Type": kind}
+                )
             err = assert_error(r, 415, "UnsupportedMediaType")
             assert "application/json" in err["detail"], err
         after = admin.get("/v1/users/lin").json(), admin.get("/v1/users/lin/episodes").json()
         assert after == before
 
     def test_415_comes_before_the_key_is_checked(self, client: TestClient) -> None:
-        r = client.post("/v1/users/lin/episodes", content=b"{}",
-                        headers={"Content-Type": "text/plain"})
+        r = client.post(
+            "/v1/users/lin/episodes", content=b"{}", headers={"Content-Type": "text/plain"}
+        )
         assert_error(r, 415, "UnsupportedMediaType")
 
-    @pytest.mark.parametrize("kind", ["application/json", "application/json; charset=utf-8",
-                                      "Application/JSON", "application/merge-patch+json"])
+    @pytest.mark.parametrize(
+        "kind",
+        [
+            "application/json",
+            "application/json; charset=utf-8",
+            "Application/JSON",
+            "application/merge-patch+json",
+        ],
+    )
     def test_json_types_are_accepted(self, robot: TestClient, kind: str) -> None:
-        r = robot.put("/v1/users/lin", content=b'{"display_name": "Lin"}',
-                      headers={"Content-Type": kind})
+        r = robot.put(
+            "/v1/users/lin", content=b'{"display_name": "Lin"}', headers={"Content-Type": kind}
+        )
         assert r.status_code in (200, 201), r.text
         assert r.json()["display_name"] == "Lin"
 
@@ -199,8 +242,11 @@ class TestContentType:
         assert "body" in err["detail"]
 
     def test_malformed_json_is_still_400(self, robot: TestClient) -> None:
-        r = robot.post("/v1/users/lin/episodes", content=b'{"event_id": ',
-                       headers={"Content-Type": "application/json"})
+        r = robot.post(
+            "/v1/users/lin/episodes",
+            content=b'{"event_id": ',
+            headers={"Content-Type": "application/json"},
+        )
         assert_error(r, 400, "BadRequest")
 
     def test_the_schema_declares_415_on_every_route_with_a_body(self, app: FastAPI) -> None:
@@ -223,15 +269,25 @@ BOUNDED = [
     ("/v1/admin/audit", "limit", 1, 500),
     ("/v1/users/lin/stats", "last", 1, 1_000_000),
 ]
-OUT_OF_RANGE = ["{low_1}", "{high1}", "9223372036854775807", "9223372036854775808",
-                "18446744073709551616", "-9223372036854775809", "1" + "0" * 40, "abc", "1.5",
-                "1e3", "", "%00"]
+OUT_OF_RANGE = [
+    "{low_1}",
+    "{high1}",
+    "9223372036854775807",
+    "9223372036854775808",
+    "18446744073709551616",
+    "-9223372036854775809",
+    "1" + "0" * 40,
+    "abc",
+    "1.5",
+    "1e3",
+    "",
+    "%00",
+]
 
 
 class TestIntegerQueries:
     @pytest.mark.one_engine
-    def test_every_integer_query_parameter_is_bounded_in_the_schema(
-            self, app: FastAPI) -> None:
+    def test_every_integer_query_parameter_is_bounded_in_the_schema(self, app: FastAPI) -> None:
         found = []
         for path, item in app.openapi()["paths"].items():
             for op in item.values():
@@ -240,32 +296,42 @@ class TestIntegerQueries:
                     options = schema.get("anyOf", [schema])
                     ints = [s for s in options if s.get("type") == "integer"]
                     if param["in"] == "query" and ints:
-                        found.append((path, param["name"], ints[0]["minimum"],
-                                      ints[0]["maximum"]))
-                        assert f"{ints[0]['minimum']} to {ints[0]['maximum']}" in \
-                            param["description"], param
+                        found.append((path, param["name"], ints[0]["minimum"], ints[0]["maximum"]))
+                        assert (
+                            f"{ints[0]['minimum']} to {ints[0]['maximum']}" in param["description"]
+                        ), param
         expected = {(p.replace("lin", "{user_id}"), n, lo, hi) for p, n, lo, hi in BOUNDED}
         assert set(found) == expected
 
     @pytest.mark.one_engine
     @pytest.mark.parametrize(("path", "name", "low", "high"), BOUNDED)
     def test_out_of_range_is_422_naming_the_parameter_and_its_range(
-            self, admin: TestClient, world: dict[str, str], engine_name: str, path: str,
-            name: str, low: int, high: int) -> None:
+        self,
+        admin: TestClient,
+        world: dict[str, str],
+        engine_name: str,
+        path: str,
+        name: str,
+        low: int,
+        high: int,
+    ) -> None:
         for raw in OUT_OF_RANGE:
             value = raw.format(low_1=low - 1, high1=high + 1)
             if value == "9223372036854775807" and high >= 2**63 - 1:
                 continue
             r = admin.get(f"{path}?{name}={value}")
             err = assert_error(r, 422, "ValidationError")
-            assert err["detail"] == f"{name} must be an integer from {low} to {high}.", \
-                (engine_name, value, err)
+            assert err["detail"] == f"{name} must be an integer from {low} to {high}.", (
+                engine_name,
+                value,
+                err,
+            )
             assert err["fields"][0]["loc"] == ["query", name]
 
     @pytest.mark.parametrize(("path", "name", "low", "high"), BOUNDED)
     def test_the_bounds_themselves_are_accepted(
-            self, admin: TestClient, world: dict[str, str], path: str, name: str, low: int,
-            high: int) -> None:
+        self, admin: TestClient, world: dict[str, str], path: str, name: str, low: int, high: int
+    ) -> None:
         for value in (low, high):
             r = admin.get(f"{path}?{name}={value}")
             assert r.status_code == 200, (value, r.text)
@@ -276,17 +342,20 @@ class TestIntegerQueries:
         err = assert_error(r, 422, "ValidationError")
         assert err["detail"] == "last must be an integer from 1 to 1000000."
 
-    @pytest.mark.parametrize(("page", "name", "low", "high"), [
-        ("/admin/users", "page", 1, 1_000_000),
-        ("/admin/users", "per_page", 5, 200),
-        ("/admin/users/lin/details", "last", 1, 1_000_000),
-        ("/admin/users/lin/episodes", "before", 1, 2**31 - 1),
-        ("/admin/users/lin/episodes", "at", 1, 2**31 - 2),
-        ("/admin/users/lin/episodes", "per_page", 5, 200),
-    ])
+    @pytest.mark.parametrize(
+        ("page", "name", "low", "high"),
+        [
+            ("/admin/users", "page", 1, 1_000_000),
+            ("/admin/users", "per_page", 5, 200),
+            ("/admin/users/lin/details", "last", 1, 1_000_000),
+            ("/admin/users/lin/episodes", "before", 1, 2**31 - 1),
+            ("/admin/users/lin/episodes", "at", 1, 2**31 - 2),
+            ("/admin/users/lin/episodes", "per_page", 5, 200),
+        ],
+    )
     def test_console_pages_name_the_parameter_and_its_range(
-            self, console: TestClient, world: dict[str, str], page: str, name: str, low: int,
-            high: int) -> None:
+        self, console: TestClient, world: dict[str, str], page: str, name: str, low: int, high: int
+    ) -> None:
         for value in (low - 1, high + 1, 2**63, 2**64, "x"):
             r = console.get(f"{page}?{name}={value}")
             assert r.status_code == 422, (name, value, r.status_code)
@@ -312,19 +381,27 @@ class TestCursors:
         assert seen == 3
 
     @pytest.mark.one_engine
-    @pytest.mark.parametrize(("path", "cursor"), [
-        ("/v1/users", "AA"), ("/v1/users", "not*base64"),
-        ("/v1/users/lin/episodes", "abc"), ("/v1/users/lin/episodes", "1" * 19),
-        ("/v1/users/lin/episodes", "2147483648"), ("/v1/admin/audit", "x1"),
-        ("/v1/admin/audit", "9999999999"),
-    ])
-    def test_a_cursor_never_issued_is_422(self, admin: TestClient, world: dict[str, str],
-                                          path: str, cursor: str) -> None:
+    @pytest.mark.parametrize(
+        ("path", "cursor"),
+        [
+            ("/v1/users", "AA"),
+            ("/v1/users", "not*base64"),
+            ("/v1/users/lin/episodes", "abc"),
+            ("/v1/users/lin/episodes", "1" * 19),
+            ("/v1/users/lin/episodes", "2147483648"),
+            ("/v1/admin/audit", "x1"),
+            ("/v1/admin/audit", "9999999999"),
+        ],
+    )
+    def test_a_cursor_never_issued_is_422(
+        self, admin: TestClient, world: dict[str, str], path: str, cursor: str
+    ) -> None:
         err = assert_error(admin.get(f"{path}?cursor={cursor}"), 422, "ValidationError")
         assert err["detail"] == "cursor is not one this API returned."
 
     def test_the_largest_position_is_a_cursor_on_both_engines(
-            self, admin: TestClient, world: dict[str, str]) -> None:
+        self, admin: TestClient, world: dict[str, str]
+    ) -> None:
         for path in ("/v1/users/lin/episodes", "/v1/admin/audit"):
             r = admin.get(f"{path}?cursor=2147483647")
             assert r.status_code == 200, r.text
@@ -353,10 +430,14 @@ class TestDocs:
         assert "https://" not in r.text, r.text
 
     def test_the_assets_and_their_licences_are_served(self, client: TestClient) -> None:
-        for path in ("/static/docs/swagger-ui/swagger-ui-bundle.js",
-                     "/static/docs/swagger-ui/swagger-ui.css",
-                     "/static/docs/swagger-ui/LICENSE", "/static/docs/swagger-ui/NOTICE",
-                     "/static/docs/redoc/redoc.standalone.js", "/static/docs/redoc/LICENSE"):
+        for path in (
+            "/static/docs/swagger-ui/swagger-ui-bundle.js",
+            "/static/docs/swagger-ui/swagger-ui.css",
+            "/static/docs/swagger-ui/LICENSE",
+            "/static/docs/swagger-ui/NOTICE",
+            "/static/docs/redoc/redoc.standalone.js",
+            "/static/docs/redoc/LICENSE",
+        ):
             r = client.get(path)
             assert r.status_code == 200, path
             assert len(r.content) > 50, path

@@ -23,12 +23,17 @@ def _play(robot: TestClient, user: str, n: int, prefix: str) -> None:
         ep = start(robot, user, f"{prefix}{i}")
         decision = ep["decision"]
         while decision is not None:  # a person who wants nothing
-            decision = answer(robot, ep["episode_id"], decision["decision_id"],
-                              **people.answer(decision["action"], need=None))["decision"]
+            decision = answer(
+                robot,
+                ep["episode_id"],
+                decision["decision_id"],
+                **people.answer(decision["action"], need=None),
+            )["decision"]
 
 
-def test_imported_model_keeps_its_clock(robot: TestClient, admin: TestClient, db: Database,
-                                        settings: Settings) -> None:
+def test_imported_model_keeps_its_clock(
+    robot: TestClient, admin: TestClient, db: Database, settings: Settings
+) -> None:
     _play(robot, "veteran", 12, "v")
     doc = admin.get("/v1/users/veteran/model/export").json()
     _play(robot, "newcomer", 2, "n")
@@ -39,16 +44,21 @@ def test_imported_model_keeps_its_clock(robot: TestClient, admin: TestClient, db
 
     _play(robot, "newcomer", 3, "m")
     with db.transaction(write=False) as session:
-        rows = session.query(Episode).filter_by(user_pk=user_pk(session, "newcomer")) \
-            .order_by(Episode.seq).all()
+        rows = (
+            session.query(Episode)
+            .filter_by(user_pk=user_pk(session, "newcomer"))
+            .order_by(Episode.seq)
+            .all()
+        )
         learner_index = [(e.seq, e.learner_episode) for e in rows]
     assert [s for s, _ in learner_index] == [1, 2, 3, 4, 5]
     assert [e for _, e in learner_index][2:] == [13, 14, 15]  # after the 12 imported episodes
 
-    result = CliRunner().invoke(cli, ["models", "rebuild", "newcomer"],
-                                env={"ATTUNE_DATABASE_URL": settings.database_url,
-                                     "ATTUNE_SEED": "0"})
+    result = CliRunner().invoke(
+        cli,
+        ["models", "rebuild", "newcomer"],
+        env={"ATTUNE_DATABASE_URL": settings.database_url, "ATTUNE_SEED": "0"},
+    )
     assert result.exit_code == 0, result.output
-    summary = json.loads(next(line for line in result.output.splitlines()
-                              if line.startswith("{")))
+    summary = json.loads(next(line for line in result.output.splitlines() if line.startswith("{")))
     assert summary["identical"] is True

@@ -38,7 +38,8 @@ def user_held(database_url: str, user_id: str) -> Iterator[None]:
 
 
 def test_a_write_on_a_locked_user_waits_aside_and_is_stored_once(
-        app: FastAPI, db: Database, make_key: MakeKey, database_url: str) -> None:
+    app: FastAPI, db: Database, make_key: MakeKey, database_url: str
+) -> None:
     if db.is_sqlite:
         pytest.skip("PostgreSQL's inline writes and row locks")
     key = make_key("robot")
@@ -51,8 +52,11 @@ def test_a_write_on_a_locked_user_waits_aside_and_is_stored_once(
         outcome = {"decision_id": episode["decision"]["decision_id"], "response": "accepted"}
         answered: dict[str, Any] = {}
         with user_held(database_url, "held"):
-            writer = threading.Thread(target=lambda: answered.update(r=http.post(
-                f"/v1/episodes/{episode['episode_id']}/outcomes", json=outcome)))
+            writer = threading.Thread(
+                target=lambda: answered.update(
+                    r=http.post(f"/v1/episodes/{episode['episode_id']}/outcomes", json=outcome)
+                )
+            )
             writer.start()
             # While the write waits for the lock, the worker still answers other requests.
             for _ in range(3):
@@ -65,9 +69,11 @@ def test_a_write_on_a_locked_user_waits_aside_and_is_stored_once(
         assert again.status_code == 200
         assert again.json() == answered["r"].json()
     with db.transaction(write=False) as session:
-        stored = session.execute(select(func.count()).select_from(Decision).where(
-            Decision.outcome_hash.is_not(None),
-            Decision.episode_id == episode["episode_id"])).scalar_one()
+        stored = session.execute(
+            select(func.count())
+            .select_from(Decision)
+            .where(Decision.outcome_hash.is_not(None), Decision.episode_id == episode["episode_id"])
+        ).scalar_one()
     assert stored == 1
     # The held write went to the pool; the replay, with the lock free, ran inline.
     assert db.deferred == before[1] + 1

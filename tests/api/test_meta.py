@@ -27,8 +27,12 @@ CONTRACT = {
     "/metrics": {"get"},
 }
 OPEN = {"/healthz", "/readyz", "/metrics"}
-ADMIN = {("delete", "/v1/users/{user_id}"), ("delete", "/v1/users/{user_id}/model"),
-         ("get", "/v1/users/{user_id}/model/export"), ("put", "/v1/users/{user_id}/model")}
+ADMIN = {
+    ("delete", "/v1/users/{user_id}"),
+    ("delete", "/v1/users/{user_id}/model"),
+    ("get", "/v1/users/{user_id}/model/export"),
+    ("put", "/v1/users/{user_id}/model"),
+}
 
 
 class TestHealth:
@@ -46,8 +50,9 @@ class TestHealth:
         from app.main import create_app
         from app.settings import Settings
 
-        empty = create_app(Settings(database_url=f"sqlite:///{tmp_path / 'empty.db'}",
-                                    _env_file=None))  # type: ignore[call-arg]
+        empty = create_app(
+            Settings(database_url=f"sqlite:///{tmp_path / 'empty.db'}", _env_file=None)  # type: ignore[call-arg]
+        )
         try:
             with TestClient(empty) as c:
                 r = c.get("/readyz")
@@ -66,10 +71,14 @@ class TestHealth:
 
 
 class TestMetrics:
-    def test_prometheus_text_after_an_episode(self, client: TestClient,
-                                              robot: TestClient) -> None:
-        ep = start(robot, "lin", "e1", initiator="human",
-                   request={"service": "ProvideDrink", "detail": "tea"})
+    def test_prometheus_text_after_an_episode(self, client: TestClient, robot: TestClient) -> None:
+        ep = start(
+            robot,
+            "lin",
+            "e1",
+            initiator="human",
+            request={"service": "ProvideDrink", "detail": "tea"},
+        )
         answer(robot, ep["episode_id"], ep["decision"]["decision_id"], "accepted")
         robot.get("/v1/users/nobody")
         r = client.get("/metrics")
@@ -84,19 +93,30 @@ class TestMetrics:
         assert 'kind="perform"' in text
         assert 'status="404"' in text
 
-    def test_replays_are_not_counted_as_new_decisions(self, client: TestClient,
-                                                      robot: TestClient) -> None:
+    def test_replays_are_not_counted_as_new_decisions(
+        self, client: TestClient, robot: TestClient
+    ) -> None:
         def decisions(text: str) -> float:
-            return sum(float(line.rsplit(" ", 1)[1]) for line in text.splitlines()
-                       if line.startswith("attune_decisions_total{"))
+            return sum(
+                float(line.rsplit(" ", 1)[1])
+                for line in text.splitlines()
+                if line.startswith("attune_decisions_total{")
+            )
 
         start(robot, "lin", "e1")
         once = decisions(client.get("/metrics").text)
         assert once == 1.0
-        robot.post("/v1/users/lin/episodes", json={
-            "event_id": "e1", "occurred_at": "2026-11-22T15:10:00+08:00",
-            "situation": "stretching", "initiator": "robot", "request": None,
-            "robot_id": "robot7"})
+        robot.post(
+            "/v1/users/lin/episodes",
+            json={
+                "event_id": "e1",
+                "occurred_at": "2026-11-22T15:10:00+08:00",
+                "situation": "stretching",
+                "initiator": "robot",
+                "request": None,
+                "robot_id": "robot7",
+            },
+        )
         assert decisions(client.get("/metrics").text) == once
 
 
@@ -120,11 +140,17 @@ class TestMission:
         assert m["services"] == [
             {"name": "ProvideDrink", "details": ["tea", "coffee", "water"]},
             {"name": "BriefInformation", "details": ["news", "weather", "stocks"]},
-            {"name": "ArrangeSchedule",
-             "details": ["today_agenda", "next_meeting", "set_reminder"]},
+            {
+                "name": "ArrangeSchedule",
+                "details": ["today_agenda", "next_meeting", "set_reminder"],
+            },
         ]
-        assert m["rewards"] == {"positive": 1.0, "accepted_service": 5.0, "negative": -2.0,
-                                "query": -0.5}
+        assert m["rewards"] == {
+            "positive": 1.0,
+            "accepted_service": 5.0,
+            "negative": -2.0,
+            "query": -0.5,
+        }
 
     def test_admin_sees_the_same(self, robot: TestClient, admin: TestClient) -> None:
         assert admin.get("/v1/mission").json() == robot.get("/v1/mission").json()
@@ -169,10 +195,12 @@ class TestOpenApi:
                     assert {"error", "detail"} <= set(schema["properties"])
 
     def test_writes_declare_409(self, spec: dict[str, Any]) -> None:
-        for path, method in [("/v1/users/{user_id}", "put"),
-                             ("/v1/users/{user_id}/episodes", "post"),
-                             ("/v1/episodes/{episode_id}/outcomes", "post"),
-                             ("/v1/episodes/{episode_id}/feedback", "post")]:
+        for path, method in [
+            ("/v1/users/{user_id}", "put"),
+            ("/v1/users/{user_id}/episodes", "post"),
+            ("/v1/episodes/{episode_id}/outcomes", "post"),
+            ("/v1/episodes/{episode_id}/feedback", "post"),
+        ]:
             assert "409" in spec["paths"][path][method]["responses"], (method, path)
 
     def test_request_bodies_have_examples(self, spec: dict[str, Any]) -> None:
@@ -185,16 +213,20 @@ class TestOpenApi:
                 seen += 1
                 media = body["content"]["application/json"]
                 schema = _resolve(spec, media.get("schema", {}))
-                has = any(k in media for k in ("example", "examples")) or \
-                    any(k in schema for k in ("example", "examples"))
+                has = any(k in media for k in ("example", "examples")) or any(
+                    k in schema for k in ("example", "examples")
+                )
                 if not has and "anyOf" in schema:
                     has = any("examples" in _resolve(spec, s) for s in schema["anyOf"])
                 assert has, (method, path)
         assert seen >= 5
 
     def test_replay_header_is_documented(self, spec: dict[str, Any]) -> None:
-        for path in ("/v1/users/{user_id}/episodes", "/v1/episodes/{episode_id}/outcomes",
-                     "/v1/episodes/{episode_id}/feedback"):
+        for path in (
+            "/v1/users/{user_id}/episodes",
+            "/v1/episodes/{episode_id}/outcomes",
+            "/v1/episodes/{episode_id}/feedback",
+        ):
             ok = spec["paths"][path]["post"]["responses"]["200"]
             assert "Idempotent-Replay" in ok.get("headers", {}), path
 
@@ -202,8 +234,7 @@ class TestOpenApi:
         assert "201" in spec["paths"]["/v1/users/{user_id}/episodes"]["post"]["responses"]
         assert "201" in spec["paths"]["/v1/users/{user_id}"]["put"]["responses"]
 
-    def test_security_scheme_or_description_mentions_the_key(self,
-                                                             spec: dict[str, Any]) -> None:
+    def test_security_scheme_or_description_mentions_the_key(self, spec: dict[str, Any]) -> None:
         text = spec["info"].get("description", "")
         schemes = spec.get("components", {}).get("securitySchemes", {})
         assert "Bearer" in text or any(s.get("scheme") == "bearer" for s in schemes.values())

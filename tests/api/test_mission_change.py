@@ -106,10 +106,14 @@ def same_actions(old: Mission, new: Mission) -> list[Key]:
     missions (where Q-learning, deciding from the state's Q alone, decides as before)."""
     a, b = space_for(old), space_for(new)
     in_b = states_by_name(b)
-    return [key for key, s in states_by_name(a).items()
-            if key in in_b and s != a.END
-            and [action_key(a, p) for p in a.actions_of(s)]
-            == [action_key(b, p) for p in b.actions_of(in_b[key])]]
+    return [
+        key
+        for key, s in states_by_name(a).items()
+        if key in in_b
+        and s != a.END
+        and [action_key(a, p) for p in a.actions_of(s)]
+        == [action_key(b, p) for p in b.actions_of(in_b[key])]
+    ]
 
 
 # -- the API -----------------------------------------------------------------------------------
@@ -126,22 +130,46 @@ def occurred_at(mission: Mission, slot: str, day: int) -> str:
     return local.strftime("%Y-%m-%dT%H:%M:%S") + "+00:00"
 
 
-def play(client: TestClient, user_id: str, event_id: str, mission: Mission, context: int,
-         need: Need | None, day: int, rng: random.Random) -> list[tuple[dict[str, Any], str]]:
+def play(
+    client: TestClient,
+    user_id: str,
+    event_id: str,
+    mission: Mission,
+    context: int,
+    need: Need | None,
+    day: int,
+    rng: random.Random,
+) -> list[tuple[dict[str, Any], str]]:
     """One robot-initiated episode in ``context``; the person with ``need`` answers as
     ``tests/support/people.py`` does. The (action, response) of every decision."""
     slot, situation = mission.context_names(context)
-    r = client.post(f"/v1/users/{user_id}/episodes", json={
-        "event_id": event_id, "occurred_at": occurred_at(mission, slot, day),
-        "situation": situation, "initiator": "robot", "request": None, "robot_id": "r1"})
+    r = client.post(
+        f"/v1/users/{user_id}/episodes",
+        json={
+            "event_id": event_id,
+            "occurred_at": occurred_at(mission, slot, day),
+            "situation": situation,
+            "initiator": "robot",
+            "request": None,
+            "robot_id": "r1",
+        },
+    )
     assert r.status_code == 201, r.text
     ep = r.json()
     decision, steps = ep["decision"], []
     while decision is not None:
-        fields = answer(decision["action"], need=need, rng=rng, yes=0.95, asks=0.5,
-                        busy=situation in mission.unavailable_situations)
-        r = client.post(f"/v1/episodes/{ep['episode_id']}/outcomes",
-                        json={"decision_id": decision["decision_id"], **fields})
+        fields = answer(
+            decision["action"],
+            need=need,
+            rng=rng,
+            yes=0.95,
+            asks=0.5,
+            busy=situation in mission.unavailable_situations,
+        )
+        r = client.post(
+            f"/v1/episodes/{ep['episode_id']}/outcomes",
+            json={"decision_id": decision["decision_id"], **fields},
+        )
         assert r.status_code == 200, r.text
         steps.append((decision["action"], fields["response"]))
         decision = r.json()["decision"]
@@ -162,8 +190,16 @@ def train(client: TestClient, user_id: str, n: int, seed: int) -> UserProfile:
     contexts = event_stream([profile], [0], OFFICE, n, gen)
     rng = random.Random(seed)
     for e, c in enumerate(contexts):
-        play(client, user_id, f"{user_id}-e{e:02d}", OFFICE, int(c),
-             named(OFFICE, profile, int(c)), e, rng)
+        play(
+            client,
+            user_id,
+            f"{user_id}-e{e:02d}",
+            OFFICE,
+            int(c),
+            named(OFFICE, profile, int(c)),
+            e,
+            rng,
+        )
     return profile
 
 
@@ -173,13 +209,16 @@ def distributions(view: dict[str, Any]) -> dict[Key, dict[Key, float]]:
     for c in view["contexts"]:
         for s in c["states"]:
             key = (c["time_slot"], c["situation"], s["state"], s["service"], s["detail"])
-            out[key] = {(a["action"]["kind"], a["action"].get("service"),
-                         a["action"].get("detail")): a["p"] for a in s["actions"]}
+            out[key] = {
+                (a["action"]["kind"], a["action"].get("service"), a["action"].get("detail")): a["p"]
+                for a in s["actions"]
+            }
     return out
 
 
-def draws(learner: TabularLearner[Any], mission: Mission, states: list[Key], episode: int
-          ) -> dict[Key, Any]:
+def draws(
+    learner: TabularLearner[Any], mission: Mission, states: list[Key], episode: int
+) -> dict[Key, Any]:
     """For every context and state of ``states``: the action drawn (its chain included, by
     names) and its distribution, with a generator seeded by the context's and state's names."""
     space = learner.space
@@ -192,11 +231,20 @@ def draws(learner: TabularLearner[Any], mission: Mission, states: list[Key], epi
                 s = by_name[key]
                 seed = [ord(ch) for ch in f"{slot.name}/{situation}/{key}"]
                 d = learner.select_action(Observation(c, s, episode), np.random.default_rng(seed))
-                chain = [(state_key(space, st.state), action_key(space, st.action),
-                          st.probabilities.tolist()) for st in d.chain]
+                chain = [
+                    (
+                        state_key(space, st.state),
+                        action_key(space, st.action),
+                        st.probabilities.tolist(),
+                    )
+                    for st in d.chain
+                ]
                 out[(slot.name, situation, key)] = (
-                    chain, state_key(space, d.state), action_key(space, d.action),
-                    d.probabilities.tolist())
+                    chain,
+                    state_key(space, d.state),
+                    action_key(space, d.action),
+                    d.probabilities.tolist(),
+                )
     return out
 
 
@@ -206,8 +254,12 @@ def exported(staff: TestClient, user_id: str, mission: Mission) -> TabularLearne
 
 # -- the proof ---------------------------------------------------------------------------------
 def test_a_mission_change_keeps_what_it_did_not_reach(
-        app: FastAPI, robot: TestClient, other_robot: TestClient, staff: TestClient,
-        other_staff: TestClient) -> None:
+    app: FastAPI,
+    robot: TestClient,
+    other_robot: TestClient,
+    staff: TestClient,
+    other_staff: TestClient,
+) -> None:
     users = [f"u{i:02d}" for i in range(USERS)]
     for i, uid in enumerate(users):
         spec = {"learner": {"algorithm": ALGORITHMS.get(i, "hri")}}
@@ -218,9 +270,17 @@ def test_a_mission_change_keeps_what_it_did_not_reach(
         train(other_robot, uid, OTHER_EVENTS, seed=900 + i)
     # Two episodes left open: the change interrupts them.
     for uid in users[:2]:
-        r = robot.post(f"/v1/users/{uid}/episodes", json={
-            "event_id": f"{uid}-open", "occurred_at": occurred_at(OFFICE, "noon", 40),
-            "situation": "working", "initiator": "robot", "request": None, "robot_id": "r1"})
+        r = robot.post(
+            f"/v1/users/{uid}/episodes",
+            json={
+                "event_id": f"{uid}-open",
+                "occurred_at": occurred_at(OFFICE, "noon", 40),
+                "situation": "working",
+                "initiator": "robot",
+                "request": None,
+                "robot_id": "r1",
+            },
+        )
         assert r.status_code == 201, r.text
 
     untouched = untouched_states(OFFICE, NEW)
@@ -237,12 +297,19 @@ def test_a_mission_change_keeps_what_it_did_not_reach(
 
     before = {uid: get(robot, f"/v1/users/{uid}/model") for uid in users}
     learners = {uid: exported(staff, uid, OFFICE) for uid in users}
-    other_before = {uid: (get(other_robot, f"/v1/users/{uid}/model"),
-                          get(other_staff, f"/v1/users/{uid}/model/export")) for uid in others}
+    other_before = {
+        uid: (
+            get(other_robot, f"/v1/users/{uid}/model"),
+            get(other_staff, f"/v1/users/{uid}/model/export"),
+        )
+        for uid in others
+    }
     other_mission = get(other_robot, "/v1/mission")
 
-    r = staff.put("/v1/admin/fleets/default/mission",
-                  json={"change_id": "cocoa-company-visits", "mission": NEW.to_dict()})
+    r = staff.put(
+        "/v1/admin/fleets/default/mission",
+        json={"change_id": "cocoa-company-visits", "mission": NEW.to_dict()},
+    )
     assert r.status_code == 200, r.text
     out = r.json()
     assert (out["version"], out["previous_version"], out["changed"]) == (2, 1, True)
@@ -266,34 +333,44 @@ def test_a_mission_change_keeps_what_it_did_not_reach(
                 key = (slot, situation, *state)
                 assert now[key] == was[key], (uid, key)
                 compared += 1
-        learned += sum(a["visits"] for c in before[uid]["contexts"] for s in c["states"]
-                       if (s["state"], s["service"], s["detail"]) in untouched
-                       for a in s["actions"])
+        learned += sum(
+            a["visits"]
+            for c in before[uid]["contexts"]
+            for s in c["states"]
+            if (s["state"], s["service"], s["detail"]) in untouched
+            for a in s["actions"]
+        )
         episode = learners[uid].episodes + 1
         moved = exported(staff, uid, NEW)
         assert moved.episodes + 1 == episode
-        assert draws(moved, NEW, untouched, episode) == \
-            draws(learners[uid], OFFICE, untouched, episode), uid
+        assert draws(moved, NEW, untouched, episode) == draws(
+            learners[uid], OFFICE, untouched, episode
+        ), uid
     assert compared >= USERS * len(kept_contexts) * len(untouched)
     assert learned > 0  # the states compared hold what the users taught, not fresh tables
-    print(f"\n(a) {len(untouched)} untouched states x {len(kept_contexts)} contexts x "
-          f"{USERS} users; {learned} visits in them before the change")
+    print(
+        f"\n(a) {len(untouched)} untouched states x {len(kept_contexts)} contexts x "
+        f"{USERS} users; {learned} visits in them before the change"
+    )
 
     # (b) A person who now wants cocoa (where they had no need before) gets it.
     uid = users[0]
     profile = profiles[uid]
-    context = next(c for c in range(OFFICE.n_contexts)
-                   if profile.need_at(c) is None
-                   and OFFICE.context_names(c)[1] not in OFFICE.unavailable_situations)
+    context = next(
+        c
+        for c in range(OFFICE.n_contexts)
+        if profile.need_at(c) is None
+        and OFFICE.context_names(c)[1] not in OFFICE.unavailable_situations
+    )
     slot, situation = OFFICE.context_names(context)
     where = NEW.context_index(slot, situation)
     rng = random.Random(7)
     served_at = None
     for e in range(15):
-        steps = play(robot, uid, f"{uid}-cocoa{e:02d}", NEW, where, ("ProvideDrink", "cocoa"),
-                     50 + e, rng)
-        if ({"kind": "perform", "service": "ProvideDrink", "detail": "cocoa"}, "accepted") \
-                in steps:
+        steps = play(
+            robot, uid, f"{uid}-cocoa{e:02d}", NEW, where, ("ProvideDrink", "cocoa"), 50 + e, rng
+        )
+        if ({"kind": "perform", "service": "ProvideDrink", "detail": "cocoa"}, "accepted") in steps:
             served_at = e
             break
     assert served_at is not None, "cocoa was never performed and accepted in 15 events"

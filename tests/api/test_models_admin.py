@@ -27,17 +27,18 @@ def actions(view: dict[str, Any]) -> list[dict[str, Any]]:
     return [a for c in view["contexts"] for s in c["states"] for a in s["actions"]]
 
 
-def root(view: dict[str, Any], slot: str = "afternoon", situation: str = "stretching"
-         ) -> dict[str, dict[str, Any]]:
+def root(
+    view: dict[str, Any], slot: str = "afternoon", situation: str = "stretching"
+) -> dict[str, dict[str, Any]]:
     """The OBSERVE actions of one context, by kind."""
-    [ctx] = [c for c in view["contexts"]
-             if (c["time_slot"], c["situation"]) == (slot, situation)]
+    [ctx] = [c for c in view["contexts"] if (c["time_slot"], c["situation"]) == (slot, situation)]
     [observe] = [s for s in ctx["states"] if s["state"] == "OBSERVE"]
     return {a["action"]["kind"]: a for a in observe["actions"]}
 
 
-def served(client: TestClient, user_id: str, event_id: str, response: str = "accepted"
-           ) -> dict[str, Any]:
+def served(
+    client: TestClient, user_id: str, event_id: str, response: str = "accepted"
+) -> dict[str, Any]:
     """A closed human-initiated episode (tea performed, then ``response``)."""
     ep = start(client, user_id, event_id, initiator="human", request=TEA)
     return answer(client, ep["episode_id"], ep["decision"]["decision_id"], response)
@@ -73,8 +74,7 @@ class TestGetModel:
     def test_shape(self, robot: TestClient) -> None:
         robot.put("/v1/users/lin")
         view = model(robot, "lin")
-        assert set(view) >= {"user_id", "algorithm", "params", "version", "episodes",
-                             "contexts"}
+        assert set(view) >= {"user_id", "algorithm", "params", "version", "episodes", "contexts"}
         assert (view["user_id"], view["algorithm"], view["episodes"]) == ("lin", "dts-adapt", 0)
         assert view["started_from"] == {"kind": "fresh", "contributors": None}
         assert view["params"]["forgetting"] == pytest.approx(0.95)
@@ -103,40 +103,48 @@ class TestGetModel:
         robot.put("/v1/users/lin")
         one = model(robot, "lin", time_slot="afternoon", situation="stretching")
         assert [(c["time_slot"], c["situation"]) for c in one["contexts"]] == [
-            ("afternoon", "stretching")]
+            ("afternoon", "stretching")
+        ]
         slot = model(robot, "lin", time_slot="morning")
         assert len(slot["contexts"]) == 4
         assert {c["time_slot"] for c in slot["contexts"]} == {"morning"}
         situation = model(robot, "lin", situation="busy")
         assert {c["time_slot"] for c in situation["contexts"]} == {
-            "morning", "noon", "afternoon", "evening"}
+            "morning",
+            "noon",
+            "afternoon",
+            "evening",
+        }
         assert {c["situation"] for c in situation["contexts"]} == {"busy"}
         full = model(robot, "lin")
         assert one["contexts"][0] in full["contexts"]
 
     @pytest.mark.one_engine
-    @pytest.mark.parametrize(("query", "names"), [
-        ({"time_slot": "dawn"}, ["morning", "noon", "afternoon", "evening"]),
-        ({"situation": "sleeping"}, ["arriving", "working", "stretching", "busy"]),
-        ({"time_slot": "Morning"}, ["morning"]),
-    ])
-    def test_bad_filters_are_422(self, robot: TestClient, query: dict[str, str],
-                                 names: list[str]) -> None:
+    @pytest.mark.parametrize(
+        ("query", "names"),
+        [
+            ({"time_slot": "dawn"}, ["morning", "noon", "afternoon", "evening"]),
+            ({"situation": "sleeping"}, ["arriving", "working", "stretching", "busy"]),
+            ({"time_slot": "Morning"}, ["morning"]),
+        ],
+    )
+    def test_bad_filters_are_422(
+        self, robot: TestClient, query: dict[str, str], names: list[str]
+    ) -> None:
         robot.put("/v1/users/lin")
-        body = assert_error(robot.get("/v1/users/lin/model", params=query), 422,
-                            "ValidationError")
+        body = assert_error(robot.get("/v1/users/lin/model", params=query), 422, "ValidationError")
         for name in names:
             assert name in body["detail"]
 
-    def test_unknown_and_foreign_users_are_404(self, robot: TestClient,
-                                               other_robot: TestClient) -> None:
+    def test_unknown_and_foreign_users_are_404(
+        self, robot: TestClient, other_robot: TestClient
+    ) -> None:
         assert_error(robot.get("/v1/users/nobody/model"), 404, "NotFound")
         robot.put("/v1/users/lin")
         assert_error(other_robot.get("/v1/users/lin/model"), 404, "NotFound")
         assert_error(other_robot.get("/v1/users/lin/stats"), 404, "NotFound")
 
-    def test_version_goes_up_by_one_per_outcome_and_not_on_reads(
-            self, robot: TestClient) -> None:
+    def test_version_goes_up_by_one_per_outcome_and_not_on_reads(self, robot: TestClient) -> None:
         ep = start(robot, "lin", "e1", initiator="human", request={"service": "ProvideDrink"})
         v0 = model(robot, "lin")["version"]
         for _ in range(3):
@@ -149,8 +157,13 @@ class TestGetModel:
         while decision is not None:
             kind = decision["action"]["kind"]
             extra = {"detail": "tea"} if kind == "query_detail" else {}
-            out = answer(robot, ep["episode_id"], decision["decision_id"],
-                         "answered" if kind == "query_detail" else "accepted", **extra)
+            out = answer(
+                robot,
+                ep["episode_id"],
+                decision["decision_id"],
+                "answered" if kind == "query_detail" else "accepted",
+                **extra,
+            )
             expected += 1
             assert model(robot, "lin")["version"] == expected
             decision = out["decision"]
@@ -159,8 +172,10 @@ class TestGetModel:
     def test_a_refused_outcome_does_not_change_the_version(self, robot: TestClient) -> None:
         ep = start(robot, "lin", "e1", initiator="human", request=TEA)
         before = model(robot, "lin")
-        r = robot.post(f"/v1/episodes/{ep['episode_id']}/outcomes",
-                       json={"decision_id": ep["decision"]["decision_id"], "response": "none"})
+        r = robot.post(
+            f"/v1/episodes/{ep['episode_id']}/outcomes",
+            json={"decision_id": ep["decision"]["decision_id"], "response": "none"},
+        )
         assert r.status_code == 422
         assert model(robot, "lin") == before
 
@@ -256,14 +271,17 @@ class TestStats:
         assert last["success_rate"] == pytest.approx(0.5)
         assert last["total_reward"] == pytest.approx(rewards[-2] + rewards[-1])
         assert last["cumulative_reward"] == pytest.approx(
-            [0.0, rewards[-2], rewards[-2] + rewards[-1]])
+            [0.0, rewards[-2], rewards[-2] + rewards[-1]]
+        )
         everything = robot.get("/v1/users/lin/stats", params={"last": 100}).json()
         assert everything == stats
 
     def test_feedback_counts_in_total_reward(self, robot: TestClient) -> None:
         out = served(robot, "lin", "e1")
-        robot.post(f"/v1/episodes/{out['episode']['episode_id']}/feedback",
-                   json={"feedback_id": "f1", "feedback": "negative"})
+        robot.post(
+            f"/v1/episodes/{out['episode']['episode_id']}/feedback",
+            json={"feedback_id": "f1", "feedback": "negative"},
+        )
         stats = robot.get("/v1/users/lin/stats").json()
         assert stats["total_reward"] == 5.0
         assert stats["cumulative_reward"] == [0.0, 5.0]
@@ -309,14 +327,14 @@ class TestExportImport:
         r = admin.get("/v1/users/lin/model/export")
         assert r.status_code == 200
         doc = r.json()
-        assert set(doc) >= {"format", "format_version", "algorithm", "params", "arrays",
-                            "mission"}
+        assert set(doc) >= {"format", "format_version", "algorithm", "params", "arrays", "mission"}
         assert doc["algorithm"] == "dts-adapt"
         assert doc["params"]["forgetting"] == pytest.approx(0.95)
         assert doc["mission"]["name"] == "office"
 
     def test_import_on_another_user_gives_the_same_model_view(
-            self, robot: TestClient, admin: TestClient) -> None:
+        self, robot: TestClient, admin: TestClient
+    ) -> None:
         for i in range(3):
             served(robot, "lin", f"e{i}")
         robot.put("/v1/users/twin", json={"learner": {"algorithm": "rmax"}})
@@ -329,7 +347,9 @@ class TestExportImport:
         assert (copy["algorithm"], copy["params"]) == (source["algorithm"], source["params"])
         assert copy["contexts"] == source["contexts"]
         assert robot.get("/v1/users/twin").json()["learner"] == {
-            "algorithm": "dts-adapt", "params": source["params"]}
+            "algorithm": "dts-adapt",
+            "params": source["params"],
+        }
 
     def test_round_trip_after_a_reset(self, robot: TestClient, admin: TestClient) -> None:
         for i in range(2):
@@ -355,23 +375,28 @@ class TestExportImport:
         assert model(robot, "q2")["contexts"] == model(robot, "q")["contexts"]
         assert model(robot, "q2")["algorithm"] == "qlearning"
 
-    @pytest.mark.parametrize("change", [
-        {"format": "something-else"},
-        {"format_version": 999},
-        {"mission": {"name": "office", "fingerprint": "sha256:" + "0" * 64}},
-        {"mission": {"name": "warehouse", "fingerprint": "sha256:" + "0" * 64}},
-        {"algorithm": "sarsa"},
-        {"params": {"tau": -1}},
-        {"arrays": {}},
-        {"arrays": "garbage"},
-    ])
+    @pytest.mark.parametrize(
+        "change",
+        [
+            {"format": "something-else"},
+            {"format_version": 999},
+            {"mission": {"name": "office", "fingerprint": "sha256:" + "0" * 64}},
+            {"mission": {"name": "warehouse", "fingerprint": "sha256:" + "0" * 64}},
+            {"algorithm": "sarsa"},
+            {"params": {"tau": -1}},
+            {"arrays": {}},
+            {"arrays": "garbage"},
+        ],
+    )
     def test_wrong_documents_are_422_and_change_nothing(
-            self, robot: TestClient, admin: TestClient, change: dict[str, Any]) -> None:
+        self, robot: TestClient, admin: TestClient, change: dict[str, Any]
+    ) -> None:
         served(robot, "lin", "e1")
         doc = admin.get("/v1/users/lin/model/export").json()
         before = (model(robot, "lin"), robot.get("/v1/users/lin").json())
-        assert_error(admin.put("/v1/users/lin/model", json={**doc, **change}), 422,
-                     "ValidationError")
+        assert_error(
+            admin.put("/v1/users/lin/model", json={**doc, **change}), 422, "ValidationError"
+        )
         assert (model(robot, "lin"), robot.get("/v1/users/lin").json()) == before
 
     @pytest.mark.parametrize("doc", [{}, {"hello": "world"}, [], "x", 3, None])
@@ -386,14 +411,12 @@ class TestExportImport:
         served(robot, "lin", "e1")
         doc = admin.get("/v1/users/lin/model/export").json()
         name = sorted(doc["arrays"])[0]
-        bad = {**doc, "arrays": {**doc["arrays"], name: {**doc["arrays"][name],
-                                                         "data": "AAAA"}}}
+        bad = {**doc, "arrays": {**doc["arrays"], name: {**doc["arrays"][name], "data": "AAAA"}}}
         before = model(robot, "lin")
         assert_error(admin.put("/v1/users/lin/model", json=bad), 422, "ValidationError")
         assert model(robot, "lin") == before
 
-    def test_robot_is_403_on_export_and_import(self, robot: TestClient,
-                                               admin: TestClient) -> None:
+    def test_robot_is_403_on_export_and_import(self, robot: TestClient, admin: TestClient) -> None:
         served(robot, "lin", "e1")
         doc = admin.get("/v1/users/lin/model/export").json()
         before = model(robot, "lin")

@@ -29,15 +29,26 @@ EPISODES = 6  # per resident: prior_min_episodes below
 
 @pytest.fixture
 def settings(database_url: str) -> Settings:
-    return Settings(database_url=database_url, seed=0, prior_min_contributors=3,  # type: ignore[call-arg]
-                    prior_min_episodes=EPISODES, _env_file=None)
+    return Settings(
+        database_url=database_url,
+        seed=0,
+        prior_min_contributors=3,  # type: ignore[call-arg]
+        prior_min_episodes=EPISODES,
+        _env_file=None,
+    )
 
 
 def serve(client: TestClient, user_id: str, event_id: str) -> None:
     """One afternoon episode of a person who wants tea, to its end."""
-    r = client.post(f"/v1/users/{user_id}/episodes", json={
-        "event_id": event_id, "occurred_at": AFTERNOON, "situation": SITUATION,
-        "initiator": "robot"})
+    r = client.post(
+        f"/v1/users/{user_id}/episodes",
+        json={
+            "event_id": event_id,
+            "occurred_at": AFTERNOON,
+            "situation": SITUATION,
+            "initiator": "robot",
+        },
+    )
     assert r.status_code == 201, r.text
     episode = r.json()
     decision = episode["decision"]
@@ -48,8 +59,9 @@ def serve(client: TestClient, user_id: str, event_id: str) -> None:
         decision = r.json()["decision"]
 
 
-def residents(client: TestClient, names: tuple[str, ...] = ("ana", "ben", "cai"),
-              **user: Any) -> None:
+def residents(
+    client: TestClient, names: tuple[str, ...] = ("ana", "ben", "cai"), **user: Any
+) -> None:
     for name in names:
         r = client.put(f"/v1/users/{name}", json=user or None)
         assert r.status_code in (200, 201), r.text
@@ -66,16 +78,15 @@ def started_from(client: TestClient, user_id: str) -> dict[str, Any]:
 
 def beliefs(client: TestClient, user_id: str) -> list[float]:
     """The model's values in the residents' context."""
-    r = client.get(f"/v1/users/{user_id}/model",
-                   params={"time_slot": SLOT, "situation": SITUATION})
+    r = client.get(f"/v1/users/{user_id}/model", params={"time_slot": SLOT, "situation": SITUATION})
     assert r.status_code == 200, r.text
     return [a["q"] for s in r.json()["contexts"][0]["states"] for a in s["actions"]]
 
 
-
 class TestNewcomers:
     def test_a_newcomer_starts_from_the_prior_and_rebuilds_onto_it(
-            self, staff: TestClient, settings: Settings) -> None:
+        self, staff: TestClient, settings: Settings
+    ) -> None:
         residents(staff)
         assert started_from(staff, "ana") == {"kind": "fresh", "contributors": None}
         made = staff.put("/v1/users/dora", json={"display_name": "Dora"})
@@ -131,8 +142,9 @@ class TestNewcomers:
         assert view["contributors"]["hri"] == 3
         assert "hri" not in view["in_force"]
 
-    def test_other_fleets_never_contribute(self, staff: TestClient,
-                                           other_staff: TestClient) -> None:
+    def test_other_fleets_never_contribute(
+        self, staff: TestClient, other_staff: TestClient
+    ) -> None:
         residents(other_staff)
         staff.put("/v1/users/dora")
         assert started_from(staff, "dora")["kind"] == "fresh"
@@ -151,14 +163,12 @@ class TestNewcomers:
 
 
 class TestFleetSwitch:
-    def test_staff_turn_it_off_and_on_audited(self, staff: TestClient,
-                                              admin: TestClient) -> None:
+    def test_staff_turn_it_off_and_on_audited(self, staff: TestClient, admin: TestClient) -> None:
         residents(staff)
         view = staff.get("/v1/admin/fleets/default/prior").json()
         assert view["enabled"] is True
         assert view["min_contributors"] == 3
-        assert view["contributors"][staff.get("/v1/users/ana").json()["learner"]["algorithm"]] \
-            == 3
+        assert view["contributors"][staff.get("/v1/users/ana").json()["learner"]["algorithm"]] == 3
         assert view["in_force"]
         assert view["updated_by"] is None
         off = staff.put("/v1/admin/fleets/default/prior", json={"enabled": False})
@@ -168,28 +178,31 @@ class TestFleetSwitch:
         staff.put("/v1/users/dora")
         assert started_from(staff, "dora")["kind"] == "fresh"
         # Repeating changes nothing and is not audited again.
-        assert staff.put("/v1/admin/fleets/default/prior",
-                         json={"enabled": False}).status_code == 200
+        assert (
+            staff.put("/v1/admin/fleets/default/prior", json={"enabled": False}).status_code == 200
+        )
         on = admin.put("/v1/admin/fleets/default/prior", json={"enabled": True})
         assert on.json()["enabled"] is True
         staff.put("/v1/users/eve")
         assert started_from(staff, "eve")["kind"] == "fleet_prior"
-        audit = [e for e in staff.get("/v1/admin/audit").json()["items"]
-                 if e["action"] == "fleet.prior"]
+        audit = [
+            e for e in staff.get("/v1/admin/audit").json()["items"] if e["action"] == "fleet.prior"
+        ]
         assert [e["detail"]["enabled"] for e in audit] == [True, False]  # newest first
         assert all(e["target"] == "default" for e in audit)
 
-    def test_who_may_see_and_change_it(self, robot: TestClient, other_staff: TestClient,
-                                       admin: TestClient) -> None:
+    def test_who_may_see_and_change_it(
+        self, robot: TestClient, other_staff: TestClient, admin: TestClient
+    ) -> None:
         assert_error(robot.get("/v1/admin/fleets/default/prior"), 403)
         assert_error(robot.put("/v1/admin/fleets/default/prior", json={"enabled": False}), 403)
         assert_error(other_staff.get("/v1/admin/fleets/default/prior"), 403)
-        assert_error(other_staff.put("/v1/admin/fleets/default/prior",
-                                     json={"enabled": False}), 403)
+        assert_error(
+            other_staff.put("/v1/admin/fleets/default/prior", json={"enabled": False}), 403
+        )
         assert admin.get("/v1/admin/fleets/other/prior").status_code == 200
 
-    @pytest.mark.parametrize("body", [{"enabled": "maybe"}, {}, {"enabled": True, "x": 1},
-                                      [True]])
+    @pytest.mark.parametrize("body", [{"enabled": "maybe"}, {}, {"enabled": True, "x": 1}, [True]])
     def test_bad_bodies_are_422(self, staff: TestClient, body: Any) -> None:
         assert_error(staff.put("/v1/admin/fleets/default/prior", json=body), 422)
 
@@ -197,8 +210,9 @@ class TestFleetSwitch:
         assert_error(staff.put("/v1/users/dora", json={"fleet_prior": "sometimes"}), 422)
 
 
-def test_the_console_says_where_a_newcomer_started(app: FastAPI, staff: TestClient,
-                                                   make_key: MakeKey) -> None:
+def test_the_console_says_where_a_newcomer_started(
+    app: FastAPI, staff: TestClient, make_key: MakeKey
+) -> None:
     residents(staff)
     staff.put("/v1/users/dora", json={"display_name": "Dora"})
     staff.put("/v1/users/eve", json={"display_name": "Eve", "fleet_prior": False})
@@ -215,23 +229,33 @@ def test_the_console_says_where_a_newcomer_started(app: FastAPI, staff: TestClie
 # A home's shared routines: what every resident wants at (local hour, situation); elsewhere
 # nothing.
 ROUTINES: dict[tuple[int, str], tuple[str, str] | None] = {
-    (15, "stretching"): TEA, (8, "arriving"): ("BriefInformation", "news"),
-    (15, "working"): None, (8, "working"): None,
+    (15, "stretching"): TEA,
+    (8, "arriving"): ("BriefInformation", "news"),
+    (15, "working"): None,
+    (8, "working"): None,
 }
 
 
 def live_a_day(client: TestClient, user_id: str, n: int) -> None:
     """Episode ``n`` of a resident with the home's routines, to its end."""
     (hour, situation), need = list(ROUTINES.items())[n % len(ROUTINES)]
-    r = client.post(f"/v1/users/{user_id}/episodes", json={
-        "event_id": f"{user_id}-day-{n}", "situation": situation, "initiator": "robot",
-        "occurred_at": f"2026-11-{1 + n // len(ROUTINES):02d}T{hour:02d}:10:00+08:00"})
+    r = client.post(
+        f"/v1/users/{user_id}/episodes",
+        json={
+            "event_id": f"{user_id}-day-{n}",
+            "situation": situation,
+            "initiator": "robot",
+            "occurred_at": f"2026-11-{1 + n // len(ROUTINES):02d}T{hour:02d}:10:00+08:00",
+        },
+    )
     assert r.status_code == 201, r.text
     episode = r.json()
     decision = episode["decision"]
     while decision is not None:
-        body = {"decision_id": decision["decision_id"],
-                **answer(decision["action"], need=need, asks=0.0)}
+        body = {
+            "decision_id": decision["decision_id"],
+            **answer(decision["action"], need=need, asks=0.0),
+        }
         r = client.post(f"/v1/episodes/{episode['episode_id']}/outcomes", json=body)
         assert r.status_code == 200, r.text
         decision = r.json()["decision"]

@@ -72,10 +72,16 @@ def test_counts_times_and_the_model_agree(staff: TestClient, robot: TestClient) 
     assert initiate["action"]["kind"] == "initiate"
     assert cell["robot_will"]["probability"] == initiate["p"]
     assert (cell["robot_will"]["action"] == "offer") == (initiate["p"] >= 0.5)
-    traces = [robot.get(f"/v1/episodes/{e['episode_id']}").json()
-              for e in robot.get("/v1/users/chen/episodes").json()["items"]]
-    accepted = sum(1 for t in traces for d in t["decisions"]
-                   if d["action"]["kind"] == "perform" and d.get("response") == "accepted")
+    traces = [
+        robot.get(f"/v1/episodes/{e['episode_id']}").json()
+        for e in robot.get("/v1/users/chen/episodes").json()["items"]
+    ]
+    accepted = sum(
+        1
+        for t in traces
+        for d in t["decisions"]
+        if d["action"]["kind"] == "perform" and d.get("response") == "accepted"
+    )
     assert cell["evidence"]["accepted"] == accepted
 
 
@@ -93,8 +99,7 @@ def test_a_change_of_mind_is_reported(staff: TestClient, robot: TestClient) -> N
     assert "changed from tea" in cell["summary"]
 
 
-def test_a_change_of_mind_is_reported_while_recent(staff: TestClient,
-                                                   robot: TestClient) -> None:
+def test_a_change_of_mind_is_reported_while_recent(staff: TestClient, robot: TestClient) -> None:
     make_user(staff)
     play(robot, "chen", 8, "tea")
     play(robot, "chen", 2, "coffee", need=("ProvideDrink", "coffee"), seed=5)

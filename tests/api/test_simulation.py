@@ -97,8 +97,9 @@ class SimUser:
         return self.profiles[active]
 
 
-def make_users(rng: np.random.Generator, names: list[str], n_events: int,
-               change_at: int) -> list[SimUser]:
+def make_users(
+    rng: np.random.Generator, names: list[str], n_events: int, change_at: int
+) -> list[SimUser]:
     users = []
     for i, name in enumerate(names):
         before = random_profile(MISSION, rng)
@@ -106,8 +107,9 @@ def make_users(rng: np.random.Generator, names: list[str], n_events: int,
         points = [0, change_at]
         contexts = event_stream([before, after], points, MISSION, n_events, rng)
         uniforms = rng.random((n_events, STEP_COLUMNS))
-        users.append(SimUser(name, [before, after], points, contexts, uniforms,
-                             OFFSETS[i % len(OFFSETS)]))
+        users.append(
+            SimUser(name, [before, after], points, contexts, uniforms, OFFSETS[i % len(OFFSETS)])
+        )
     return users
 
 
@@ -146,8 +148,9 @@ def outcome_body(decision: dict[str, Any], response: str, next_state: int) -> di
     return body
 
 
-def post_json(client: TestClient, url: str, body: dict[str, Any], status: int = 200
-              ) -> dict[str, Any]:
+def post_json(
+    client: TestClient, url: str, body: dict[str, Any], status: int = 200
+) -> dict[str, Any]:
     r = client.post(url, json=body)
     assert r.status_code == status, (url, body, r.status_code, r.text)
     assert "Idempotent-Replay" not in r.headers
@@ -155,15 +158,21 @@ def post_json(client: TestClient, url: str, body: dict[str, Any], status: int = 
     return out
 
 
-def play_event(client: TestClient, user: SimUser, e: int, *,
-               after_first_outcome: Any = None) -> SeenEpisode:
+def play_event(
+    client: TestClient, user: SimUser, e: int, *, after_first_outcome: Any = None
+) -> SeenEpisode:
     """One event of ``user``: the episode from its start to its end, the person simulated."""
     context = int(user.contexts[e])
     slot, situation = MISSION.context_names(context)
     profile = user.profile_at(e)
-    body = {"event_id": f"{user.user_id}-e{e:03d}",
-            "occurred_at": occurred_at(slot, user.offset, e), "situation": situation,
-            "initiator": "robot", "request": None, "robot_id": "sim-robot"}
+    body = {
+        "event_id": f"{user.user_id}-e{e:03d}",
+        "occurred_at": occurred_at(slot, user.offset, e),
+        "situation": situation,
+        "initiator": "robot",
+        "request": None,
+        "robot_id": "sim-robot",
+    }
     ep = post_json(client, f"/v1/users/{user.user_id}/episodes", body, 201)
     drawn = next(TICK)
     assert ep["context"] == {"time_slot": slot, "situation": situation}
@@ -180,19 +189,29 @@ def play_event(client: TestClient, user: SimUser, e: int, *,
         action = to_action(decision["action"])
         a, s = SPACE.action_index(action), state_before(SPACE, action)
         assert SPACE.is_valid(s, a)
-        reaction = respond(SPACE, profile, context, s, a, user.uniforms[e, 2 * step:2 * step + 2])
+        reaction = respond(SPACE, profile, context, s, a, user.uniforms[e, 2 * step : 2 * step + 2])
         assert reaction.response in decision["expects"]
         sent = outcome_body(decision, reaction.response, reaction.next_state)
         out = post_json(client, f"/v1/episodes/{seen.episode_id}/outcomes", sent)
         answered = next(TICK)
         assert out["reward"] == pytest.approx(reaction.reward)
-        seen.decisions.append(SeenDecision(decision["decision_id"], decision["action"],
-                                           decision["probabilities"], decision["chain"], sent,
-                                           out["reward"], drawn, answered))
+        seen.decisions.append(
+            SeenDecision(
+                decision["decision_id"],
+                decision["action"],
+                decision["probabilities"],
+                decision["chain"],
+                sent,
+                out["reward"],
+                drawn,
+                answered,
+            )
+        )
         drawn = answered
         seen.expected_reward += chain_reward(decision["chain"]) + reaction.reward
-        rows.append(Transition(e + 1, context, s, a, reaction.reward, reaction.next_state,
-                               reaction.signal))
+        rows.append(
+            Transition(e + 1, context, s, a, reaction.reward, reaction.next_state, reaction.signal)
+        )
         if action.kind is ActionKind.INITIATE:
             seen.initiated = True
         if action.kind is ActionKind.PERFORM and reaction.response == "accepted":
@@ -232,8 +251,10 @@ def expected_stats(episodes: list[SeenEpisode]) -> dict[str, Any]:
         return None if np.isnan(x) else pytest.approx(x)
 
     return {
-        "episodes": len(episodes), "missions": int(m["missions"]),
-        "interaction_rate": num(m["interaction_rate"]), "success_rate": num(m["success_rate"]),
+        "episodes": len(episodes),
+        "missions": int(m["missions"]),
+        "interaction_rate": num(m["interaction_rate"]),
+        "success_rate": num(m["success_rate"]),
         "queries_per_mission": num(m["queries_per_mission"]),
         "total_reward": pytest.approx(m["total_reward"]),
         "cumulative_reward": pytest.approx([0.0, *np.cumsum(reward).tolist()]),
@@ -265,13 +286,29 @@ def check_trace(client: TestClient, user: SimUser, seen: SeenEpisode) -> None:
     assert trace["interaction_class"] == klass
     assert trace["total_reward"] == pytest.approx(seen.expected_reward)
     got = [
-        (d["decision_id"], d["action"], d["probabilities"], d["chain"], d["response"],
-         d["service"], d["detail"], d["reward"])
+        (
+            d["decision_id"],
+            d["action"],
+            d["probabilities"],
+            d["chain"],
+            d["response"],
+            d["service"],
+            d["detail"],
+            d["reward"],
+        )
         for d in trace["decisions"]
     ]
     want = [
-        (d.decision_id, d.action, d.probabilities, d.chain, d.sent["response"],
-         d.sent.get("service"), d.sent.get("detail"), d.reward)
+        (
+            d.decision_id,
+            d.action,
+            d.probabilities,
+            d.chain,
+            d.sent["response"],
+            d.sent.get("service"),
+            d.sent.get("detail"),
+            d.reward,
+        )
         for d in seen.decisions
     ]
     assert got == want
@@ -283,23 +320,29 @@ def check_trace(client: TestClient, user: SimUser, seen: SeenEpisode) -> None:
 def model_visits(client: TestClient, user_id: str) -> int:
     r = client.get(f"/v1/users/{user_id}/model")
     assert r.status_code == 200, r.text
-    return sum(a["visits"] for c in r.json()["contexts"] for s in c["states"]
-               for a in s["actions"])
+    return sum(a["visits"] for c in r.json()["contexts"] for s in c["states"] for a in s["actions"])
 
 
 def stored_steps(db: Database, user_id: str) -> tuple[int, int, int]:
     """(decisions, answered decisions, silent chain steps) stored for the user."""
     with db.transaction(write=False) as s:
-        rows = s.scalars(select(Decision).join(Episode, Episode.id == Decision.episode_id)
-                         .where(Episode.user_pk == user_pk(s, user_id))).all()
-        return (len(rows), sum(d.response is not None for d in rows),
-                sum(len(d.chain) for d in rows))
+        rows = s.scalars(
+            select(Decision)
+            .join(Episode, Episode.id == Decision.episode_id)
+            .where(Episode.user_pk == user_pk(s, user_id))
+        ).all()
+        return (
+            len(rows),
+            sum(d.response is not None for d in rows),
+            sum(len(d.chain) for d in rows),
+        )
 
 
 def rebuild(settings: Settings, user_id: str) -> tuple[int, dict[str, Any]]:
     """``attune models rebuild USER_ID``: (exit code, its JSON summary line)."""
     result = CliRunner().invoke(
-        cli.app, ["models", "rebuild", user_id],
+        cli.app,
+        ["models", "rebuild", user_id],
         env={"ATTUNE_DATABASE_URL": settings.database_url, "ATTUNE_SEED": "0"},
     )
     # The command leaves its engine's connections to the garbage collector (a process that ends
@@ -340,8 +383,9 @@ def check_history(client: TestClient, db: Database, settings: Settings, user: Si
 
 
 # -- tests -------------------------------------------------------------------------------------
-def test_simulated_users_through_the_api(robot: TestClient, db: Database, settings: Settings,
-                                         engine_name: str) -> None:
+def test_simulated_users_through_the_api(
+    robot: TestClient, db: Database, settings: Settings, engine_name: str
+) -> None:
     """The issue's acceptance run: 3 users x 100 events, needs drifting at event 50."""
     began = time.perf_counter()
     users = make_users(np.random.default_rng(20261122), ["sim-a", "sim-b", "sim-c"], 100, 50)
@@ -352,8 +396,10 @@ def test_simulated_users_through_the_api(robot: TestClient, db: Database, settin
     for user in users:
         check_history(robot, db, settings, user)
     elapsed = time.perf_counter() - began
-    print(f"\n{engine_name}: 3 users x 100 events played in {played:.1f} s, "
-          f"checked in {elapsed - played:.1f} s")  # shown, not asserted: machines are noisy
+    print(
+        f"\n{engine_name}: 3 users x 100 events played in {played:.1f} s, "
+        f"checked in {elapsed - played:.1f} s"
+    )  # shown, not asserted: machines are noisy
 
     # Seeded sanity of the learning itself: bounds, and orderings that hold robustly.
     for user in users:
@@ -372,8 +418,9 @@ def test_simulated_users_through_the_api(robot: TestClient, db: Database, settin
 
 
 @pytest.mark.parametrize("algorithm", ["dts", "rmax", "qlearning"])
-def test_other_learners_through_the_api(robot: TestClient, db: Database, settings: Settings,
-                                        algorithm: str) -> None:
+def test_other_learners_through_the_api(
+    robot: TestClient, db: Database, settings: Settings, algorithm: str
+) -> None:
     user_id = f"sim-{algorithm}"
     r = robot.put(f"/v1/users/{user_id}", json={"learner": {"algorithm": algorithm}})
     assert r.status_code == 201, r.text
@@ -387,7 +434,8 @@ def test_other_learners_through_the_api(robot: TestClient, db: Database, setting
 
 
 def test_feedback_and_resets_mid_history_rebuild_identically(
-        robot: TestClient, admin: TestClient, db: Database, settings: Settings) -> None:
+    robot: TestClient, admin: TestClient, db: Database, settings: Settings
+) -> None:
     """Delayed and in-episode feedback, a reset between episodes and one inside an episode: the
     stats count every reward, and the model still rebuilds from the journal exactly."""
     (user,) = make_users(np.random.default_rng(11), ["sim-fb"], 60, 30)
@@ -456,20 +504,28 @@ def test_feedback_and_resets_mid_history_rebuild_identically(
 
 
 def test_feedback_on_an_episode_before_a_reset_leaves_the_fresh_model_alone(
-        robot: TestClient, admin: TestClient, settings: Settings) -> None:
+    robot: TestClient, admin: TestClient, settings: Settings
+) -> None:
     """DELETE /model forgets what was learned: feedback that arrives later for an episode from
     before the reset goes to history (the episode's trace and total), not into the new model,
     even when the new model has since executed the same action in the same context."""
     uid = "sim-reset-fb"
 
     def episode(i: int) -> tuple[str, str]:
-        body = {"event_id": f"{uid}-{i}", "occurred_at": occurred_at("afternoon", "+08:00", i),
-                "situation": "stretching", "initiator": "robot"}
+        body = {
+            "event_id": f"{uid}-{i}",
+            "occurred_at": occurred_at("afternoon", "+08:00", i),
+            "situation": "stretching",
+            "initiator": "robot",
+        }
         ep = post_json(robot, f"/v1/users/{uid}/episodes", body, 201)
         decision = ep["decision"]
         response = "rejected" if decision["action"]["kind"] == "initiate" else "none"
-        out = post_json(robot, f"/v1/episodes/{ep['episode_id']}/outcomes",
-                        {"decision_id": decision["decision_id"], "response": response})
+        out = post_json(
+            robot,
+            f"/v1/episodes/{ep['episode_id']}/outcomes",
+            {"decision_id": decision["decision_id"], "response": response},
+        )
         assert out["decision"] is None
         return ep["episode_id"], decision["action"]["kind"]
 
@@ -485,12 +541,16 @@ def test_feedback_on_an_episode_before_a_reset_leaves_the_fresh_model_alone(
     assert kind in seen_kinds
     model = robot.get(f"/v1/users/{uid}/model").json()
     total = robot.get(f"/v1/episodes/{target_id}").json()["total_reward"]
-    out = post_json(robot, f"/v1/episodes/{target_id}/feedback",
-                    {"feedback_id": "late-after-reset", "feedback": "positive"})
+    out = post_json(
+        robot,
+        f"/v1/episodes/{target_id}/feedback",
+        {"feedback_id": "late-after-reset", "feedback": "positive"},
+    )
     assert out["episode"]["total_reward"] == total + REWARDS.positive  # history has it
     after = robot.get(f"/v1/users/{uid}/model").json()
-    assert after["version"] == model["version"], "the fresh model took feedback on an episode " \
-        "it never saw"
+    assert after["version"] == model["version"], (
+        "the fresh model took feedback on an episode it never saw"
+    )
     assert after["contexts"] == model["contexts"]
     code, summary = rebuild(settings, uid)
     assert code == 0, summary

@@ -85,16 +85,16 @@ def _in_flight(app: FastAPI) -> InFlightLimitMiddleware:
 
 
 class TestRequestId:
-    @pytest.mark.parametrize("given", ["abc", "A.b_c:d-1", "x" * 128, "0" * 32,
-                                       "7b1e4c1f-2e0a-4a51-9f0b-4d9a2f7d0e11"])
+    @pytest.mark.parametrize(
+        "given", ["abc", "A.b_c:d-1", "x" * 128, "0" * 32, "7b1e4c1f-2e0a-4a51-9f0b-4d9a2f7d0e11"]
+    )
     def test_a_valid_id_is_kept(self, robot: TestClient, given: str) -> None:
         r = robot.get("/v1/users/nobody", headers={"X-Request-ID": given})
         assert r.headers["x-request-id"] == given
         assert assert_error(r, 404, "NotFound")["request_id"] == given
 
     @pytest.mark.parametrize("given", ["", "a b", "x" * 129, "a/b", "a;b", "<script>", "é"])
-    def test_an_invalid_id_is_replaced_by_a_fresh_one(self, robot: TestClient,
-                                                      given: str) -> None:
+    def test_an_invalid_id_is_replaced_by_a_fresh_one(self, robot: TestClient, given: str) -> None:
         r = robot.get("/v1/users/nobody", headers={"X-Request-ID": given.encode("utf-8")})
         assert FRESH.match(r.headers["x-request-id"]), r.headers["x-request-id"]
         assert assert_error(r, 404, "NotFound")["request_id"] == r.headers["x-request-id"]
@@ -104,23 +104,35 @@ class TestRequestId:
         assert len(ids) == 5
         assert all(FRESH.match(i) for i in ids)
 
-    def test_every_kind_of_response_carries_it(self, app: FastAPI, robot: TestClient,
-                                               admin: TestClient, client: TestClient) -> None:
+    def test_every_kind_of_response_carries_it(
+        self, app: FastAPI, robot: TestClient, admin: TestClient, client: TestClient
+    ) -> None:
         assert robot.put("/v1/users/lin", json={}).status_code == 201
         answers = {
-            "200": robot.get("/v1/users/lin"), "204": admin.delete("/v1/users/lin/model"),
-            "HEAD": robot.head("/v1/users/lin"), "healthz": client.get("/healthz"),
-            "readyz": client.get("/readyz"), "metrics": client.get("/metrics"),
-            "docs": client.get("/docs"), "static": client.get("/static/docs/redoc/LICENSE"),
+            "200": robot.get("/v1/users/lin"),
+            "204": admin.delete("/v1/users/lin/model"),
+            "HEAD": robot.head("/v1/users/lin"),
+            "healthz": client.get("/healthz"),
+            "readyz": client.get("/readyz"),
+            "metrics": client.get("/metrics"),
+            "docs": client.get("/docs"),
+            "static": client.get("/static/docs/redoc/LICENSE"),
             "console": client.get("/admin/login"),
-            "400": robot.post("/v1/users/lin/episodes", content=b"{",
-                              headers={"Content-Type": "application/json"}),
-            "401": client.get("/v1/users"), "403": robot.delete("/v1/users/lin"),
-            "404": robot.get("/v1/nothing"), "405": robot.patch("/v1/users/lin"),
-            "413": robot.post("/v1/users/lin/episodes", content=b"x" * 70_000,
-                              headers={"Content-Type": "application/json"}),
-            "415": robot.post("/v1/users/lin/episodes", content=b"{}",
-                              headers={"Content-Type": "text/plain"}),
+            "400": robot.post(
+                "/v1/users/lin/episodes", content=b"{", headers={"Content-Type": "application/json"}
+            ),
+            "401": client.get("/v1/users"),
+            "403": robot.delete("/v1/users/lin"),
+            "404": robot.get("/v1/nothing"),
+            "405": robot.patch("/v1/users/lin"),
+            "413": robot.post(
+                "/v1/users/lin/episodes",
+                content=b"x" * 70_000,
+                headers={"Content-Type": "application/json"},
+            ),
+            "415": robot.post(
+                "/v1/users/lin/episodes", content=b"{}", headers={"Content-Type": "text/plain"}
+            ),
             "422": robot.get("/v1/users?limit=0"),
         }
         limiter = _in_flight(app)
@@ -138,12 +150,14 @@ class TestRequestId:
                     assert r.json()["request_id"] == rid, name
 
     def test_429_carries_it(self, settings: Settings, db: Database) -> None:
-        app = create_app(settings.model_copy(update={"rate_limit_per_s": 0.001,
-                                                     "rate_limit_burst": 1}))
+        app = create_app(
+            settings.model_copy(update={"rate_limit_per_s": 0.001, "rate_limit_burst": 1})
+        )
         try:
             _, secret = _key(db)
-            with TestClient(app, headers={"Authorization": f"Bearer {secret}"},
-                            raise_server_exceptions=False) as c:
+            with TestClient(
+                app, headers={"Authorization": f"Bearer {secret}"}, raise_server_exceptions=False
+            ) as c:
                 c.get("/v1/users")
                 r = c.get("/v1/users", headers={"X-Request-ID": "slow-down"})
                 assert assert_error(r, 429, "TooManyRequests")["request_id"] == "slow-down"
@@ -157,11 +171,13 @@ class TestRequestId:
 
 
 class TestAccessLine:
-    def test_one_line_per_request_with_its_fields(self, app: FastAPI, db: Database,
-                                                  lines: Lines) -> None:
+    def test_one_line_per_request_with_its_fields(
+        self, app: FastAPI, db: Database, lines: Lines
+    ) -> None:
         key_id, secret = _key(db)
-        with TestClient(app, headers={"Authorization": f"Bearer {secret}"},
-                        raise_server_exceptions=False) as c:
+        with TestClient(
+            app, headers={"Authorization": f"Bearer {secret}"}, raise_server_exceptions=False
+        ) as c:
             c.put("/v1/users/lin", json={}, headers={"X-Request-ID": "put-lin"})
             c.post("/v1/users/lin/episodes", json=event("e1"), headers={"X-Request-ID": "ev-1"})
             c.get("/v1/users/nobody", headers={"X-Request-ID": "get-nobody"})
@@ -184,11 +200,15 @@ class TestAccessLine:
         assert secret not in lines.text()
         assert secret[:12] not in lines.text()  # not even the key's public prefix
 
-    def test_early_answers_and_unmatched_paths(self, app: FastAPI, client: TestClient,
-                                               lines: Lines) -> None:
+    def test_early_answers_and_unmatched_paths(
+        self, app: FastAPI, client: TestClient, lines: Lines
+    ) -> None:
         client.get("/nowhere", headers={"X-Request-ID": "r404"})
-        client.post("/v1/users/lin/episodes", content=b"x" * 70_000,
-                    headers={"Content-Type": "application/json", "X-Request-ID": "r413"})
+        client.post(
+            "/v1/users/lin/episodes",
+            content=b"x" * 70_000,
+            headers={"Content-Type": "application/json", "X-Request-ID": "r413"},
+        )
         client.options("/v1/users/lin", headers={"X-Request-ID": "r405"})
         client.head("/v1/users/lin", headers={"X-Request-ID": "rhead"})
         limiter = _in_flight(app)
@@ -202,13 +222,17 @@ class TestAccessLine:
         assert (got["r404"]["route"], got["r404"]["status"]) == ("unmatched", 404)
         assert (got["r413"]["route"], got["r413"]["status"]) == ("unmatched", 413)
         assert (got["r405"]["route"], got["r405"]["status"]) == ("/v1/users/{user_id}", 405)
-        assert (got["rhead"]["method"], got["rhead"]["route"], got["rhead"]["status"]) == \
-            ("HEAD", "/v1/users/{user_id}", 401)
+        assert (got["rhead"]["method"], got["rhead"]["route"], got["rhead"]["status"]) == (
+            "HEAD",
+            "/v1/users/{user_id}",
+            401,
+        )
         assert got["r503"]["status"] == 503
         assert all(a["key_id"] is None for a in got.values())
 
-    def test_console_pages_have_the_admins_key_id(self, app: FastAPI, db: Database,
-                                                   lines: Lines) -> None:
+    def test_console_pages_have_the_admins_key_id(
+        self, app: FastAPI, db: Database, lines: Lines
+    ) -> None:
         key_id, secret = _key(db, "admin")
         with TestClient(app, raise_server_exceptions=False) as c:
             c.cookies.set("attune_console", secret, path="/admin")
@@ -238,12 +262,16 @@ def _failing_app(app: FastAPI) -> FastAPI:
 class TestUnhandledError:
     @pytest.mark.parametrize("path", ["/test/boom", "/test/aboom"])
     def test_is_a_500_with_the_contract_body_and_logged_once(
-            self, app: FastAPI, lines: Lines, path: str) -> None:
+        self, app: FastAPI, lines: Lines, path: str
+    ) -> None:
         with TestClient(_failing_app(app), raise_server_exceptions=False) as c:
             r = c.get(path, headers={"X-Request-ID": "it-failed"})
         body = assert_error(r, 500, "InternalError")
-        assert body == {"error": "InternalError", "request_id": "it-failed",
-                        "detail": "The server failed; the error was logged."}
+        assert body == {
+            "error": "InternalError",
+            "request_id": "it-failed",
+            "detail": "The server failed; the error was logged.",
+        }
         assert "boom" not in r.text
         mine = lines.of("it-failed")
         assert [m["message"] for m in mine][0] == "about to fail"
@@ -265,8 +293,7 @@ class TestUnhandledError:
             uvicorn_log = logging.getLogger("uvicorn.error")
             uvicorn_log.addHandler(handler)
             try:
-                r = httpx.get(f"{url}/test/boom", headers={"X-Request-ID": "served"},
-                              timeout=10)
+                r = httpx.get(f"{url}/test/boom", headers={"X-Request-ID": "served"}, timeout=10)
             finally:
                 uvicorn_log.removeHandler(handler)
         assert r.status_code == 500
@@ -279,8 +306,9 @@ class TestUnhandledError:
 
 class TestFormats:
     def _record(self, exc_info: Any = None) -> logging.LogRecord:
-        return logging.LogRecord("attune.x", logging.WARNING, __file__, 1, "hello %s",
-                                 ("world",), exc_info)
+        return logging.LogRecord(
+            "attune.x", logging.WARNING, __file__, 1, "hello %s", ("world",), exc_info
+        )
 
     def test_text_lines_end_with_the_request_id(self) -> None:
         fmt = logs.TextFormatter()
@@ -288,7 +316,8 @@ class TestFormats:
         token = logs.bind(logs.RequestContext("rid-1"))
         try:
             assert fmt.format(self._record()).endswith(
-                "WARNING attune.x: hello world request_id=rid-1")
+                "WARNING attune.x: hello world request_id=rid-1"
+            )
         finally:
             logs.unbind(token)
 
@@ -298,8 +327,11 @@ class TestFormats:
         assert "\n" not in line
         out = json.loads(line)
         assert set(out) == {"time", "level", "logger", "message"}
-        assert (out["level"], out["logger"], out["message"]) == ("WARNING", "attune.x",
-                                                                  "hello world")
+        assert (out["level"], out["logger"], out["message"]) == (
+            "WARNING",
+            "attune.x",
+            "hello world",
+        )
         token = logs.bind(logs.RequestContext("rid-2", key_id="key_1"))
         try:
             record = self._record()
@@ -321,8 +353,9 @@ class TestFormats:
         assert config["formatters"]["attune"]["()"] is logs.JsonFormatter
         assert config["loggers"]["attune"]["level"] == "WARNING"
         assert config["loggers"]["uvicorn.access"]["handlers"] == []
-        assert logs.logging_config("info", "text")["formatters"]["attune"]["()"] is \
-            logs.TextFormatter
+        assert (
+            logs.logging_config("info", "text")["formatters"]["attune"]["()"] is logs.TextFormatter
+        )
         with pytest.raises(ValueError, match="log format"):
             logs.logging_config("info", "xml")
 

@@ -18,8 +18,14 @@ class TestPutUser:
         r = robot.put("/v1/users/lin", json={"display_name": "Mrs. Lin"})
         assert r.status_code == 201, r.text
         body = r.json()
-        assert set(body) >= {"user_id", "fleet", "display_name", "learner", "created_at",
-                             "episodes"}
+        assert set(body) >= {
+            "user_id",
+            "fleet",
+            "display_name",
+            "learner",
+            "created_at",
+            "episodes",
+        }
         assert body["user_id"] == "lin"
         assert body["fleet"] == "default"
         assert body["display_name"] == "Mrs. Lin"
@@ -49,8 +55,10 @@ class TestPutUser:
         assert robot.get("/v1/users/lin").json()["display_name"] == "B"
 
     def test_same_body_again_is_200_and_changes_nothing(self, robot: TestClient) -> None:
-        body = {"display_name": "Mrs. Lin", "learner": {"algorithm": "hri",
-                                                        "params": {"tau": 0.01}}}
+        body = {
+            "display_name": "Mrs. Lin",
+            "learner": {"algorithm": "hri", "params": {"tau": 0.01}},
+        }
         first = robot.put("/v1/users/lin", json=body)
         assert first.status_code == 201
         model_before = robot.get("/v1/users/lin/model").json()
@@ -61,8 +69,9 @@ class TestPutUser:
         assert robot.get("/v1/users/lin/model").json() == model_before
 
     def test_omitted_fields_keep_their_values(self, robot: TestClient) -> None:
-        robot.put("/v1/users/lin", json={"display_name": "Mrs. Lin",
-                                         "learner": {"algorithm": "rmax"}})
+        robot.put(
+            "/v1/users/lin", json={"display_name": "Mrs. Lin", "learner": {"algorithm": "rmax"}}
+        )
         r = robot.put("/v1/users/lin", json={})
         assert r.status_code == 200
         assert r.json()["display_name"] == "Mrs. Lin"
@@ -76,8 +85,9 @@ class TestPutUser:
         assert robot.get("/v1/users/lin/model").json()["algorithm"] == algorithm
 
     def test_params_are_kept(self, robot: TestClient) -> None:
-        r = robot.put("/v1/users/lin", json={"learner": {"algorithm": "hri",
-                                                         "params": {"tau": 0.005}}})
+        r = robot.put(
+            "/v1/users/lin", json={"learner": {"algorithm": "hri", "params": {"tau": 0.005}}}
+        )
         assert r.status_code == 201
         assert r.json()["learner"]["params"]["tau"] == pytest.approx(0.005)
 
@@ -88,17 +98,25 @@ class TestPutUser:
             assert name in body["detail"]
         assert robot.get("/v1/users/lin").status_code == 404
 
-    @pytest.mark.parametrize("params", [
-        {"tau": -1}, {"tau": "hot"}, {"nope": 1}, {"tau": None}, {"measure": "yes"},
-    ])
+    @pytest.mark.parametrize(
+        "params",
+        [
+            {"tau": -1},
+            {"tau": "hot"},
+            {"nope": 1},
+            {"tau": None},
+            {"measure": "yes"},
+        ],
+    )
     def test_bad_params_are_422(self, robot: TestClient, params: dict[str, Any]) -> None:
         r = robot.put("/v1/users/lin", json={"learner": {"algorithm": "hri", "params": params}})
         assert_error(r, 422, "ValidationError")
         assert robot.get("/v1/users/lin").status_code == 404
 
     def test_unknown_param_names_the_allowed_ones(self, robot: TestClient) -> None:
-        r = robot.put("/v1/users/lin", json={"learner": {"algorithm": "hri",
-                                                         "params": {"temperature": 1}}})
+        r = robot.put(
+            "/v1/users/lin", json={"learner": {"algorithm": "hri", "params": {"temperature": 1}}}
+        )
         body = assert_error(r, 422, "ValidationError")
         assert "tau" in body["detail"]
 
@@ -106,9 +124,10 @@ class TestPutUser:
         robot.put("/v1/users/lin", json={"display_name": "A"})
         before = robot.get("/v1/users/lin").json()
         model = robot.get("/v1/users/lin/model").json()
-        r = robot.put("/v1/users/lin", json={"display_name": "B",
-                                             "learner": {"algorithm": "hri",
-                                                         "params": {"tau": -3}}})
+        r = robot.put(
+            "/v1/users/lin",
+            json={"display_name": "B", "learner": {"algorithm": "hri", "params": {"tau": -3}}},
+        )
         assert_error(r, 422, "ValidationError")
         assert robot.get("/v1/users/lin").json() == before
         assert robot.get("/v1/users/lin/model").json() == model
@@ -123,8 +142,7 @@ class TestPutUser:
         start(robot, "lin", "e1")
         before = robot.get("/v1/users/lin").json()
         model = robot.get("/v1/users/lin/model").json()
-        r = robot.put("/v1/users/lin", json={"display_name": "X",
-                                             "learner": {"algorithm": "rmax"}})
+        r = robot.put("/v1/users/lin", json={"display_name": "X", "learner": {"algorithm": "rmax"}})
         assert_error(r, 409, "Conflict")
         assert "reset_model" in r.json()["detail"]
         assert robot.get("/v1/users/lin").json() == before
@@ -132,21 +150,27 @@ class TestPutUser:
 
     def test_changing_params_with_history_is_409(self, robot: TestClient) -> None:
         start(robot, "lin", "e1")
-        r = robot.put("/v1/users/lin", json={"learner": {"algorithm": "hri",
-                                                         "params": {"tau": 0.005}}})
+        r = robot.put(
+            "/v1/users/lin", json={"learner": {"algorithm": "hri", "params": {"tau": 0.005}}}
+        )
         assert_error(r, 409, "Conflict")
 
     def test_same_learner_with_history_is_fine(self, robot: TestClient) -> None:
         start(robot, "lin", "e1")  # created with the default learner
-        r = robot.put("/v1/users/lin", json={"learner": {"algorithm": "dts-adapt",
-                                                         "params": {"forgetting": 0.95}}})
+        r = robot.put(
+            "/v1/users/lin",
+            json={"learner": {"algorithm": "dts-adapt", "params": {"forgetting": 0.95}}},
+        )
         assert r.status_code == 200, r.text
 
-    def test_reset_model_true_allows_the_change_and_keeps_history(
-            self, robot: TestClient) -> None:
+    def test_reset_model_true_allows_the_change_and_keeps_history(self, robot: TestClient) -> None:
         ep = start(robot, "lin", "e1")
-        answer(robot, ep["episode_id"], ep["decision"]["decision_id"],
-               "rejected" if ep["decision"]["action"]["kind"] == "initiate" else "none")
+        answer(
+            robot,
+            ep["episode_id"],
+            ep["decision"]["decision_id"],
+            "rejected" if ep["decision"]["action"]["kind"] == "initiate" else "none",
+        )
         version = robot.get("/v1/users/lin/model").json()["version"]
         r = robot.put("/v1/users/lin?reset_model=true", json={"learner": {"algorithm": "rmax"}})
         assert r.status_code == 200, r.text
@@ -155,8 +179,9 @@ class TestPutUser:
         model = robot.get("/v1/users/lin/model").json()
         assert model["algorithm"] == "rmax"
         assert model["version"] > version
-        assert all(a["visits"] == 0 for c in model["contexts"] for s in c["states"]
-                   for a in s["actions"])
+        assert all(
+            a["visits"] == 0 for c in model["contexts"] for s in c["states"] for a in s["actions"]
+        )
         assert robot.get(f"/v1/episodes/{ep['episode_id']}").status_code == 200
 
     @pytest.mark.one_engine
@@ -166,7 +191,8 @@ class TestPutUser:
         assert robot.get("/v1/users/lin").status_code == 404
 
     def test_another_fleet_makes_its_own_user_of_the_same_id(
-            self, robot: TestClient, other_robot: TestClient) -> None:
+        self, robot: TestClient, other_robot: TestClient
+    ) -> None:
         robot.put("/v1/users/lin", json={"display_name": "A"})
         before = robot.get("/v1/users/lin").json()
         r = other_robot.put("/v1/users/lin", json={"display_name": "B"})
@@ -192,8 +218,7 @@ class TestGetUser:
         start(robot, "lin", "e2")
         assert robot.get("/v1/users/lin").json()["episodes"] == 2
 
-    def test_another_fleets_user_is_404(self, robot: TestClient,
-                                        other_robot: TestClient) -> None:
+    def test_another_fleets_user_is_404(self, robot: TestClient, other_robot: TestClient) -> None:
         robot.put("/v1/users/lin")
         assert_error(other_robot.get("/v1/users/lin"), 404, "NotFound")
 
@@ -205,8 +230,7 @@ class TestGetUser:
         # Without ?fleet= the admin's own fleet is meant, where there is no far.
         assert_error(admin.get("/v1/users/far"), 404, "NotFound")
 
-    def test_only_admins_name_a_fleet(self, robot: TestClient,
-                                      other_robot: TestClient) -> None:
+    def test_only_admins_name_a_fleet(self, robot: TestClient, other_robot: TestClient) -> None:
         other_robot.put("/v1/users/far")
         assert_error(robot.get("/v1/users/far", params={"fleet": "other"}), 404, "NotFound")
         assert robot.get("/v1/users/nobody", params={"fleet": "default"}).status_code == 404
@@ -244,12 +268,15 @@ class TestListUsers:
         for uid in ("a", "b", "c", "d"):
             robot.put(f"/v1/users/{uid}")
         first = robot.get("/v1/users", params={"limit": 2}).json()
-        second = robot.get("/v1/users", params={"limit": 2,
-                                                "cursor": first["next_cursor"]}).json()
+        second = robot.get("/v1/users", params={"limit": 2, "cursor": first["next_cursor"]}).json()
         assert [u["user_id"] for u in first["items"] + second["items"]] == ["a", "b", "c", "d"]
-        assert second["next_cursor"] is None or robot.get(
-            "/v1/users", params={"limit": 2, "cursor": second["next_cursor"]}
-        ).json()["items"] == []
+        assert (
+            second["next_cursor"] is None
+            or robot.get("/v1/users", params={"limit": 2, "cursor": second["next_cursor"]}).json()[
+                "items"
+            ]
+            == []
+        )
 
     def test_default_lists_everyone_with_null_cursor(self, robot: TestClient) -> None:
         robot.put("/v1/users/a")
@@ -263,18 +290,19 @@ class TestListUsers:
         assert robot.get("/v1/users").json()["items"] == [created]
 
     def test_robot_sees_only_its_fleet_admin_sees_all(
-            self, robot: TestClient, other_robot: TestClient, admin: TestClient) -> None:
+        self, robot: TestClient, other_robot: TestClient, admin: TestClient
+    ) -> None:
         robot.put("/v1/users/mine")
         other_robot.put("/v1/users/theirs")
         assert [u["user_id"] for u in robot.get("/v1/users").json()["items"]] == ["mine"]
-        assert [u["user_id"] for u in other_robot.get("/v1/users").json()["items"]] == [
-            "theirs"]
+        assert [u["user_id"] for u in other_robot.get("/v1/users").json()["items"]] == ["theirs"]
         every = {u["user_id"]: u["fleet"] for u in admin.get("/v1/users").json()["items"]}
         assert every == {"mine": "default", "theirs": "other"}
 
     @pytest.mark.one_engine
-    @pytest.mark.parametrize("query", ["limit=0", "limit=-1", "limit=abc", "limit=100000",
-                                       "cursor=%25%25%25"])
+    @pytest.mark.parametrize(
+        "query", ["limit=0", "limit=-1", "limit=abc", "limit=100000", "cursor=%25%25%25"]
+    )
     def test_bad_paging_is_422(self, robot: TestClient, query: str) -> None:
         robot.put("/v1/users/a")
         assert_error(robot.get(f"/v1/users?{query}"), 422, "ValidationError")
@@ -292,8 +320,9 @@ class TestDeleteUser:
         assert_error(robot.delete("/v1/users/lin"), 403, "Forbidden")
         assert robot.get("/v1/users/lin").json() == before
 
-    def test_admin_removes_user_history_and_model(self, robot: TestClient,
-                                                  admin: TestClient) -> None:
+    def test_admin_removes_user_history_and_model(
+        self, robot: TestClient, admin: TestClient
+    ) -> None:
         ep = start(robot, "lin", "e1")
         r = admin.delete("/v1/users/lin")
         assert r.status_code == 204
@@ -306,17 +335,22 @@ class TestDeleteUser:
     def test_a_deleted_user_starts_over(self, robot: TestClient, admin: TestClient) -> None:
         start(robot, "lin", "e1")
         admin.delete("/v1/users/lin")
-        again = robot.post("/v1/users/lin/episodes", json={
-            "event_id": "e1", "occurred_at": "2026-11-22T15:10:00+08:00",
-            "situation": "stretching", "initiator": "robot"})
+        again = robot.post(
+            "/v1/users/lin/episodes",
+            json={
+                "event_id": "e1",
+                "occurred_at": "2026-11-22T15:10:00+08:00",
+                "situation": "stretching",
+                "initiator": "robot",
+            },
+        )
         assert again.status_code == 201, again.text
         assert robot.get("/v1/users/lin").json()["episodes"] == 1
 
     def test_absent_is_404(self, admin: TestClient) -> None:
         assert_error(admin.delete("/v1/users/nobody"), 404, "NotFound")
 
-    def test_other_fleet_admin_sees_all(self, other_robot: TestClient,
-                                        admin: TestClient) -> None:
+    def test_other_fleet_admin_sees_all(self, other_robot: TestClient, admin: TestClient) -> None:
         other_robot.put("/v1/users/far")
         assert admin.delete("/v1/users/far", params={"fleet": "other"}).status_code == 204
         assert_error(other_robot.get("/v1/users/far"), 404, "NotFound")

@@ -33,11 +33,18 @@ CHROMIUM = "/usr/bin/chromium"
 # Without the background-networking switches Chromium's own connections (updates, sync, field
 # trials) hang on a closed network and slow every launch.
 CHROMIUM_ARGS = [
-    "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-    "--disable-background-networking", "--disable-component-update", "--disable-sync",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
 ]
-VIEWPORTS: dict[str, ViewportSize] = {"desktop": {"width": 1280, "height": 800},
-                                     "tablet": {"width": 800, "height": 1200}}
+VIEWPORTS: dict[str, ViewportSize] = {
+    "desktop": {"width": 1280, "height": 800},
+    "tablet": {"width": 800, "height": 1200},
+}
 
 # (viewport, screenshot) -> the docs/img file it becomes with ATTUNE_DOCS_SHOTS=1.
 DOCS_SHOTS = {
@@ -55,9 +62,11 @@ DOCS_SHOTS = {
 }
 DOCS_IMG = REPO / "docs" / "img"
 
-LIN_NEEDS = {("afternoon", "stretching"): ("ProvideDrink", "tea"),
-             ("morning", "arriving"): ("BriefInformation", "news"),
-             ("morning", "working"): ("ArrangeSchedule", "today_agenda")}
+LIN_NEEDS = {
+    ("afternoon", "stretching"): ("ProvideDrink", "tea"),
+    ("morning", "arriving"): ("BriefInformation", "news"),
+    ("morning", "working"): ("ArrangeSchedule", "today_agenda"),
+}
 
 
 @dataclass(frozen=True)
@@ -98,8 +107,9 @@ def _seed(client: httpx.Client) -> None:
     put("lin", display_name="Mrs. Lin", learner={"algorithm": "hri"})  # the views of HRI
     play(client, "lin", Person(LIN_NEEDS), 60, prefix="lin")
     put("chen", display_name="Mr. Chen", learner={"algorithm": "dts"})
-    play(client, "chen", Person({("noon", "working"): ("ProvideDrink", "coffee")}), 30,
-         prefix="chen")
+    play(
+        client, "chen", Person({("noon", "working"): ("ProvideDrink", "coffee")}), 30, prefix="chen"
+    )
     for viewport in VIEWPORTS:
         put(f"reset-{viewport}", display_name="Reset me")
         play(client, f"reset-{viewport}", Person(LIN_NEEDS), 12, prefix="r")
@@ -118,11 +128,13 @@ def site(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Site]:
         with database.transaction() as session:
             _, admin_key = create_key(session, role="admin", name="console-tests")
             _, robot_key = create_key(session, role="robot", name="robot7")
-        with httpx.Client(base_url=service.url, timeout=30,
-                          headers={"Authorization": f"Bearer {robot_key}"}) as robot:
+        with httpx.Client(
+            base_url=service.url, timeout=30, headers={"Authorization": f"Bearer {robot_key}"}
+        ) as robot:
             _seed(robot)
-        with httpx.Client(base_url=service.url, timeout=30,
-                          headers={"Authorization": f"Bearer {admin_key}"}) as api:
+        with httpx.Client(
+            base_url=service.url, timeout=30, headers={"Authorization": f"Bearer {admin_key}"}
+        ) as api:
             yield Site(service.url, admin_key, robot_key, service, api, database)
         database.dispose()
 
@@ -132,11 +144,15 @@ def site(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Site]:
 @pytest.fixture(scope="package")
 def browser() -> Iterator[Browser]:
     if not Path(CHROMIUM).exists():
-        pytest.fail(f"{CHROMIUM} is missing: install Debian's chromium package "
-                    "(apt-get install chromium; .ci/run does it).", pytrace=False)
+        pytest.fail(
+            f"{CHROMIUM} is missing: install Debian's chromium package "
+            "(apt-get install chromium; .ci/run does it).",
+            pytrace=False,
+        )
     with sync_playwright() as playwright:
-        chromium = playwright.chromium.launch(executable_path=CHROMIUM, headless=True,
-                                              args=CHROMIUM_ARGS)
+        chromium = playwright.chromium.launch(
+            executable_path=CHROMIUM, headless=True, args=CHROMIUM_ARGS
+        )
         yield chromium
         chromium.close()
 
@@ -194,8 +210,9 @@ def sign_in(tab: Page, site: Site, key: str, path: str = "/admin/users") -> Resp
     tab.goto(site.url + path)
     assert "/admin/login" in tab.url
     tab.fill("#key", key)
-    with tab.expect_response(lambda r: r.url.endswith("/admin/login")
-                             and r.request.method == "POST") as answer:
+    with tab.expect_response(
+        lambda r: r.url.endswith("/admin/login") and r.request.method == "POST"
+    ) as answer:
         tab.click("#login button[type=submit]")
     tab.wait_for_load_state("load")
     return answer.value

@@ -14,9 +14,11 @@ from tests.support import people
 
 HOURS = {"morning": 9, "noon": 12, "afternoon": 15, "evening": 19}  # local hours inside each slot
 SITUATIONS = ("arriving", "working", "stretching", "busy")
-DETAILS = {"ProvideDrink": ("tea", "coffee", "water"),
-           "BriefInformation": ("news", "weather", "stocks"),
-           "ArrangeSchedule": ("today_agenda", "next_meeting", "set_reminder")}
+DETAILS = {
+    "ProvideDrink": ("tea", "coffee", "water"),
+    "BriefInformation": ("news", "weather", "stocks"),
+    "ArrangeSchedule": ("today_agenda", "next_meeting", "set_reminder"),
+}
 
 
 @dataclass
@@ -34,19 +36,27 @@ class Person:
         return self.rnd.choice(sorted(HOURS)), self.rnd.choice(SITUATIONS)
 
     def respond(self, context: tuple[str, str], action: dict[str, Any]) -> dict[str, Any]:
-        return people.answer(action, need=self.needs.get(context), busy=context[1] == "busy",
-                             rng=self.rnd, yes=0.95, asks=0.5, smiles=0.3)
+        return people.answer(
+            action,
+            need=self.needs.get(context),
+            busy=context[1] == "busy",
+            rng=self.rnd,
+            yes=0.95,
+            asks=0.5,
+            smiles=0.3,
+        )
 
 
-def play(client: httpx.Client, user_id: str, person: Person, episodes: int, *,
-         prefix: str) -> None:
+def play(client: httpx.Client, user_id: str, person: Person, episodes: int, *, prefix: str) -> None:
     """Run ``episodes`` events of ``person`` through the API, each until it closes."""
     for n in range(episodes):
         slot, situation = person.event()
         need = person.needs.get((slot, situation))
         human = need is not None and situation != "busy" and person.rnd.random() < 0.15
         body: dict[str, Any] = {
-            "event_id": f"{prefix}-{n}", "situation": situation, "robot_id": "robot7",
+            "event_id": f"{prefix}-{n}",
+            "situation": situation,
+            "robot_id": "robot7",
             "occurred_at": f"2026-11-{1 + n // 24:02d}T{HOURS[slot]:02d}:{n % 60:02d}:00+08:00",
             "initiator": "human" if human else "robot",
         }
@@ -58,13 +68,17 @@ def play(client: httpx.Client, user_id: str, person: Person, episodes: int, *,
         decision = episode["decision"]
         while decision is not None:
             answer = person.respond((slot, situation), decision["action"])
-            r = client.post(f"/v1/episodes/{episode['episode_id']}/outcomes",
-                            json={"decision_id": decision["decision_id"], **answer})
+            r = client.post(
+                f"/v1/episodes/{episode['episode_id']}/outcomes",
+                json={"decision_id": decision["decision_id"], **answer},
+            )
             assert r.status_code == 200, r.text
             decision = r.json()["decision"]
         if person.rnd.random() < 0.1:
-            r = client.post(f"/v1/episodes/{episode['episode_id']}/feedback",
-                            json={"feedback_id": f"{prefix}-fb-{n}", "feedback": "negative"})
+            r = client.post(
+                f"/v1/episodes/{episode['episode_id']}/feedback",
+                json={"feedback_id": f"{prefix}-fb-{n}", "feedback": "negative"},
+            )
             assert r.status_code == 200, r.text
 
 
@@ -105,8 +119,9 @@ def state_label(state: dict[str, Any]) -> str:
     return f"{state['state']}({', '.join(parts)})" if parts else str(state["state"])
 
 
-def find_state(context: dict[str, Any], kind: str,
-               service: str | None = None) -> dict[str, Any] | None:
+def find_state(
+    context: dict[str, Any], kind: str, service: str | None = None
+) -> dict[str, Any] | None:
     for s in context["states"]:
         if s["state"] == kind and (service is None or s.get("service") == service):
             return s  # type: ignore[no-any-return]
@@ -116,8 +131,10 @@ def find_state(context: dict[str, Any], kind: str,
 def top(actions: list[dict[str, Any]]) -> dict[str, Any] | None:
     """The most probable action, None on a tie for first place."""
     ranked = sorted(actions, key=lambda a: a["p"], reverse=True)
-    if not ranked or (len(ranked) > 1 and math.isclose(ranked[0]["p"], ranked[1]["p"],
-                                                       rel_tol=1e-9, abs_tol=1e-12)):
+    if not ranked or (
+        len(ranked) > 1
+        and math.isclose(ranked[0]["p"], ranked[1]["p"], rel_tol=1e-9, abs_tol=1e-12)
+    ):
         return None
     return ranked[0]
 
@@ -128,13 +145,17 @@ def expected_cell(context: dict[str, Any]) -> dict[str, str]:
     chance it performs that without asking; the chance it asks first)."""
     observe = find_state(context, "OBSERVE")
     assert observe is not None
-    out = {"p-init": pct(next(a["p"] for a in observe["actions"]
-                              if a["action"]["kind"] == "initiate"), 0),
-           "episodes": str(sum(a["visits"] for a in observe["actions"]))}
+    out = {
+        "p-init": pct(
+            next(a["p"] for a in observe["actions"] if a["action"]["kind"] == "initiate"), 0
+        ),
+        "episodes": str(sum(a["visits"] for a in observe["actions"])),
+    }
     engaged = find_state(context, "ENGAGED")
     assert engaged is not None
-    ever = any(a["visits"] > 0 for s in context["states"] if s["state"] != "OBSERVE"
-               for a in s["actions"])
+    ever = any(
+        a["visits"] > 0 for s in context["states"] if s["state"] != "OBSERVE" for a in s["actions"]
+    )
     if not ever:
         out["expect"] = "no mission yet"
         return out
@@ -149,8 +170,13 @@ def expected_cell(context: dict[str, Any]) -> dict[str, str]:
             if a["action"]["kind"] == "query_detail":
                 ask += g["p"] * a["p"]
             else:
-                guesses.append({"p": g["p"] * a["p"], "service": g["action"]["service"],
-                                "detail": a["action"]["detail"]})
+                guesses.append(
+                    {
+                        "p": g["p"] * a["p"],
+                        "service": g["action"]["service"],
+                        "detail": a["action"]["detail"],
+                    }
+                )
     out["p-ask"] = pct(ask, 0)
     best = top(guesses)
     if best is None:

@@ -31,8 +31,7 @@ def _text(page: Page, selector: str) -> str:
 
 
 class TestSignIn:
-    def test_robot_and_unknown_keys_are_refused(self, page: Page, site: Site,
-                                                shot: Shot) -> None:
+    def test_robot_and_unknown_keys_are_refused(self, page: Page, site: Site, shot: Shot) -> None:
         answer = sign_in(page, site, site.robot_key)
         assert answer is not None
         assert answer.status == 403
@@ -51,8 +50,9 @@ class TestSignIn:
         assert re.search(r"/admin/login\?next=/admin/users/lin$", page.url), page.url
         shot(page, "login")
 
-    def test_the_admin_key_is_kept_for_the_browser_session_only(self, page: Page,
-                                                                site: Site) -> None:
+    def test_the_admin_key_is_kept_for_the_browser_session_only(
+        self, page: Page, site: Site
+    ) -> None:
         answer = sign_in(page, site, site.admin_key, "/admin/users/lin")
         assert answer is not None
         assert answer.status == 303
@@ -70,7 +70,8 @@ class TestSignIn:
         assert site.admin_key not in page.content()  # the page shows a token, never the key
 
     def test_a_revoked_key_stops_at_once_and_sign_out_forgets_the_key(
-            self, page: Page, site: Site, shot: Shot) -> None:
+        self, page: Page, site: Site, shot: Shot
+    ) -> None:
         key = site.create_key("admin", name="revoke-me")
         sign_in(page, site, key)
         site.revoke_key(_text(page, ".who").removeprefix("key ").strip())
@@ -99,12 +100,14 @@ class TestUsers:
         page.wait_for_url("**q=PAGER**")
         expect(page.locator("#users-count")).to_contain_text("30 users matching")
         ids = page.locator("#users tbody tr").evaluate_all(
-            "rows => rows.map(r => r.dataset.userId)")
+            "rows => rows.map(r => r.dataset.userId)"
+        )
         assert ids == [f"pager-{i:02d}" for i in range(25)]
         page.click("#next-page")
         page.wait_for_url("**page=2**")
         ids = page.locator("#users tbody tr").evaluate_all(
-            "rows => rows.map(r => r.dataset.userId)")
+            "rows => rows.map(r => r.dataset.userId)"
+        )
         assert ids == [f"pager-{i:02d}" for i in range(25, 30)]
         expect(page.locator("#prev-page")).to_be_visible()
         expect(page.locator("#users tr[data-user-id='pager-29'] .learner")).to_have_text("rmax")
@@ -121,14 +124,16 @@ class TestUsers:
         assert _text(page, "#users .success") == pct(recent["success_rate"])
         assert _text(page, "#users .learner") == "hri"
         # Last activity in Mrs. Lin's local time (the robot sends +08:00).
-        assert re.fullmatch(r"\d{4}-\d\d-\d\d \d\d:\d\d \(UTC\+8\)",
-                            _text(page, "#users .activity"))
+        assert re.fullmatch(
+            r"\d{4}-\d\d-\d\d \d\d:\d\d \(UTC\+8\)", _text(page, "#users .activity")
+        )
         shot(page, "users-search")
 
 
 class TestUserModel:
-    def test_heatmap_and_metrics_show_the_api_numbers(self, admin_page: Page, site: Site,
-                                                      shot: Shot, viewport: str) -> None:
+    def test_heatmap_and_metrics_show_the_api_numbers(
+        self, admin_page: Page, site: Site, shot: Shot, viewport: str
+    ) -> None:
         page = admin_page
         for user_id in ("lin", "chen"):
             page.goto(f"{site.url}/admin/users/{user_id}")
@@ -140,8 +145,10 @@ class TestUserModel:
             cells = page.locator("#heatmap td.cell")
             expect(cells).to_have_count(len(model["contexts"]))
             for context in model["contexts"]:
-                cell = page.locator(f"#heatmap td[data-time-slot='{context['time_slot']}']"
-                                    f"[data-situation='{context['situation']}']")
+                cell = page.locator(
+                    f"#heatmap td[data-time-slot='{context['time_slot']}']"
+                    f"[data-situation='{context['situation']}']"
+                )
                 want = expected_cell(context)
                 assert cell.locator(".p-init").inner_text() == want["p-init"]
                 assert cell.locator(".n").inner_text().split()[0] == want["episodes"]
@@ -163,7 +170,8 @@ class TestUserModel:
                     for row in page.locator("#stats tbody tr").all()
                 }
                 assert shown == {
-                    "episodes": str(stats["episodes"]), "missions": str(stats["missions"]),
+                    "episodes": str(stats["episodes"]),
+                    "missions": str(stats["missions"]),
                     "interaction_rate": pct(stats["interaction_rate"]),
                     "success_rate": pct(stats["success_rate"]),
                     "queries_per_mission": two(stats["queries_per_mission"]),
@@ -173,8 +181,10 @@ class TestUserModel:
             # Whole episodes on the x axis, and the curve's end said without hovering.
             for width in (VIEWPORTS[viewport]["width"], 420):  # narrow: fewer ticks, still whole
                 page.set_viewport_size({"width": width, "height": 800})
-                page.wait_for_function(f"() => document.querySelector('#reward-chart canvas')"
-                                       f".getBoundingClientRect().width < {width}")
+                page.wait_for_function(
+                    f"() => document.querySelector('#reward-chart canvas')"
+                    f".getBoundingClientRect().width < {width}"
+                )
                 ticks = (page.get_attribute("#reward-chart", "data-x-ticks") or "").split()
                 assert ticks, width
                 assert all(t.isdigit() for t in ticks), ticks
@@ -182,12 +192,13 @@ class TestUserModel:
             stats = site.get(f"/v1/users/{user_id}/stats")
             expect(page.locator("#reward-caption")).to_contain_text(
                 f"Cumulative reward: {one(stats['total_reward'])} after {stats['episodes']} "
-                "episodes")
+                "episodes"
+            )
             shot(page, f"details-{user_id}")
 
-
-    def test_why_table_shows_the_api_numbers(self, admin_page: Page, site: Site,
-                                             shot: Shot) -> None:
+    def test_why_table_shows_the_api_numbers(
+        self, admin_page: Page, site: Site, shot: Shot
+    ) -> None:
         page = admin_page
         page.goto(f"{site.url}/admin/users/lin/why")
         latest = site.get("/v1/users/lin/episodes", limit=1)["items"][0]["context"]
@@ -203,34 +214,46 @@ class TestUserModel:
         rows = 0
         for state in context["states"]:
             for belief in state["actions"]:
-                row = page.locator(f"#why tr[data-state='{state_label(state)}']"
-                                   f"[data-action='{action_label(belief['action'])}']")
+                row = page.locator(
+                    f"#why tr[data-state='{state_label(state)}']"
+                    f"[data-action='{action_label(belief['action'])}']"
+                )
                 expect(row).to_have_count(1)
-                shown = [row.locator(f"td.{c}").inner_text().strip()
-                         for c in ("q", "visits", "kept", "t", "m", "p")]
-                assert shown == [two(belief["q"]), count(belief["visits"]),
-                                 count(belief["kept_visits"]), str(belief["since_last"]),
-                                 measure(belief["measure"]), pct(belief["p"])], (state, belief)
+                shown = [
+                    row.locator(f"td.{c}").inner_text().strip()
+                    for c in ("q", "visits", "kept", "t", "m", "p")
+                ]
+                assert shown == [
+                    two(belief["q"]),
+                    count(belief["visits"]),
+                    count(belief["kept_visits"]),
+                    str(belief["since_last"]),
+                    measure(belief["measure"]),
+                    pct(belief["p"]),
+                ], (state, belief)
                 rows += 1
         expect(page.locator("#why tbody tr")).to_have_count(rows)
 
         # "What it did last time here" is the latest episode in that context.
         episodes = site.get("/v1/users/lin/episodes", limit=100)["items"]
-        last = next(e for e in episodes
-                    if e["context"] == {"time_slot": "afternoon", "situation": "stretching"})
+        last = next(
+            e
+            for e in episodes
+            if e["context"] == {"time_slot": "afternoon", "situation": "stretching"}
+        )
         expect(page.locator("#last-decision a")).to_have_text(f"episode #{last['index']}")
         expect(page.locator("#why-legend")).to_contain_text("temporal measure")
         shot(page, "why")
 
 
 class TestEpisodes:
-    def test_list_pages_and_traces_expand(self, admin_page: Page, site: Site,
-                                          shot: Shot) -> None:
+    def test_list_pages_and_traces_expand(self, admin_page: Page, site: Site, shot: Shot) -> None:
         page = admin_page
         page.goto(f"{site.url}/admin/users/lin/episodes")
         listed = site.get("/v1/users/lin/episodes", limit=25)["items"]
         ids = page.locator("details.episode").evaluate_all(
-            "rows => rows.map(r => r.dataset.episodeId)")
+            "rows => rows.map(r => r.dataset.episodeId)"
+        )
         assert ids == [e["episode_id"] for e in listed]
 
         # The first human-initiated episode with feedback makes the richest trace.
@@ -245,8 +268,9 @@ class TestEpisodes:
             assert row.get_attribute("data-decision-id") == decision["decision_id"]
             assert action_label(decision["action"]) in row.locator("td.action").inner_text()
             assert row.locator("td.reward").inner_text() == one(decision["reward"])
-            chosen = next(p["p"] for p in decision["probabilities"]
-                          if p["action"] == decision["action"])
+            chosen = next(
+                p["p"] for p in decision["probabilities"] if p["action"] == decision["action"]
+            )
             assert row.locator("td.p").inner_text() == pct(chosen)
             chain = row.locator("td.chain").inner_text()
             for step in decision["chain"]:
@@ -266,7 +290,8 @@ class TestEpisodes:
         page.click("#episodes-card form button[type=submit]")
         page.wait_for_url("**at=10**")
         assert page.locator("details.episode .idx").all_inner_texts() == [
-            f"#{i}" for i in range(10, 0, -1)]
+            f"#{i}" for i in range(10, 0, -1)
+        ]
 
 
 class TestAdminActions:
@@ -280,12 +305,14 @@ class TestAdminActions:
             doc = json.load(f)
         assert doc == site.get("/v1/users/chen/model/export")
 
-    def test_reset_asks_first_then_forgets_the_model(self, admin_page: Page, site: Site,
-                                                     shot: Shot, viewport: str) -> None:
+    def test_reset_asks_first_then_forgets_the_model(
+        self, admin_page: Page, site: Site, shot: Shot, viewport: str
+    ) -> None:
         page, user_id = admin_page, f"reset-{viewport}"
         before = site.get(f"/v1/users/{user_id}/model")
-        assert any(a["visits"] for c in before["contexts"] for s in c["states"]
-                   for a in s["actions"])
+        assert any(
+            a["visits"] for c in before["contexts"] for s in c["states"] for a in s["actions"]
+        )
         page.goto(f"{site.url}/admin/users/{user_id}/details")
         page.click("#reset")
         expect(page.locator("#confirm")).to_contain_text("history (12 episodes) is kept")
@@ -300,15 +327,17 @@ class TestAdminActions:
         expect(page.locator("#reset-notice")).to_be_visible()
         after = site.get(f"/v1/users/{user_id}/model")
         assert after["version"] == before["version"] + 1
-        assert not any(a["visits"] for c in after["contexts"] for s in c["states"]
-                       for a in s["actions"])
+        assert not any(
+            a["visits"] for c in after["contexts"] for s in c["states"] for a in s["actions"]
+        )
         assert after["episodes"] == 12  # the history is kept
         assert _text(page, "#model-version") == str(after["version"])
         expect(page.locator("#heatmap .expect.none")).to_have_count(16)
         shot(page, "user-after-reset")
 
-    def test_delete_asks_first_then_removes_the_user(self, admin_page: Page, site: Site,
-                                                     shot: Shot, viewport: str) -> None:
+    def test_delete_asks_first_then_removes_the_user(
+        self, admin_page: Page, site: Site, shot: Shot, viewport: str
+    ) -> None:
         page, user_id = admin_page, f"gone-{viewport}"
         page.goto(f"{site.url}/admin/users/{user_id}")
         page.click("#delete")
@@ -326,8 +355,7 @@ class TestAdminActions:
 
 def _console(site: Site, key: str | None) -> httpx.Client:
     cookies = {"attune_console": key} if key else {}
-    return httpx.Client(base_url=site.url, cookies=cookies, timeout=30,
-                        follow_redirects=False)
+    return httpx.Client(base_url=site.url, cookies=cookies, timeout=30, follow_redirects=False)
 
 
 def _token(html: str) -> str:
@@ -356,8 +384,11 @@ class TestProtection:
                 r = console.post("/admin/users/lin/reset", content=body, headers=headers)
                 assert r.status_code == 403, (body, headers, r.status_code)
                 assert "text/html" in r.headers["content-type"]
-            r = console.post("/admin/users/lin/delete", content=f"csrf={token}",
-                             headers={**form, "origin": "http://evil.example"})
+            r = console.post(
+                "/admin/users/lin/delete",
+                content=f"csrf={token}",
+                headers={**form, "origin": "http://evil.example"},
+            )
             assert r.status_code == 403
         assert site.get("/v1/users/lin/model")["version"] == version
         assert site.api.get("/v1/users/lin").status_code == 200

@@ -22,13 +22,20 @@ def service() -> Iterator[LiveService]:
         yield live
 
 
-@pytest.mark.parametrize(("path", "rendered", "asset"), [
-    ("/docs", '.opblock-summary-path[data-path="/v1/users/{user_id}/episodes"]',
-     "/static/docs/swagger-ui/swagger-ui-bundle.js"),
-    ("/redoc", "h2 >> text=Start Episode", "/static/docs/redoc/redoc.standalone.js"),
-])
-def test_docs_render_without_the_internet(browser: Browser, service: LiveService, path: str,
-                                          rendered: str, asset: str) -> None:
+@pytest.mark.parametrize(
+    ("path", "rendered", "asset"),
+    [
+        (
+            "/docs",
+            '.opblock-summary-path[data-path="/v1/users/{user_id}/episodes"]',
+            "/static/docs/swagger-ui/swagger-ui-bundle.js",
+        ),
+        ("/redoc", "h2 >> text=Start Episode", "/static/docs/redoc/redoc.standalone.js"),
+    ],
+)
+def test_docs_render_without_the_internet(
+    browser: Browser, service: LiveService, path: str, rendered: str, asset: str
+) -> None:
     context = browser.new_context(viewport={"width": 1280, "height": 800})
     local: list[str] = []
     outside: list[str] = []
@@ -47,10 +54,22 @@ def test_docs_render_without_the_internet(browser: Browser, service: LiveService
     errors: list[str] = []
     tab.on("pageerror", lambda exc: errors.append(str(exc)))
     # The one error allowed: the page's policy refusing Redoc's logo from its maker's CDN.
-    tab.on("console", lambda msg: errors.append(msg.text) if msg.type == "error"
-           and "cdn.redoc.ly/redoc/logo-mini.svg" not in msg.text else None)
-    tab.on("requestfailed", lambda request: errors.append(f"failed: {request.url}")
-           if urlsplit(request.url).hostname == "127.0.0.1" else None)
+    tab.on(
+        "console",
+        lambda msg: (
+            errors.append(msg.text)
+            if msg.type == "error" and "cdn.redoc.ly/redoc/logo-mini.svg" not in msg.text
+            else None
+        ),
+    )
+    tab.on(
+        "requestfailed",
+        lambda request: (
+            errors.append(f"failed: {request.url}")
+            if urlsplit(request.url).hostname == "127.0.0.1"
+            else None
+        ),
+    )
     try:
         tab.goto(service.url + path)
         tab.locator(rendered).first.wait_for(state="visible", timeout=30_000)

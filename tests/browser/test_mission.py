@@ -34,7 +34,8 @@ def _check_basics(page: Page) -> None:
     expect(page.locator("h1")).to_have_count(1)
     described = page.locator("[aria-describedby]").evaluate_all(
         "els => els.flatMap(el => el.getAttribute('aria-describedby').split(' '))"
-        ".filter(id => !document.getElementById(id))")
+        ".filter(id => !document.getElementById(id))"
+    )
     assert described == []  # every hint or error a field points to exists
 
 
@@ -44,20 +45,28 @@ def _fleet(site: Site, fleet: str) -> tuple[str, str]:
     with site.database.transaction() as session:
         _, staff = create_key(session, role="staff", fleet=fleet, name=f"{fleet}-staff")
         _, robot = create_key(session, role="robot", fleet=fleet, name=f"{fleet}-robot")
-    with httpx.Client(base_url=site.url, timeout=30,
-                      headers={"Authorization": f"Bearer {robot}"}) as api:
+    with httpx.Client(
+        base_url=site.url, timeout=30, headers={"Authorization": f"Bearer {robot}"}
+    ) as api:
         assert api.put("/v1/users/ada", json={"display_name": "Ada"}).status_code == 201
-        play(api, "ada", Person({("morning", "working"): ("ProvideDrink", "tea")}), 6,
-             prefix="ada")
-        r = api.post("/v1/users/ada/episodes", json={
-            "event_id": "ada-open", "situation": "working", "robot_id": "robot7",
-            "occurred_at": "2026-11-20T09:30:00+08:00", "initiator": "robot"})
+        play(api, "ada", Person({("morning", "working"): ("ProvideDrink", "tea")}), 6, prefix="ada")
+        r = api.post(
+            "/v1/users/ada/episodes",
+            json={
+                "event_id": "ada-open",
+                "situation": "working",
+                "robot_id": "robot7",
+                "occurred_at": "2026-11-20T09:30:00+08:00",
+                "initiator": "robot",
+            },
+        )
         assert r.status_code == 201, r.text
     return staff, robot
 
 
-def test_staff_add_a_choice_and_see_it_on_a_persons_page(page: Page, site: Site, shot: Shot,
-                                                         viewport: str) -> None:
+def test_staff_add_a_choice_and_see_it_on_a_persons_page(
+    page: Page, site: Site, shot: Shot, viewport: str
+) -> None:
     fleet = f"mission-{viewport}"
     staff, robot = _fleet(site, fleet)
     sign_in(page, site, staff, "/admin/mission")
@@ -65,9 +74,9 @@ def test_staff_add_a_choice_and_see_it_on_a_persons_page(page: Page, site: Site,
     expect(page.locator("#mission-fleet")).to_contain_text(fleet)
     expect(page.locator("#current-version")).to_have_text("1")
     expect(page.locator("#offers-table tr[data-service='ProvideDrink'] .choices")).to_have_text(
-        "tea, coffee, water")
-    expect(page.locator("#situations li[data-situation='busy']")).to_contain_text(
-        "do not disturb")
+        "tea, coffee, water"
+    )
+    expect(page.locator("#situations li[data-situation='busy']")).to_contain_text("do not disturb")
     _check_basics(page)
     shot(page, "mission")
 
@@ -93,15 +102,18 @@ def test_staff_add_a_choice_and_see_it_on_a_persons_page(page: Page, site: Site,
     expect(page.locator("#done-notice")).to_contain_text("Version 2 is now in force")
     expect(page.locator("#current-version")).to_have_text("2")
     expect(page.locator("#offers-table tr[data-service='ProvideDrink'] .choices")).to_have_text(
-        "tea, coffee, water, cocoa")
+        "tea, coffee, water, cocoa"
+    )
     latest = page.locator("#history li.version[data-version='2']")
     expect(latest).to_contain_text("New choice for ProvideDrink: cocoa.")
     expect(latest).to_contain_text("in force")
     expect(page.locator("#history li.version[data-version='1']")).to_contain_text(
-        "The fleet's first mission.")
+        "The fleet's first mission."
+    )
     shot(page, "mission-changed")
-    with httpx.Client(base_url=site.url, timeout=30,
-                      headers={"Authorization": f"Bearer {robot}"}) as api:
+    with httpx.Client(
+        base_url=site.url, timeout=30, headers={"Authorization": f"Bearer {robot}"}
+    ) as api:
         mission = api.get("/v1/mission").json()
         assert mission["version"] == 2
         assert mission["services"][0]["details"] == ["tea", "coffee", "water", "cocoa"]
@@ -109,14 +121,19 @@ def test_staff_add_a_choice_and_see_it_on_a_persons_page(page: Page, site: Site,
 
     page.goto(f"{site.url}/admin/users/ada")
     expect(page.locator("#offers tr[data-service='ProvideDrink'] .choices")).to_have_text(
-        "tea, coffee, water, cocoa")
+        "tea, coffee, water, cocoa"
+    )
     expect(page.locator("#offers-version")).to_have_text("2")
     shot(page, "user-offers")
 
 
 def test_robot_keys_cannot_reach_the_mission_page(site: Site) -> None:
-    with httpx.Client(base_url=site.url, cookies={"attune_console": site.robot_key},
-                      timeout=30, follow_redirects=False) as console:
+    with httpx.Client(
+        base_url=site.url,
+        cookies={"attune_console": site.robot_key},
+        timeout=30,
+        follow_redirects=False,
+    ) as console:
         r = console.get("/admin/mission")
         assert r.status_code == 403
         assert "ProvideDrink" not in r.text

@@ -18,14 +18,19 @@ from .test_mission import _check_basics
 
 pytestmark = [pytest.mark.browser, pytest.mark.xdist_group("browser")]
 
-ROBOT_WILL = ("Offers it without asking", "Offers help and asks what first",
-              "Waits to be asked", "Stays away")
+ROBOT_WILL = (
+    "Offers it without asking",
+    "Offers help and asks what first",
+    "Waits to be asked",
+    "Stays away",
+)
 
 
 def _person(site: Site, user_id: str) -> None:
     """``user_id``, Mrs. Lin's needs, 40 episodes (made through the API by the fleet's robot)."""
-    with httpx.Client(base_url=site.url, timeout=30,
-                      headers={"Authorization": f"Bearer {site.robot_key}"}) as robot:
+    with httpx.Client(
+        base_url=site.url, timeout=30, headers={"Authorization": f"Bearer {site.robot_key}"}
+    ) as robot:
         if robot.get(f"/v1/users/{user_id}").status_code == 200:
             return
         r = robot.put(f"/v1/users/{user_id}", json={"display_name": "Mrs. Wu"})
@@ -43,19 +48,26 @@ def _words(wanted: dict[str, Any]) -> str:
 
 
 def _cell(page: Page, time_slot: str, situation: str) -> Any:
-    return page.locator(f"#profile td[data-time-slot='{time_slot}']"
-                        f"[data-situation='{situation}']")
+    return page.locator(f"#profile td[data-time-slot='{time_slot}'][data-situation='{situation}']")
 
 
-def _next_decision(site: Site, user_id: str, event_id: str, time_slot: str,
-                   situation: str) -> dict[str, Any]:
+def _next_decision(
+    site: Site, user_id: str, event_id: str, time_slot: str, situation: str
+) -> dict[str, Any]:
     """The robot meets the person in (time slot, situation): what the API tells it to do."""
-    with httpx.Client(base_url=site.url, timeout=30,
-                      headers={"Authorization": f"Bearer {site.robot_key}"}) as robot:
-        r = robot.post(f"/v1/users/{user_id}/episodes", json={
-            "event_id": event_id, "situation": situation, "robot_id": "robot7",
-            "occurred_at": f"2026-11-29T{HOURS[time_slot]:02d}:15:00+08:00",
-            "initiator": "robot"})
+    with httpx.Client(
+        base_url=site.url, timeout=30, headers={"Authorization": f"Bearer {site.robot_key}"}
+    ) as robot:
+        r = robot.post(
+            f"/v1/users/{user_id}/episodes",
+            json={
+                "event_id": event_id,
+                "situation": situation,
+                "robot_id": "robot7",
+                "occurred_at": f"2026-11-29T{HOURS[time_slot]:02d}:15:00+08:00",
+                "initiator": "robot",
+            },
+        )
         assert r.status_code == 201, r.text
         episode: dict[str, Any] = r.json()
         assert episode["context"] == {"time_slot": time_slot, "situation": situation}
@@ -64,7 +76,8 @@ def _next_decision(site: Site, user_id: str, event_id: str, time_slot: str,
 
 
 def test_the_grid_says_in_words_and_a_box_opens_its_evidence(
-        admin_page: Page, site: Site, shot: Shot, viewport: str) -> None:
+    admin_page: Page, site: Site, shot: Shot, viewport: str
+) -> None:
     page, user_id = admin_page, f"wu-{viewport}"
     _person(site, user_id)
     page.goto(f"{site.url}/admin/users/{user_id}")
@@ -82,11 +95,17 @@ def test_the_grid_says_in_words_and_a_box_opens_its_evidence(
         elif context["wants"] is not None:
             expect(cell.locator(".wants")).to_have_text(_words(context["wants"]))
     # How sure shows in the look: a confident box is solid, a tentative one is not.
-    looks = {c: page.locator(f"#profile td.pcell.sure-{c} a").first
-             for c in ("confident", "tentative", "unknown")}
-    styles = {c: loc.evaluate("a => [getComputedStyle(a).backgroundColor, "
-                              "getComputedStyle(a).borderTopStyle]")
-              for c, loc in looks.items() if loc.count()}
+    looks = {
+        c: page.locator(f"#profile td.pcell.sure-{c} a").first
+        for c in ("confident", "tentative", "unknown")
+    }
+    styles = {
+        c: loc.evaluate(
+            "a => [getComputedStyle(a).backgroundColor, getComputedStyle(a).borderTopStyle]"
+        )
+        for c, loc in looks.items()
+        if loc.count()
+    }
     if "confident" in styles and "tentative" in styles:
         assert styles["confident"] != styles["tentative"]
         assert styles["tentative"][1] == "dashed"
@@ -114,8 +133,11 @@ def test_the_grid_says_in_words_and_a_box_opens_its_evidence(
     # A click opens a box's evidence.
     _cell(page, "afternoon", "stretching").locator("a").click()
     page.wait_for_url("**time_slot=afternoon&situation=stretching**")
-    context = next(c for c in profile["contexts"]
-                   if (c["time_slot"], c["situation"]) == ("afternoon", "stretching"))
+    context = next(
+        c
+        for c in profile["contexts"]
+        if (c["time_slot"], c["situation"]) == ("afternoon", "stretching")
+    )
     evidence = page.locator("#evidence")
     expect(evidence).to_be_visible()
     expect(evidence.locator("#summary")).to_have_text(context["summary"])
@@ -125,10 +147,13 @@ def test_the_grid_says_in_words_and_a_box_opens_its_evidence(
     expect(evidence.locator("dd[data-fact=asked_for]")).to_contain_text(str(e["asked_for"]))
     expect(evidence.locator("dd[data-fact=answered]")).to_contain_text(str(e["answered"]))
     expect(evidence.locator("dd[data-fact=agree]")).to_have_text(
-        f"{e['support']} of the last {e['recent']} answer{'' if e['recent'] == 1 else 's'} "
-        "agree" if e["recent"] else "no answer yet")
-    assert re.fullmatch(r"2026-11-\d\d 15:\d\d \(UTC\+8\)",
-                        evidence.locator("dd[data-fact=last_seen]").inner_text())
+        f"{e['support']} of the last {e['recent']} answer{'' if e['recent'] == 1 else 's'} agree"
+        if e["recent"]
+        else "no answer yet"
+    )
+    assert re.fullmatch(
+        r"2026-11-\d\d 15:\d\d \(UTC\+8\)", evidence.locator("dd[data-fact=last_seen]").inner_text()
+    )
     expect(evidence).to_be_focused()
     _check_basics(page)
     shot(page, "profile-evidence")
@@ -141,8 +166,15 @@ def test_the_grid_says_in_words_and_a_box_opens_its_evidence(
     expect(page.locator("#evidence-title")).to_have_text("morning, arriving")
 
 
-def _correct(page: Page, time_slot: str, situation: str, kind: str, service: str = "",
-             detail: str = "", note: str = "") -> None:
+def _correct(
+    page: Page,
+    time_slot: str,
+    situation: str,
+    kind: str,
+    service: str = "",
+    detail: str = "",
+    note: str = "",
+) -> None:
     _cell(page, time_slot, situation).locator("a").click()
     page.wait_for_url(f"**time_slot={time_slot}&situation={situation}**")
     page.check(f"#kind-{kind}")
@@ -156,15 +188,23 @@ def _correct(page: Page, time_slot: str, situation: str, kind: str, service: str
     expect(page.locator("#done-notice")).to_contain_text("The correction is saved")
 
 
-def test_staff_correct_and_lift_and_the_robot_follows(admin_page: Page, site: Site, shot: Shot,
-                                                       viewport: str) -> None:
+def test_staff_correct_and_lift_and_the_robot_follows(
+    admin_page: Page, site: Site, shot: Shot, viewport: str
+) -> None:
     page, user_id = admin_page, f"wu-{viewport}"
     _person(site, user_id)
     page.goto(f"{site.url}/admin/users/{user_id}")
 
     # A prefers correction where the person has shown no wish: the robot now offers it.
-    _correct(page, "evening", "working", "prefers", "ProvideDrink", "coffee",
-             note="Her daughter says she has coffee in the evening.")
+    _correct(
+        page,
+        "evening",
+        "working",
+        "prefers",
+        "ProvideDrink",
+        "coffee",
+        note="Her daughter says she has coffee in the evening.",
+    )
     # Quiet disables the service and choice.
     page.check("#kind-quiet")
     expect(page.locator("#c-service")).to_be_disabled()
@@ -177,11 +217,11 @@ def test_staff_correct_and_lift_and_the_robot_follows(admin_page: Page, site: Si
     expect(rows).to_have_count(1)
     expect(rows.first.locator(".what")).to_have_text("Prefers Provide drink (coffee)")
     expect(rows.first.locator(".note")).to_have_text(
-        "Her daughter says she has coffee in the evening.")
+        "Her daughter says she has coffee in the evening."
+    )
     expect(rows.first.locator(".status")).to_have_text("In force")
     (made,) = site.get(f"/v1/users/{user_id}/corrections")["items"]
-    assert (made["kind"], made["service"], made["detail"]) == ("prefers", "ProvideDrink",
-                                                               "coffee")
+    assert (made["kind"], made["service"], made["detail"]) == ("prefers", "ProvideDrink", "coffee")
     assert made["author"] == page.locator(".who").inner_text().removeprefix("key ").strip()
     decision = _next_decision(site, user_id, f"after-prefers-{viewport}", "evening", "working")
     assert decision["action"]["kind"] == "initiate", decision
@@ -189,13 +229,18 @@ def test_staff_correct_and_lift_and_the_robot_follows(admin_page: Page, site: Si
     shot(page, "profile-corrected")
 
     # Avoid and quiet, in other boxes.
-    _correct(page, "morning", "arriving", "avoid", "BriefInformation", "",
-             note="The news upsets her.")
+    _correct(
+        page, "morning", "arriving", "avoid", "BriefInformation", "", note="The news upsets her."
+    )
     _correct(page, "noon", "stretching", "quiet")
     expect(rows).to_have_count(3)
     expect(page.locator("#corrections .what")).to_have_text(
-        ["Prefers Provide drink (coffee)", "Do not offer Brief information",
-         "Quiet: the robot does not offer help"])
+        [
+            "Prefers Provide drink (coffee)",
+            "Do not offer Brief information",
+            "Quiet: the robot does not offer help",
+        ]
+    )
     expect(_cell(page, "noon", "stretching")).to_contain_text("set by staff")
     decision = _next_decision(site, user_id, f"after-quiet-{viewport}", "noon", "stretching")
     assert decision["action"]["kind"] == "pass", decision
@@ -207,8 +252,9 @@ def test_staff_correct_and_lift_and_the_robot_follows(admin_page: Page, site: Si
     page.wait_for_url("**done=lifted**")
     expect(page.locator("#done-notice")).to_contain_text("lifted")
     expect(page.locator("#corrections tbody tr")).to_have_count(2)
-    statuses = {c["kind"]: c["status"]
-                for c in site.get(f"/v1/users/{user_id}/corrections")["items"]}
+    statuses = {
+        c["kind"]: c["status"] for c in site.get(f"/v1/users/{user_id}/corrections")["items"]
+    }
     assert statuses == {"prefers": "in_force", "avoid": "in_force", "quiet": "lifted"}
     _check_basics(page)
 
@@ -222,6 +268,7 @@ def test_a_mistake_comes_back_in_words(admin_page: Page, site: Site, viewport: s
     page.fill("#c-note", "kept as typed")
     page.click("#correction-submit")
     expect(page.locator("#correction-error")).to_have_text(
-        "Choose what the robot should not offer.")
+        "Choose what the robot should not offer."
+    )
     assert page.input_value("#c-note") == "kept as typed"
     assert page.is_checked("#kind-avoid")

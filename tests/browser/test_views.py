@@ -47,11 +47,14 @@ class TestCurve:
         assert min(ys) == min(values)
 
 
-def _context(engaged: list[tuple[str, str | None, float]],
-             type_known: dict[str, list[tuple[str, str | None, float]]],
-             visited: bool = True) -> ContextModel:
-    def actions(rows: list[tuple[str, str | None, float]], service: str | None = None
-                ) -> list[dict[str, Any]]:
+def _context(
+    engaged: list[tuple[str, str | None, float]],
+    type_known: dict[str, list[tuple[str, str | None, float]]],
+    visited: bool = True,
+) -> ContextModel:
+    def actions(
+        rows: list[tuple[str, str | None, float]], service: str | None = None
+    ) -> list[dict[str, Any]]:
         out = []
         for kind, name, p in rows:
             action: dict[str, Any] = {"kind": kind}
@@ -61,27 +64,44 @@ def _context(engaged: list[tuple[str, str | None, float]],
                 action.update(service=service, detail=name)
             elif kind == "query_detail":
                 action["service"] = service
-            out.append({"action": action, "q": 0.0, "visits": int(visited), "kept_visits": None,
-                        "since_last": 1, "measure": None, "p": p})
+            out.append(
+                {
+                    "action": action,
+                    "q": 0.0,
+                    "visits": int(visited),
+                    "kept_visits": None,
+                    "since_last": 1,
+                    "measure": None,
+                    "p": p,
+                }
+            )
         return out
 
     states = [
         {"state": "OBSERVE", "actions": actions([("initiate", None, 0.7), ("pass", None, 0.3)])},
         {"state": "ENGAGED", "actions": actions(engaged)},
-        *({"state": "TYPE_KNOWN", "service": k, "actions": actions(rows, k)}
-          for k, rows in type_known.items()),
+        *(
+            {"state": "TYPE_KNOWN", "service": k, "actions": actions(rows, k)}
+            for k, rows in type_known.items()
+        ),
     ]
-    return ContextModel.model_validate({"time_slot": "afternoon", "situation": "stretching",
-                                        "states": states})
+    return ContextModel.model_validate(
+        {"time_slot": "afternoon", "situation": "stretching", "states": states}
+    )
 
 
 class TestExpectation:
     def test_the_likeliest_guess_and_the_chance_of_asking(self) -> None:
         ctx = _context(
             [("query_type", None, 0.2), ("infer_type", "Drink", 0.6), ("infer_type", "Info", 0.2)],
-            {"Drink": [("query_detail", None, 0.1), ("infer_detail", "tea", 0.8),
-                       ("infer_detail", "coffee", 0.1)],
-             "Info": [("query_detail", None, 0.5), ("infer_detail", "news", 0.5)]},
+            {
+                "Drink": [
+                    ("query_detail", None, 0.1),
+                    ("infer_detail", "tea", 0.8),
+                    ("infer_detail", "coffee", 0.1),
+                ],
+                "Info": [("query_detail", None, 0.5), ("infer_detail", "news", 0.5)],
+            },
         )
         e = expectation(ctx)
         assert e is not None
@@ -91,9 +111,9 @@ class TestExpectation:
 
     def test_a_tie_is_no_preference_and_never_engaged_is_nothing(self) -> None:
         rows: dict[str, list[tuple[str, str | None, float]]] = {
-            "Drink": [("infer_detail", "tea", 0.5), ("infer_detail", "coffee", 0.5)]}
-        tie = expectation(_context([("query_type", None, 0.5), ("infer_type", "Drink", 0.5)],
-                                   rows))
+            "Drink": [("infer_detail", "tea", 0.5), ("infer_detail", "coffee", 0.5)]
+        }
+        tie = expectation(_context([("query_type", None, 0.5), ("infer_type", "Drink", 0.5)], rows))
         assert tie is not None
         assert (tie.service, tie.p_guess, tie.p_ask) == (None, None, 0.5)
         assert expectation(_context([("infer_type", "Drink", 1.0)], rows, visited=False)) is None
@@ -109,16 +129,19 @@ def test_number_formats() -> None:
     assert heat_class(None) == "heat-none"
 
 
-@pytest.mark.parametrize(("asked", "goes"), [
-    ("/admin/users/lin", "/admin/users/lin"),
-    ("/admin/users?q=a&page=2", "/admin/users?q=a&page=2"),
-    (None, "/admin/users"),
-    ("https://evil.example/admin/", "/admin/users"),
-    ("//evil.example/admin/x", "/admin/users"),
-    ("/admin\\..\\x", "/admin/users"),
-    ("/v1/users", "/admin/users"),
-    ("/admin/users/\r\nSet-Cookie:x", "/admin/users"),
-])
+@pytest.mark.parametrize(
+    ("asked", "goes"),
+    [
+        ("/admin/users/lin", "/admin/users/lin"),
+        ("/admin/users?q=a&page=2", "/admin/users?q=a&page=2"),
+        (None, "/admin/users"),
+        ("https://evil.example/admin/", "/admin/users"),
+        ("//evil.example/admin/x", "/admin/users"),
+        ("/admin\\..\\x", "/admin/users"),
+        ("/v1/users", "/admin/users"),
+        ("/admin/users/\r\nSet-Cookie:x", "/admin/users"),
+    ],
+)
 def test_signing_in_only_returns_to_console_pages(asked: str | None, goes: str) -> None:
     assert safe_next(asked) == goes
 
@@ -159,33 +182,56 @@ class TestProfileWords:
         assert wanted_words(Wanted(service="BriefInformation")) == "Brief information"
         assert wanted_words(None) == "Nothing in particular"
 
-    @pytest.mark.parametrize(("action", "service", "asks", "words"), [
-        ("offer", "ProvideDrink", False, "Offers it without asking"),
-        ("offer", "ProvideDrink", True, "Offers help and asks what first"),
-        ("offer", None, True, "Offers help and asks what first"),
-        ("wait_to_be_asked", None, False, "Waits to be asked"),
-        ("stay_away", None, False, "Stays away"),
-    ])
-    def test_what_the_robot_will_do(self, action: Any, service: str | None, asks: bool,
-                                    words: str) -> None:
-        will = RobotWill(action=action, service=service, detail=None, asks_first=asks,
-                         probability=0.5)
+    @pytest.mark.parametrize(
+        ("action", "service", "asks", "words"),
+        [
+            ("offer", "ProvideDrink", False, "Offers it without asking"),
+            ("offer", "ProvideDrink", True, "Offers help and asks what first"),
+            ("offer", None, True, "Offers help and asks what first"),
+            ("wait_to_be_asked", None, False, "Waits to be asked"),
+            ("stay_away", None, False, "Stays away"),
+        ],
+    )
+    def test_what_the_robot_will_do(
+        self, action: Any, service: str | None, asks: bool, words: str
+    ) -> None:
+        will = RobotWill(
+            action=action, service=service, detail=None, asks_first=asks, probability=0.5
+        )
         assert robot_words(will) == words
 
     def test_corrections_in_words(self) -> None:
-        def made(kind: Any, status: Any = "in_force", service: str | None = None,
-                 detail: str | None = None) -> CorrectionOut:
-            return CorrectionOut(correction_id="c1", kind=kind, time_slot="morning",
-                                 situation="arriving", service=service, detail=detail,
-                                 note=None, author="key_1",
-                                 created_at=dt.datetime(2026, 11, 30, tzinfo=dt.UTC),
-                                 status=status, model_version=2)
+        def made(
+            kind: Any,
+            status: Any = "in_force",
+            service: str | None = None,
+            detail: str | None = None,
+        ) -> CorrectionOut:
+            return CorrectionOut(
+                correction_id="c1",
+                kind=kind,
+                time_slot="morning",
+                situation="arriving",
+                service=service,
+                detail=detail,
+                note=None,
+                author="key_1",
+                created_at=dt.datetime(2026, 11, 30, tzinfo=dt.UTC),
+                status=status,
+                model_version=2,
+            )
 
-        assert correction_words(made("prefers", service="ProvideDrink", detail="coffee")) \
+        assert (
+            correction_words(made("prefers", service="ProvideDrink", detail="coffee"))
             == "Prefers Provide drink (coffee)"
-        assert correction_words(made("avoid", service="BriefInformation")) \
+        )
+        assert (
+            correction_words(made("avoid", service="BriefInformation"))
             == "Do not offer Brief information"
+        )
         assert correction_words(made("quiet")) == "Quiet: the robot does not offer help"
         assert correction_status(made("quiet")) == "In force"
-        assert correction_status(made("prefers", "overridden"), "Mrs. Lin") \
+        assert (
+            correction_status(made("prefers", "overridden"), "Mrs. Lin")
             == "Overridden by Mrs. Lin's own answers"
+        )

@@ -11,8 +11,9 @@ import re
 from .conftest import Attune
 
 
-def make_key(attune: Attune, role: str = "robot", fleet: str = "default",
-             name: str | None = None) -> str:
+def make_key(
+    attune: Attune, role: str = "robot", fleet: str = "default", name: str | None = None
+) -> str:
     """``attune keys create``: the new key's id (from its message)."""
     args = ["keys", "create", "--role", role, "--fleet", fleet]
     if name:
@@ -26,8 +27,10 @@ def make_key(attune: Attune, role: str = "robot", fleet: str = "default",
 
 
 def test_keys_list_prints_whole_ids_when_not_a_terminal(attune: Attune) -> None:
-    ids = [make_key(attune, name="a rather long label for the key of robot seven"),
-           make_key(attune, "admin", fleet="warehouse-north-2")]
+    ids = [
+        make_key(attune, name="a rather long label for the key of robot seven"),
+        make_key(attune, "admin", fleet="warehouse-north-2"),
+    ]
     done = attune("keys", "list")
     assert done.exit_code == 0, done.stderr
     rows = [line for line in done.stdout.splitlines() if "key_" in line]
@@ -38,7 +41,14 @@ def test_keys_list_prints_whole_ids_when_not_a_terminal(attune: Attune) -> None:
     assert "a rather long label for the key of robot seven" in done.stdout
     header = next(line for line in done.stdout.splitlines() if " id " in line)
     assert [cell.strip() for cell in header.split("┃")[1:-1]] == [
-        "id", "role", "fleet", "name", "prefix", "created", "revoked"]  # no heading cut either
+        "id",
+        "role",
+        "fleet",
+        "name",
+        "prefix",
+        "created",
+        "revoked",
+    ]  # no heading cut either
 
 
 def test_keys_list_json(attune: Attune) -> None:
@@ -54,8 +64,14 @@ def test_keys_list_json(attune: Attune) -> None:
     assert keys[robot]["name"] == "robot7"
     assert keys[robot]["prefix"].startswith("att_")
     assert keys[admin] | {"created_at": None} == {
-        "id": admin, "role": "admin", "fleet": "north", "name": None,
-        "prefix": keys[admin]["prefix"], "created_at": None, "revoked_at": None}
+        "id": admin,
+        "role": "admin",
+        "fleet": "north",
+        "name": None,
+        "prefix": keys[admin]["prefix"],
+        "created_at": None,
+        "revoked_at": None,
+    }
     assert dt.datetime.fromisoformat(keys[robot]["revoked_at"]).tzinfo is not None
     assert dt.datetime.fromisoformat(keys[admin]["created_at"]).tzinfo is not None
 
@@ -80,8 +96,10 @@ def test_revoking_says_what_happened_and_twice_changes_nothing(attune: Attune) -
 def test_revoking_an_unknown_key_fails_with_a_sentence(attune: Attune) -> None:
     done = attune("keys", "revoke", "key_0000000000000000")
     assert done.exit_code == 2
-    assert "No key 'key_0000000000000000'; GET /v1/admin/keys and `attune keys list` show " \
+    assert (
+        "No key 'key_0000000000000000'; GET /v1/admin/keys and `attune keys list` show "
         "the ids." in done.stderr
+    )
     assert "Traceback" not in done.stderr
     assert done.stdout == ""
 

@@ -21,9 +21,20 @@ AXES = ("time_slots", "p_self", "noise", "m", "optimism", "exclusion", "pref_sca
 
 
 def run(out: Path, *extra: str) -> Result:
-    return CliRunner(env={"COLUMNS": "40"}).invoke(app, [
-        "experiment", "claims-map", "--quick", "--jobs", "1", "--no-progress", "--out", str(out),
-        *extra])
+    return CliRunner(env={"COLUMNS": "40"}).invoke(
+        app,
+        [
+            "experiment",
+            "claims-map",
+            "--quick",
+            "--jobs",
+            "1",
+            "--no-progress",
+            "--out",
+            str(out),
+            *extra,
+        ],
+    )
 
 
 @pytest.fixture(scope="module")
@@ -48,7 +59,8 @@ def test_writes_the_files(quick: tuple[Result, Path, dict[str, Any]]) -> None:
 
 @pytest.mark.slow
 def test_every_setting_and_claim_is_in_the_summary_and_the_csv(
-        quick: tuple[Result, Path, dict[str, Any]]) -> None:
+    quick: tuple[Result, Path, dict[str, Any]],
+) -> None:
     _, out, summary = quick
     sizes = [len(a["values"]) for a in summary["axes"]]
     count = 1
@@ -79,14 +91,16 @@ def test_best_settings_hold_the_most_claims(quick: tuple[Result, Path, dict[str,
     assert all(b["held"] == most for b in summary["best"])
     assert summary["default"]["label"] == "default"
     assert summary["default"]["held"] <= most
-    changes = [len(b["label"].split(",")) if b["label"] != "default" else 0
-               for b in summary["best"]]
+    changes = [
+        len(b["label"].split(",")) if b["label"] != "default" else 0 for b in summary["best"]
+    ]
     assert changes == sorted(changes)  # fewest changes from the default first
 
 
 @pytest.mark.slow
 def test_default_and_best_are_decided_again_on_held_out_seeds(
-        quick: tuple[Result, Path, dict[str, Any]]) -> None:
+    quick: tuple[Result, Path, dict[str, Any]],
+) -> None:
     done, _, summary = quick
     confirmation = summary["confirmation"]
     assert confirmation["seeds"][0] == summary["run"]["seeds"]  # after the sweep's seeds
@@ -101,7 +115,8 @@ def test_default_and_best_are_decided_again_on_held_out_seeds(
 
 @pytest.mark.slow
 def test_the_table_names_every_claim_and_the_elapsed_time(
-        quick: tuple[Result, Path, dict[str, Any]]) -> None:
+    quick: tuple[Result, Path, dict[str, Any]],
+) -> None:
     done, out, summary = quick
     markdown = (out / "claims-map.md").read_text(encoding="utf-8")
     for claim in summary["claims"]:
@@ -129,9 +144,24 @@ def test_json_is_the_summary(tmp_path: Path) -> None:
 def test_help_explains_the_ranges_and_the_files() -> None:
     done = CliRunner(env={"COLUMNS": "200"}).invoke(app, ["experiment", "claims-map", "--help"])
     assert done.exit_code == 0
-    for text in ("--seeds", "--confirm-seeds", "--quick", "--workers", "--json", "--out",
-                 "claims-map.csv", "claims-map.png", "reading", "time slots", "p_self", "noise",
-                 "known threshold", "unknown pairs", "exclusion scope", "preference scale"):
+    for text in (
+        "--seeds",
+        "--confirm-seeds",
+        "--quick",
+        "--workers",
+        "--json",
+        "--out",
+        "claims-map.csv",
+        "claims-map.png",
+        "reading",
+        "time slots",
+        "p_self",
+        "noise",
+        "known threshold",
+        "unknown pairs",
+        "exclusion scope",
+        "preference scale",
+    ):
         assert text in done.stdout, text
 
 

@@ -22,21 +22,41 @@ NOTE = "not the paper's office mission"
 
 
 def run(command: str, out: Path, *extra: str) -> Result:
-    return CliRunner(env={"COLUMNS": "40"}).invoke(app, [
-        "experiment", command, "--seeds", "1", "--users", "1", "--jobs", "1", "--out", str(out),
-        "--no-progress", *extra])
+    return CliRunner(env={"COLUMNS": "40"}).invoke(
+        app,
+        [
+            "experiment",
+            command,
+            "--seeds",
+            "1",
+            "--users",
+            "1",
+            "--jobs",
+            "1",
+            "--out",
+            str(out),
+            "--no-progress",
+            *extra,
+        ],
+    )
 
 
 def test_ablation_in_the_care_home(tmp_path: Path) -> None:
     done = run("ablation", tmp_path, "--mission", str(CARE_HOME))
     assert done.exit_code == 0, done.output
-    assert (f"Mission 'care-home' from {CARE_HOME} (5 situations, 6 time slots, 3 services), "
-            f"{NOTE}.") in done.stderr
+    assert (
+        f"Mission 'care-home' from {CARE_HOME} (5 situations, 6 time slots, 3 services), {NOTE}."
+    ) in done.stderr
     summary = json.loads((tmp_path / "summary.json").read_text(encoding="utf-8"))
     mission = load_mission(CARE_HOME)
     assert summary["run"]["mission"] == {
-        "name": "care-home", "file": str(CARE_HOME), "fingerprint": mission.fingerprint,
-        "situations": 5, "time_slots": 6, "services": 3}
+        "name": "care-home",
+        "file": str(CARE_HOME),
+        "fingerprint": mission.fingerprint,
+        "situations": 5,
+        "time_slots": 6,
+        "services": 3,
+    }
     report = (tmp_path / "ablation.md").read_text(encoding="utf-8")
     assert f"The simulated users lived in the mission 'care-home' of {CARE_HOME}" in report
 

@@ -27,10 +27,27 @@ WINDOWS = ("first20", "early", "after100", "all")
 
 
 def run(out: Path, *extra: str) -> Result:
-    return CliRunner(env={"COLUMNS": "40"}).invoke(app, [
-        "experiment", "newcomers", "--seeds", "2", "--events", "110", "--residents", "4",
-        "--learners", "dts,dts-adapt", "--jobs", "1", "--out", str(out), "--no-progress",
-        *extra])
+    return CliRunner(env={"COLUMNS": "40"}).invoke(
+        app,
+        [
+            "experiment",
+            "newcomers",
+            "--seeds",
+            "2",
+            "--events",
+            "110",
+            "--residents",
+            "4",
+            "--learners",
+            "dts,dts-adapt",
+            "--jobs",
+            "1",
+            "--out",
+            str(out),
+            "--no-progress",
+            *extra,
+        ],
+    )
 
 
 @pytest.fixture(scope="module")
@@ -56,7 +73,8 @@ def test_writes_the_files(study: tuple[Result, Path, dict[str, Any]]) -> None:
 
 @pytest.mark.slow
 def test_every_share_is_bounded_and_the_difference_is_paired(
-        study: tuple[Result, Path, dict[str, Any]]) -> None:
+    study: tuple[Result, Path, dict[str, Any]],
+) -> None:
     _, _, summary = study
     for fam in summary["families"].values():
         assert fam["seeds"] == 2
@@ -68,8 +86,9 @@ def test_every_share_is_bounded_and_the_difference_is_paired(
                     assert cell["ci95"][0] <= cell["mean"] <= cell["ci95"][1]
                 for share in fresh["per_seed"] + prior["per_seed"]:
                     assert -1.0 <= share <= 1.2
-                for f, p, d in zip(fresh["per_seed"], prior["per_seed"], diff["per_seed"],
-                                   strict=True):
+                for f, p, d in zip(
+                    fresh["per_seed"], prior["per_seed"], diff["per_seed"], strict=True
+                ):
                     assert d == pytest.approx(p - f, abs=2e-4)
             for arm in ("fresh", "prior"):
                 curve = cells["curves"][arm]
@@ -79,13 +98,15 @@ def test_every_share_is_bounded_and_the_difference_is_paired(
 
 @pytest.mark.slow
 def test_a_home_newcomer_from_the_prior_starts_better(
-        study: tuple[Result, Path, dict[str, Any]]) -> None:
+    study: tuple[Result, Path, dict[str, Any]],
+) -> None:
     """An ordering, not a number: in a home, DTS from the other residents' prior earns a larger
     share of the oracle's reward in the first 20 events than a fresh DTS, in every seed."""
     _, _, summary = study
     cells = summary["families"]["home"]["learners"]["DTS"]
-    for fresh, prior in zip(cells["fresh"]["first20"]["per_seed"],
-                            cells["prior"]["first20"]["per_seed"], strict=True):
+    for fresh, prior in zip(
+        cells["fresh"]["first20"]["per_seed"], cells["prior"]["first20"]["per_seed"], strict=True
+    ):
         assert prior > fresh
 
 
@@ -134,8 +155,7 @@ def test_prints_the_targets_met_or_missed(study: tuple[Result, Path, dict[str, A
 
 @pytest.mark.slow
 def test_json_is_the_summary(tmp_path: Path) -> None:
-    done = run(tmp_path, "--json", "--families", "home", "--learners", "hri",
-               "--events", "40")
+    done = run(tmp_path, "--json", "--families", "home", "--learners", "hri", "--events", "40")
     assert done.exit_code == 0, done.output
     printed = json.loads(done.stdout)
     assert printed == json.loads((tmp_path / "summary.json").read_text(encoding="utf-8"))
@@ -145,8 +165,9 @@ def test_json_is_the_summary(tmp_path: Path) -> None:
 
 
 def test_a_support_above_the_contributors_gives_fresh_learners(tmp_path: Path) -> None:
-    done = run(tmp_path, "--families", "home", "--learners", "dts", "--events", "30",
-               "--min-support", "4")
+    done = run(
+        tmp_path, "--families", "home", "--learners", "dts", "--events", "30", "--min-support", "4"
+    )
     assert done.exit_code == 0, done.output
     assert "every prior is a fresh learner" in done.stderr
     summary = json.loads((tmp_path / "summary.json").read_text(encoding="utf-8"))
@@ -155,12 +176,13 @@ def test_a_support_above_the_contributors_gives_fresh_learners(tmp_path: Path) -
     assert cells["difference"]["all"]["mean"] == 0.0
 
 
-@pytest.mark.parametrize(("option", "value"), [("--families", "nobody"),
-                                               ("--learners", "nobody"),
-                                               ("--strength", "0")])
+@pytest.mark.parametrize(
+    ("option", "value"), [("--families", "nobody"), ("--learners", "nobody"), ("--strength", "0")]
+)
 def test_bad_options_are_refused(tmp_path: Path, option: str, value: str) -> None:
-    done = CliRunner().invoke(app, ["experiment", "newcomers", option, value,
-                                    "--out", str(tmp_path)])
+    done = CliRunner().invoke(
+        app, ["experiment", "newcomers", option, value, "--out", str(tmp_path)]
+    )
     assert done.exit_code == 2
     assert value in done.output
     assert not (tmp_path / "summary.json").exists()
@@ -174,9 +196,15 @@ def test_the_defaults_of_the_command_are_the_studys() -> None:
     info = next(c for c in command.registered_commands if c.name == "newcomers")
     assert info.callback is not None
     defaults = info.callback.__defaults__ or ()
-    assert defaults[:7] == (newcomers.DEFAULT_SEEDS, newcomers.DEFAULT_RESIDENTS,
-                            newcomers.DEFAULT_EVENTS, None, None, newcomers.DEFAULT_STRENGTH,
-                            newcomers.MIN_SUPPORT)
+    assert defaults[:7] == (
+        newcomers.DEFAULT_SEEDS,
+        newcomers.DEFAULT_RESIDENTS,
+        newcomers.DEFAULT_EVENTS,
+        None,
+        None,
+        newcomers.DEFAULT_STRENGTH,
+        newcomers.MIN_SUPPORT,
+    )
 
 
 def test_the_fresh_runs_are_the_robustness_suites() -> None:
@@ -187,19 +215,27 @@ def test_the_fresh_runs_are_the_robustness_suites() -> None:
     from app.learning.population import run_family
 
     method = SUITE["dts"]
-    mine = newcomer_rewards(ALL["home"], 3, [method], office_mission(), n_residents=3,
-                            n_events=30)
-    suites = run_family(ALL["home"], 3, [(method.label, method.algorithm, dict(method.params))],
-                        office_mission(), n_persons=3, n_events=30)
+    mine = newcomer_rewards(ALL["home"], 3, [method], office_mission(), n_residents=3, n_events=30)
+    suites = run_family(
+        ALL["home"],
+        3,
+        [(method.label, method.algorithm, dict(method.params))],
+        office_mission(),
+        n_persons=3,
+        n_events=30,
+    )
     np.testing.assert_array_equal(mine.oracle, suites.oracle)
     np.testing.assert_array_equal(mine.fresh[method.label], suites.learners[method.label])
 
 
-def test_without_matplotlib_it_says_which_extra(monkeypatch: pytest.MonkeyPatch,
-                                                tmp_path: Path) -> None:
+def test_without_matplotlib_it_says_which_extra(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
     monkeypatch.setitem(sys.modules, "matplotlib", None)
-    done = CliRunner().invoke(app, ["experiment", "newcomers", "--seeds", "2", "--jobs", "1",
-                                    "--out", str(tmp_path / "out")])
+    done = CliRunner().invoke(
+        app,
+        ["experiment", "newcomers", "--seeds", "2", "--jobs", "1", "--out", str(tmp_path / "out")],
+    )
     assert done.exit_code == 2
     assert "'experiments' extra" in done.stderr
     assert done.stdout == ""

@@ -20,9 +20,22 @@ NARROW = {"COLUMNS": "40"}  # what a narrow terminal would cut, a pipe must not
 
 
 def run(command: str, out: Path, *extra: str) -> Result:
-    done = CliRunner(env=NARROW).invoke(app, [
-        "experiment", command, "--seeds", "1", "--users", "1", "--jobs", "1", "--out", str(out),
-        *extra])
+    done = CliRunner(env=NARROW).invoke(
+        app,
+        [
+            "experiment",
+            command,
+            "--seeds",
+            "1",
+            "--users",
+            "1",
+            "--jobs",
+            "1",
+            "--out",
+            str(out),
+            *extra,
+        ],
+    )
     assert done.exit_code == 0, done.output
     return done
 

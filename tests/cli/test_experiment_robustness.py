@@ -22,9 +22,26 @@ FILES = ("robustness.md", "robustness.csv", "robustness.png", "summary.json")
 
 
 def run(out: Path, *extra: str) -> Result:
-    return CliRunner(env={"COLUMNS": "40"}).invoke(app, [
-        "experiment", "robustness", "--seeds", "2", "--events", "40", "--persons", "1",
-        "--families", ",".join(FAMILIES), "--jobs", "1", "--out", str(out), *extra])
+    return CliRunner(env={"COLUMNS": "40"}).invoke(
+        app,
+        [
+            "experiment",
+            "robustness",
+            "--seeds",
+            "2",
+            "--events",
+            "40",
+            "--persons",
+            "1",
+            "--families",
+            ",".join(FAMILIES),
+            "--jobs",
+            "1",
+            "--out",
+            str(out),
+            *extra,
+        ],
+    )
 
 
 @pytest.fixture(scope="module")
@@ -45,8 +62,7 @@ def test_writes_the_files(suite: tuple[Result, Path, dict[str, Any]]) -> None:
     assert list(summary["families"]) == list(FAMILIES)
 
 
-def test_the_table_has_every_learner_and_family(
-        suite: tuple[Result, Path, dict[str, Any]]) -> None:
+def test_the_table_has_every_learner_and_family(suite: tuple[Result, Path, dict[str, Any]]) -> None:
     done, out, _ = suite
     for text in (done.stdout, (out / "robustness.md").read_text(encoding="utf-8")):
         lines = text.splitlines()
@@ -86,8 +102,9 @@ def test_json_is_the_summary(tmp_path: Path) -> None:
 
 @pytest.mark.parametrize("option", ["--families", "--learners"])
 def test_unknown_names_are_refused(tmp_path: Path, option: str) -> None:
-    done = CliRunner().invoke(app, ["experiment", "robustness", option, "nobody",
-                                    "--out", str(tmp_path)])
+    done = CliRunner().invoke(
+        app, ["experiment", "robustness", option, "nobody", "--out", str(tmp_path)]
+    )
     assert done.exit_code == 2
     assert "nobody" in done.output
     assert not (tmp_path / "summary.json").exists()
@@ -101,8 +118,11 @@ def test_the_defaults_of_the_command_are_the_suites() -> None:
     info = next(c for c in command.registered_commands if c.name == "robustness")
     assert info.callback is not None
     defaults = info.callback.__defaults__ or ()
-    assert (robustness.DEFAULT_SEEDS, robustness.DEFAULT_EVENTS,
-            robustness.DEFAULT_PERSONS) == defaults[:3]
+    assert (
+        robustness.DEFAULT_SEEDS,
+        robustness.DEFAULT_EVENTS,
+        robustness.DEFAULT_PERSONS,
+    ) == defaults[:3]
 
 
 def test_another_mission_is_named(tmp_path: Path) -> None:
@@ -116,7 +136,8 @@ def test_another_mission_is_named(tmp_path: Path) -> None:
 
 
 def test_prints_the_rules_pick_and_the_targets_of_the_default(
-        suite: tuple[Result, Path, dict[str, Any]]) -> None:
+    suite: tuple[Result, Path, dict[str, Any]],
+) -> None:
     from app.experiments.robustness import LEARNERS as SUITE
     from app.experiments.robustness import SERVICE_DEFAULT
     from app.schemas.users import LearnerSpec
@@ -124,13 +145,19 @@ def test_prints_the_rules_pick_and_the_targets_of_the_default(
     done, out, summary = suite
     # The suite's default is the service's: its algorithm with that algorithm's defaults.
     assert (SUITE[SERVICE_DEFAULT].algorithm, dict(SUITE[SERVICE_DEFAULT].params)) == (
-        LearnerSpec().algorithm, LearnerSpec().params)
+        LearnerSpec().algorithm,
+        LearnerSpec().params,
+    )
     assert summary["rule"]["chosen"] in LEARNERS
     assert [r["learner"] for r in summary["rule"]["ranking"]][0] == summary["rule"]["chosen"]
     windows = {(t["family"], t["window"]) for t in summary["targets"]}
-    assert windows == {("abrupt", "before30"), ("abrupt", "after15"), ("abrupt", "all"),
-                       ("shy", "all")}
+    assert windows == {
+        ("abrupt", "before30"),
+        ("abrupt", "after15"),
+        ("abrupt", "all"),
+        ("shy", "all"),
+    }
     for text in (done.stdout, (out / "robustness.md").read_text(encoding="utf-8")):
         assert f"The rule picks {summary['rule']['chosen']}" in text
         assert "15 after the change" in text
-        assert ("met" in text or "MISSED" in text)
+        assert "met" in text or "MISSED" in text

@@ -32,8 +32,9 @@ def test_require_passes_when_the_module_imports() -> None:
     require("json", "fleet", "attune fleet")
 
 
-def test_require_names_the_extra_and_exits_2(monkeypatch: pytest.MonkeyPatch,
-                                             capsys: pytest.CaptureFixture[str]) -> None:
+def test_require_names_the_extra_and_exits_2(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
     without(monkeypatch, "matplotlib")
     with pytest.raises(typer.Exit) as stopped:
         require("matplotlib", "experiments", "attune experiment")
@@ -42,11 +43,25 @@ def test_require_names_the_extra_and_exits_2(monkeypatch: pytest.MonkeyPatch,
 
 
 @pytest.mark.parametrize("command", ["paper", "ablation"])
-def test_experiments_without_matplotlib(monkeypatch: pytest.MonkeyPatch, tmp_path: Path,
-                                        command: str) -> None:
+def test_experiments_without_matplotlib(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path, command: str
+) -> None:
     without(monkeypatch, "matplotlib")
-    done = CliRunner().invoke(app, ["experiment", command, "--seeds", "1", "--users", "1",
-                                    "--jobs", "1", "--out", str(tmp_path / "out")])
+    done = CliRunner().invoke(
+        app,
+        [
+            "experiment",
+            command,
+            "--seeds",
+            "1",
+            "--users",
+            "1",
+            "--jobs",
+            "1",
+            "--out",
+            str(tmp_path / "out"),
+        ],
+    )
     assert done.exit_code == 2
     assert done.stderr == EXPERIMENTS
     assert done.stdout == ""
@@ -55,8 +70,10 @@ def test_experiments_without_matplotlib(monkeypatch: pytest.MonkeyPatch, tmp_pat
 
 def test_robustness_without_matplotlib(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
     without(monkeypatch, "matplotlib")
-    done = CliRunner().invoke(app, ["experiment", "robustness", "--seeds", "2", "--jobs", "1",
-                                    "--out", str(tmp_path / "out")])
+    done = CliRunner().invoke(
+        app,
+        ["experiment", "robustness", "--seeds", "2", "--jobs", "1", "--out", str(tmp_path / "out")],
+    )
     assert done.exit_code == 2
     assert done.stderr == EXPERIMENTS
     assert done.stdout == ""
@@ -72,7 +89,8 @@ def test_fleet_without_the_client(monkeypatch: pytest.MonkeyPatch) -> None:
 
 
 def test_fleet_without_the_client_says_so_before_other_options(
-        monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
     without(monkeypatch, "attune_client")
     monkeypatch.delenv("ATTUNE_KEY", raising=False)
     done = CliRunner().invoke(app, ["fleet", "simulate"])  # no --key either
@@ -88,25 +106,41 @@ def test_fleet_without_the_client_says_so_before_other_options(
 
 def test_fleet_plot_without_matplotlib(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
     without(monkeypatch, "matplotlib")
-    done = CliRunner().invoke(app, ["fleet", "simulate", "--key", "att_x", "--url", NOBODY,
-                                    "--plot", str(tmp_path / "reward.png")])
+    done = CliRunner().invoke(
+        app,
+        [
+            "fleet",
+            "simulate",
+            "--key",
+            "att_x",
+            "--url",
+            NOBODY,
+            "--plot",
+            str(tmp_path / "reward.png"),
+        ],
+    )
     assert done.exit_code == 2
     assert done.stderr == PLOT  # before trying the service: no "No service answers"
     # Without --plot, matplotlib is not needed: the command goes on (and finds no service).
-    done = CliRunner().invoke(app, ["fleet", "simulate", "--key", "att_x", "--url", NOBODY,
-                                    "--timeout", "1", "--no-progress"])
+    done = CliRunner().invoke(
+        app,
+        ["fleet", "simulate", "--key", "att_x", "--url", NOBODY, "--timeout", "1", "--no-progress"],
+    )
     assert done.exit_code == 2
     assert "No service answers" in done.stderr
 
 
 def test_the_console_script_prints_one_line_and_no_traceback(tmp_path: Path) -> None:
     """As the ``attune`` script runs it (``app.cli:main``), in a fresh interpreter."""
-    code = ("import sys; sys.modules['matplotlib'] = None; "
-            "sys.argv = ['attune', 'experiment', 'paper', '--seeds', '1', '--out', "
-            f"{str(tmp_path / 'out')!r}]; "
-            "from app.cli import main; main()")
-    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                          timeout=120, check=False)
+    code = (
+        "import sys; sys.modules['matplotlib'] = None; "
+        "sys.argv = ['attune', 'experiment', 'paper', '--seeds', '1', '--out', "
+        f"{str(tmp_path / 'out')!r}]; "
+        "from app.cli import main; main()"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=False
+    )
     assert done.returncode == 2
     assert done.stderr == EXPERIMENTS
     assert done.stdout == ""

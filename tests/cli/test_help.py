@@ -18,10 +18,28 @@ from typer.testing import CliRunner
 
 from app.cli import app
 
-HEAVY = ("numpy", "sqlalchemy", "alembic", "fastapi", "starlette", "uvicorn", "matplotlib",
-         "attune_client", "httpx", "psycopg", "prometheus_client", "jinja2", "app.learning",
-         "app.db.session", "app.db.migrate", "app.settings", "app.services", "app.fleet",
-         "app.experiments", "rich.progress")
+HEAVY = (
+    "numpy",
+    "sqlalchemy",
+    "alembic",
+    "fastapi",
+    "starlette",
+    "uvicorn",
+    "matplotlib",
+    "attune_client",
+    "httpx",
+    "psycopg",
+    "prometheus_client",
+    "jinja2",
+    "app.learning",
+    "app.db.session",
+    "app.db.migrate",
+    "app.settings",
+    "app.services",
+    "app.fleet",
+    "app.experiments",
+    "rich.progress",
+)
 
 # In a fresh interpreter: build the command line as the `attune` script does, print the help of
 # every command, and list the heavy modules that got imported on the way.
@@ -69,13 +87,23 @@ def test_version_when_the_code_was_never_installed(monkeypatch: pytest.MonkeyPat
 
 
 def test_help_of_every_command_imports_nothing_heavy() -> None:
-    done = subprocess.run([sys.executable, "-c", WALK], capture_output=True, text=True,
-                          timeout=120, check=False)
+    done = subprocess.run(
+        [sys.executable, "-c", WALK], capture_output=True, text=True, timeout=120, check=False
+    )
     assert done.returncode == 0, done.stderr
     report = json.loads(done.stdout)
-    assert {"", "serve", "experiment paper", "experiment ablation", "experiment robustness",
-            "db upgrade", "keys list",
-            "keys revoke", "models rebuild", "fleet simulate"} <= set(report["helped"])
+    assert {
+        "",
+        "serve",
+        "experiment paper",
+        "experiment ablation",
+        "experiment robustness",
+        "db upgrade",
+        "keys list",
+        "keys revoke",
+        "models rebuild",
+        "fleet simulate",
+    } <= set(report["helped"])
     assert report["heavy"] == []
 
 

@@ -31,8 +31,9 @@ def test_show_prints_the_default_until_a_fleet_has_its_own(attune: Attune) -> No
     assert _office(attune, "north")["name"] == "office"
 
 
-def test_set_makes_a_version_carries_renames_and_is_idempotent(attune: Attune,
-                                                               tmp_path: Path) -> None:
+def test_set_makes_a_version_carries_renames_and_is_idempotent(
+    attune: Attune, tmp_path: Path
+) -> None:
     doc = _office(attune)
     drinks = doc["services"][0]
     drinks["details"] = ["cha" if d == "tea" else d for d in drinks["details"]] + ["cocoa"]
@@ -58,16 +59,21 @@ def test_set_makes_a_version_carries_renames_and_is_idempotent(attune: Attune,
     assert attune("missions", "show", "--version", "7").exit_code == 2
 
 
-def test_set_moves_the_fleets_models(attune: Attune, tmp_path: Path,
-                                     database_url: str) -> None:
+def test_set_moves_the_fleets_models(attune: Attune, tmp_path: Path, database_url: str) -> None:
     app = create_app(Settings(database_url=database_url, _env_file=None))  # type: ignore[call-arg]
 
     key = attune("keys", "create", "--role", "robot").stdout.strip()
     try:
         with TestClient(app, headers={"Authorization": f"Bearer {key}"}) as robot:
-            r = robot.post("/v1/users/lin/episodes", json={
-                "event_id": "e1", "occurred_at": "2026-11-22T15:10:00+08:00",
-                "situation": "stretching", "initiator": "robot"})
+            r = robot.post(
+                "/v1/users/lin/episodes",
+                json={
+                    "event_id": "e1",
+                    "occurred_at": "2026-11-22T15:10:00+08:00",
+                    "situation": "stretching",
+                    "initiator": "robot",
+                },
+            )
             assert r.status_code == 201, r.text
             doc = _office(attune)
             doc["situations"].append("visiting")
@@ -76,8 +82,10 @@ def test_set_moves_the_fleets_models(attune: Attune, tmp_path: Path,
             assert done.exit_code == 0, done.stderr
             assert "1 models carried over, 1 open episodes interrupted" in done.stderr
             assert robot.get("/v1/users/lin/model").json()["mission_version"] == 2
-            assert robot.get(f"/v1/episodes/{r.json()['episode_id']}").json()["status"] == \
-                "interrupted"
+            assert (
+                robot.get(f"/v1/episodes/{r.json()['episode_id']}").json()["status"]
+                == "interrupted"
+            )
     finally:
         app.state.db.dispose()
 
@@ -98,7 +106,8 @@ def test_bad_files_say_why_in_one_line(attune: Attune, tmp_path: Path) -> None:
     doc = _office(attune)
     (tmp_path / "m.json").write_text(json.dumps(doc))
     (tmp_path / "r.json").write_text(json.dumps({"details": {"nectar": "tea"}}))
-    done = attune("missions", "set", str(tmp_path / "m.json"), "--renames",
-                  str(tmp_path / "r.json"))
+    done = attune(
+        "missions", "set", str(tmp_path / "m.json"), "--renames", str(tmp_path / "r.json")
+    )
     assert done.exit_code == 2
     assert "nectar" in done.stderr

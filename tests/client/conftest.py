@@ -38,12 +38,14 @@ class PortalTransport(httpx.BaseTransport):
         body = request.read()
 
         async def call() -> httpx.Response:
-            inner = httpx.Request(request.method, request.url, headers=request.headers,
-                                  content=body)
+            inner = httpx.Request(
+                request.method, request.url, headers=request.headers, content=body
+            )
             response = await self._asgi.handle_async_request(inner)
             content = await response.aread()
-            return httpx.Response(response.status_code, headers=response.headers,
-                                  content=content, request=request)
+            return httpx.Response(
+                response.status_code, headers=response.headers, content=content, request=request
+            )
 
         return self._portal.call(call)
 

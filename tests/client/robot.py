@@ -57,10 +57,20 @@ class Robot:
         self.journal_path = folder / "journal.jsonl"
         self.state: dict[str, Any] = {
             "done": 0,
-            "users": {u: {"next": 0, "episode_id": None, "event": None, "decision": None,
-                          "waiting": None, "smiles": 0, "final": False, "step": 0,
-                          "closed": []}
-                      for u in USERS},
+            "users": {
+                u: {
+                    "next": 0,
+                    "episode_id": None,
+                    "event": None,
+                    "decision": None,
+                    "waiting": None,
+                    "smiles": 0,
+                    "final": False,
+                    "step": 0,
+                    "closed": [],
+                }
+                for u in USERS
+            },
         }
         if self.state_path.exists():
             self.state = json.loads(self.state_path.read_text())
@@ -82,8 +92,7 @@ class Robot:
 
     def write(self, **line: Any) -> None:
         with open(self.journal_path, "a") as journal:
-            journal.write(json.dumps({"run": self.run, "t": round(time.time(), 3), **line})
-                          + "\n")
+            journal.write(json.dumps({"run": self.run, "t": round(time.time(), 3), **line}) + "\n")
             journal.flush()
             os.fsync(journal.fileno())
 
@@ -133,18 +142,28 @@ class Robot:
                 person["smiles"] = int(tag[1:])
         self.state["done"] = intent["i"] + 1
         self.save()
-        self.write(type="result", i=intent["i"], op=op, status=status,
-                   key=args.get("decision_id") or args.get("feedback_id"))
+        self.write(
+            type="result",
+            i=intent["i"],
+            op=op,
+            status=status,
+            key=args.get("decision_id") or args.get("feedback_id"),
+        )
 
     def on_started(self, user: str, started: EpisodeStarted, event: int) -> None:
         person = self.state["users"][user]
-        person.update(episode_id=started.episode_id, event=event, step=0,
-                      decision=started.decision.model_dump(mode="json")
-                      if started.decision else None, waiting=None, smiles=0, final=False,
-                      next=event + 1)
+        person.update(
+            episode_id=started.episode_id,
+            event=event,
+            step=0,
+            decision=started.decision.model_dump(mode="json") if started.decision else None,
+            waiting=None,
+            smiles=0,
+            final=False,
+            next=event + 1,
+        )
 
-    def on_outcome(self, user: str, args: dict[str, Any],
-                   result: OutcomeResult | Queued) -> str:
+    def on_outcome(self, user: str, args: dict[str, Any], result: OutcomeResult | Queued) -> str:
         person = self.state["users"][user]
         person["decision"] = None
         if isinstance(result, Queued):
@@ -165,8 +184,9 @@ class Robot:
 
     def learn_deliveries(self) -> None:
         """What the outbox delivered: the next decisions of the episodes that waited."""
-        waiting = {p["waiting"]["decision_id"]: u for u, p in self.state["users"].items()
-                   if p["waiting"]}
+        waiting = {
+            p["waiting"]["decision_id"]: u for u, p in self.state["users"].items() if p["waiting"]
+        }
         if not waiting:
             return
         report = self.client.flush()
@@ -194,35 +214,57 @@ class Robot:
             person = self.state["users"][user]
             if person["decision"] is not None:
                 decision = Decision.model_validate(person["decision"])
-                self.act("outcome", user, episode_id=person["episode_id"],
-                         decision_id=decision.decision_id,
-                         **answer(decision, person["event"] + person["step"]))
+                self.act(
+                    "outcome",
+                    user,
+                    episode_id=person["episode_id"],
+                    decision_id=decision.decision_id,
+                    **answer(decision, person["event"] + person["step"]),
+                )
             elif person["waiting"] is not None:
                 if person["smiles"] < SMILES:
-                    self.act("feedback", user, episode_id=person["episode_id"],
-                             feedback_id=f"{person['waiting']['decision_id']}-s"
-                                         f"{person['smiles'] + 1}", feedback="positive")
+                    self.act(
+                        "feedback",
+                        user,
+                        episode_id=person["episode_id"],
+                        feedback_id=f"{person['waiting']['decision_id']}-s{person['smiles'] + 1}",
+                        feedback="positive",
+                    )
             elif person["final"]:
-                self.act("feedback", user, episode_id=person["episode_id"],
-                         feedback_id=f"robot7-{user}-{person['event']:04d}-end",
-                         feedback="negative" if person["event"] % 4 == 3 else "positive")
+                self.act(
+                    "feedback",
+                    user,
+                    episode_id=person["episode_id"],
+                    feedback_id=f"robot7-{user}-{person['event']:04d}-end",
+                    feedback="negative" if person["event"] % 4 == 3 else "positive",
+                )
             elif person["next"] < self.episodes:
                 n = person["next"]
-                self.act("start", user, event_id=f"robot7-{user}-{n:04d}",
-                         occurred_at=(EVENT_TIME + dt.timedelta(minutes=n)).isoformat(),
-                         situation=("arriving", "working", "stretching")[n % 3],
-                         robot_id="robot7")
+                self.act(
+                    "start",
+                    user,
+                    event_id=f"robot7-{user}-{n:04d}",
+                    occurred_at=(EVENT_TIME + dt.timedelta(minutes=n)).isoformat(),
+                    situation=("arriving", "working", "stretching")[n % 3],
+                    robot_id="robot7",
+                )
                 if person["episode_id"] is None:  # offline: a late word on an earlier episode
                     for episode_id, event, late in person["closed"]:
                         if late < LATE:
-                            self.act("feedback", user, episode_id=episode_id,
-                                     feedback_id=f"robot7-{user}-{event:04d}-late{late + 1}",
-                                     feedback="positive")
+                            self.act(
+                                "feedback",
+                                user,
+                                episode_id=episode_id,
+                                feedback_id=f"robot7-{user}-{event:04d}-late{late + 1}",
+                                feedback="positive",
+                            )
                             break
 
     def finished(self) -> bool:
-        return all(p["next"] >= self.episodes and p["episode_id"] is None
-                   for p in self.state["users"].values())
+        return all(
+            p["next"] >= self.episodes and p["episode_id"] is None
+            for p in self.state["users"].values()
+        )
 
     def resume(self) -> None:
         """Redo the call the journal shows begun but not finished (killed in between)."""
@@ -240,8 +282,13 @@ def main() -> int:
     parser.add_argument("--pause", type=float, default=0.02, help="seconds between rounds")
     parser.add_argument("--deadline", type=float, default=150.0)
     opts = parser.parse_args()
-    client = Client(opts.url, opts.key, timeout=httpx.Timeout(3.0, connect=1.0), max_retries=2,
-                    outbox=opts.dir / "outbox.db")
+    client = Client(
+        opts.url,
+        opts.key,
+        timeout=httpx.Timeout(3.0, connect=1.0),
+        max_retries=2,
+        outbox=opts.dir / "outbox.db",
+    )
     client._backoff = Backoff(initial=0.05, maximum=0.2)
     robot = Robot(client, opts.dir, opts.episodes)
     robot.write(type="boot", pid=os.getpid(), pending=len(client.pending()))

@@ -20,17 +20,26 @@ from .helpers import EVENT_TIME, answer, occurred
 pytestmark = pytest.mark.anyio
 
 
-async def play(client: a.AsyncClient, user_id: str, event_id: str, n: int = 0,
-               ) -> tuple[a.EpisodeStarted, list[a.OutcomeResult]]:
+async def play(
+    client: a.AsyncClient,
+    user_id: str,
+    event_id: str,
+    n: int = 0,
+) -> tuple[a.EpisodeStarted, list[a.OutcomeResult]]:
     """One episode to its end; the outcome answers in order."""
-    started = await client.start_episode(user_id, event_id=event_id, occurred_at=occurred(n),
-                                         situation="stretching", robot_id="robot7")
+    started = await client.start_episode(
+        user_id,
+        event_id=event_id,
+        occurred_at=occurred(n),
+        situation="stretching",
+        robot_id="robot7",
+    )
     results: list[a.OutcomeResult] = []
     decision = started.decision
     while decision is not None:
-        result = await client.report_outcome(started.episode_id,
-                                             decision_id=decision.decision_id,
-                                             **answer(decision, n))
+        result = await client.report_outcome(
+            started.episode_id, decision_id=decision.decision_id, **answer(decision, n)
+        )
         assert isinstance(result, a.OutcomeResult)
         results.append(result)
         decision = result.decision
@@ -39,8 +48,9 @@ async def play(client: a.AsyncClient, user_id: str, event_id: str, n: int = 0,
 
 class TestContract:
     async def test_users(self, robot: a.AsyncClient, admin: a.AsyncClient) -> None:
-        created = await robot.put_user("lin", display_name="Mrs. Lin",
-                                       learner={"algorithm": "hri", "params": {"tau": 0.02}})
+        created = await robot.put_user(
+            "lin", display_name="Mrs. Lin", learner={"algorithm": "hri", "params": {"tau": 0.02}}
+        )
         assert created.user_id == "lin"
         assert created.fleet == "default"
         assert created.learner.algorithm == "hri"
@@ -56,7 +66,11 @@ class TestContract:
         assert [u.user_id for u in page.items] == ["ana", "lin"]
         assert page.next_cursor is not None
         assert [u.user_id async for u in robot.iter_users(page_size=3)] == [
-            "ana", "lin", "mo", "zed"]
+            "ana",
+            "lin",
+            "mo",
+            "zed",
+        ]
         await admin.delete_user("zed")
         with pytest.raises(a.NotFoundError):
             await robot.get_user("zed")
@@ -79,8 +93,7 @@ class TestContract:
         assert len(trace.decisions) == len(results)
         assert all(d.answered_at is not None for d in trace.decisions)
         assert trace.total_reward == pytest.approx(results[-1].episode.total_reward)
-        fb = await robot.send_feedback(started.episode_id, feedback_id="fb-1",
-                                       feedback="positive")
+        fb = await robot.send_feedback(started.episode_id, feedback_id="fb-1", feedback="positive")
         assert isinstance(fb, a.FeedbackResult)
         assert fb.reward == 1.0
         assert not fb.replayed
@@ -89,9 +102,13 @@ class TestContract:
 
     async def test_a_person_who_asks_first(self, robot: a.AsyncClient) -> None:
         started = await robot.start_episode(
-            "lin", event_id="h1", occurred_at=dt.datetime.fromisoformat(EVENT_TIME),
-            situation="working", initiator="human",
-            request=a.ServiceRequest(service="ProvideDrink", detail="tea"))
+            "lin",
+            event_id="h1",
+            occurred_at=dt.datetime.fromisoformat(EVENT_TIME),
+            situation="working",
+            initiator="human",
+            request=a.ServiceRequest(service="ProvideDrink", detail="tea"),
+        )
         assert started.decision is not None
         assert started.decision.chain  # respond and infer, taken silently
         trace = await robot.get_episode(started.episode_id)
@@ -106,10 +123,12 @@ class TestContract:
         assert again.model_dump(exclude={"replayed"}) == first.model_dump(exclude={"replayed"})
         assert first.decision is not None
         outcome = answer(first.decision)
-        one = await robot.report_outcome(first.episode_id,
-                                         decision_id=first.decision.decision_id, **outcome)
-        two = await robot.report_outcome(first.episode_id,
-                                         decision_id=first.decision.decision_id, **outcome)
+        one = await robot.report_outcome(
+            first.episode_id, decision_id=first.decision.decision_id, **outcome
+        )
+        two = await robot.report_outcome(
+            first.episode_id, decision_id=first.decision.decision_id, **outcome
+        )
         assert isinstance(one, a.OutcomeResult)
         assert isinstance(two, a.OutcomeResult)
         assert (one.replayed, two.replayed) == (False, True)
@@ -129,8 +148,7 @@ class TestContract:
         assert model.episodes == 3
         assert model.version > 0
         only = await robot.get_model("lin", time_slot="afternoon", situation="stretching")
-        assert [(c.time_slot, c.situation) for c in only.contexts] == [("afternoon",
-                                                                        "stretching")]
+        assert [(c.time_slot, c.situation) for c in only.contexts] == [("afternoon", "stretching")]
         beliefs = only.contexts[0].states[0].actions
         assert {b.action.kind for b in beliefs} == {"initiate", "pass"}
         stats = await robot.get_stats("lin")
@@ -149,8 +167,7 @@ class TestContract:
         assert await robot.health()
         assert await robot.ready()
 
-    async def test_admin_model_actions(self, robot: a.AsyncClient,
-                                       admin: a.AsyncClient) -> None:
+    async def test_admin_model_actions(self, robot: a.AsyncClient, admin: a.AsyncClient) -> None:
         await play(robot, "lin", "e1")
         before = await robot.get_model("lin")
         document = await admin.export_model("lin")
@@ -177,14 +194,14 @@ class TestErrors:
 
     async def test_403_admin_only(self, robot: a.AsyncClient) -> None:
         await robot.put_user("lin")
-        for call in (robot.delete_user("lin"), robot.reset_model("lin"),
-                     robot.export_model("lin")):
+        for call in (robot.delete_user("lin"), robot.reset_model("lin"), robot.export_model("lin")):
             with pytest.raises(a.PermissionDeniedError) as caught:
                 await call
             assert caught.value.error == "Forbidden"
 
-    async def test_404_absent_or_of_another_fleet(self, robot: a.AsyncClient, app: FastAPI,
-                                                  make_key: MakeKey) -> None:
+    async def test_404_absent_or_of_another_fleet(
+        self, robot: a.AsyncClient, app: FastAPI, make_key: MakeKey
+    ) -> None:
         with pytest.raises(a.NotFoundError):
             await robot.get_user("nobody")
         with pytest.raises(a.NotFoundError):
@@ -192,23 +209,27 @@ class TestErrors:
         with pytest.raises(a.NotFoundError):
             await robot.report_outcome("ep_nothing", decision_id="dec_x", response="accepted")
         await robot.put_user("lin")
-        other = a.AsyncClient(BASE_URL, make_key("robot", "other"),
-                              transport=httpx.ASGITransport(app=app))
+        other = a.AsyncClient(
+            BASE_URL, make_key("robot", "other"), transport=httpx.ASGITransport(app=app)
+        )
         async with other:
             with pytest.raises(a.NotFoundError) as caught:
                 await other.get_user("lin")
         assert caught.value.error == "NotFound"
 
     async def test_409_conflicts(self, robot: a.AsyncClient) -> None:
-        started = await robot.start_episode("lin", event_id="e1", occurred_at=EVENT_TIME,
-                                            situation="arriving")
+        started = await robot.start_episode(
+            "lin", event_id="e1", occurred_at=EVENT_TIME, situation="arriving"
+        )
         with pytest.raises(a.ConflictError) as caught:
-            await robot.start_episode("lin", event_id="e1", occurred_at=EVENT_TIME,
-                                      situation="working")
+            await robot.start_episode(
+                "lin", event_id="e1", occurred_at=EVENT_TIME, situation="working"
+            )
         assert caught.value.error == "Conflict"
         with pytest.raises(a.ConflictError):
-            await robot.report_outcome(started.episode_id, decision_id="dec_not_current",
-                                       response="accepted")
+            await robot.report_outcome(
+                started.episode_id, decision_id="dec_not_current", response="accepted"
+            )
         with pytest.raises(a.ConflictError):  # nothing answered yet
             await robot.send_feedback(started.episode_id, feedback_id="f", feedback="positive")
 
@@ -220,65 +241,88 @@ class TestErrors:
     async def test_422_invalid(self, robot: a.AsyncClient, admin: a.AsyncClient) -> None:
         await robot.put_user("lin")
         with pytest.raises(a.UnprocessableEntityError) as caught:
-            await robot.start_episode("lin", event_id="e1", occurred_at=EVENT_TIME,
-                                      situation="dancing")
+            await robot.start_episode(
+                "lin", event_id="e1", occurred_at=EVENT_TIME, situation="dancing"
+            )
         assert "stretching" in caught.value.detail
         with pytest.raises(a.UnprocessableEntityError) as bad_id:
-            await robot.start_episode("lin", event_id="bad id!", occurred_at=EVENT_TIME,
-                                      situation="busy")
+            await robot.start_episode(
+                "lin", event_id="bad id!", occurred_at=EVENT_TIME, situation="busy"
+            )
         assert bad_id.value.fields
         with pytest.raises(a.UnprocessableEntityError):
             await robot.put_user("lin", learner={"algorithm": "no-such-learner"})
         with pytest.raises(a.UnprocessableEntityError):
             await admin.import_model("lin", {"format": "something else"})
-        started = await robot.start_episode("lin", event_id="e2", occurred_at=EVENT_TIME,
-                                            situation="stretching")
+        started = await robot.start_episode(
+            "lin", event_id="e2", occurred_at=EVENT_TIME, situation="stretching"
+        )
         assert started.decision is not None
         wrong = "answered" if started.decision.action.kind in ("initiate", "pass") else "none"
         with pytest.raises(a.UnprocessableEntityError) as caught:
-            await robot.report_outcome(started.episode_id,
-                                       decision_id=started.decision.decision_id,
-                                       response=wrong)
+            await robot.report_outcome(
+                started.episode_id, decision_id=started.decision.decision_id, response=wrong
+            )
         assert "must be one of" in caught.value.detail
 
 
 class TestOutbox:
-    async def test_reports_made_offline_arrive_in_order(self, switch: SwitchTransport,
-                                                        make_key: MakeKey,
-                                                        tmp_path: Path) -> None:
-        client = fast(a.AsyncClient(BASE_URL, make_key("robot"), transport=switch,
-                                    max_retries=1, outbox=tmp_path / "outbox.db"))
+    async def test_reports_made_offline_arrive_in_order(
+        self, switch: SwitchTransport, make_key: MakeKey, tmp_path: Path
+    ) -> None:
+        client = fast(
+            a.AsyncClient(
+                BASE_URL,
+                make_key("robot"),
+                transport=switch,
+                max_retries=1,
+                outbox=tmp_path / "outbox.db",
+            )
+        )
         async with client:
-            first = await client.start_episode("ana", event_id="e1", occurred_at=EVENT_TIME,
-                                               situation="stretching")
-            second = await client.start_episode("ben", event_id="e2", occurred_at=EVENT_TIME,
-                                                situation="stretching")
+            first = await client.start_episode(
+                "ana", event_id="e1", occurred_at=EVENT_TIME, situation="stretching"
+            )
+            second = await client.start_episode(
+                "ben", event_id="e2", occurred_at=EVENT_TIME, situation="stretching"
+            )
             closed, _ = await play(client, "cy", "e3")
             assert first.decision is not None
             assert second.decision is not None
             switch.down = True
             made = [
-                await client.report_outcome(second.episode_id,
-                                            decision_id=second.decision.decision_id,
-                                            **answer(second.decision)),
-                await client.send_feedback(closed.episode_id, feedback_id="fb-3",
-                                           feedback="negative"),
-                await client.report_outcome(first.episode_id,
-                                            decision_id=first.decision.decision_id,
-                                            response="bogus-for-this-decision"),
-                await client.report_outcome(first.episode_id,
-                                            decision_id=first.decision.decision_id,
-                                            **answer(first.decision)),
+                await client.report_outcome(
+                    second.episode_id,
+                    decision_id=second.decision.decision_id,
+                    **answer(second.decision),
+                ),
+                await client.send_feedback(
+                    closed.episode_id, feedback_id="fb-3", feedback="negative"
+                ),
+                await client.report_outcome(
+                    first.episode_id,
+                    decision_id=first.decision.decision_id,
+                    response="bogus-for-this-decision",
+                ),
+                await client.report_outcome(
+                    first.episode_id,
+                    decision_id=first.decision.decision_id,
+                    **answer(first.decision),
+                ),
             ]
             assert [m.position for m in made if isinstance(m, a.Queued)] == [1, 2, 3, 4]
             with pytest.raises(a.APIConnectionError):  # no new decisions while offline
-                await client.start_episode("ana", event_id="e4", occurred_at=EVENT_TIME,
-                                           situation="busy")
+                await client.start_episode(
+                    "ana", event_id="e4", occurred_at=EVENT_TIME, situation="busy"
+                )
             switch.down = False
             report = await client.flush()
             assert report.remaining == 0
             assert [p.key for p, _ in report.delivered] == [
-                second.decision.decision_id, "fb-3", first.decision.decision_id]
+                second.decision.decision_id,
+                "fb-3",
+                first.decision.decision_id,
+            ]
             [(refused, why)] = report.rejected
             assert refused.body["response"] == "bogus-for-this-decision"
             assert why.status_code == 422
@@ -287,9 +331,11 @@ class TestOutbox:
             assert after_second.episode.episode_id == second.episode_id
             # the history has them in the order the robot made them
             times = []
-            for episode_id, key in ((second.episode_id, second.decision.decision_id),
-                                    (closed.episode_id, "fb-3"),
-                                    (first.episode_id, first.decision.decision_id)):
+            for episode_id, key in (
+                (second.episode_id, second.decision.decision_id),
+                (closed.episode_id, "fb-3"),
+                (first.episode_id, first.decision.decision_id),
+            ):
                 trace = await client.get_episode(episode_id)
                 times += [d.answered_at for d in trace.decisions if d.decision_id == key]
                 times += [f.received_at for f in trace.feedback if f.feedback_id == key]
@@ -300,14 +346,15 @@ class TestOutbox:
 
 class TestSyncClient:
     def test_an_episode_and_errors(self, sync_robot: a.Client) -> None:
-        started = sync_robot.start_episode("lin", event_id="s1", occurred_at=EVENT_TIME,
-                                           situation="stretching")
+        started = sync_robot.start_episode(
+            "lin", event_id="s1", occurred_at=EVENT_TIME, situation="stretching"
+        )
         decision = started.decision
         n = 0
         while decision is not None:
-            result = sync_robot.report_outcome(started.episode_id,
-                                               decision_id=decision.decision_id,
-                                               **answer(decision, n))
+            result = sync_robot.report_outcome(
+                started.episode_id, decision_id=decision.decision_id, **answer(decision, n)
+            )
             assert isinstance(result, a.OutcomeResult)
             decision = result.decision
         trace = sync_robot.get_episode(started.episode_id)
@@ -321,19 +368,20 @@ class TestSyncClient:
         with pytest.raises(a.PermissionDeniedError):
             sync_robot.delete_user("lin")
 
-    def test_the_outbox(self, portal: PortalTransport, make_key: MakeKey,
-                        tmp_path: Path) -> None:
+    def test_the_outbox(self, portal: PortalTransport, make_key: MakeKey, tmp_path: Path) -> None:
         path = tmp_path / "outbox.db"
         key = make_key("robot")
-        with fast(a.Client(BASE_URL, key, transport=portal, max_retries=1,
-                           outbox=path)) as robot:
-            started = robot.start_episode("lin", event_id="s1", occurred_at=EVENT_TIME,
-                                          situation="stretching")
+        with fast(a.Client(BASE_URL, key, transport=portal, max_retries=1, outbox=path)) as robot:
+            started = robot.start_episode(
+                "lin", event_id="s1", occurred_at=EVENT_TIME, situation="stretching"
+            )
             assert started.decision is not None
             portal.down = True
-            queued = robot.report_outcome(started.episode_id,
-                                          decision_id=started.decision.decision_id,
-                                          **answer(started.decision))
+            queued = robot.report_outcome(
+                started.episode_id,
+                decision_id=started.decision.decision_id,
+                **answer(started.decision),
+            )
             assert isinstance(queued, a.Queued)
         portal.down = False
         with a.Client(BASE_URL, key, transport=portal, outbox=path) as again:  # restarted

@@ -30,16 +30,17 @@ ROBOT = Path(__file__).with_name("robot.py")
 @pytest.fixture(params=["sqlite", "postgresql"])
 def live(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[LiveService]:
     """A running ``attune serve`` on a fresh database of each engine."""
-    with (fresh_database(request.param, tmp_path) as url,
-          LiveService(url, log_path=tmp_path / "serve.log") as service):
+    with (
+        fresh_database(request.param, tmp_path) as url,
+        LiveService(url, log_path=tmp_path / "serve.log") as service,
+    ):
         yield service
 
 
 def keys(live: LiveService, *roles: str) -> list[str]:
     """New keys of these roles in the live service's database (what ``attune keys create``
     does, without starting a process per key)."""
-    database = Database(Settings(database_url=live.database_url,
-                                 _env_file=None))  # type: ignore[call-arg]
+    database = Database(Settings(database_url=live.database_url, _env_file=None))  # type: ignore[call-arg]
     try:
         with database.transaction() as session:
             return [create_key(session, role=role)[1] for role in roles]
@@ -59,23 +60,29 @@ def test_the_contract_over_http(live: LiveService) -> None:
     """Every kind of call once over real HTTP (the in-process tests cover both engines)."""
     robot_key, admin_key = keys(live, "robot", "admin")
     timeout = httpx.Timeout(10.0, connect=2.0)
-    with (quick(a.Client(live.url, robot_key, timeout=timeout)) as robot,
-          quick(a.Client(live.url, admin_key, timeout=timeout)) as admin):
+    with (
+        quick(a.Client(live.url, robot_key, timeout=timeout)) as robot,
+        quick(a.Client(live.url, admin_key, timeout=timeout)) as admin,
+    ):
         assert robot.health()
         assert robot.ready()
         assert robot.mission().name == "office"
         assert robot.put_user("lin", display_name="Mrs. Lin").display_name == "Mrs. Lin"
-        started = robot.start_episode("lin", event_id="e1", occurred_at=EVENT_TIME,
-                                      situation="stretching", robot_id="robot7")
-        assert robot.start_episode("lin", event_id="e1", occurred_at=EVENT_TIME,
-                                   situation="stretching", robot_id="robot7").replayed
+        started = robot.start_episode(
+            "lin", event_id="e1", occurred_at=EVENT_TIME, situation="stretching", robot_id="robot7"
+        )
+        assert robot.start_episode(
+            "lin", event_id="e1", occurred_at=EVENT_TIME, situation="stretching", robot_id="robot7"
+        ).replayed
         decision, n = started.decision, 0
         while decision is not None:
             kwargs = answer(decision, n)
-            result = robot.report_outcome(started.episode_id, decision_id=decision.decision_id,
-                                          **kwargs)
-            again = robot.report_outcome(started.episode_id, decision_id=decision.decision_id,
-                                         **kwargs)
+            result = robot.report_outcome(
+                started.episode_id, decision_id=decision.decision_id, **kwargs
+            )
+            again = robot.report_outcome(
+                started.episode_id, decision_id=decision.decision_id, **kwargs
+            )
             assert isinstance(result, a.OutcomeResult)
             assert isinstance(again, a.OutcomeResult)
             assert again.replayed
@@ -97,21 +104,18 @@ def test_the_contract_over_http(live: LiveService) -> None:
         assert admin.import_model("lin", document).algorithm == "dts-adapt"
 
         # each error the service produces, as its class
-        with a.Client(live.url, "att_unknown") as stranger, \
-                pytest.raises(a.AuthenticationError):
+        with a.Client(live.url, "att_unknown") as stranger, pytest.raises(a.AuthenticationError):
             stranger.get_user("lin")
         with pytest.raises(a.PermissionDeniedError):
             robot.delete_user("lin")
         with pytest.raises(a.NotFoundError):
             robot.get_episode("ep_absent")
         with pytest.raises(a.ConflictError):
-            robot.start_episode("lin", event_id="e1", occurred_at=EVENT_TIME,
-                                situation="busy")
+            robot.start_episode("lin", event_id="e1", occurred_at=EVENT_TIME, situation="busy")
         with pytest.raises(a.PayloadTooLargeError):
             robot.put_user("lin", display_name="x" * 70_000)
         with pytest.raises(a.UnprocessableEntityError) as invalid:
-            robot.start_episode("lin", event_id="e2", occurred_at=EVENT_TIME,
-                                situation="dancing")
+            robot.start_episode("lin", event_id="e2", occurred_at=EVENT_TIME, situation="dancing")
         assert "stretching" in invalid.value.detail
         admin.delete_user("lin")
         with pytest.raises(a.NotFoundError):
@@ -137,17 +141,22 @@ class Journal:
         return out
 
     def count(self, **match: Any) -> int:
-        return sum(1 for line in self.lines()
-                   if all(line.get(k) == v for k, v in match.items()))
+        return sum(1 for line in self.lines() if all(line.get(k) == v for k, v in match.items()))
 
 
-def wait_for(condition: Callable[[], bool], robot: subprocess.Popen[bytes], what: str,
-             log: Path, timeout: float = 60) -> None:
+def wait_for(
+    condition: Callable[[], bool],
+    robot: subprocess.Popen[bytes],
+    what: str,
+    log: Path,
+    timeout: float = 60,
+) -> None:
     deadline = time.monotonic() + timeout
     while not condition():
         if robot.poll() is not None:
-            pytest.fail(f"the robot exited ({robot.returncode}) before {what}:\n"
-                        f"{log.read_text()[-3000:]}")
+            pytest.fail(
+                f"the robot exited ({robot.returncode}) before {what}:\n{log.read_text()[-3000:]}"
+            )
         if time.monotonic() > deadline:
             pytest.fail(f"no {what} within {timeout} s:\n{log.read_text()[-3000:]}")
         time.sleep(0.02)
@@ -159,14 +168,18 @@ def service_history(client: a.Client) -> list[tuple[Any, str, str]]:
     for user in client.iter_users():
         for summary in client.iter_episodes(user.user_id):
             trace = client.get_episode(summary.episode_id)
-            history += [(d.answered_at, "outcome", d.decision_id) for d in trace.decisions
-                        if d.answered_at is not None]
+            history += [
+                (d.answered_at, "outcome", d.decision_id)
+                for d in trace.decisions
+                if d.answered_at is not None
+            ]
             history += [(f.received_at, "feedback", f.feedback_id) for f in trace.feedback]
     return sorted(history)
 
 
-def test_reports_survive_a_service_outage_and_a_robot_restart(live: LiveService,
-                                                              tmp_path: Path) -> None:
+def test_reports_survive_a_service_outage_and_a_robot_restart(
+    live: LiveService, tmp_path: Path
+) -> None:
     """The service is stopped mid-run while a simulated robot keeps reporting; after it
     restarts, every report arrives exactly once and in order (checked against the service's
     history), including after the robot process itself was restarted."""
@@ -179,9 +192,21 @@ def test_reports_survive_a_service_outage_and_a_robot_restart(live: LiveService,
     def spawn() -> subprocess.Popen[bytes]:
         with open(log, "ab") as out:
             return subprocess.Popen(
-                [sys.executable, str(ROBOT), "--url", live.url, "--key", key,
-                 "--dir", str(folder), "--episodes", "5"],
-                stdout=out, stderr=subprocess.STDOUT)
+                [
+                    sys.executable,
+                    str(ROBOT),
+                    "--url",
+                    live.url,
+                    "--key",
+                    key,
+                    "--dir",
+                    str(folder),
+                    "--episodes",
+                    "5",
+                ],
+                stdout=out,
+                stderr=subprocess.STDOUT,
+            )
 
     def hold_while_decisions_are_open() -> None:
         """Pause the robot between rounds at a moment when at least two people have a
@@ -189,8 +214,12 @@ def test_reports_survive_a_service_outage_and_a_robot_restart(live: LiveService,
         for _ in range(200):
             held = journal.count(type="held")
             hold.touch()
-            wait_for(lambda held=held: journal.count(type="held") > held, robot,  # type: ignore[misc]
-                     "the robot holding", log)
+            wait_for(
+                lambda held=held: journal.count(type="held") > held,  # type: ignore[misc]
+                robot,
+                "the robot holding",
+                log,
+            )
             state_file = folder / "state.json"
             if state_file.exists():
                 state = json.loads(state_file.read_text())
@@ -207,13 +236,21 @@ def test_reports_survive_a_service_outage_and_a_robot_restart(live: LiveService,
         hold_while_decisions_are_open()
         live.stop()  # the service goes away mid-run...
         hold.unlink()  # ...while the robot goes on reporting
-        wait_for(lambda: journal.count(op="outcome", status="queued") >= 2, robot,
-                 "outcomes queued while the service is down", log)
+        wait_for(
+            lambda: journal.count(op="outcome", status="queued") >= 2,
+            robot,
+            "outcomes queued while the service is down",
+            log,
+        )
         robot.kill()  # SIGKILL, wherever it is
         robot.wait(timeout=10)
         robot = spawn()  # the same robot, from its state, journal and outbox
-        wait_for(lambda: journal.count(status="queued", run=2) >= 2, robot,
-                 "reports queued by the restarted robot", log)
+        wait_for(
+            lambda: journal.count(status="queued", run=2) >= 2,
+            robot,
+            "reports queued by the restarted robot",
+            log,
+        )
         live.start()
         assert robot.wait(timeout=90) == 0, log.read_text()[-3000:]
     finally:
@@ -241,8 +278,9 @@ def test_reports_survive_a_service_outage_and_a_robot_restart(live: LiveService,
         # and each counted once by the learners: one model version per outcome and feedback
         for user in admin.iter_users():
             traces = [admin.get_episode(e.episode_id) for e in admin.iter_episodes(user.user_id)]
-            writes = sum(len([d for d in t.decisions if d.answered_at]) + len(t.feedback)
-                         for t in traces)
+            writes = sum(
+                len([d for d in t.decisions if d.answered_at]) + len(t.feedback) for t in traces
+            )
             assert admin.get_model(user.user_id).version == writes
             assert all(t.status == "closed" for t in traces)
     queued = journal.count(status="queued")

@@ -29,17 +29,17 @@ def care_home() -> dict[str, Any]:
     return document
 
 
-async def staff_client(app: FastAPI, make_key: MakeKey, fleet: str = "default"
-                       ) -> a.AsyncClient:
-    client = a.AsyncClient(BASE_URL, make_key("staff", fleet=fleet),
-                           transport=httpx.ASGITransport(app=app))
+async def staff_client(app: FastAPI, make_key: MakeKey, fleet: str = "default") -> a.AsyncClient:
+    client = a.AsyncClient(
+        BASE_URL, make_key("staff", fleet=fleet), transport=httpx.ASGITransport(app=app)
+    )
     fast(client)
     return client
 
 
-async def test_set_read_and_list_a_fleets_mission(app: FastAPI, make_key: MakeKey,
-                                                  robot: a.AsyncClient,
-                                                  admin: a.AsyncClient) -> None:
+async def test_set_read_and_list_a_fleets_mission(
+    app: FastAPI, make_key: MakeKey, robot: a.AsyncClient, admin: a.AsyncClient
+) -> None:
     await robot.put_user("lin")  # the fleet's version 1: the deployment's default
     before = await robot.mission()
     assert (before.fleet, before.version, before.name) == ("default", 1, "office")
@@ -77,8 +77,9 @@ async def test_set_read_and_list_a_fleets_mission(app: FastAPI, make_key: MakeKe
     assert same.version == 2
 
 
-async def test_errors_are_the_clients_usual_ones(app: FastAPI, make_key: MakeKey,
-                                                 robot: a.AsyncClient) -> None:
+async def test_errors_are_the_clients_usual_ones(
+    app: FastAPI, make_key: MakeKey, robot: a.AsyncClient
+) -> None:
     await robot.put_user("lin")  # renames are checked against a stored version
     with pytest.raises(a.PermissionDeniedError):
         await robot.set_mission("default", care_home())
@@ -93,8 +94,7 @@ async def test_errors_are_the_clients_usual_ones(app: FastAPI, make_key: MakeKey
             await staff.set_mission("default", {**care_home(), "situations": []})
         assert "situations" in bad.value.detail
         with pytest.raises(a.UnprocessableEntityError) as renamed:
-            await staff.set_mission("default", care_home(),
-                                    renames={"details": {"chai": "cocoa"}})
+            await staff.set_mission("default", care_home(), renames={"details": {"chai": "cocoa"}})
         assert "chai" in renamed.value.detail
         await staff.set_mission("default", care_home(), change_id="menu-1")
         other = {**care_home(), "situations": ["waking", "meal", "resting", "personal_care"]}
@@ -103,38 +103,42 @@ async def test_errors_are_the_clients_usual_ones(app: FastAPI, make_key: MakeKey
         assert "menu-1" in reused.value.detail
 
 
-async def test_an_interrupted_outcome_raises_at_once(app: FastAPI, make_key: MakeKey,
-                                                     robot: a.AsyncClient) -> None:
-    started = await robot.start_episode("lin", event_id="e1", occurred_at=EVENT_TIME,
-                                        situation="stretching")
+async def test_an_interrupted_outcome_raises_at_once(
+    app: FastAPI, make_key: MakeKey, robot: a.AsyncClient
+) -> None:
+    started = await robot.start_episode(
+        "lin", event_id="e1", occurred_at=EVENT_TIME, situation="stretching"
+    )
     assert started.decision is not None
     assert started.mission_version == 1
     async with await staff_client(app, make_key) as staff:
         changed = await staff.set_mission("default", care_home())
     assert changed.episodes_interrupted == 1
     with pytest.raises(a.EpisodeInterruptedError) as caught:
-        await robot.report_outcome(started.episode_id,
-                                   decision_id=started.decision.decision_id,
-                                   **answer(started.decision))
+        await robot.report_outcome(
+            started.episode_id, decision_id=started.decision.decision_id, **answer(started.decision)
+        )
     assert caught.value.status_code == 409
     trace = await robot.get_episode(started.episode_id)
     assert trace.status == "interrupted"
     assert trace.mission_version == 1
 
 
-async def test_an_interrupted_outcome_leaves_the_outbox(app: FastAPI, make_key: MakeKey,
-                                                        switch: SwitchTransport,
-                                                        tmp_path: Path) -> None:
+async def test_an_interrupted_outcome_leaves_the_outbox(
+    app: FastAPI, make_key: MakeKey, switch: SwitchTransport, tmp_path: Path
+) -> None:
     key = make_key("robot")
-    async with fast(a.AsyncClient(BASE_URL, key, transport=switch, max_retries=0,
-                                  outbox=tmp_path / "outbox.db")) as robot:
-        started = await robot.start_episode("lin", event_id="e1", occurred_at=EVENT_TIME,
-                                            situation="stretching")
+    async with fast(
+        a.AsyncClient(BASE_URL, key, transport=switch, max_retries=0, outbox=tmp_path / "outbox.db")
+    ) as robot:
+        started = await robot.start_episode(
+            "lin", event_id="e1", occurred_at=EVENT_TIME, situation="stretching"
+        )
         assert started.decision is not None
         switch.down = True
-        queued = await robot.report_outcome(started.episode_id,
-                                            decision_id=started.decision.decision_id,
-                                            **answer(started.decision))
+        queued = await robot.report_outcome(
+            started.episode_id, decision_id=started.decision.decision_id, **answer(started.decision)
+        )
         assert isinstance(queued, a.Queued)
         async with await staff_client(app, make_key) as staff:
             await staff.set_mission("default", care_home())
@@ -148,8 +152,9 @@ async def test_an_interrupted_outcome_leaves_the_outbox(app: FastAPI, make_key: 
         assert why.status_code == 409
         assert entry.episode_id == started.episode_id
         # the person's next event runs under the new mission
-        fresh = await robot.start_episode("lin", event_id="e2", occurred_at=EVENT_TIME,
-                                          situation="visiting")
+        fresh = await robot.start_episode(
+            "lin", event_id="e2", occurred_at=EVENT_TIME, situation="visiting"
+        )
         assert fresh.mission_version == 2
 
 

@@ -17,7 +17,8 @@ pytestmark = pytest.mark.anyio
 
 
 async def test_switch_the_fleets_prior_and_keep_a_person_out(
-        robot: a.AsyncClient, app: FastAPI, make_key: MakeKey) -> None:
+    robot: a.AsyncClient, app: FastAPI, make_key: MakeKey
+) -> None:
     staff = a.AsyncClient(BASE_URL, make_key("staff"), transport=httpx.ASGITransport(app=app))
     fast(staff)
     async with staff:

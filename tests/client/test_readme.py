@@ -42,8 +42,10 @@ def test_the_readme_has_the_examples_it_promises() -> None:
 
 @pytest.fixture(params=["sqlite", "postgresql"])
 def live(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[LiveService]:
-    with (fresh_database(request.param, tmp_path) as url,
-          LiveService(url, log_path=tmp_path / "serve.log") as service):
+    with (
+        fresh_database(request.param, tmp_path) as url,
+        LiveService(url, log_path=tmp_path / "serve.log") as service,
+    ):
         yield service
 
 
@@ -54,8 +56,15 @@ def test_the_readme_examples_run(live: LiveService, tmp_path: Path) -> None:
     script = robot / "readme_examples.py"
     script.write_text("\n\n".join(python_blocks()), encoding="utf-8")
     env = {**os.environ, "ATTUNE_URL": live.url, "ATTUNE_KEY": key}
-    done = subprocess.run([sys.executable, script.name], cwd=robot, env=env,
-                          capture_output=True, text=True, timeout=120, check=False)
+    done = subprocess.run(
+        [sys.executable, script.name],
+        cwd=robot,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+    )
     assert done.returncode == 0, done.stdout + done.stderr + live.log()
 
     # What the examples did, as the service saw it: two episodes of "lin", the quick start's
@@ -64,11 +73,16 @@ def test_the_readme_examples_run(live: LiveService, tmp_path: Path) -> None:
     assert "outcome refused:" in done.stderr  # the errors example's ConflictError, logged
     assert (robot / "attune-outbox.db").is_file()
     headers = {"Authorization": f"Bearer {key}"}
-    items = httpx.get(f"{live.url}/v1/users/lin/episodes", headers=headers,
-                      timeout=10).json()["items"]
+    items = httpx.get(f"{live.url}/v1/users/lin/episodes", headers=headers, timeout=10).json()[
+        "items"
+    ]
     assert len(items) == 2
-    traces = [httpx.get(f"{live.url}/v1/episodes/{item['episode_id']}", headers=headers,
-                        timeout=10).json() for item in items]
+    traces = [
+        httpx.get(
+            f"{live.url}/v1/episodes/{item['episode_id']}", headers=headers, timeout=10
+        ).json()
+        for item in items
+    ]
     [first] = [t for t in traces if t["event_id"] == "robot7-000123"]
     assert first["status"] == "closed"
     assert [f["feedback_id"] for f in first["feedback"]] == ["robot7-fb-000042"]

@@ -33,10 +33,14 @@ def _access_line(service: LiveService, request_id: str) -> dict[str, object]:
     deadline = time.monotonic() + 10
     while True:
         whole = Path(service.log_path).read_text().split("\n")[:-1]  # not a line in writing
-        lines: list[dict[str, object]] = [json.loads(line) for line in whole
-                                          if line.startswith("{")]
-        found = [line for line in lines
-                 if line["logger"] == "attune.access" and line.get("request_id") == request_id]
+        lines: list[dict[str, object]] = [
+            json.loads(line) for line in whole if line.startswith("{")
+        ]
+        found = [
+            line
+            for line in lines
+            if line["logger"] == "attune.access" and line.get("request_id") == request_id
+        ]
         if found or time.monotonic() > deadline:
             break
         time.sleep(0.05)
@@ -46,8 +50,7 @@ def _access_line(service: LiveService, request_id: str) -> dict[str, object]:
 
 def test_an_error_carries_the_services_request_id(live: LiveService) -> None:
     key = live.create_key("robot")
-    with a.Client(live.url, key, max_retries=0) as client, \
-            pytest.raises(a.NotFoundError) as caught:
+    with a.Client(live.url, key, max_retries=0) as client, pytest.raises(a.NotFoundError) as caught:
         client.get_user("nobody")
     error = caught.value
     assert error.request_id is not None
@@ -62,8 +65,9 @@ def test_a_robots_own_request_id_comes_back(live: LiveService) -> None:
     key = live.create_key("robot")
 
     async def call() -> a.APIStatusError:
-        async with a.AsyncClient(live.url, key, max_retries=0,
-                                 headers={"X-Request-ID": "robot7-boot3"}) as client:
+        async with a.AsyncClient(
+            live.url, key, max_retries=0, headers={"X-Request-ID": "robot7-boot3"}
+        ) as client:
             with pytest.raises(a.UnprocessableEntityError) as caught:
                 await client.get_stats("lin", last=0)
         return caught.value

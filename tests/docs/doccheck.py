@@ -81,12 +81,32 @@ def check_api_doc(doc: str, schema: Mapping[str, Any]) -> ApiDocReport:
 
 # -- pointers to files outside the repository --------------------------------------------------
 OUTSIDE_PATTERNS = (
-    "../shared", "shared/design", "shared/seed", "algorithm.md", "api-v1.md", "paper.txt", "/work/",
+    "../shared",
+    "shared/design",
+    "shared/seed",
+    "algorithm.md",
+    "api-v1.md",
+    "paper.txt",
+    "/work/",
 )
-TEXT_SUFFIXES = frozenset({
-    ".py", ".html", ".js", ".css", ".json", ".md", ".txt", ".toml", ".ini", ".cfg", ".yml",
-    ".yaml", ".mako", ".svg",
-})
+TEXT_SUFFIXES = frozenset(
+    {
+        ".py",
+        ".html",
+        ".js",
+        ".css",
+        ".json",
+        ".md",
+        ".txt",
+        ".toml",
+        ".ini",
+        ".cfg",
+        ".yml",
+        ".yaml",
+        ".mako",
+        ".svg",
+    }
+)
 # What the product shows or ships: the README, the docs, the service's package, the client's
 # README and sources.
 PRODUCT_PATHS = ("README.md", "docs", "app", "clients/python/README.md", "clients/python/src")
@@ -110,8 +130,11 @@ def text_files(root: Path, relative: Iterable[str]) -> Iterator[Path]:
             yield path
         elif path.is_dir():
             for child in sorted(path.rglob("*")):
-                if child.is_file() and child.suffix in TEXT_SUFFIXES \
-                        and "__pycache__" not in child.parts:
+                if (
+                    child.is_file()
+                    and child.suffix in TEXT_SUFFIXES
+                    and "__pycache__" not in child.parts
+                ):
                     yield child
 
 
@@ -175,15 +198,21 @@ def broken_links(root: Path, files: Iterable[Path]) -> list[str]:
                     found.append(f"{where} (outside the repository)")
                 elif not dest.exists():
                     found.append(f"{where} (no such file)")
-                elif anchor and dest.suffix == ".md" \
-                        and anchor not in heading_anchors(dest.read_text(encoding="utf-8")):
+                elif (
+                    anchor
+                    and dest.suffix == ".md"
+                    and anchor not in heading_anchors(dest.read_text(encoding="utf-8"))
+                ):
                     found.append(f"{where} (no such heading)")
     return found
 
 
 def markdown_files(root: Path) -> list[Path]:
-    return [root / "README.md", *sorted((root / "docs").rglob("*.md")),
-            root / "clients/python/README.md"]
+    return [
+        root / "README.md",
+        *sorted((root / "docs").rglob("*.md")),
+        root / "clients/python/README.md",
+    ]
 
 
 # -- citations of docs/method.md sections ------------------------------------------------------

@@ -46,8 +46,10 @@ def test_the_check_reports_a_removed_endpoint_and_an_extra_path(schema: dict[str
     assert removed in doc
     shortened = doc.replace(removed, "### Deleting a user")
     grown = copy.deepcopy(schema)
-    grown["paths"]["/v1/robots/{robot_id}"] = {"get": {"responses": {"200": {}}},
-                                               "head": {"responses": {"200": {}}}}
+    grown["paths"]["/v1/robots/{robot_id}"] = {
+        "get": {"responses": {"200": {}}},
+        "head": {"responses": {"200": {}}},
+    }
     grown["paths"]["/v1/users"]["post"] = {"responses": {"201": {}}}
 
     report = check_api_doc(shortened, grown)

@@ -45,30 +45,47 @@ def test_the_link_check_finds_broken_links(tmp_path: Path) -> None:
 
 
 def test_heading_anchors_follow_github() -> None:
-    text = "# Attune\n## 5. Logs and request ids\n## Episodes: one event, one negotiation\n" \
-           "### `GET /v1/users`\n## Users\n## Users\n"
-    assert heading_anchors(text) == {"attune", "5-logs-and-request-ids",
-                                     "episodes-one-event-one-negotiation", "get-v1users",
-                                     "users", "users-1"}
+    text = (
+        "# Attune\n## 5. Logs and request ids\n## Episodes: one event, one negotiation\n"
+        "### `GET /v1/users`\n## Users\n## Users\n"
+    )
+    assert heading_anchors(text) == {
+        "attune",
+        "5-logs-and-request-ids",
+        "episodes-one-event-one-negotiation",
+        "get-v1users",
+        "users",
+        "users-1",
+    }
 
 
 def test_cited_method_sections_exist() -> None:
     sections = method_sections(METHOD.read_text(encoding="utf-8"))
     assert sections == set(range(1, max(sections) + 1)), "method.md's sections are numbered 1..N"
-    found = bad_citations("docs/method.md", METHOD.read_text(encoding="utf-8"), sections,
-                          bare=True)
-    for path in text_files(ROOT, ("README.md", "docs", "app", "clients/python/README.md",
-                                  "clients/python/src", "tests", "bench")):
+    found = bad_citations("docs/method.md", METHOD.read_text(encoding="utf-8"), sections, bare=True)
+    for path in text_files(
+        ROOT,
+        (
+            "README.md",
+            "docs",
+            "app",
+            "clients/python/README.md",
+            "clients/python/src",
+            "tests",
+            "bench",
+        ),
+    ):
         if path == METHOD or path.is_relative_to(ROOT / "tests" / "docs"):
             continue  # method.md is checked above; these tests plant bad citations on purpose
-        found += bad_citations(str(path.relative_to(ROOT)), path.read_text(encoding="utf-8"),
-                               sections)
-    assert not found, "citations of docs/method.md sections that do not exist:\n" + \
-        "\n".join(found)
+        found += bad_citations(
+            str(path.relative_to(ROOT)), path.read_text(encoding="utf-8"), sections
+        )
+    assert not found, "citations of docs/method.md sections that do not exist:\n" + "\n".join(found)
 
 
 def test_the_citation_check_finds_a_missing_section() -> None:
     text = "see docs/method.md §2 and §40\nand [method.md §4–§99](method.md)\nno §7 here\n"
     assert bad_citations("x.py", text, {1, 2, 3, 4}) == ["x.py:1: §40", "x.py:2: §99"]
-    assert bad_citations("method.md", "as §3 and §12 say\n", {1, 2, 3}, bare=True) == \
-        ["method.md:1: §12"]
+    assert bad_citations("method.md", "as §3 and §12 say\n", {1, 2, 3}, bare=True) == [
+        "method.md:1: §12"
+    ]

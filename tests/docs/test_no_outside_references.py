@@ -22,11 +22,22 @@ def test_the_product_files_point_only_inside_the_repository() -> None:
 
 
 def test_the_scan_covers_the_product() -> None:
-    scanned = {str(p.relative_to(ROOT)) for p in text_files(
-        ROOT, ("README.md", "docs", "app", "clients/python/README.md", "clients/python/src"))}
-    for expected in ("README.md", "docs/api.md", "docs/method.md", "app/cli.py",
-                     "app/console/templates/why.html", "app/learning/learners/hri.py",
-                     "clients/python/README.md", "clients/python/src/attune_client/_base.py"):
+    scanned = {
+        str(p.relative_to(ROOT))
+        for p in text_files(
+            ROOT, ("README.md", "docs", "app", "clients/python/README.md", "clients/python/src")
+        )
+    }
+    for expected in (
+        "README.md",
+        "docs/api.md",
+        "docs/method.md",
+        "app/cli.py",
+        "app/console/templates/why.html",
+        "app/learning/learners/hri.py",
+        "clients/python/README.md",
+        "clients/python/src/attune_client/_base.py",
+    ):
         assert expected in scanned, expected
 
 
@@ -50,8 +61,13 @@ def _help_pages() -> Iterator[tuple[str, str]]:
 def test_no_help_page_points_outside_the_repository() -> None:
     pages = list(_help_pages())
     names = [line for line, _ in pages]
-    for expected in ("attune --help", "attune experiment paper --help", "attune keys create --help",
-                     "attune fleet simulate --help", "attune serve --help"):
+    for expected in (
+        "attune --help",
+        "attune experiment paper --help",
+        "attune keys create --help",
+        "attune fleet simulate --help",
+        "attune serve --help",
+    ):
         assert expected in names
     found = [f for line, output in pages for f in find_outside_references(line, output)]
     assert not found, "help pointing outside the repository:\n" + "\n".join(found)
@@ -77,6 +93,7 @@ def test_the_scan_finds_a_planted_reference(tmp_path: Path) -> None:
 
 
 def test_help_text_with_a_planted_reference_is_found() -> None:
-    found = find_outside_references("attune demo --help",
-                                    "Usage: attune demo\n\n  As in algorithm.md section 6.\n")
+    found = find_outside_references(
+        "attune demo --help", "Usage: attune demo\n\n  As in algorithm.md section 6.\n"
+    )
     assert found == ["attune demo --help:3: 'algorithm.md' in: As in algorithm.md section 6."]

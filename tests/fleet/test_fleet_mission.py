@@ -28,23 +28,43 @@ MISSION = load_mission(CARE_HOME)
 
 
 def simulate(url: str, key: str, *extra: str) -> subprocess.CompletedProcess[str]:
-    args = [ATTUNE, "fleet", "simulate", "--url", url, "--key", key, "--robots", "2",
-            "--users", "2", "--events", "6", "--seed", "3", "--prefix", "care", "--json",
-            "--no-progress", "--deadline", "120", *extra]
+    args = [
+        ATTUNE,
+        "fleet",
+        "simulate",
+        "--url",
+        url,
+        "--key",
+        key,
+        "--robots",
+        "2",
+        "--users",
+        "2",
+        "--events",
+        "6",
+        "--seed",
+        "3",
+        "--prefix",
+        "care",
+        "--json",
+        "--no-progress",
+        "--deadline",
+        "120",
+        *extra,
+    ]
     env = {**os.environ, "ATTUNE_KEY": ""}
-    return subprocess.run(args, env=env, capture_output=True, text=True, timeout=180,
-                          check=False)
+    return subprocess.run(args, env=env, capture_output=True, text=True, timeout=180, check=False)
 
 
 def get(url: str, key: str, path: str, **params: Any) -> Any:
-    r = httpx.get(f"{url}{path}", params=params, headers={"Authorization": f"Bearer {key}"},
-                  timeout=30)
+    r = httpx.get(
+        f"{url}{path}", params=params, headers={"Authorization": f"Bearer {key}"}, timeout=30
+    )
     assert r.status_code == 200, r.text
     return r.json()
 
 
-def test_the_people_are_drawn_from_the_mission_in_the_file(app: FastAPI,
-                                                           make_key: MakeKey) -> None:
+def test_the_people_are_drawn_from_the_mission_in_the_file(app: FastAPI, make_key: MakeKey) -> None:
     staff, robot = make_key("staff"), make_key("robot")
     with serving(app) as url:
         done = simulate(url, staff, "--mission", str(CARE_HOME))
@@ -75,8 +95,9 @@ def test_the_people_are_drawn_from_the_mission_in_the_file(app: FastAPI,
         assert versions["current_version"] == 2
 
 
-def test_a_changed_mission_moves_the_fleet_to_a_new_version(app: FastAPI, make_key: MakeKey,
-                                                            tmp_path: Path) -> None:
+def test_a_changed_mission_moves_the_fleet_to_a_new_version(
+    app: FastAPI, make_key: MakeKey, tmp_path: Path
+) -> None:
     admin = make_key("admin")
     with serving(app) as url:
         first = simulate(url, admin, "--events", "2")  # the office mission: version 1
@@ -105,10 +126,11 @@ def test_a_robot_key_cannot_set_the_mission(app: FastAPI, make_key: MakeKey) -> 
 
 BAD_FILES = {
     "missing.json": None,
-    "not-json.json": "{\"name\": \"care-home\",",
+    "not-json.json": '{"name": "care-home",',
     "unknown-field.json": json.dumps({**MISSION.to_dict(), "menu": []}),
-    "bad-slot.json": json.dumps({**MISSION.to_dict(), "time_slots": [
-        {"name": "day", "start": "07:00", "end": "21:00"}]}),
+    "bad-slot.json": json.dumps(
+        {**MISSION.to_dict(), "time_slots": [{"name": "day", "start": "07:00", "end": "21:00"}]}
+    ),
 }
 
 
@@ -118,8 +140,20 @@ def test_a_bad_file_is_one_line_and_exit_2(name: str, tmp_path: Path) -> None:
     if BAD_FILES[name] is not None:
         path.write_text(BAD_FILES[name] or "", encoding="utf-8")
     # nothing answers at this URL: the file is checked before the service is asked
-    done = CliRunner().invoke(cli, ["fleet", "simulate", "--url", "http://127.0.0.1:9",
-                                    "--key", "att_x", "--mission", str(path), "--no-progress"])
+    done = CliRunner().invoke(
+        cli,
+        [
+            "fleet",
+            "simulate",
+            "--url",
+            "http://127.0.0.1:9",
+            "--key",
+            "att_x",
+            "--mission",
+            str(path),
+            "--no-progress",
+        ],
+    )
     assert done.exit_code == 2, done.output
     lines = done.stderr.strip().splitlines()
     assert len(lines) == 1, done.stderr

@@ -29,23 +29,51 @@ MISSION = office_mission()
 ROBOTS, USERS, EVENTS, CHANGE_AT = 4, 6, 24, 12
 
 
-def simulate(service: LiveService, key: str, out: Path, *extra: str, as_json: bool = True
-             ) -> subprocess.CompletedProcess[str]:
-    args = [ATTUNE, "fleet", "simulate", "--url", service.url, "--key", key,
-            "--robots", str(ROBOTS), "--users", str(USERS), "--events", str(EVENTS),
-            "--change-at", str(CHANGE_AT), "--seed", "5", "--prefix", "fleet-t",
-            "--plot", str(out / "reward.png"), "--no-progress", "--deadline", "240",
-            *(["--json"] if as_json else []), *extra]
+def simulate(
+    service: LiveService, key: str, out: Path, *extra: str, as_json: bool = True
+) -> subprocess.CompletedProcess[str]:
+    args = [
+        ATTUNE,
+        "fleet",
+        "simulate",
+        "--url",
+        service.url,
+        "--key",
+        key,
+        "--robots",
+        str(ROBOTS),
+        "--users",
+        str(USERS),
+        "--events",
+        str(EVENTS),
+        "--change-at",
+        str(CHANGE_AT),
+        "--seed",
+        "5",
+        "--prefix",
+        "fleet-t",
+        "--plot",
+        str(out / "reward.png"),
+        "--no-progress",
+        "--deadline",
+        "240",
+        *(["--json"] if as_json else []),
+        *extra,
+    ]
     env = {**os.environ, "COLUMNS": "40", "ATTUNE_KEY": ""}  # narrow: nothing may be cut
-    return subprocess.run(args, env=env, capture_output=True, text=True, timeout=300,
-                          check=False)
+    return subprocess.run(args, env=env, capture_output=True, text=True, timeout=300, check=False)
 
 
-def stats_of(service: LiveService, key: str, user_id: str, last: int | None = None
-             ) -> dict[str, Any]:
+def stats_of(
+    service: LiveService, key: str, user_id: str, last: int | None = None
+) -> dict[str, Any]:
     params = {"last": last} if last else None
-    r = httpx.get(f"{service.url}/v1/users/{user_id}/stats", params=params,
-                  headers={"Authorization": f"Bearer {key}"}, timeout=30)
+    r = httpx.get(
+        f"{service.url}/v1/users/{user_id}/stats",
+        params=params,
+        headers={"Authorization": f"Bearer {key}"},
+        timeout=30,
+    )
     assert r.status_code == 200, r.text
     body: dict[str, Any] = r.json()
     return body
@@ -71,23 +99,43 @@ def test_fleet_against_a_live_service(engine: str, workers: int, tmp_path: Path)
             late = stats_of(service, key, user_id, last=EVENTS - CHANGE_AT)
             assert printed["since_change"]["users"][user_id] == late
         assert printed["overall"] == pytest.approx(
-            overall_stats([stats_of(service, key, u) for u in user_ids]))
+            overall_stats([stats_of(service, key, u) for u in user_ids])
+        )
         assert printed["overall"]["episodes"] == USERS * EVENTS
 
         # Without --json, the same figures as tables, whole although COLUMNS is narrow.
-        table_run = simulate(service, key, tmp_path, "--prefix", "fleet-table-check-with-a-"
-                             "long-prefix", "--users", "2", "--events", "4", "--change-at", "2",
-                             as_json=False)
+        table_run = simulate(
+            service,
+            key,
+            tmp_path,
+            "--prefix",
+            "fleet-table-check-with-a-long-prefix",
+            "--users",
+            "2",
+            "--events",
+            "4",
+            "--change-at",
+            "2",
+            as_json=False,
+        )
         assert table_run.returncode == 0, table_run.stderr
         table = table_run.stdout.splitlines()
         headers = [line for line in table if "interaction" in line]
         assert len(headers) == 2  # all episodes, and since the change
         for header in headers:
             assert [cell.strip() for cell in header.split("┃")[1:-1]] == [
-                "user", "episodes", "missions", "interaction", "success", "queries/mission",
-                "cum. reward"]
-        for user_id in ("fleet-table-check-with-a-long-prefix-u1",
-                        "fleet-table-check-with-a-long-prefix-u2"):
+                "user",
+                "episodes",
+                "missions",
+                "interaction",
+                "success",
+                "queries/mission",
+                "cum. reward",
+            ]
+        for user_id in (
+            "fleet-table-check-with-a-long-prefix-u1",
+            "fleet-table-check-with-a-long-prefix-u2",
+        ):
             got = stats_of(service, key, user_id)
             row = next(line for line in table if line.startswith(f"│ {user_id} "))
             for name in METRICS:
@@ -96,14 +144,19 @@ def test_fleet_against_a_live_service(engine: str, workers: int, tmp_path: Path)
         # Every episode was played by a fleet robot and closed; the robots shared the people.
         robots_seen: set[str] = set()
         auth = {"Authorization": f"Bearer {key}"}
-        r = httpx.get(f"{service.url}/v1/users/{user_ids[0]}/episodes", params={"limit": 100},
-                      headers=auth, timeout=30)
+        r = httpx.get(
+            f"{service.url}/v1/users/{user_ids[0]}/episodes",
+            params={"limit": 100},
+            headers=auth,
+            timeout=30,
+        )
         items = r.json()["items"]
         assert len(items) == EVENTS
         for item in items:
             assert item["status"] == "closed"
-            trace = httpx.get(f"{service.url}/v1/episodes/{item['episode_id']}",
-                              headers=auth, timeout=30).json()
+            trace = httpx.get(
+                f"{service.url}/v1/episodes/{item['episode_id']}", headers=auth, timeout=30
+            ).json()
             robots_seen.add(trace["robot_id"])
         assert robots_seen <= {f"sim-robot-{i}" for i in range(1, ROBOTS + 1)}
         assert len(robots_seen) > 1
@@ -149,10 +202,22 @@ def test_event_times_fall_in_their_slot_on_the_local_clock() -> None:
 
 
 def test_overall_stats_pool_the_users_episodes() -> None:
-    a = {"episodes": 10, "missions": 4, "interaction_rate": 0.3, "success_rate": 0.5,
-         "queries_per_mission": 0.25, "total_reward": 12.5}
-    b = {"episodes": 30, "missions": 0, "interaction_rate": 0.1, "success_rate": None,
-         "queries_per_mission": None, "total_reward": -3.0}
+    a = {
+        "episodes": 10,
+        "missions": 4,
+        "interaction_rate": 0.3,
+        "success_rate": 0.5,
+        "queries_per_mission": 0.25,
+        "total_reward": 12.5,
+    }
+    b = {
+        "episodes": 30,
+        "missions": 0,
+        "interaction_rate": 0.1,
+        "success_rate": None,
+        "queries_per_mission": None,
+        "total_reward": -3.0,
+    }
     got = overall_stats([a, b])
     assert got["episodes"] == 40
     assert got["missions"] == 4
@@ -165,8 +230,14 @@ def test_overall_stats_pool_the_users_episodes() -> None:
 
 
 def test_a_difference_between_service_and_robots_is_reported() -> None:
-    service = {"episodes": 5.0, "missions": 2.0, "interaction_rate": 0.4, "success_rate": 0.5,
-               "queries_per_mission": None, "total_reward": 3.0}
+    service = {
+        "episodes": 5.0,
+        "missions": 2.0,
+        "interaction_rate": 0.4,
+        "success_rate": 0.5,
+        "queries_per_mission": None,
+        "total_reward": 3.0,
+    }
     assert _differences(service, dict(service)) == []
     found = _differences(service, {**service, "total_reward": 3.5, "queries_per_mission": 0.0})
     assert len(found) == 2
@@ -185,10 +256,32 @@ def test_a_run_does_not_depend_on_how_many_robots_share_the_people() -> None:
         with fresh_database("sqlite") as url, LiveService(url) as service:
             key = service.create_key("robot")
             done = subprocess.run(
-                [ATTUNE, "fleet", "simulate", "--url", service.url, "--key", key, "--robots",
-                 str(robots), "--users", "3", "--events", "16", "--seed", "2", "--prefix", "det",
-                 "--json", "--no-progress"],
-                capture_output=True, text=True, timeout=300, check=False)
+                [
+                    ATTUNE,
+                    "fleet",
+                    "simulate",
+                    "--url",
+                    service.url,
+                    "--key",
+                    key,
+                    "--robots",
+                    str(robots),
+                    "--users",
+                    "3",
+                    "--events",
+                    "16",
+                    "--seed",
+                    "2",
+                    "--prefix",
+                    "det",
+                    "--json",
+                    "--no-progress",
+                ],
+                capture_output=True,
+                text=True,
+                timeout=300,
+                check=False,
+            )
             assert done.returncode == 0, done.stderr
             documents.append(json.loads(done.stdout))
     assert documents[0] == documents[1]

@@ -34,7 +34,10 @@ from tests.support.live import LiveService, fresh_database, make_keys, serving
 pytestmark = pytest.mark.live
 
 SETTINGS = hypothesis.settings(
-    max_examples=40, deadline=None, derandomize=True, database=None,
+    max_examples=40,
+    deadline=None,
+    derandomize=True,
+    database=None,
     suppress_health_check=list(hypothesis.HealthCheck),
 )
 # A schema cannot say which strings the mission accepts (situations, services) or which ids
@@ -45,8 +48,7 @@ SITUATIONS = MISSION.situations
 ANSWERS: dict[str, list[dict[str, Any]]] = {  # two valid answers per kind of decision
     "initiate": [{"response": "accepted"}, {"response": "rejected"}],
     "pass": [{"response": "none"}, {"response": "human_request", "service": "ProvideDrink"}],
-    "query_type": [{"response": "answered", "service": "ProvideDrink"},
-                   {"response": "terminated"}],
+    "query_type": [{"response": "answered", "service": "ProvideDrink"}, {"response": "terminated"}],
     "query_detail": [{"response": "answered"}, {"response": "terminated"}],
     "perform": [{"response": "accepted"}, {"response": "rejected"}],
 }
@@ -90,8 +92,9 @@ def _excluded() -> list[Any]:
 
 
 @pytest.mark.parametrize("mode", [GenerationMode.POSITIVE, GenerationMode.NEGATIVE])
-def test_every_operation(api_schema: OpenApiSchema, live: tuple[LiveService, dict[str, str]],
-                         mode: GenerationMode) -> None:
+def test_every_operation(
+    api_schema: OpenApiSchema, live: tuple[LiveService, dict[str, str]], mode: GenerationMode
+) -> None:
     """Generated requests to every operation, with a valid admin key."""
     _, keys = live
     headers = {"Authorization": f"Bearer {keys['admin']}"}
@@ -106,8 +109,9 @@ def test_every_operation(api_schema: OpenApiSchema, live: tuple[LiveService, dic
         @hypothesis.given(case=operation.as_strategy(generation_mode=mode))
         @SETTINGS
         def fuzz(case: Case[Any]) -> None:
-            case.call_and_validate(headers=headers, additional_checks=[contract_error_body],
-                                   excluded_checks=excluded)
+            case.call_and_validate(
+                headers=headers, additional_checks=[contract_error_body], excluded_checks=excluded
+            )
 
         try:
             fuzz()
@@ -142,7 +146,8 @@ def test_stateful_robot_flows(fresh_app: tuple[str, str, Any]) -> None:
     # A robot key may not call the deployment admin's routes: those calls would only spend the
     # scenarios' budget on 403s, so the robot's flows leave them out.
     api_schema = schemathesis.openapi.from_url(f"{base_url}/openapi.json").exclude(
-        path_regex="^/v1/admin/")
+        path_regex="^/v1/admin/"
+    )
     headers = {"Authorization": f"Bearer {key}"}
     excluded = _excluded()
     seen: Counter[tuple[str, int]] = Counter()
@@ -169,15 +174,19 @@ def test_stateful_robot_flows(fresh_app: tuple[str, str, Any]) -> None:
             if isinstance(case.query, dict):
                 case.query.pop("fleet", None)  # a robot's key names its fleet; naming one is 403
             body = case.body
-            negative = case.meta is not None and \
-                case.meta.generation.mode is GenerationMode.NEGATIVE
+            negative = (
+                case.meta is not None and case.meta.generation.mode is GenerationMode.NEGATIVE
+            )
             if negative or not isinstance(body, dict):
                 return  # invalid requests stay invalid
             pick = sum(json.dumps(body, sort_keys=True, default=str).encode())
             if case.operation.label == "POST /v1/users/{user_id}/episodes":
-                body.update(situation=SITUATIONS[pick % len(SITUATIONS)],
-                            occurred_at="2026-11-22T15:10:00+08:00", initiator="robot",
-                            request=None)
+                body.update(
+                    situation=SITUATIONS[pick % len(SITUATIONS)],
+                    occurred_at="2026-11-22T15:10:00+08:00",
+                    initiator="robot",
+                    request=None,
+                )
             elif case.operation.label == "POST /v1/episodes/{episode_id}/outcomes":
                 action = decisions.get(str(body.get("decision_id")), {"kind": "initiate"})
                 body.update({"service": None, "detail": None, **ANSWERS[action["kind"]][pick % 2]})
@@ -193,16 +202,28 @@ def test_stateful_robot_flows(fresh_app: tuple[str, str, Any]) -> None:
             if isinstance(decision, dict) and "decision_id" in decision:
                 decisions[decision["decision_id"]] = decision["action"]
 
-        def validate_response(self, response: Any, case: Case[Any],
-                              additional_checks: Any = None, **kwargs: Any) -> None:
-            case.validate_response(response, additional_checks=[contract_error_body],
-                                   excluded_checks=excluded, headers=headers)
+        def validate_response(
+            self, response: Any, case: Case[Any], additional_checks: Any = None, **kwargs: Any
+        ) -> None:
+            case.validate_response(
+                response,
+                additional_checks=[contract_error_body],
+                excluded_checks=excluded,
+                headers=headers,
+            )
 
     try:
-        RobotFlows.run(settings=hypothesis.settings(
-            max_examples=100, stateful_step_count=8, deadline=None, derandomize=True,
-            database=None, suppress_health_check=list(hypothesis.HealthCheck),
-            phases=[hypothesis.Phase.generate]))  # bounded: a failure is reported unshrunk
+        RobotFlows.run(
+            settings=hypothesis.settings(
+                max_examples=100,
+                stateful_step_count=8,
+                deadline=None,
+                derandomize=True,
+                database=None,
+                suppress_health_check=list(hypothesis.HealthCheck),
+                phases=[hypothesis.Phase.generate],
+            )
+        )  # bounded: a failure is reported unshrunk
     finally:
         engine.dispose()
     # The links were followed: outcomes were reported on decisions the service had made.

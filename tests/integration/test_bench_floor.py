@@ -28,16 +28,24 @@ def _rows_of(url: str) -> dict[str, list[tuple[str, ...]]]:
     try:
         with engine.connect() as conn:
             tables = inspect(conn).get_table_names()
-            return {t: sorted(tuple(str(v) for v in row)
-                              for row in conn.execute(text(f'SELECT * FROM "{t}"')))
-                    for t in tables}
+            return {
+                t: sorted(
+                    tuple(str(v) for v in row) for row in conn.execute(text(f'SELECT * FROM "{t}"'))
+                )
+                for t in tables
+            }
     finally:
         engine.dispose()
 
 
 def _hooks() -> tuple[Any, ...]:
-    return (_rows.Prepared._execute, base.TabularLearner.select_action,
-            base.TabularLearner.update, vars(write)["rng_for"], vars(write)["batch"])
+    return (
+        _rows.Prepared._execute,
+        base.TabularLearner.select_action,
+        base.TabularLearner.update,
+        vars(write)["rng_for"],
+        vars(write)["batch"],
+    )
 
 
 @pytest.fixture(scope="module")
@@ -46,6 +54,7 @@ def bench_modules() -> Iterator[tuple[Any, Any]]:
     try:
         import floor
         import service
+
         yield floor, service
     finally:
         sys.path.remove(str(BENCH))
@@ -55,15 +64,17 @@ def bench_modules() -> Iterator[tuple[Any, Any]]:
 
 @pytest.mark.parametrize("engine", engines())
 def test_replay_is_the_services_work_and_the_learner_is_timed(
-        engine: str, tmp_path: Path, bench_modules: tuple[Any, Any]) -> None:
+    engine: str, tmp_path: Path, bench_modules: tuple[Any, Any]
+) -> None:
     floor, service = bench_modules
     pg_server = service.PG_SERVER.rstrip("/")
     hooks = _hooks()
     with fresh_database(engine, tmp_path) as url:
         data = service.Data(url)
         try:
-            found = floor.measure(engine, url, data, ["ann", "bob", "cyd"], 150, pg_server,
-                                  group=3, keep_copy=True)
+            found = floor.measure(
+                engine, url, data, ["ann", "bob", "cyd"], 150, pg_server, group=3, keep_copy=True
+            )
         finally:
             data.close()
         assert found.copy is not None
@@ -81,8 +92,7 @@ def test_replay_is_the_services_work_and_the_learner_is_timed(
 
 
 @pytest.mark.parametrize("engine", engines())
-def test_the_copy_is_removed(engine: str, tmp_path: Path,
-                             bench_modules: tuple[Any, Any]) -> None:
+def test_the_copy_is_removed(engine: str, tmp_path: Path, bench_modules: tuple[Any, Any]) -> None:
     floor, service = bench_modules
     with fresh_database(engine, tmp_path) as url:
         data = service.Data(url)
@@ -98,6 +108,7 @@ def test_the_copy_is_removed(engine: str, tmp_path: Path,
 
             name = url.rsplit("/", 1)[1] + "_floor"
             with psycopg.connect(f"{service.PG_SERVER.rstrip('/')}/postgres") as conn:
-                found_dbs = conn.execute("SELECT 1 FROM pg_database WHERE datname = %s",
-                                         (name,)).fetchall()
+                found_dbs = conn.execute(
+                    "SELECT 1 FROM pg_database WHERE datname = %s", (name,)
+                ).fetchall()
             assert found_dbs == []

@@ -43,8 +43,12 @@ pytestmark = [pytest.mark.slow]
 MIGRATION = "migrations/versions/2026-11-30-1800_staff_corrections_and_local_times.py"
 BEFORE = "3e8a6d0c4f17"  # the revision the previous release ends at
 AFTER = "5b7d2e9a1c08"
-NEW_COLUMNS = ("utc_offset",  # this revision's, and the later ones'
-               "fleet_prior", "base_origin", "base_contributors")
+NEW_COLUMNS = (
+    "utc_offset",  # this revision's, and the later ones'
+    "fleet_prior",
+    "base_origin",
+    "base_contributors",
+)
 USERS = ("lin", "chen", "room-12")
 OPEN_USER = "room-12"
 SLOT, SITUATION = "afternoon", "stretching"  # play(): n % 4 == 2 is 15:10, n % 3 == 2
@@ -54,17 +58,21 @@ SLOT, SITUATION = "afternoon", "stretching"  # play(): n % 4 == 2 is 15:10, n % 
 def old_code(tmp_path_factory: pytest.TempPathFactory) -> Path:
     assert migrate.head_revision() != BEFORE
     # The change began with the learning core's guidance rules, in the migration's commit.
-    return release_code(previous_release(MIGRATION, "app/learning/guidance.py",
-                                         "app/learning/beliefs.py"),
-                        tmp_path_factory.mktemp("previous-release"))
+    return release_code(
+        previous_release(MIGRATION, "app/learning/guidance.py", "app/learning/beliefs.py"),
+        tmp_path_factory.mktemp("previous-release"),
+    )
 
 
 def _fill(old: OldService) -> dict[str, Any]:
     """What a deployment holds, made through the previous release's API."""
-    keys = {name: old.attune("keys", "create", "--role", role).split()[-1]
-            for name, role in (("robot", "robot"), ("admin", "admin"))}
-    robot = httpx.Client(base_url=old.base, timeout=30,
-                         headers={"Authorization": f"Bearer {keys['robot']}"})
+    keys = {
+        name: old.attune("keys", "create", "--role", role).split()[-1]
+        for name, role in (("robot", "robot"), ("admin", "admin"))
+    }
+    robot = httpx.Client(
+        base_url=old.base, timeout=30, headers={"Authorization": f"Bearer {keys['robot']}"}
+    )
     try:
         n = 0
         for uid in USERS:
@@ -72,11 +80,22 @@ def _fill(old: OldService) -> dict[str, Any]:
                 episode = play(robot, uid, f"{uid}-e{n}", n)
                 n += 1
                 if n % 4 == 0:
-                    assert robot.post(f"/v1/episodes/{episode}/feedback", json={
-                        "feedback_id": f"fb-{n}", "feedback": "positive"}).status_code == 200
-        opened = robot.post(f"/v1/users/{OPEN_USER}/episodes", json={
-            "event_id": "left-open", "occurred_at": "2026-11-20T15:10:00+08:00",
-            "situation": SITUATION, "initiator": "robot"})
+                    assert (
+                        robot.post(
+                            f"/v1/episodes/{episode}/feedback",
+                            json={"feedback_id": f"fb-{n}", "feedback": "positive"},
+                        ).status_code
+                        == 200
+                    )
+        opened = robot.post(
+            f"/v1/users/{OPEN_USER}/episodes",
+            json={
+                "event_id": "left-open",
+                "occurred_at": "2026-11-20T15:10:00+08:00",
+                "situation": SITUATION,
+                "initiator": "robot",
+            },
+        )
         assert opened.status_code == 201, opened.text
     finally:
         robot.close()
@@ -86,8 +105,11 @@ def _fill(old: OldService) -> dict[str, Any]:
 def _tables(url: str) -> list[str]:
     engine = create_engine(url)
     try:
-        return sorted(t for t in inspect(engine).get_table_names()
-                      if t not in ("alembic_version", "corrections"))
+        return sorted(
+            t
+            for t in inspect(engine).get_table_names()
+            if t not in ("alembic_version", "corrections")
+        )
     finally:
         engine.dispose()
 
@@ -97,31 +119,31 @@ def _rows(url: str, tables: list[str]) -> dict[str, list[tuple[Any, ...]]]:
     return table_rows(url, tables, leave_out=NEW_COLUMNS)
 
 
-
-
 def _api_view(api: Any) -> dict[str, Any]:
     """Every figure the API shows of every user (without the fields later releases add: where a
     model started, whether a user takes part in the fleet's prior)."""
     view: dict[str, Any] = {}
     for uid in USERS:
         episodes = api.get(f"/v1/users/{uid}/episodes", params={"limit": 500}).json()
-        traces = [api.get(f"/v1/episodes/{ep['episode_id']}").json()
-                  for ep in episodes["items"]]
+        traces = [api.get(f"/v1/episodes/{ep['episode_id']}").json() for ep in episodes["items"]]
         user = api.get(f"/v1/users/{uid}").json()
         user.pop("fleet_prior", None)
         model = api.get(f"/v1/users/{uid}/model").json()
         model.pop("started_from", None)
         view[uid] = {
-            "user": user, "model": model,
+            "user": user,
+            "model": model,
             "stats": api.get(f"/v1/users/{uid}/stats").json(),
-            "episodes": episodes["items"], "traces": traces}
+            "episodes": episodes["items"],
+            "traces": traces,
+        }
     return view
 
 
 @pytest.fixture(params=["sqlite", "postgresql"])
-def filled(request: pytest.FixtureRequest, old_code: Path, tmp_path: Path
-           ) -> Iterator[tuple[str, dict[str, Any], dict[str, Any], list[str],
-                               dict[str, Any]]]:
+def filled(
+    request: pytest.FixtureRequest, old_code: Path, tmp_path: Path
+) -> Iterator[tuple[str, dict[str, Any], dict[str, Any], list[str], dict[str, Any]]]:
     """A database at the previous release's head, filled through its API: (url, names, what
     its API showed, its tables, their rows)."""
     with fresh_database(request.param, tmp_path) as url:
@@ -129,8 +151,11 @@ def filled(request: pytest.FixtureRequest, old_code: Path, tmp_path: Path
         old = OldService(old_code, url, tmp_path / "old.log")
         with old:
             names = _fill(old)
-            with httpx.Client(base_url=old.base, timeout=30, headers={
-                    "Authorization": f"Bearer {names['keys']['admin']}"}) as admin:
+            with httpx.Client(
+                base_url=old.base,
+                timeout=30,
+                headers={"Authorization": f"Bearer {names['keys']['admin']}"},
+            ) as admin:
                 before = _api_view(admin)
         assert revision(url) == BEFORE
         tables = _tables(url)
@@ -138,16 +163,17 @@ def filled(request: pytest.FixtureRequest, old_code: Path, tmp_path: Path
         yield url, names, before, tables, _rows(url, tables)
 
 
-
 def _cell(profile: dict[str, Any]) -> dict[str, Any]:
-    cells: list[dict[str, Any]] = [c for c in profile["contexts"]
-                                   if (c["time_slot"], c["situation"]) == (SLOT, SITUATION)]
+    cells: list[dict[str, Any]] = [
+        c for c in profile["contexts"] if (c["time_slot"], c["situation"]) == (SLOT, SITUATION)
+    ]
     [cell] = cells
     return cell
 
 
 def test_the_upgrade_keeps_everything_and_corrections_can_be_made(
-        filled: tuple[str, dict[str, Any], dict[str, Any], list[str], dict[str, Any]]) -> None:
+    filled: tuple[str, dict[str, Any], dict[str, Any], list[str], dict[str, Any]],
+) -> None:
     url, names, before, tables, rows_before = filled
     migrate.upgrade(url)
     assert revision(url) == migrate.head_revision()  # this code runs on the newest schema
@@ -159,8 +185,9 @@ def test_the_upgrade_keeps_everything_and_corrections_can_be_made(
     settings = Settings(database_url=url, seed=0, _env_file=None)  # type: ignore[call-arg]
     app = create_app(settings)
     try:
-        with TestClient(app, headers={
-                "Authorization": f"Bearer {names['keys']['admin']}"}) as admin:
+        with TestClient(
+            app, headers={"Authorization": f"Bearer {names['keys']['admin']}"}
+        ) as admin:
             assert admin.get("/readyz").status_code == 200
             assert _api_view(admin) == before
 
@@ -168,8 +195,9 @@ def test_the_upgrade_keeps_everything_and_corrections_can_be_made(
             r = admin.get(f"/v1/users/{OPEN_USER}/profile")
             assert r.status_code == 200, r.text
             profile = r.json()
-            listed = admin.get(f"/v1/users/{OPEN_USER}/episodes",
-                               params={"limit": 500}).json()["items"]
+            listed = admin.get(f"/v1/users/{OPEN_USER}/episodes", params={"limit": 500}).json()[
+                "items"
+            ]
             assert profile["episodes"] == len(listed) == 7
             assert profile["open_episodes"] == 1
             assert profile["utc_offset"] is None  # shown in UTC
@@ -183,25 +211,40 @@ def test_the_upgrade_keeps_everything_and_corrections_can_be_made(
                     assert dt.datetime.fromisoformat(seen).utcoffset() == dt.timedelta(0)
 
             # Corrections are made, listed and shown in the profile.
-            made = admin.post(f"/v1/users/{OPEN_USER}/corrections", json={
-                "correction_id": "tea-afternoons", "time_slot": SLOT,
-                "situation": SITUATION, "kind": "prefers", "service": "ProvideDrink",
-                "detail": "tea", "note": "Made after the upgrade."})
+            made = admin.post(
+                f"/v1/users/{OPEN_USER}/corrections",
+                json={
+                    "correction_id": "tea-afternoons",
+                    "time_slot": SLOT,
+                    "situation": SITUATION,
+                    "kind": "prefers",
+                    "service": "ProvideDrink",
+                    "detail": "tea",
+                    "note": "Made after the upgrade.",
+                },
+            )
             assert made.status_code == 201, made.text
             assert made.json()["status"] == "in_force"
-            quiet = admin.post("/v1/users/lin/corrections", json={
-                "correction_id": "hush", "time_slot": "morning", "situation": "working",
-                "kind": "quiet"})
+            quiet = admin.post(
+                "/v1/users/lin/corrections",
+                json={
+                    "correction_id": "hush",
+                    "time_slot": "morning",
+                    "situation": "working",
+                    "kind": "quiet",
+                },
+            )
             assert quiet.status_code == 201, quiet.text
-            assert [c["correction_id"] for c in admin.get(
-                f"/v1/users/{OPEN_USER}/corrections").json()["items"]] == ["tea-afternoons"]
+            assert [
+                c["correction_id"]
+                for c in admin.get(f"/v1/users/{OPEN_USER}/corrections").json()["items"]
+            ] == ["tea-afternoons"]
             profile = admin.get(f"/v1/users/{OPEN_USER}/profile").json()
             assert [c["correction_id"] for c in profile["corrections"]] == ["tea-afternoons"]
             assert _cell(profile)["source"] == "staff"
 
             # The episode left open before the upgrade finishes; a new one carries its offset.
-            robot = TestClient(app, headers={
-                "Authorization": f"Bearer {names['keys']['robot']}"})
+            robot = TestClient(app, headers={"Authorization": f"Bearer {names['keys']['robot']}"})
             opened = names["open"]
             decision = opened["decision"]
             while decision is not None:
@@ -227,7 +270,8 @@ def test_the_upgrade_keeps_everything_and_corrections_can_be_made(
         app.state.db.dispose()
 
     assert scalars(url, "SELECT COUNT(*) FROM episodes WHERE utc_offset IS NULL") == [
-        names["episodes"]]
+        names["episodes"]
+    ]
     for uid in USERS:
         summary = rebuild(url, uid)
         assert summary["identical"] is True, (uid, summary)
@@ -241,7 +285,8 @@ def test_the_upgrade_keeps_everything_and_corrections_can_be_made(
 
 
 def test_the_downgrade_gives_back_the_previous_schema(
-        filled: tuple[str, dict[str, Any], dict[str, Any], list[str], dict[str, Any]]) -> None:
+    filled: tuple[str, dict[str, Any], dict[str, Any], list[str], dict[str, Any]],
+) -> None:
     url, _, _, tables, rows_before = filled
     migrate.upgrade(url)
     command.downgrade(migrate.alembic_config(url), BEFORE)

@@ -79,8 +79,9 @@ def exec_form(args: str) -> list[str]:
 
 def test_hadolint_finds_nothing() -> None:
     hadolint = Path(sys.executable).with_name("hadolint")
-    done = subprocess.run([str(hadolint), str(DOCKERFILE)], capture_output=True, text=True,
-                          check=False, timeout=60)
+    done = subprocess.run(
+        [str(hadolint), str(DOCKERFILE)], capture_output=True, text=True, check=False, timeout=60
+    )
     assert done.returncode == 0, done.stdout + done.stderr
 
 
@@ -119,7 +120,8 @@ def test_compose_wiring() -> None:
     assert "pg_isready" in " ".join(db["healthcheck"]["test"])
     assert attune["depends_on"] == {"db": {"condition": "service_healthy"}}
     assert (COMPOSE.parent / attune["build"]["context"] / attune["build"]["dockerfile"]).samefile(
-        DOCKERFILE)
+        DOCKERFILE
+    )
     url = attune["environment"]["ATTUNE_DATABASE_URL"]
     assert url.startswith("postgresql://attune:")
     assert url.endswith("@db:5432/attune")
@@ -155,14 +157,25 @@ def _run_build_stage(stage: Stage, root: Path, venv: Path) -> Path:
             for source in sources:
                 src = ROOT / source
                 if src.is_dir():
-                    shutil.copytree(src, target, dirs_exist_ok=True,
-                                    ignore=shutil.ignore_patterns("__pycache__", "tests"))
+                    shutil.copytree(
+                        src,
+                        target,
+                        dirs_exist_ok=True,
+                        ignore=shutil.ignore_patterns("__pycache__", "tests"),
+                    )
                 else:
                     target.mkdir(parents=True, exist_ok=True)
                     shutil.copy2(src, target / src.name)
         elif kw == "RUN" and "uv sync" in text:
-            done = subprocess.run(["bash", "-c", here(text)], cwd=workdir, env=env,
-                                  capture_output=True, text=True, check=False, timeout=600)
+            done = subprocess.run(
+                ["bash", "-c", here(text)],
+                cwd=workdir,
+                env=env,
+                capture_output=True,
+                text=True,
+                check=False,
+                timeout=600,
+            )
             assert done.returncode == 0, done.stdout + done.stderr
     return workdir
 
@@ -170,22 +183,37 @@ def _run_build_stage(stage: Stage, root: Path, venv: Path) -> Path:
 @pytest.mark.live
 def test_the_image_commands_run_here(tmp_path: Path) -> None:
     if shutil.which("uv") is None:
-        pytest.fail("uv is needed to run the build stage's commands (./scripts/bootstrap "
-                    "installs it)", pytrace=False)
+        pytest.fail(
+            "uv is needed to run the build stage's commands (./scripts/bootstrap installs it)",
+            pytrace=False,
+        )
     _, (build, final) = parse(DOCKERFILE)
     venv = tmp_path / "opt" / "venv"
     _run_build_stage(build, tmp_path / "root", venv)
     assert (venv / "bin" / "attune").exists()
     assert not (venv / "bin" / "uv").exists(), "uv belongs to the build stage only"
     # Installed, not linked to the source tree: the final stage has no source tree.
-    installed = subprocess.run([str(venv / "bin" / "python"), "-c",
-                                "import app, attune_client"], capture_output=True, text=True,
-                               check=False, timeout=60, cwd=tmp_path)
+    installed = subprocess.run(
+        [str(venv / "bin" / "python"), "-c", "import app, attune_client"],
+        capture_output=True,
+        text=True,
+        check=False,
+        timeout=60,
+        cwd=tmp_path,
+    )
     assert "No module named 'attune_client'" in installed.stderr, "no client in the image"
-    located = subprocess.run([str(venv / "bin" / "python"), "-c",
-                              "import app.db.migrate as m; print(m.script_location())"],
-                             capture_output=True, text=True, check=True, timeout=60,
-                             cwd=tmp_path)
+    located = subprocess.run(
+        [
+            str(venv / "bin" / "python"),
+            "-c",
+            "import app.db.migrate as m; print(m.script_location())",
+        ],
+        capture_output=True,
+        text=True,
+        check=True,
+        timeout=60,
+        cwd=tmp_path,
+    )
     assert located.stdout.strip().startswith(str(venv)), located.stdout
     workdir = tmp_path / "root" / "var" / "lib" / "attune"
     workdir.mkdir(parents=True)
@@ -195,14 +223,23 @@ def test_the_image_commands_run_here(tmp_path: Path) -> None:
     command = [str(venv / "bin" / command[0]), *command[1:]]
     command[command.index("--host") + 1] = "127.0.0.1"  # loopback only, here
     command[command.index("--port") + 1] = str(port)
-    env = {**os.environ, "PATH": f"{venv / 'bin'}:{os.environ['PATH']}",
-           "ATTUNE_DATABASE_URL": f"sqlite:///{tmp_path / 'data' / 'attune.db'}",
-           "ATTUNE_LOG_LEVEL": "warning"}
+    env = {
+        **os.environ,
+        "PATH": f"{venv / 'bin'}:{os.environ['PATH']}",
+        "ATTUNE_DATABASE_URL": f"sqlite:///{tmp_path / 'data' / 'attune.db'}",
+        "ATTUNE_LOG_LEVEL": "warning",
+    }
     (tmp_path / "data").mkdir()
     log = tmp_path / "serve.log"
     with open(log, "wb") as out:
-        server = subprocess.Popen(command, cwd=workdir, env=env, stdout=out,
-                                  stderr=subprocess.STDOUT, start_new_session=True)
+        server = subprocess.Popen(
+            command,
+            cwd=workdir,
+            env=env,
+            stdout=out,
+            stderr=subprocess.STDOUT,
+            start_new_session=True,
+        )
     try:
         deadline = time.monotonic() + 60
         while True:
@@ -217,16 +254,25 @@ def test_the_image_commands_run_here(tmp_path: Path) -> None:
         (health,) = final.all("HEALTHCHECK")
         check = exec_form(health.split(" CMD ", 1)[1])
         check = [c.replace("127.0.0.1:8000", f"127.0.0.1:{port}") for c in check]
-        done = subprocess.run(check, env=env, capture_output=True, text=True, timeout=30,
-                              check=False)
+        done = subprocess.run(
+            check, env=env, capture_output=True, text=True, timeout=30, check=False
+        )
         assert done.returncode == 0, done.stderr
         # The same check fails when nothing listens: it is a real check.
         closed = [c.replace(str(port), str(free_port())) for c in check]
-        assert subprocess.run(closed, env=env, capture_output=True, timeout=30,
-                              check=False).returncode != 0
-        keys = subprocess.run([str(venv / "bin" / "attune"), "keys", "create", "--role",
-                               "robot"], cwd=workdir, env=env, capture_output=True, text=True,
-                              timeout=60, check=False)
+        assert (
+            subprocess.run(closed, env=env, capture_output=True, timeout=30, check=False).returncode
+            != 0
+        )
+        keys = subprocess.run(
+            [str(venv / "bin" / "attune"), "keys", "create", "--role", "robot"],
+            cwd=workdir,
+            env=env,
+            capture_output=True,
+            text=True,
+            timeout=60,
+            check=False,
+        )
         assert keys.returncode == 0, keys.stderr
         assert keys.stdout.strip().splitlines()[-1].startswith("att_")
     finally:

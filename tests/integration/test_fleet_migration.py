@@ -52,26 +52,41 @@ def old_code(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 def _fill(old: OldService) -> dict[str, Any]:
     """What a deployment holds, made through the previous release's API; the names used."""
-    keys = {name: old.attune("keys", "create", "--role", role, "--fleet", fleet).split()[-1]
-            for name, role, fleet in (("robot_a", "robot", "north"), ("robot_b", "robot", "south"),
-                                      ("admin", "admin", "default"))}
-    clients = {name: httpx.Client(base_url=old.base, timeout=30,
-                                  headers={"Authorization": f"Bearer {key}"})
-               for name, key in keys.items()}
+    keys = {
+        name: old.attune("keys", "create", "--role", role, "--fleet", fleet).split()[-1]
+        for name, role, fleet in (
+            ("robot_a", "robot", "north"),
+            ("robot_b", "robot", "south"),
+            ("admin", "admin", "default"),
+        )
+    }
+    clients = {
+        name: httpx.Client(
+            base_url=old.base, timeout=30, headers={"Authorization": f"Bearer {key}"}
+        )
+        for name, key in keys.items()
+    }
     users = {"north": ["lin", "chen", "room-12"], "south": ["ana", "bo"]}
     try:
         n = 0
         for fleet, ids in users.items():
             api = clients["robot_a" if fleet == "north" else "robot_b"]
             for uid in ids:
-                assert api.put(f"/v1/users/{uid}", json={"display_name": uid.title()}
-                               ).status_code == 201
+                assert (
+                    api.put(f"/v1/users/{uid}", json={"display_name": uid.title()}).status_code
+                    == 201
+                )
                 for _ in range(9):
                     episode = play(api, uid, f"{uid}-e{n}", n)
                     n += 1
                     if n % 4 == 0:  # explicit feedback after the episode
-                        assert api.post(f"/v1/episodes/{episode}/feedback", json={
-                            "feedback_id": f"fb-{n}", "feedback": "positive"}).status_code == 200
+                        assert (
+                            api.post(
+                                f"/v1/episodes/{episode}/feedback",
+                                json={"feedback_id": f"fb-{n}", "feedback": "positive"},
+                            ).status_code
+                            == 200
+                        )
         admin = clients["admin"]
         assert admin.delete("/v1/users/chen/model").status_code == 204  # a reset mid-history
         for i in range(3):
@@ -80,12 +95,15 @@ def _fill(old: OldService) -> dict[str, Any]:
         assert doc.status_code == 200
         assert admin.put("/v1/users/bo/model", json=doc.json()).status_code == 200  # imported
         play(clients["robot_b"], "bo", "bo-after-import", 99)
-        assert admin.put("/v1/users/dts-user", json={
-            "learner": {"algorithm": "dts"}}).status_code == 201
+        assert (
+            admin.put("/v1/users/dts-user", json={"learner": {"algorithm": "dts"}}).status_code
+            == 201
+        )
         for i in range(4):
             play(admin, "dts-user", f"dts-{i}", i)
-        old.attune("keys", "revoke", old.attune("keys", "list", "--json").split('"id": "')[1]
-                   .split('"')[0])
+        old.attune(
+            "keys", "revoke", old.attune("keys", "list", "--json").split('"id": "')[1].split('"')[0]
+        )
     finally:
         for c in clients.values():
             c.close()
@@ -119,8 +137,13 @@ def _api_view(api: Any, users: dict[str, list[str]], *, fleet_param: bool) -> di
             for ep in episodes["items"]:
                 ep.pop("fleet", None)
                 ep.pop("mission_version", None)
-            view[f"{fleet}/{uid}"] = {"user": user, "model": model, "stats": stats,
-                                      "episodes": episodes["items"], "traces": traces}
+            view[f"{fleet}/{uid}"] = {
+                "user": user,
+                "model": model,
+                "stats": stats,
+                "episodes": episodes["items"],
+                "traces": traces,
+            }
     view["audit"] = api.get("/v1/admin/audit", params={"limit": 500}).json()["items"]
     return view
 
@@ -132,8 +155,10 @@ def _rows(url: str, user_key: str) -> dict[str, list[tuple[Any, ...]]]:
     engine = create_engine(url)
     try:
         with engine.connect() as conn:
-            owner = {r[0]: (r[1], r[2]) for r in conn.execute(text(
-                f"SELECT {user_key}, fleet, user_id FROM users"))}
+            owner = {
+                r[0]: (r[1], r[2])
+                for r in conn.execute(text(f"SELECT {user_key}, fleet, user_id FROM users"))
+            }
     finally:
         engine.dispose()
 
@@ -144,16 +169,25 @@ def _rows(url: str, user_key: str) -> dict[str, list[tuple[Any, ...]]]:
         elif table in USER_TABLES:
             row["user"] = owner[row.pop("user_pk" if "user_pk" in row else "user_id")]
 
-    return table_rows(url, ("users", *USER_TABLES, "decisions", "feedback", "api_keys",
-                            "audit_log"),
-                      leave_out=("mission_version", "base_mission_version", "utc_offset",
-                                 "fleet_prior", "base_origin", "base_contributors"),
-                      rewrite=by_owner)
+    return table_rows(
+        url,
+        ("users", *USER_TABLES, "decisions", "feedback", "api_keys", "audit_log"),
+        leave_out=(
+            "mission_version",
+            "base_mission_version",
+            "utc_offset",
+            "fleet_prior",
+            "base_origin",
+            "base_contributors",
+        ),
+        rewrite=by_owner,
+    )
 
 
 @pytest.fixture(params=["sqlite", "postgresql"])
-def filled(request: pytest.FixtureRequest, old_code: Path, tmp_path: Path
-           ) -> Iterator[tuple[str, dict[str, Any], dict[str, Any], dict[str, Any]]]:
+def filled(
+    request: pytest.FixtureRequest, old_code: Path, tmp_path: Path
+) -> Iterator[tuple[str, dict[str, Any], dict[str, Any], dict[str, Any]]]:
     """A database at the previous release's head, filled through its API: (url, names, what
     its API showed, its rows)."""
     with fresh_database(request.param, tmp_path) as url:
@@ -161,8 +195,11 @@ def filled(request: pytest.FixtureRequest, old_code: Path, tmp_path: Path
         old = OldService(old_code, url, tmp_path / "old.log")
         with old:
             names = _fill(old)
-            admin = httpx.Client(base_url=old.base, timeout=30, headers={
-                "Authorization": f"Bearer {names['keys']['admin']}"})
+            admin = httpx.Client(
+                base_url=old.base,
+                timeout=30,
+                headers={"Authorization": f"Bearer {names['keys']['admin']}"},
+            )
             with admin:
                 before = _api_view(admin, names["users"], fleet_param=False)
         engine = create_engine(url)
@@ -175,7 +212,8 @@ def filled(request: pytest.FixtureRequest, old_code: Path, tmp_path: Path
 
 
 def test_the_upgrade_keeps_every_row_figure_and_decision(
-        filled: tuple[str, dict[str, Any], dict[str, Any], dict[str, Any]]) -> None:
+    filled: tuple[str, dict[str, Any], dict[str, Any], dict[str, Any]],
+) -> None:
     url, names, before, rows_before = filled
     migrate.upgrade(url)
     assert _rows(url, "id") == rows_before
@@ -194,8 +232,7 @@ def test_the_upgrade_keeps_every_row_figure_and_decision(
             for fleet, ids in names["users"].items():
                 for uid in ids:
                     with app.state.db.transaction() as session:
-                        report = rebuild_model(session, ctx, audit_service.CLI, uid,
-                                               fleet=fleet)
+                        report = rebuild_model(session, ctx, audit_service.CLI, uid, fleet=fleet)
                     assert report.identical, (fleet, uid, report.mismatched_decisions)
                     assert report.decisions > 0
             # The service goes on: the same robots serve their users; a second fleet may now
@@ -203,8 +240,10 @@ def test_the_upgrade_keeps_every_row_figure_and_decision(
             robot_b = {"Authorization": f"Bearer {names['keys']['robot_b']}"}
             assert admin.put("/v1/users/lin", json={}, headers=robot_b).status_code == 201
             assert admin.get("/v1/users/lin", headers=robot_b).json()["fleet"] == "south"
-            assert admin.get("/v1/users/lin", params={"fleet": "north"}).json()["episodes"] == \
-                before["north/lin"]["user"]["episodes"]
+            assert (
+                admin.get("/v1/users/lin", params={"fleet": "north"}).json()["episodes"]
+                == before["north/lin"]["user"]["episodes"]
+            )
     finally:
         app.state.db.dispose()
 
@@ -226,4 +265,3 @@ def test_the_upgrade_keeps_every_row_figure_and_decision(
     assert _rows(url, "user_id")["episodes"] == rows_before["episodes"]
     migrate.upgrade(url)
     assert _rows(url, "id")["samples"] == rows_before["samples"]
-

@@ -30,10 +30,16 @@ pytestmark = [pytest.mark.live, pytest.mark.slow]
 
 def _clone(dest: Path) -> Path:
     """The repository's tracked and new (not ignored) files, copied to ``dest``."""
-    listed = subprocess.run(
-        ["git", "ls-files", "-z", "--cached", "--others", "--exclude-standard"], cwd=ROOT,
-        capture_output=True, check=True,
-    ).stdout.decode().split("\0")
+    listed = (
+        subprocess.run(
+            ["git", "ls-files", "-z", "--cached", "--others", "--exclude-standard"],
+            cwd=ROOT,
+            capture_output=True,
+            check=True,
+        )
+        .stdout.decode()
+        .split("\0")
+    )
     for name in filter(None, listed):
         src = ROOT / name
         if src.is_file():
@@ -44,10 +50,14 @@ def _clone(dest: Path) -> Path:
 
 def _env() -> dict[str, str]:
     """This process's environment without any ATTUNE_ setting or virtualenv of its own."""
-    env = {k: v for k, v in os.environ.items()
-           if not k.startswith("ATTUNE_") and k not in ("VIRTUAL_ENV", "PYTHONPATH")}
-    env["PATH"] = os.pathsep.join(p for p in env.get("PATH", "").split(os.pathsep)
-                                  if not p.startswith(sys.prefix))
+    env = {
+        k: v
+        for k, v in os.environ.items()
+        if not k.startswith("ATTUNE_") and k not in ("VIRTUAL_ENV", "PYTHONPATH")
+    }
+    env["PATH"] = os.pathsep.join(
+        p for p in env.get("PATH", "").split(os.pathsep) if not p.startswith(sys.prefix)
+    )
     return env
 
 
@@ -57,9 +67,15 @@ def _venv(path: Path) -> Path:
 
 
 def _pip(bin_dir: Path, *args: str, cwd: Path) -> None:
-    done = subprocess.run([str(bin_dir / "python"), "-m", "pip", "install", "--quiet", *args],
-                          cwd=cwd, env=_env(), capture_output=True, text=True, timeout=900,
-                          check=False)
+    done = subprocess.run(
+        [str(bin_dir / "python"), "-m", "pip", "install", "--quiet", *args],
+        cwd=cwd,
+        env=_env(),
+        capture_output=True,
+        text=True,
+        timeout=900,
+        check=False,
+    )
     assert done.returncode == 0, done.stdout + done.stderr
 
 
@@ -72,13 +88,23 @@ def test_pip_install_then_serve_from_any_folder(clone: Path, tmp_path: Path) -> 
     bin_dir = _venv(tmp_path / "venv")
     _pip(bin_dir, ".", cwd=clone)
     # Not editable: the package (migrations included) lives in the virtualenv.
-    where = subprocess.run([str(bin_dir / "python"), "-c",
-                            "import app.db.migrate as m; print(m.script_location())"],
-                           cwd=tmp_path, env=_env(), capture_output=True, text=True, check=True)
+    where = subprocess.run(
+        [str(bin_dir / "python"), "-c", "import app.db.migrate as m; print(m.script_location())"],
+        cwd=tmp_path,
+        env=_env(),
+        capture_output=True,
+        text=True,
+        check=True,
+    )
     assert Path(where.stdout.strip()).is_relative_to(tmp_path / "venv"), where.stdout
     # The service's own dependencies do not include the fleet's client.
-    client = subprocess.run([str(bin_dir / "python"), "-c", "import attune_client"],
-                            cwd=tmp_path, env=_env(), capture_output=True, text=True)
+    client = subprocess.run(
+        [str(bin_dir / "python"), "-c", "import attune_client"],
+        cwd=tmp_path,
+        env=_env(),
+        capture_output=True,
+        text=True,
+    )
     assert client.returncode != 0
 
     folder = tmp_path / "elsewhere"
@@ -86,9 +112,14 @@ def test_pip_install_then_serve_from_any_folder(clone: Path, tmp_path: Path) -> 
     port = free_port()
     log = tmp_path / "serve.log"
     with open(log, "wb") as out:
-        server = subprocess.Popen([str(bin_dir / "attune"), "serve", "--port", str(port)],
-                                  cwd=folder, env=_env(), stdout=out, stderr=subprocess.STDOUT,
-                                  start_new_session=True)
+        server = subprocess.Popen(
+            [str(bin_dir / "attune"), "serve", "--port", str(port)],
+            cwd=folder,
+            env=_env(),
+            stdout=out,
+            stderr=subprocess.STDOUT,
+            start_new_session=True,
+        )
     try:
         deadline = time.monotonic() + 60
         while True:
@@ -99,8 +130,9 @@ def test_pip_install_then_serve_from_any_folder(clone: Path, tmp_path: Path) -> 
                     break
             except httpx.TransportError:
                 pass
-            assert time.monotonic() < deadline, "attune serve was not ready in 60 s\n" + \
-                log.read_text()
+            assert time.monotonic() < deadline, (
+                "attune serve was not ready in 60 s\n" + log.read_text()
+            )
             time.sleep(0.2)
     finally:
         os.killpg(server.pid, signal.SIGTERM)
@@ -112,17 +144,30 @@ def test_pip_install_then_serve_from_any_folder(clone: Path, tmp_path: Path) -> 
 def test_the_client_installs_alone(clone: Path, tmp_path: Path) -> None:
     bin_dir = _venv(tmp_path / "venv")
     _pip(bin_dir, "./clients/python", cwd=clone)
-    done = subprocess.run([str(bin_dir / "python"), "-c",
-                           "import attune_client, importlib.util as u; "
-                           "print(attune_client.Client.__name__, u.find_spec('app') is None)"],
-                          cwd=tmp_path, env=_env(), capture_output=True, text=True, check=True)
+    done = subprocess.run(
+        [
+            str(bin_dir / "python"),
+            "-c",
+            "import attune_client, importlib.util as u; "
+            "print(attune_client.Client.__name__, u.find_spec('app') is None)",
+        ],
+        cwd=tmp_path,
+        env=_env(),
+        capture_output=True,
+        text=True,
+        check=True,
+    )
     assert done.stdout.split() == ["Client", "True"]
 
 
 def test_the_fleet_extra_resolves_with_plain_pip(clone: Path, tmp_path: Path) -> None:
     bin_dir = _venv(tmp_path / "venv")
     _pip(bin_dir, "./clients/python", ".[fleet]", cwd=clone)
-    done = subprocess.run([str(bin_dir / "python"), "-c",
-                           "import attune_client, matplotlib, app.fleet"],
-                          cwd=tmp_path, env=_env(), capture_output=True, text=True)
+    done = subprocess.run(
+        [str(bin_dir / "python"), "-c", "import attune_client, matplotlib, app.fleet"],
+        cwd=tmp_path,
+        env=_env(),
+        capture_output=True,
+        text=True,
+    )
     assert done.returncode == 0, done.stderr

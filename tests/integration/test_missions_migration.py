@@ -44,10 +44,24 @@ pytestmark = [pytest.mark.slow]
 
 MIGRATION = "migrations/versions/2026-11-30-1500_missions_per_fleet.py"
 BEFORE = "9c1f4e7a2b65"  # the revision the previous release ends at
-TABLES = ("users", "learner_models", "episodes", "samples", "decisions", "feedback", "api_keys",
-          "audit_log")
-NEW_COLUMNS = ("mission_version", "base_mission_version", "utc_offset",  # this and later releases
-               "fleet_prior", "base_origin", "base_contributors")
+TABLES = (
+    "users",
+    "learner_models",
+    "episodes",
+    "samples",
+    "decisions",
+    "feedback",
+    "api_keys",
+    "audit_log",
+)
+NEW_COLUMNS = (
+    "mission_version",
+    "base_mission_version",
+    "utc_offset",  # this and later releases
+    "fleet_prior",
+    "base_origin",
+    "base_contributors",
+)
 USERS = {"north": ["lin", "chen", "room-12"], "south": ["lin", "bo"]}
 
 
@@ -55,18 +69,28 @@ USERS = {"north": ["lin", "chen", "room-12"], "south": ["lin", "bo"]}
 def old_code(tmp_path_factory: pytest.TempPathFactory) -> Path:
     assert migrate.head_revision() != BEFORE
     # The change began with the learning core's remapping, before its migration was committed.
-    return release_code(previous_release(MIGRATION, "app/learning/remap.py"),
-                        tmp_path_factory.mktemp("previous-release"))
+    return release_code(
+        previous_release(MIGRATION, "app/learning/remap.py"),
+        tmp_path_factory.mktemp("previous-release"),
+    )
 
 
 def _fill(old: OldService) -> dict[str, Any]:
     """What a deployment holds, made through the previous release's API."""
-    keys = {name: old.attune("keys", "create", "--role", role, "--fleet", fleet).split()[-1]
-            for name, role, fleet in (("north", "robot", "north"), ("south", "robot", "south"),
-                                      ("admin", "admin", "default"))}
-    clients = {name: httpx.Client(base_url=old.base, timeout=30,
-                                  headers={"Authorization": f"Bearer {key}"})
-               for name, key in keys.items()}
+    keys = {
+        name: old.attune("keys", "create", "--role", role, "--fleet", fleet).split()[-1]
+        for name, role, fleet in (
+            ("north", "robot", "north"),
+            ("south", "robot", "south"),
+            ("admin", "admin", "default"),
+        )
+    }
+    clients = {
+        name: httpx.Client(
+            base_url=old.base, timeout=30, headers={"Authorization": f"Bearer {key}"}
+        )
+        for name, key in keys.items()
+    }
     try:
         n = 0
         for fleet, ids in USERS.items():
@@ -75,24 +99,42 @@ def _fill(old: OldService) -> dict[str, Any]:
                     episode = play(clients[fleet], uid, f"{uid}-e{n}", n)
                     n += 1
                     if n % 4 == 0:
-                        assert clients[fleet].post(f"/v1/episodes/{episode}/feedback", json={
-                            "feedback_id": f"fb-{n}", "feedback": "positive"}).status_code == 200
+                        assert (
+                            clients[fleet]
+                            .post(
+                                f"/v1/episodes/{episode}/feedback",
+                                json={"feedback_id": f"fb-{n}", "feedback": "positive"},
+                            )
+                            .status_code
+                            == 200
+                        )
         admin = clients["admin"]
-        assert admin.delete("/v1/users/chen/model", params={"fleet": "north"}
-                            ).status_code == 204
+        assert admin.delete("/v1/users/chen/model", params={"fleet": "north"}).status_code == 204
         play(clients["north"], "chen", "chen-after", n)
         doc = admin.get("/v1/users/lin/model/export", params={"fleet": "north"})
         assert doc.status_code == 200
-        assert admin.put("/v1/users/bo/model", params={"fleet": "south"},
-                         json=doc.json()).status_code == 200
+        assert (
+            admin.put("/v1/users/bo/model", params={"fleet": "south"}, json=doc.json()).status_code
+            == 200
+        )
         play(clients["south"], "bo", "bo-after-import", 99)
-        assert clients["south"].put("/v1/users/dts", json={
-            "learner": {"algorithm": "dts"}}).status_code == 201
+        assert (
+            clients["south"]
+            .put("/v1/users/dts", json={"learner": {"algorithm": "dts"}})
+            .status_code
+            == 201
+        )
         for i in range(4):
             play(clients["south"], "dts", f"dts-{i}", i)
-        opened = clients["north"].post("/v1/users/room-12/episodes", json={
-            "event_id": "left-open", "occurred_at": "2026-11-20T15:10:00+08:00",
-            "situation": "stretching", "initiator": "robot"})
+        opened = clients["north"].post(
+            "/v1/users/room-12/episodes",
+            json={
+                "event_id": "left-open",
+                "occurred_at": "2026-11-20T15:10:00+08:00",
+                "situation": "stretching",
+                "initiator": "robot",
+            },
+        )
         assert opened.status_code == 201, opened.text
     finally:
         for c in clients.values():
@@ -117,20 +159,25 @@ def _api_view(api: Any) -> dict[str, Any]:
             user = api.get(f"/v1/users/{uid}", params=q).json()
             user.pop("fleet_prior", None)  # a later release's
             episodes = api.get(f"/v1/users/{uid}/episodes", params={**q, "limit": 500}).json()
-            traces = [api.get(f"/v1/episodes/{ep['episode_id']}").json()
-                      for ep in episodes["items"]]
+            traces = [
+                api.get(f"/v1/episodes/{ep['episode_id']}").json() for ep in episodes["items"]
+            ]
             for item in [*episodes["items"], *traces]:
                 item.pop("mission_version", None)
             view[f"{fleet}/{uid}"] = {
-                "user": user, "model": model,
+                "user": user,
+                "model": model,
                 "stats": api.get(f"/v1/users/{uid}/stats", params=q).json(),
-                "episodes": episodes["items"], "traces": traces}
+                "episodes": episodes["items"],
+                "traces": traces,
+            }
     return view
 
 
 @pytest.fixture(params=["sqlite", "postgresql"])
-def filled(request: pytest.FixtureRequest, old_code: Path, tmp_path: Path
-           ) -> Iterator[tuple[str, dict[str, Any], dict[str, Any], dict[str, Any]]]:
+def filled(
+    request: pytest.FixtureRequest, old_code: Path, tmp_path: Path
+) -> Iterator[tuple[str, dict[str, Any], dict[str, Any], dict[str, Any]]]:
     """A database at the previous release's head, filled through its API: (url, names, what
     its API showed, its rows)."""
     with fresh_database(request.param, tmp_path) as url:
@@ -138,8 +185,11 @@ def filled(request: pytest.FixtureRequest, old_code: Path, tmp_path: Path
         old = OldService(old_code, url, tmp_path / "old.log")
         with old:
             names = _fill(old)
-            with httpx.Client(base_url=old.base, timeout=30, headers={
-                    "Authorization": f"Bearer {names['keys']['admin']}"}) as admin:
+            with httpx.Client(
+                base_url=old.base,
+                timeout=30,
+                headers={"Authorization": f"Bearer {names['keys']['admin']}"},
+            ) as admin:
                 before = _api_view(admin)
         engine = create_engine(url)
         try:
@@ -160,8 +210,10 @@ def _rebuild_all(app: Any, settings: Settings) -> None:
 
 
 def test_the_upgrade_keeps_everything_and_the_service_goes_on(
-        filled: tuple[str, dict[str, Any], dict[str, Any], dict[str, Any]],
-        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    filled: tuple[str, dict[str, Any], dict[str, Any], dict[str, Any]],
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
     url, names, before, rows_before = filled
 
     # Told another mission than the one the models were learned for: refused, nothing changed.
@@ -183,22 +235,26 @@ def test_the_upgrade_keeps_everything_and_the_service_goes_on(
     engine = create_engine(url)
     try:
         with engine.connect() as conn:
-            stored = conn.execute(text(
-                "SELECT fleet, version, fingerprint FROM fleet_missions ORDER BY fleet")).all()
+            stored = conn.execute(
+                text("SELECT fleet, version, fingerprint FROM fleet_missions ORDER BY fleet")
+            ).all()
             assert [tuple(r) for r in stored] == [
                 ("north", 1, office_mission().fingerprint),
-                ("south", 1, office_mission().fingerprint)]
+                ("south", 1, office_mission().fingerprint),
+            ]
             for table in ("learner_models", "episodes", "samples"):
-                assert conn.execute(text(
-                    f"SELECT DISTINCT mission_version FROM {table}")).scalars().all() == [1]
+                assert conn.execute(
+                    text(f"SELECT DISTINCT mission_version FROM {table}")
+                ).scalars().all() == [1]
     finally:
         engine.dispose()
 
     settings = Settings(database_url=url, seed=0, _env_file=None)  # type: ignore[call-arg]
     app = create_app(settings)
     try:
-        with TestClient(app, headers={
-                "Authorization": f"Bearer {names['keys']['admin']}"}) as admin:
+        with TestClient(
+            app, headers={"Authorization": f"Bearer {names['keys']['admin']}"}
+        ) as admin:
             assert _api_view(admin) == before
             _rebuild_all(app, settings)
             north = {"Authorization": f"Bearer {names['keys']['north']}"}
@@ -208,21 +264,38 @@ def test_the_upgrade_keeps_everything_and_the_service_goes_on(
             answer = {"decision_id": opened["decision"]["decision_id"], "response": "none"}
             if opened["decision"]["action"]["kind"] == "initiate":
                 answer["response"] = "accepted"
-            assert admin.post(f"/v1/episodes/{opened['episode_id']}/outcomes", json=answer,
-                              headers=north).status_code == 200
+            assert (
+                admin.post(
+                    f"/v1/episodes/{opened['episode_id']}/outcomes", json=answer, headers=north
+                ).status_code
+                == 200
+            )
             # North changes its mission; south's users do not move.
-            south_models = {uid: admin.get(f"/v1/users/{uid}/model", params={"fleet": "south"})
-                            .json() for uid in ("lin", "bo", "dts")}
-            changed = other | {"services": [
-                {"name": s["name"], "details": [*s["details"], "cocoa"]
-                 if s["name"] == "ProvideDrink" else s["details"]}
-                for s in office_mission().to_dict()["services"]]}
-            r = admin.put("/v1/admin/fleets/north/mission", json={
-                "change_id": "north-menu", "mission": changed})
+            south_models = {
+                uid: admin.get(f"/v1/users/{uid}/model", params={"fleet": "south"}).json()
+                for uid in ("lin", "bo", "dts")
+            }
+            changed = other | {
+                "services": [
+                    {
+                        "name": s["name"],
+                        "details": [*s["details"], "cocoa"]
+                        if s["name"] == "ProvideDrink"
+                        else s["details"],
+                    }
+                    for s in office_mission().to_dict()["services"]
+                ]
+            }
+            r = admin.put(
+                "/v1/admin/fleets/north/mission",
+                json={"change_id": "north-menu", "mission": changed},
+            )
             assert r.status_code == 200, r.text
             assert (r.json()["version"], r.json()["users_moved"]) == (2, 3)
-            assert {uid: admin.get(f"/v1/users/{uid}/model", params={"fleet": "south"}).json()
-                    for uid in ("lin", "bo", "dts")} == south_models
+            assert {
+                uid: admin.get(f"/v1/users/{uid}/model", params={"fleet": "south"}).json()
+                for uid in ("lin", "bo", "dts")
+            } == south_models
             _rebuild_all(app, settings)
     finally:
         app.state.db.dispose()
@@ -234,7 +307,8 @@ def test_the_upgrade_keeps_everything_and_the_service_goes_on(
 
 
 def test_the_downgrade_gives_back_the_previous_schema(
-        filled: tuple[str, dict[str, Any], dict[str, Any], dict[str, Any]]) -> None:
+    filled: tuple[str, dict[str, Any], dict[str, Any], dict[str, Any]],
+) -> None:
     url, _, _, rows_before = filled
     migrate.upgrade(url)
     command.downgrade(migrate.alembic_config(url), BEFORE)

@@ -53,18 +53,24 @@ EPISODES = 5  # per user
 def old_code(tmp_path_factory: pytest.TempPathFactory) -> Path:
     assert migrate.head_revision() != BEFORE
     # The change began with the learning core's prior, before the migration's commit.
-    return release_code(previous_release(MIGRATION, "app/learning/prior.py"),
-                        tmp_path_factory.mktemp("previous-release"))
+    return release_code(
+        previous_release(MIGRATION, "app/learning/prior.py"),
+        tmp_path_factory.mktemp("previous-release"),
+    )
 
 
 def _fill(old: OldService) -> dict[str, Any]:
     """What a deployment holds, made through the previous release's API."""
-    keys = {name: old.attune("keys", "create", "--role", role).split()[-1]
-            for name, role in (("robot", "robot"), ("admin", "admin"))}
-    robot = httpx.Client(base_url=old.base, timeout=30,
-                         headers={"Authorization": f"Bearer {keys['robot']}"})
-    admin = httpx.Client(base_url=old.base, timeout=30,
-                         headers={"Authorization": f"Bearer {keys['admin']}"})
+    keys = {
+        name: old.attune("keys", "create", "--role", role).split()[-1]
+        for name, role in (("robot", "robot"), ("admin", "admin"))
+    }
+    robot = httpx.Client(
+        base_url=old.base, timeout=30, headers={"Authorization": f"Bearer {keys['robot']}"}
+    )
+    admin = httpx.Client(
+        base_url=old.base, timeout=30, headers={"Authorization": f"Bearer {keys['admin']}"}
+    )
     try:
         n = 0
         for uid in USERS:
@@ -75,15 +81,26 @@ def _fill(old: OldService) -> dict[str, Any]:
                 episode = play(robot, uid, f"{uid}-e{n}", n)
                 n += 1
                 if n % 4 == 0:
-                    assert robot.post(f"/v1/episodes/{episode}/feedback", json={
-                        "feedback_id": f"fb-{n}", "feedback": "positive"}).status_code == 200
+                    assert (
+                        robot.post(
+                            f"/v1/episodes/{episode}/feedback",
+                            json={"feedback_id": f"fb-{n}", "feedback": "positive"},
+                        ).status_code
+                        == 200
+                    )
         exported = admin.get("/v1/users/lin/model/export")
         assert exported.status_code == 200, exported.text
         imported = admin.put(f"/v1/users/{IMPORTED}/model", json=exported.json())
         assert imported.status_code == 200, imported.text
-        opened = robot.post(f"/v1/users/{OPEN_USER}/episodes", json={
-            "event_id": "left-open", "occurred_at": "2026-11-20T15:10:00+08:00",
-            "situation": "stretching", "initiator": "robot"})
+        opened = robot.post(
+            f"/v1/users/{OPEN_USER}/episodes",
+            json={
+                "event_id": "left-open",
+                "occurred_at": "2026-11-20T15:10:00+08:00",
+                "situation": "stretching",
+                "initiator": "robot",
+            },
+        )
         assert opened.status_code == 201, opened.text
     finally:
         robot.close()
@@ -94,12 +111,13 @@ def _fill(old: OldService) -> dict[str, Any]:
 def _tables(url: str) -> list[str]:
     engine = create_engine(url)
     try:
-        return sorted(t for t in inspect(engine).get_table_names()
-                      if t not in ("alembic_version", "fleet_settings"))
+        return sorted(
+            t
+            for t in inspect(engine).get_table_names()
+            if t not in ("alembic_version", "fleet_settings")
+        )
     finally:
         engine.dispose()
-
-
 
 
 def _without(doc: dict[str, Any], *names: str) -> dict[str, Any]:
@@ -115,14 +133,15 @@ def _api_view(api: Any) -> dict[str, Any]:
             "user": _without(api.get(f"/v1/users/{uid}").json(), "fleet_prior"),
             "model": _without(api.get(f"/v1/users/{uid}/model").json(), "started_from"),
             "stats": api.get(f"/v1/users/{uid}/stats").json(),
-            "episodes": episodes["items"]}
+            "episodes": episodes["items"],
+        }
     return view
 
 
 @pytest.fixture(params=["sqlite", "postgresql"])
-def filled(request: pytest.FixtureRequest, old_code: Path, tmp_path: Path
-           ) -> Iterator[tuple[str, dict[str, Any], dict[str, Any], list[str],
-                               dict[str, Any]]]:
+def filled(
+    request: pytest.FixtureRequest, old_code: Path, tmp_path: Path
+) -> Iterator[tuple[str, dict[str, Any], dict[str, Any], list[str], dict[str, Any]]]:
     """A database at the previous release's head, filled through its API: (url, names, what
     its API showed, its tables, their rows)."""
     with fresh_database(request.param, tmp_path) as url:
@@ -130,17 +149,20 @@ def filled(request: pytest.FixtureRequest, old_code: Path, tmp_path: Path
         old = OldService(old_code, url, tmp_path / "old.log")
         with old:
             names = _fill(old)
-            with httpx.Client(base_url=old.base, timeout=30, headers={
-                    "Authorization": f"Bearer {names['keys']['admin']}"}) as admin:
+            with httpx.Client(
+                base_url=old.base,
+                timeout=30,
+                headers={"Authorization": f"Bearer {names['keys']['admin']}"},
+            ) as admin:
                 before = _api_view(admin)
         assert revision(url) == BEFORE
         tables = _tables(url)
         yield url, names, before, tables, table_rows(url, tables, leave_out=NEW_COLUMNS)
 
 
-
 def test_the_upgrade_keeps_everything_and_newcomers_start_from_the_prior(
-        filled: tuple[str, dict[str, Any], dict[str, Any], list[str], dict[str, Any]]) -> None:
+    filled: tuple[str, dict[str, Any], dict[str, Any], list[str], dict[str, Any]],
+) -> None:
     url, names, before, tables, rows_before = filled
     migrate.upgrade(url)
     assert revision(url) == AFTER
@@ -148,12 +170,18 @@ def test_the_upgrade_keeps_everything_and_newcomers_start_from_the_prior(
     assert scalars(url, "SELECT DISTINCT fleet_prior FROM users") == [True]
     assert scalars(url, "SELECT COUNT(*) FROM fleet_settings") == [0]
 
-    settings = Settings(database_url=url, seed=0, prior_min_contributors=3,  # type: ignore[call-arg]
-                        prior_min_episodes=EPISODES, _env_file=None)
+    settings = Settings(
+        database_url=url,
+        seed=0,
+        prior_min_contributors=3,  # type: ignore[call-arg]
+        prior_min_episodes=EPISODES,
+        _env_file=None,
+    )
     app = create_app(settings)
     try:
-        with TestClient(app, headers={
-                "Authorization": f"Bearer {names['keys']['admin']}"}) as admin:
+        with TestClient(
+            app, headers={"Authorization": f"Bearer {names['keys']['admin']}"}
+        ) as admin:
             assert admin.get("/readyz").status_code == 200
             assert _api_view(admin) == before
             for uid in USERS:
@@ -167,7 +195,9 @@ def test_the_upgrade_keeps_everything_and_newcomers_start_from_the_prior(
             made = admin.put("/v1/users/newcomer", json={"learner": {"algorithm": "dts"}})
             assert made.status_code == 201, made.text
             assert admin.get("/v1/users/newcomer/model").json()["started_from"] == {
-                "kind": "fleet_prior", "contributors": len(USERS)}
+                "kind": "fleet_prior",
+                "contributors": len(USERS),
+            }
             play(admin, "newcomer", "newcomer-1", 1)
     finally:
         app.state.db.dispose()
@@ -183,7 +213,8 @@ def test_the_upgrade_keeps_everything_and_newcomers_start_from_the_prior(
 
 
 def test_the_downgrade_gives_back_the_previous_schema(
-        filled: tuple[str, dict[str, Any], dict[str, Any], list[str], dict[str, Any]]) -> None:
+    filled: tuple[str, dict[str, Any], dict[str, Any], list[str], dict[str, Any]],
+) -> None:
     url, _, _, tables, rows_before = filled
     migrate.upgrade(url)
     command.downgrade(migrate.alembic_config(url), BEFORE)
@@ -194,7 +225,8 @@ def test_the_downgrade_gives_back_the_previous_schema(
         assert "fleet_settings" not in inspect(engine).get_table_names()
         assert "fleet_prior" not in {c["name"] for c in inspect(engine).get_columns("users")}
         assert not {"base_origin", "base_contributors"} & {
-            c["name"] for c in inspect(engine).get_columns("learner_models")}
+            c["name"] for c in inspect(engine).get_columns("learner_models")
+        }
     finally:
         engine.dispose()
     assert table_rows(url, tables) == rows_before

@@ -33,13 +33,20 @@ def _env(**more: str) -> dict[str, str]:
     return {**env, **more}
 
 
-def _serve(cwd: Path, env: dict[str, str], port: int,
-           command: tuple[str, ...] = (ATTUNE,)) -> subprocess.CompletedProcess[str]:
+def _serve(
+    cwd: Path, env: dict[str, str], port: int, command: tuple[str, ...] = (ATTUNE,)
+) -> subprocess.CompletedProcess[str]:
     """``attune serve`` that is expected to give up; a start that succeeds is a failure."""
     try:
-        return subprocess.run([*command, "serve", "--host", "127.0.0.1", "--port", str(port)],
-                              cwd=cwd, env=env, capture_output=True, text=True, timeout=90,
-                              check=False)
+        return subprocess.run(
+            [*command, "serve", "--host", "127.0.0.1", "--port", str(port)],
+            cwd=cwd,
+            env=env,
+            capture_output=True,
+            text=True,
+            timeout=90,
+            check=False,
+        )
     except subprocess.TimeoutExpired as exc:
         raise AssertionError(f"attune serve did not give up: {exc.stderr!r}") from None
 
@@ -88,8 +95,7 @@ def _stamp(url: str, revision: str) -> None:
     engine = create_engine(url)
     try:
         with engine.begin() as conn:
-            conn.execute(text("CREATE TABLE alembic_version (version_num VARCHAR(32) "
-                              "PRIMARY KEY)"))
+            conn.execute(text("CREATE TABLE alembic_version (version_num VARCHAR(32) PRIMARY KEY)"))
             conn.execute(text("INSERT INTO alembic_version VALUES (:r)"), {"r": revision})
     finally:
         engine.dispose()
@@ -101,8 +107,9 @@ class TestFailedStart:
         _one_sentence(done, f"Port {taken_port}", "already in use", "--port")
         assert list(folder.iterdir()) == []  # no ./attune.db
 
-    def test_port_taken_touches_no_postgresql_database(self, folder: Path, tmp_path: Path,
-                                                        taken_port: int) -> None:
+    def test_port_taken_touches_no_postgresql_database(
+        self, folder: Path, tmp_path: Path, taken_port: int
+    ) -> None:
         with fresh_database("postgresql", tmp_path) as url:
             done = _serve(folder, _env(ATTUNE_DATABASE_URL=url), taken_port)
             _one_sentence(done, "already in use")
@@ -120,8 +127,7 @@ class TestFailedStart:
         closed = free_port()  # nothing listens there
         url = f"postgresql://postgres@127.0.0.1:{closed}/attune"
         done = _serve(folder, _env(ATTUNE_DATABASE_URL=url), free_port())
-        line = _one_sentence(done, "Cannot reach the database", f"127.0.0.1:{closed}",
-                             "refused")
+        line = _one_sentence(done, "Cannot reach the database", f"127.0.0.1:{closed}", "refused")
         assert "postgresql+psycopg://postgres@127.0.0.1" in line
         assert list(folder.iterdir()) == []
 
@@ -132,13 +138,13 @@ class TestFailedStart:
         _one_sentence(done, "Cannot reach the database", "does not exist")
 
     @pytest.mark.parametrize("engine", ["sqlite", "postgresql"])
-    def test_schema_of_a_newer_release(self, folder: Path, tmp_path: Path,
-                                       engine: str) -> None:
+    def test_schema_of_a_newer_release(self, folder: Path, tmp_path: Path, engine: str) -> None:
         with fresh_database(engine, tmp_path) as url:
             _stamp(url, UNKNOWN)
             done = _serve(folder, _env(ATTUNE_DATABASE_URL=url), free_port())
-            _one_sentence(done, f"schema revision {UNKNOWN}", "does not know",
-                          str(migrate.head_revision()))
+            _one_sentence(
+                done, f"schema revision {UNKNOWN}", "does not know", str(migrate.head_revision())
+            )
             assert _tables(url) == {"alembic_version"}  # nothing migrated, nothing dropped
             engine_ = create_engine(url)
             try:
@@ -152,8 +158,12 @@ class TestFailedStart:
         copy = tmp_path / "install"
 
         def skip_migrations(where: str, names: list[str]) -> list[str]:
-            return [n for n in names if n == "__pycache__"
-                    or (Path(where, n).is_dir() and (Path(where, n) / "env.py").exists())]
+            return [
+                n
+                for n in names
+                if n == "__pycache__"
+                or (Path(where, n).is_dir() and (Path(where, n) / "env.py").exists())
+            ]
 
         shutil.copytree(REPO / "app", copy / "app", ignore=skip_migrations)
         command = (sys.executable, "-c", "from app.cli import main; main()")
@@ -163,35 +173,66 @@ class TestFailedStart:
 
     def test_db_upgrade_says_the_same_in_one_line(self, folder: Path, tmp_path: Path) -> None:
         url = f"sqlite:///{tmp_path / 'missing' / 'attune.db'}"
-        done = subprocess.run([ATTUNE, "db", "upgrade"], cwd=folder, capture_output=True,
-                              text=True, env=_env(ATTUNE_DATABASE_URL=url), timeout=60,
-                              check=False)
+        done = subprocess.run(
+            [ATTUNE, "db", "upgrade"],
+            cwd=folder,
+            capture_output=True,
+            text=True,
+            env=_env(ATTUNE_DATABASE_URL=url),
+            timeout=60,
+            check=False,
+        )
         _one_sentence(done, "does not exist")
-        done = subprocess.run([ATTUNE, "keys", "list"], cwd=folder, capture_output=True,
-                              text=True, env=_env(ATTUNE_DATABASE_URL=url), timeout=60,
-                              check=False)
+        done = subprocess.run(
+            [ATTUNE, "keys", "list"],
+            cwd=folder,
+            capture_output=True,
+            text=True,
+            env=_env(ATTUNE_DATABASE_URL=url),
+            timeout=60,
+            check=False,
+        )
         _one_sentence(done, "does not exist")
         assert not (tmp_path / "missing").exists()
 
-
-    def test_db_current_changes_nothing_and_fails_in_one_line(self, folder: Path,
-                                                              tmp_path: Path) -> None:
+    def test_db_current_changes_nothing_and_fails_in_one_line(
+        self, folder: Path, tmp_path: Path
+    ) -> None:
         fresh = folder / "fresh.db"
-        done = subprocess.run([ATTUNE, "db", "current"], cwd=folder, capture_output=True,
-                              text=True, env=_env(ATTUNE_DATABASE_URL=f"sqlite:///{fresh}"),
-                              timeout=60, check=False)
+        done = subprocess.run(
+            [ATTUNE, "db", "current"],
+            cwd=folder,
+            capture_output=True,
+            text=True,
+            env=_env(ATTUNE_DATABASE_URL=f"sqlite:///{fresh}"),
+            timeout=60,
+            check=False,
+        )
         assert done.returncode == 0, done.stderr
         assert done.stdout.splitlines()[0] == f"database: empty (no file at {fresh})"
         assert list(folder.iterdir()) == []  # reading the revision made no database
         closed = f"postgresql://attune@127.0.0.1:{free_port()}/attune"
-        done = subprocess.run([ATTUNE, "db", "current"], cwd=folder, capture_output=True,
-                              text=True, env=_env(ATTUNE_DATABASE_URL=closed), timeout=60,
-                              check=False)
+        done = subprocess.run(
+            [ATTUNE, "db", "current"],
+            cwd=folder,
+            capture_output=True,
+            text=True,
+            env=_env(ATTUNE_DATABASE_URL=closed),
+            timeout=60,
+            check=False,
+        )
         _one_sentence(done, "Cannot reach the database")
 
     def test_a_bad_setting_is_one_line_naming_the_variable(self, folder: Path) -> None:
-        done = subprocess.run([ATTUNE, "serve"], cwd=folder, capture_output=True, text=True,
-                              env=_env(ATTUNE_LOG_FORMAT="xml"), timeout=60, check=False)
+        done = subprocess.run(
+            [ATTUNE, "serve"],
+            cwd=folder,
+            capture_output=True,
+            text=True,
+            env=_env(ATTUNE_LOG_FORMAT="xml"),
+            timeout=60,
+            check=False,
+        )
         assert done.returncode == 2
         lines = done.stderr.strip().splitlines()
         assert len(lines) == 1, done.stderr
@@ -219,16 +260,24 @@ def _wait_for(predicate: object, what: str, log: LiveService, timeout: float = 6
 
 
 def test_a_dead_worker_is_reported_with_its_cause(tmp_path: Path) -> None:
-    with (fresh_database("sqlite", tmp_path) as url,
-          LiveService(url, workers=2, log_path=tmp_path / "serve.log") as service):
+    with (
+        fresh_database("sqlite", tmp_path) as url,
+        LiveService(url, workers=2, log_path=tmp_path / "serve.log") as service,
+    ):
         assert service.process is not None
         _wait_for(lambda: len(_workers(service.process.pid)) == 2, "two workers", service)
         victim = _workers(service.process.pid)[0]
         os.kill(victim, signal.SIGKILL)
         said = f"Worker process {victim} was killed by signal SIGKILL (9); starting a new one."
         _wait_for(lambda: said in service.log(), "the supervisor said why", service)
-        _wait_for(lambda: len(_workers(service.process.pid)) == 2
-                  and victim not in _workers(service.process.pid), "a new worker", service)
+        _wait_for(
+            lambda: (
+                len(_workers(service.process.pid)) == 2
+                and victim not in _workers(service.process.pid)
+            ),
+            "a new worker",
+            service,
+        )
         assert httpx.get(f"{service.url}/readyz", timeout=10).status_code == 200
         assert "Traceback" not in service.log()
 
@@ -236,8 +285,10 @@ def test_a_dead_worker_is_reported_with_its_cause(tmp_path: Path) -> None:
 def test_a_hung_worker_and_a_dead_one_are_told_apart(tmp_path: Path) -> None:
     """One worker stops answering (SIGSTOP) while the other is killed: the supervisor's health
     check waits on the first, and the second's death, seen meanwhile, is still a death."""
-    with (fresh_database("sqlite", tmp_path) as url,
-          LiveService(url, workers=2, log_path=tmp_path / "serve.log") as service):
+    with (
+        fresh_database("sqlite", tmp_path) as url,
+        LiveService(url, workers=2, log_path=tmp_path / "serve.log") as service,
+    ):
         assert service.process is not None
         _wait_for(lambda: len(_workers(service.process.pid)) == 2, "two workers", service)
         hung, killed = _workers(service.process.pid)
@@ -246,11 +297,17 @@ def test_a_hung_worker_and_a_dead_one_are_told_apart(tmp_path: Path) -> None:
         os.kill(killed, signal.SIGKILL)
         died = f"Worker process {killed} was killed by signal SIGKILL (9); starting a new one."
         stuck = f"Worker process {hung} did not answer its health check"
-        _wait_for(lambda: died in service.log() and stuck in service.log(),
-                  "both causes reported", service)
+        _wait_for(
+            lambda: died in service.log() and stuck in service.log(),
+            "both causes reported",
+            service,
+        )
         assert f"Worker process {killed} did not answer" not in service.log()
-        _wait_for(lambda: len(set(_workers(service.process.pid)) - {hung, killed}) == 2,
-                  "two new workers", service)
+        _wait_for(
+            lambda: len(set(_workers(service.process.pid)) - {hung, killed}) == 2,
+            "two new workers",
+            service,
+        )
 
 
 def test_json_logs_one_object_per_line(tmp_path: Path) -> None:
@@ -262,21 +319,27 @@ def test_json_logs_one_object_per_line(tmp_path: Path) -> None:
             headers = {"Authorization": f"Bearer {secret}", "X-Request-ID": "json-1"}
             r = httpx.put(f"{service.url}/v1/users/lin", json={}, headers=headers, timeout=10)
             assert r.status_code == 201
-            httpx.head(f"{service.url}/healthz", headers={"X-Request-ID": "json-2"},
-                       timeout=10)
+            httpx.head(f"{service.url}/healthz", headers={"X-Request-ID": "json-2"}, timeout=10)
         raw = (tmp_path / "serve.log").read_text()
     lines = [json.loads(line) for line in raw.splitlines() if line.strip()]
     for line in lines:
         assert {"time", "level", "logger", "message"} <= set(line), line
-    access = [line for line in lines if line["logger"] == "attune.access"
-              and line["route"] != "/readyz"]  # LiveService waits on /readyz
+    access = [
+        line for line in lines if line["logger"] == "attune.access" and line["route"] != "/readyz"
+    ]  # LiveService waits on /readyz
     assert [a["request_id"] for a in access] == ["json-1", "json-2"], access
     put, head = access
     assert (put["method"], put["route"], put["status"]) == ("PUT", "/v1/users/{user_id}", 201)
     assert put["key_id"].startswith("key_")
-    assert (head["method"], head["route"], head["status"], head["key_id"]) == \
-        ("HEAD", "/healthz", 200, None)
+    assert (head["method"], head["route"], head["status"], head["key_id"]) == (
+        "HEAD",
+        "/healthz",
+        200,
+        None,
+    )
     assert not [line for line in lines if line["logger"] == "uvicorn.access"]
-    assert any(line["logger"] == "attune.serve" and line["message"].startswith("Attune on ")
-               for line in lines)
+    assert any(
+        line["logger"] == "attune.serve" and line["message"].startswith("Attune on ")
+        for line in lines
+    )
     assert secret not in raw

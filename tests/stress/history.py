@@ -31,8 +31,14 @@ from tests.support.office import MISSION
 
 SLOT_TIMES = ("09:30", "12:15", "15:10", "20:45")
 INTERRUPTED: dict[str, Any] = {"interrupted": True}  # what ``Robot.send`` returns for one
-OTHER_RESPONSE = {"accepted": "rejected", "rejected": "accepted", "terminated": "accepted",
-                  "answered": "terminated", "none": "human_request", "human_request": "none"}
+OTHER_RESPONSE = {
+    "accepted": "rejected",
+    "rejected": "accepted",
+    "terminated": "accepted",
+    "answered": "terminated",
+    "none": "human_request",
+    "human_request": "none",
+}
 
 
 @dataclass(frozen=True)
@@ -82,23 +88,24 @@ class Robot:
     def __init__(self, workload: Workload, n: int, key: str) -> None:
         self.w, self.n = workload, n
         self.rng = random.Random(workload.seed * 1000 + n)
-        self.http = httpx.Client(base_url=workload.base_url, timeout=30.0,
-                                 headers={"Authorization": f"Bearer {key}"})
+        self.http = httpx.Client(
+            base_url=workload.base_url, timeout=30.0, headers={"Authorization": f"Bearer {key}"}
+        )
 
     def close(self) -> None:
         self.http.close()
 
     # -- sending ------------------------------------------------------------------------------
-    def _once(self, url: str, body: dict[str, Any], timeout: float | None = None
-              ) -> httpx.Response:
+    def _once(self, url: str, body: dict[str, Any], timeout: float | None = None) -> httpx.Response:
         self.w.gate()
         kwargs: dict[str, Any] = {"json": body}
         if timeout is not None:
             kwargs["timeout"] = timeout
         return self.http.post(url, **kwargs)
 
-    def send(self, kind: str, user_id: str, key: str, url: str, body: dict[str, Any]
-             ) -> dict[str, Any] | None:
+    def send(
+        self, kind: str, user_id: str, key: str, url: str, body: dict[str, Any]
+    ) -> dict[str, Any] | None:
         """Send until acknowledged (retrying lost responses and 429/503), record the ack."""
         w = self.w
         with w.history.lock:
@@ -137,15 +144,32 @@ class Robot:
                     w.history.unknown.pop(key, None)
                 return None
             out: dict[str, Any] = r.json()
-            w.history.ack(Ack(self.n, kind, user_id, key, json.dumps(body, sort_keys=True),
-                              r.status_code, r.headers.get("Idempotent-Replay") == "true", out))
+            w.history.ack(
+                Ack(
+                    self.n,
+                    kind,
+                    user_id,
+                    key,
+                    json.dumps(body, sort_keys=True),
+                    r.status_code,
+                    r.headers.get("Idempotent-Replay") == "true",
+                    out,
+                )
+            )
             return out
         with w.history.lock:
             w.history.unknown.setdefault(key, kind)
         return None
 
-    def write(self, kind: str, user_id: str, key: str, url: str, body: dict[str, Any],
-              clash: dict[str, Any]) -> dict[str, Any] | None:
+    def write(
+        self,
+        kind: str,
+        user_id: str,
+        key: str,
+        url: str,
+        body: dict[str, Any],
+        clash: dict[str, Any],
+    ) -> dict[str, Any] | None:
         """A write, sometimes sent twice at once, sometimes followed by a conflicting body."""
         w = self.w
         if self.rng.random() < w.duplicate_rate:
@@ -161,17 +185,29 @@ class Robot:
             except (httpx.TransportError, Paused):
                 return out
             if r.status_code != 409 or r.json().get("error") != "Conflict":
-                w.history.note(f"{kind} {key}: a conflicting resend got {r.status_code} "
-                               f"{r.text[:200]}, not 409 Conflict")
+                w.history.note(
+                    f"{kind} {key}: a conflicting resend got {r.status_code} "
+                    f"{r.text[:200]}, not 409 Conflict"
+                )
         return out
 
     # -- the robot's behaviour ----------------------------------------------------------------
     def answer(self, decision: dict[str, Any]) -> dict[str, Any]:
         """A cooperative person: yes four times in five, asks for a drink half the time the
         robot waits (naming tea half of those), smiles at one service in ten."""
-        return {"decision_id": decision["decision_id"],
-                **people.answer(decision["action"], picky=False, rng=self.rng, yes=0.8,
-                                asks=0.5, precise=0.5, smiles=0.1, mission=self.w.mission)}
+        return {
+            "decision_id": decision["decision_id"],
+            **people.answer(
+                decision["action"],
+                picky=False,
+                rng=self.rng,
+                yes=0.8,
+                asks=0.5,
+                precise=0.5,
+                smiles=0.1,
+                mission=self.w.mission,
+            ),
+        }
 
     def episode(self, k: int) -> bool:
         """One event and its negotiation to the end; False when the run must stop."""
@@ -180,15 +216,18 @@ class Robot:
         event_id = f"c{self.n}-e{k}"
         situation = self.rng.choice(MISSION.situations)
         body: dict[str, Any] = {
-            "event_id": event_id, "situation": situation, "robot_id": f"robot-{self.n}",
+            "event_id": event_id,
+            "situation": situation,
+            "robot_id": f"robot-{self.n}",
             "occurred_at": f"2026-11-{1 + k % 28:02d}T{self.rng.choice(SLOT_TIMES)}:00+08:00",
-            "initiator": "robot", "request": None}
+            "initiator": "robot",
+            "request": None,
+        }
         if self.rng.random() < 0.2:
             body.update(initiator="human", request={"service": "ProvideDrink", "detail": "tea"})
         other = [s for s in MISSION.situations if s != situation]
         clash = {**body, "situation": self.rng.choice(other)}
-        ep = self.write("episode", user_id, event_id, f"/v1/users/{user_id}/episodes", body,
-                        clash)
+        ep = self.write("episode", user_id, event_id, f"/v1/users/{user_id}/episodes", body, clash)
         if ep is None:
             return False
         episode_id, decision = ep["episode_id"], ep["decision"]
@@ -196,10 +235,18 @@ class Robot:
             if decision is None:
                 break
             sent = self.answer(decision)
-            conflicting = {"decision_id": sent["decision_id"],
-                           "response": OTHER_RESPONSE[sent["response"]]}
-            out = self.write("outcome", user_id, sent["decision_id"],
-                             f"/v1/episodes/{episode_id}/outcomes", sent, conflicting)
+            conflicting = {
+                "decision_id": sent["decision_id"],
+                "response": OTHER_RESPONSE[sent["response"]],
+            }
+            out = self.write(
+                "outcome",
+                user_id,
+                sent["decision_id"],
+                f"/v1/episodes/{episode_id}/outcomes",
+                sent,
+                conflicting,
+            )
             if out is None:
                 return False
             if out is INTERRUPTED:
@@ -208,10 +255,21 @@ class Robot:
         if self.rng.random() < w.feedback_rate:
             fid = f"c{self.n}-f{k}"
             fb = {"feedback_id": fid, "feedback": self.rng.choice(["positive", "negative"])}
-            clash_fb = {**fb, "feedback": "negative" if fb["feedback"] == "positive"
-                        else "positive"}
-            if self.write("feedback", user_id, f"{episode_id}/{fid}",
-                          f"/v1/episodes/{episode_id}/feedback", fb, clash_fb) is None:
+            clash_fb = {
+                **fb,
+                "feedback": "negative" if fb["feedback"] == "positive" else "positive",
+            }
+            if (
+                self.write(
+                    "feedback",
+                    user_id,
+                    f"{episode_id}/{fid}",
+                    f"/v1/episodes/{episode_id}/feedback",
+                    fb,
+                    clash_fb,
+                )
+                is None
+            ):
                 return False
         return True
 
@@ -231,12 +289,24 @@ class Robot:
 class Workload:
     """``clients`` robots, one key each, most of the traffic on ``hot_user``."""
 
-    def __init__(self, base_url: str, keys: list[str], *, episodes_per_client: int = 5,
-                 hot_user: str = "hot", users: tuple[str, ...] = ("cold-1", "cold-2"),
-                 hot_share: float = 0.75, seed: int = 7, budget_s: float = 240.0,
-                 duplicate_rate: float = 0.1, conflict_rate: float = 0.1,
-                 lost_response_rate: float = 0.1, feedback_rate: float = 0.3,
-                 max_attempts: int = 50, mission: Mission = MISSION) -> None:
+    def __init__(
+        self,
+        base_url: str,
+        keys: list[str],
+        *,
+        episodes_per_client: int = 5,
+        hot_user: str = "hot",
+        users: tuple[str, ...] = ("cold-1", "cold-2"),
+        hot_share: float = 0.75,
+        seed: int = 7,
+        budget_s: float = 240.0,
+        duplicate_rate: float = 0.1,
+        conflict_rate: float = 0.1,
+        lost_response_rate: float = 0.1,
+        feedback_rate: float = 0.3,
+        max_attempts: int = 50,
+        mission: Mission = MISSION,
+    ) -> None:
         self.base_url, self.keys = base_url, keys
         self.mission = mission  # the fleet's, as the robots answer questions under it
         self.episodes_per_client = episodes_per_client
@@ -309,28 +379,50 @@ def _snapshot(api: httpx.Client, database_url: str, user_id: str, fleet: str) ->
             from sqlalchemy.orm import Session
 
             with Session(bind=conn) as s:
-                user = s.scalars(select(User).where(User.fleet == fleet,
-                                                    User.user_id == user_id)).one()
-                episodes = list(s.scalars(select(Episode).where(Episode.user_pk == user.id)
-                                          .order_by(Episode.seq)))
+                user = s.scalars(
+                    select(User).where(User.fleet == fleet, User.user_id == user_id)
+                ).one()
+                episodes = list(
+                    s.scalars(
+                        select(Episode).where(Episode.user_pk == user.id).order_by(Episode.seq)
+                    )
+                )
                 ids = [e.id for e in episodes]
-                decisions = list(s.scalars(select(Decision).where(Decision.episode_id.in_(ids))
-                                           .order_by(Decision.episode_id, Decision.position))
-                                 ) if ids else []
-                feedback = list(s.scalars(select(Feedback).where(Feedback.episode_id.in_(ids)))
-                                ) if ids else []
-                samples = list(s.scalars(select(Sample).where(Sample.user_pk == user.id)
-                                         .order_by(Sample.version, Sample.id)))
-                model = s.scalars(select(LearnerModel)
-                                  .where(LearnerModel.user_pk == user.id)).one()
+                decisions = (
+                    list(
+                        s.scalars(
+                            select(Decision)
+                            .where(Decision.episode_id.in_(ids))
+                            .order_by(Decision.episode_id, Decision.position)
+                        )
+                    )
+                    if ids
+                    else []
+                )
+                feedback = (
+                    list(s.scalars(select(Feedback).where(Feedback.episode_id.in_(ids))))
+                    if ids
+                    else []
+                )
+                samples = list(
+                    s.scalars(
+                        select(Sample)
+                        .where(Sample.user_pk == user.id)
+                        .order_by(Sample.version, Sample.id)
+                    )
+                )
+                model = s.scalars(select(LearnerModel).where(LearnerModel.user_pk == user.id)).one()
     finally:
         engine.dispose()
     traces = {}
     cursor: str | None = None
     listed: list[str] = []
     for _ in range(1000):  # pages of the API's own listing
-        params: dict[str, Any] = {"limit": 500, "fleet": fleet,
-                                  **({"cursor": cursor} if cursor else {})}
+        params: dict[str, Any] = {
+            "limit": 500,
+            "fleet": fleet,
+            **({"cursor": cursor} if cursor else {}),
+        }
         page = api.get(f"/v1/users/{user_id}/episodes", params=params).json()
         listed += [item["episode_id"] for item in page["items"]]
         cursor = page["next_cursor"]
@@ -343,10 +435,15 @@ def _snapshot(api: httpx.Client, database_url: str, user_id: str, fleet: str) ->
     return Snapshot(episodes, decisions, feedback, samples, model, user, traces, view)
 
 
-def check_history(history: History, api: httpx.Client, database_url: str, users: list[str],
-                  initial_versions: dict[str, int],
-                  rebuild: Callable[[str], dict[str, Any]] | None = None,
-                  fleet: str = "default") -> list[str]:
+def check_history(
+    history: History,
+    api: httpx.Client,
+    database_url: str,
+    users: list[str],
+    initial_versions: dict[str, int],
+    rebuild: Callable[[str], dict[str, Any]] | None = None,
+    fleet: str = "default",
+) -> list[str]:
     """Every finding that shows a lost, doubled or inconsistent write; [] when there is none.
 
     ``users`` are of ``fleet``, the fleet of the history's robots; ``api`` is an admin
@@ -366,8 +463,10 @@ def check_history(history: History, api: httpx.Client, database_url: str, users:
         if len({json.dumps(a.response, sort_keys=True) for a in acks}) > 1:
             findings.append(f"{acks[0].kind} {key}: acknowledged with different bodies")
         if sum(not a.replay for a in acks) > 1:
-            findings.append(f"{acks[0].kind} {key}: executed {sum(not a.replay for a in acks)} "
-                            "times (more than one acknowledgement without Idempotent-Replay)")
+            findings.append(
+                f"{acks[0].kind} {key}: executed {sum(not a.replay for a in acks)} "
+                "times (more than one acknowledgement without Idempotent-Replay)"
+            )
 
     for user_id in users:
         snap = _snapshot(api, database_url, user_id, fleet)
@@ -375,13 +474,15 @@ def check_history(history: History, api: httpx.Client, database_url: str, users:
         if rebuild is not None:
             summary = rebuild(user_id)
             if summary.get("identical") is not True:
-                findings.append(f"{user_id}: `models rebuild` does not reproduce the "
-                                f"stored model: {summary}")
+                findings.append(
+                    f"{user_id}: `models rebuild` does not reproduce the stored model: {summary}"
+                )
     return findings
 
 
-def _check_user(user_id: str, snap: Snapshot, by_key: dict[str, list[Ack]], history: History,
-                initial: int) -> list[str]:
+def _check_user(
+    user_id: str, snap: Snapshot, by_key: dict[str, list[Ack]], history: History, initial: int
+) -> list[str]:
     out: list[str] = []
     acks = [a[0] for a in by_key.values() if a[0].user_id == user_id]
     unknown = set(history.unknown)
@@ -397,11 +498,15 @@ def _check_user(user_id: str, snap: Snapshot, by_key: dict[str, list[Ack]], hist
     for event_id, ack in acked_episodes.items():
         ep = episodes.get(event_id)
         if ep is None:
-            out.append(f"{user_id}: acknowledged episode {event_id} "
-                       f"({ack.response['episode_id']}) is not stored (lost)")
+            out.append(
+                f"{user_id}: acknowledged episode {event_id} "
+                f"({ack.response['episode_id']}) is not stored (lost)"
+            )
         elif ep.id != ack.response["episode_id"]:
-            out.append(f"{user_id}: event {event_id} stored as {ep.id}, acknowledged as "
-                       f"{ack.response['episode_id']}")
+            out.append(
+                f"{user_id}: event {event_id} stored as {ep.id}, acknowledged as "
+                f"{ack.response['episode_id']}"
+            )
         elif ack.response["episode_id"] not in snap.traces:
             out.append(f"{user_id}: acknowledged episode {ep.id} is not listed by the API")
     for event_id, ep in episodes.items():
@@ -411,8 +516,10 @@ def _check_user(user_id: str, snap: Snapshot, by_key: dict[str, list[Ack]], hist
     if [e.seq for e in snap.episodes] != list(range(1, len(snap.episodes) + 1)):
         out.append(f"{user_id}: episode indexes are not 1..{len(snap.episodes)}")
     if snap.user.episode_count != len(snap.episodes):
-        out.append(f"{user_id}: the user counts {snap.user.episode_count} episodes, "
-                   f"{len(snap.episodes)} are stored")
+        out.append(
+            f"{user_id}: the user counts {snap.user.episode_count} episodes, "
+            f"{len(snap.episodes)} are stored"
+        )
 
     # 3. Outcomes: each acknowledged one stored once, as sent; nothing else answered but the
     #    roots of human-initiated episodes and writes whose answer was lost.
@@ -427,19 +534,24 @@ def _check_user(user_id: str, snap: Snapshot, by_key: dict[str, list[Ack]], hist
         if d is None or d.response is None:
             out.append(f"{user_id}: acknowledged outcome of {decision_id} is not stored (lost)")
         elif d.response != sent["response"] or d.outcome_response != ack.response:
-            out.append(f"{user_id}: decision {decision_id} stores {d.response!r}, acknowledged "
-                       f"{sent['response']!r}")
+            out.append(
+                f"{user_id}: decision {decision_id} stores {d.response!r}, acknowledged "
+                f"{sent['response']!r}"
+            )
         nxt = ack.response.get("decision")
         if nxt is not None and nxt["decision_id"] not in decisions:
-            out.append(f"{user_id}: decision {nxt['decision_id']} was sent to a robot but is "
-                       "not stored")
+            out.append(
+                f"{user_id}: decision {nxt['decision_id']} was sent to a robot but is not stored"
+            )
     for d in snap.decisions:
         if d.response is None:
             continue
         root = d.position == 0 and d.forced and ep_by_id[d.episode_id].initiator == "human"
         if not root and d.id not in acked_outcomes and d.id not in unknown:
-            out.append(f"{user_id}: decision {d.id} is answered ({d.response}) but no outcome "
-                       "was acknowledged for it")
+            out.append(
+                f"{user_id}: decision {d.id} is answered ({d.response}) but no outcome "
+                "was acknowledged for it"
+            )
     positions: dict[str, list[int]] = defaultdict(list)
     for d in snap.decisions:
         positions[d.episode_id].append(d.position)
@@ -448,8 +560,10 @@ def _check_user(user_id: str, snap: Snapshot, by_key: dict[str, list[Ack]], hist
             out.append(f"{user_id}: episode {episode_id} has decisions at positions {pos}")
     draws = sorted(d.draw for d in snap.decisions if d.draw is not None)
     if draws != list(range(len(draws))) or snap.user.draws != len(draws):
-        out.append(f"{user_id}: the seed stream has gaps or repeats ({len(draws)} draws, "
-                   f"user at {snap.user.draws})")
+        out.append(
+            f"{user_id}: the seed stream has gaps or repeats ({len(draws)} draws, "
+            f"user at {snap.user.draws})"
+        )
 
     # 4. Feedback: each acknowledged one stored once; no other.
     fb_keys = Counter(f"{f.episode_id}/{f.feedback_id}" for f in snap.feedback)
@@ -467,8 +581,10 @@ def _check_user(user_id: str, snap: Snapshot, by_key: dict[str, list[Ack]], hist
     versions = sorted({s.version for s in snap.samples})
     if versions != list(range(initial + 1, snap.model.version + 1)):
         missing = sorted(set(range(initial + 1, snap.model.version + 1)) - set(versions))
-        out.append(f"{user_id}: model at version {snap.model.version} but the journal holds "
-                   f"{len(versions)} versions after {initial} (missing {missing[:10]})")
+        out.append(
+            f"{user_id}: model at version {snap.model.version} but the journal holds "
+            f"{len(versions)} versions after {initial} (missing {missing[:10]})"
+        )
     kinds_per_version: dict[int, set[str]] = defaultdict(set)
     for s in snap.samples:
         kinds_per_version[s.version].add(s.kind)
@@ -476,19 +592,24 @@ def _check_user(user_id: str, snap: Snapshot, by_key: dict[str, list[Ack]], hist
         out.append(f"{user_id}: a model version mixes transitions and feedback")
     changing = _model_changing_writes(snap)
     if snap.model.version - initial != changing:
-        out.append(f"{user_id}: model version went {initial} -> {snap.model.version}, but the "
-                   f"history holds {changing} model-changing writes")
+        out.append(
+            f"{user_id}: model version went {initial} -> {snap.model.version}, but the "
+            f"history holds {changing} model-changing writes"
+        )
     acked_changing = _acked_model_changing(acks) + _moves(snap) + _staff_writes(snap)
     maybe = sum(1 for k in unknown if k not in by_key)
     if not acked_changing <= snap.model.version - initial <= acked_changing + maybe:
-        out.append(f"{user_id}: the robots had {acked_changing} model-changing writes "
-                   f"acknowledged (+{maybe} unknown), the model moved "
-                   f"{snap.model.version - initial} versions: updates lost or doubled")
+        out.append(
+            f"{user_id}: the robots had {acked_changing} model-changing writes "
+            f"acknowledged (+{maybe} unknown), the model moved "
+            f"{snap.model.version - initial} versions: updates lost or doubled"
+        )
 
     # 6. The model's counts equal the history: journal and learner (visits, via the API) both
     #    hold one sample per answered decision and per silent step.
     steps = sum(d.response is not None for d in snap.decisions) + sum(
-        len(d.chain) for d in snap.decisions)
+        len(d.chain) for d in snap.decisions
+    )
     journal = sum(s.kind == "transition" for s in snap.samples)
     if journal != steps:
         out.append(f"{user_id}: the journal holds {journal} transitions, the history {steps}")
@@ -498,20 +619,28 @@ def _check_user(user_id: str, snap: Snapshot, by_key: dict[str, list[Ack]], hist
             out.append(f"{user_id}: an episode listed by the API cannot be read: {t}")
             continue
         ctx = (t["context"]["time_slot"], t["context"]["situation"])
-        per_context[ctx] += sum((d["response"] is not None) + len(d["chain"])
-                                for d in t["decisions"])
+        per_context[ctx] += sum(
+            (d["response"] is not None) + len(d["chain"]) for d in t["decisions"]
+        )
     visits: Counter[tuple[str, str]] = Counter()
     for c in snap.model_view.get("contexts", []):
         visits[(c["time_slot"], c["situation"])] += sum(
-            a["visits"] for st in c["states"] for a in st["actions"])
+            a["visits"] for st in c["states"] for a in st["actions"]
+        )
     if +visits != +per_context:
-        diff = {k: (visits[k], per_context[k]) for k in set(visits) | set(per_context)
-                if visits[k] != per_context[k]}
-        out.append(f"{user_id}: model visits differ from the history per context "
-                   f"(visits, history): {diff}")
+        diff = {
+            k: (visits[k], per_context[k])
+            for k in set(visits) | set(per_context)
+            if visits[k] != per_context[k]
+        }
+        out.append(
+            f"{user_id}: model visits differ from the history per context (visits, history): {diff}"
+        )
     if snap.model_view.get("version") != snap.model.version:
-        out.append(f"{user_id}: the API shows version {snap.model_view.get('version')}, "
-                   f"the database {snap.model.version}")
+        out.append(
+            f"{user_id}: the API shows version {snap.model_view.get('version')}, "
+            f"the database {snap.model.version}"
+        )
     return out
 
 
@@ -529,8 +658,10 @@ def _model_changing_writes(snap: Snapshot) -> int:
         elif ds and ds[0].chain:
             n += 1
         n += sum(d.response is not None for d in ds)
-    return n + sum(s.kind in ("feedback", "mission", "correction", "lift")
-                   for s in {s.version: s for s in snap.samples}.values())
+    return n + sum(
+        s.kind in ("feedback", "mission", "correction", "lift")
+        for s in {s.version: s for s in snap.samples}.values()
+    )
 
 
 def _moves(snap: Snapshot) -> int:

@@ -24,8 +24,11 @@ pytestmark = [pytest.mark.stress, pytest.mark.xdist_group("stress")]
 
 CLIENTS = 6
 EPISODES = 60
-KINDS = [("prefers", "ProvideDrink", "tea"), ("avoid", "BriefInformation", None),
-         ("quiet", None, None)]
+KINDS = [
+    ("prefers", "ProvideDrink", "tea"),
+    ("avoid", "BriefInformation", None),
+    ("quiet", None, None),
+]
 SLOTS = ["morning", "noon", "afternoon", "evening"]
 SITUATIONS = ["arriving", "working", "stretching", "busy"]
 
@@ -35,12 +38,14 @@ def test_corrections_under_load_lose_nothing(engine: str, workers: int) -> None:
     with fresh_database(engine) as url, LiveService(url, workers=workers) as service:
         admin_key = make_keys(url, 1, role="admin")[0]
         staff_key = make_keys(url, 1, role="staff")[0]
-        with httpx.Client(base_url=service.url, timeout=120,
-                          headers={"Authorization": f"Bearer {admin_key}"}) as api:
+        with httpx.Client(
+            base_url=service.url, timeout=120, headers={"Authorization": f"Bearer {admin_key}"}
+        ) as api:
             # The robots go on until the staff are done (at most EPISODES each), so that the
             # corrections meet the traffic however fast the service answers the robots.
-            work = Workload(service.url, make_keys(url, CLIENTS), episodes_per_client=EPISODES,
-                            seed=11)
+            work = Workload(
+                service.url, make_keys(url, CLIENTS), episodes_per_client=EPISODES, seed=11
+            )
             initial = create_users(api, work.all_users)
             made: dict[tuple[str, str], bool] = {}  # (user, correction id) -> lifted
             problems: list[str] = []
@@ -48,8 +53,11 @@ def test_corrections_under_load_lose_nothing(engine: str, workers: int) -> None:
 
             def staff() -> None:
                 rng = random.Random(5)
-                with httpx.Client(base_url=service.url, timeout=120, headers={
-                        "Authorization": f"Bearer {staff_key}"}) as http:
+                with httpx.Client(
+                    base_url=service.url,
+                    timeout=120,
+                    headers={"Authorization": f"Bearer {staff_key}"},
+                ) as http:
                     try:
                         for n in range(12):
                             if any(t.is_alive() for t in work._threads):
@@ -57,11 +65,17 @@ def test_corrections_under_load_lose_nothing(engine: str, workers: int) -> None:
                             user = rng.choice(work.all_users)
                             kind, service_, detail = rng.choice(KINDS)
                             body: dict[str, Any] = {
-                                "correction_id": f"c{n}", "kind": kind,
-                                "time_slot": rng.choice(SLOTS), "situation": rng.choice(SITUATIONS),
-                                "service": service_, "detail": detail}
-                            codes = [http.post(f"/v1/users/{user}/corrections", json=body
-                                               ).status_code for _ in range(2)]
+                                "correction_id": f"c{n}",
+                                "kind": kind,
+                                "time_slot": rng.choice(SLOTS),
+                                "situation": rng.choice(SITUATIONS),
+                                "service": service_,
+                                "detail": detail,
+                            }
+                            codes = [
+                                http.post(f"/v1/users/{user}/corrections", json=body).status_code
+                                for _ in range(2)
+                            ]
                             if codes != [201, 200]:
                                 problems.append(f"c{n} for {user}: {codes}")
                             made[(user, f"c{n}")] = False
@@ -79,10 +93,12 @@ def test_corrections_under_load_lose_nothing(engine: str, workers: int) -> None:
             staffer.start()
             work.join()
             staffer.join(timeout=180)
-            findings = check_history(work.history, api, url, work.all_users, initial,
-                                     rebuild=rebuild(url))
-            stored = {u: api.get(f"/v1/users/{u}/corrections").json()["items"]
-                      for u in work.all_users}
+            findings = check_history(
+                work.history, api, url, work.all_users, initial, rebuild=rebuild(url)
+            )
+            stored = {
+                u: api.get(f"/v1/users/{u}/corrections").json()["items"] for u in work.all_users
+            }
     assert problems == []
     assert findings == [], "\n".join(findings)
     assert len(during) >= 3, "the corrections came after the traffic"

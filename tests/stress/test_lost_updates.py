@@ -30,18 +30,22 @@ def test_no_acknowledged_write_lost_or_doubled(engine: str, workers: int) -> Non
     with fresh_database(engine) as url, LiveService(url, workers=workers) as service:
         keys = make_keys(url, CLIENTS)
         admin_key = make_keys(url, 1, role="admin")[0]
-        with httpx.Client(base_url=service.url, timeout=60,
-                          headers={"Authorization": f"Bearer {admin_key}"}) as api:
+        with httpx.Client(
+            base_url=service.url, timeout=60, headers={"Authorization": f"Bearer {admin_key}"}
+        ) as api:
             workload = Workload(service.url, keys, episodes_per_client=5)
             initial = create_users(api, workload.all_users)
             began = time.monotonic()
             history = workload.run()
             driven = time.monotonic() - began
-            findings = check_history(history, api, url, workload.all_users, initial,
-                                     rebuild=rebuild(url))
+            findings = check_history(
+                history, api, url, workload.all_users, initial, rebuild=rebuild(url)
+            )
     replays = sum(a.replay for a in history.acks)
-    print(f"\n{engine}/{workers}w: {len(history.acks)} acknowledgements ({replays} replays) "
-          f"from {CLIENTS} robots in {driven:.1f} s")
+    print(
+        f"\n{engine}/{workers}w: {len(history.acks)} acknowledgements ({replays} replays) "
+        f"from {CLIENTS} robots in {driven:.1f} s"
+    )
     assert findings == [], "\n".join(findings)
     assert replays >= 20  # the retries and duplicates did happen
     assert not history.unknown
@@ -55,14 +59,16 @@ def _in_process_run(url: str, *, clients: int = 8) -> tuple[list[str], Workload,
     keys = make_keys(url, clients)
     admin_key = make_keys(url, 1, role="admin")[0]
     try:
-        with serving(app) as base_url, httpx.Client(
-                base_url=base_url, timeout=60,
-                headers={"Authorization": f"Bearer {admin_key}"}) as api:
+        with (
+            serving(app) as base_url,
+            httpx.Client(
+                base_url=base_url, timeout=60, headers={"Authorization": f"Bearer {admin_key}"}
+            ) as api,
+        ):
             workload = Workload(base_url, keys, episodes_per_client=4, lost_response_rate=0.0)
             initial = create_users(api, workload.all_users)
             history = workload.run()
-            return check_history(history, api, url, workload.all_users, initial), workload, \
-                base_url
+            return check_history(history, api, url, workload.all_users, initial), workload, base_url
     finally:
         app.state.db.dispose()
 
@@ -93,28 +99,47 @@ def test_the_check_reports_a_lost_acknowledged_write() -> None:
         findings, workload, _ = _in_process_run(url)
         assert findings == [], "\n".join(findings)
         outcome = next(a for a in workload.history.acks if a.kind == "outcome")
-        episode = next(a for a in workload.history.acks if a.kind == "episode"
-                       and a.response["episode_id"] not in
-                       {o.response["episode"]["episode_id"] for o in workload.history.acks
-                        if o.kind == "outcome" and o.key == outcome.key})
+        episode = next(
+            a
+            for a in workload.history.acks
+            if a.kind == "episode"
+            and a.response["episode_id"]
+            not in {
+                o.response["episode"]["episode_id"]
+                for o in workload.history.acks
+                if o.kind == "outcome" and o.key == outcome.key
+            }
+        )
         engine = create_engine(url)
         with engine.begin() as conn:
-            conn.execute(text("UPDATE decisions SET response = NULL, outcome_hash = NULL "
-                              "WHERE id = :id"), {"id": outcome.key})
-            conn.execute(text("DELETE FROM episodes WHERE id = :id"),
-                         {"id": episode.response["episode_id"]})
+            conn.execute(
+                text("UPDATE decisions SET response = NULL, outcome_hash = NULL WHERE id = :id"),
+                {"id": outcome.key},
+            )
+            conn.execute(
+                text("DELETE FROM episodes WHERE id = :id"), {"id": episode.response["episode_id"]}
+            )
         engine.dispose()
         migrate_settings = Settings(database_url=url, _env_file=None)  # type: ignore[call-arg]
         app = create_app(migrate_settings)
         admin_key = make_keys(url, 1, role="admin")[0]
         try:
-            with serving(app) as base_url, httpx.Client(
-                    base_url=base_url, timeout=60,
-                    headers={"Authorization": f"Bearer {admin_key}"}) as api:
-                after = check_history(workload.history, api, url, workload.all_users,
-                                      dict.fromkeys(workload.all_users, 0))
+            with (
+                serving(app) as base_url,
+                httpx.Client(
+                    base_url=base_url, timeout=60, headers={"Authorization": f"Bearer {admin_key}"}
+                ) as api,
+            ):
+                after = check_history(
+                    workload.history,
+                    api,
+                    url,
+                    workload.all_users,
+                    dict.fromkeys(workload.all_users, 0),
+                )
         finally:
             app.state.db.dispose()
     assert any(f"outcome of {outcome.key} is not stored (lost)" in f for f in after), after
-    assert any(f"{episode.key} ({episode.response['episode_id']}) is not stored (lost)" in f
-               for f in after), after
+    assert any(
+        f"{episode.key} ({episode.response['episode_id']}) is not stored (lost)" in f for f in after
+    ), after

@@ -29,9 +29,13 @@ def _office_with(service: str | None = None, detail: str | None = None) -> dict[
     one more detail under ProvideDrink."""
     doc = office_mission().to_dict()
     if detail is not None:
-        doc["services"] = [{"name": s["name"], "details": [*s["details"], detail]
-                            if s["name"] == "ProvideDrink" else s["details"]}
-                           for s in doc["services"]]
+        doc["services"] = [
+            {
+                "name": s["name"],
+                "details": [*s["details"], detail] if s["name"] == "ProvideDrink" else s["details"],
+            }
+            for s in doc["services"]
+        ]
     if service is not None:
         doc["services"] = [*doc["services"], {"name": service, "details": ["chat", "walk"]}]
     return doc
@@ -47,21 +51,35 @@ def test_a_mission_change_under_load_loses_nothing(engine: str, workers: int) ->
     with fresh_database(engine) as url, LiveService(url, workers=workers) as service:
         admin_key = make_keys(url, 1, role="admin")[0]
         staff_key = make_keys(url, 1, role="staff")[0]
-        with httpx.Client(base_url=service.url, timeout=120,
-                          headers={"Authorization": f"Bearer {admin_key}"}) as api:
+        with httpx.Client(
+            base_url=service.url, timeout=120, headers={"Authorization": f"Bearer {admin_key}"}
+        ) as api:
             # The second fleet has its own mission from the start.
-            r = api.put("/v1/admin/fleets/care/mission", json={
-                "change_id": "care-menu", "mission": _office_with(service="Companionship")})
+            r = api.put(
+                "/v1/admin/fleets/care/mission",
+                json={"change_id": "care-menu", "mission": _office_with(service="Companionship")},
+            )
             assert r.status_code == 200, r.text
             care = Mission.from_dict(_office_with(service="Companionship"))
-            homes = {fleet: Workload(service.url, make_keys(url, CLIENTS, fleet=fleet),
-                                     episodes_per_client=30, seed=seed, mission=mission)
-                     for fleet, seed, mission in (("default", 7, office_with_cocoa()),
-                                                  ("care", 8, care))}
-            initial = {fleet: create_users(api, w.all_users, fleet=fleet)
-                       for fleet, w in homes.items()}
-            care_before = {u: api.get(f"/v1/users/{u}/model", params={"fleet": "care"}).json()
-                           ["mission_version"] for u in homes["care"].all_users}
+            homes = {
+                fleet: Workload(
+                    service.url,
+                    make_keys(url, CLIENTS, fleet=fleet),
+                    episodes_per_client=30,
+                    seed=seed,
+                    mission=mission,
+                )
+                for fleet, seed, mission in (("default", 7, office_with_cocoa()), ("care", 8, care))
+            }
+            initial = {
+                fleet: create_users(api, w.all_users, fleet=fleet) for fleet, w in homes.items()
+            }
+            care_before = {
+                u: api.get(f"/v1/users/{u}/model", params={"fleet": "care"}).json()[
+                    "mission_version"
+                ]
+                for u in homes["care"].all_users
+            }
 
             changed: dict[str, Any] = {}
 
@@ -72,18 +90,28 @@ def test_a_mission_change_under_load_loses_nothing(engine: str, workers: int) ->
                 deadline = time.monotonic() + 120
 
                 def wait_for(acks: int) -> None:
-                    while len(homes["default"].history.acks) < acks and \
-                            time.monotonic() < deadline:
+                    while len(homes["default"].history.acks) < acks and time.monotonic() < deadline:
                         time.sleep(0.05)
 
                 try:
                     wait_for(CLIENTS * 5)
-                    with httpx.Client(base_url=service.url, timeout=120, headers={
-                            "Authorization": f"Bearer {staff_key}"}) as staff:
-                        r = staff.put("/v1/admin/fleets/default/mission", json={
-                            "change_id": "add-cocoa", "mission": _office_with(detail="cocoa")})
-                        changed.update(status=r.status_code, body=r.json(),
-                                       during=any(t.is_alive() for t in threads))
+                    with httpx.Client(
+                        base_url=service.url,
+                        timeout=120,
+                        headers={"Authorization": f"Bearer {staff_key}"},
+                    ) as staff:
+                        r = staff.put(
+                            "/v1/admin/fleets/default/mission",
+                            json={
+                                "change_id": "add-cocoa",
+                                "mission": _office_with(detail="cocoa"),
+                            },
+                        )
+                        changed.update(
+                            status=r.status_code,
+                            body=r.json(),
+                            during=any(t.is_alive() for t in threads),
+                        )
                     wait_for(len(homes["default"].history.acks) + CLIENTS * 5)
                 finally:
                     for w in homes.values():
@@ -102,21 +130,38 @@ def test_a_mission_change_under_load_loses_nothing(engine: str, workers: int) ->
 
             findings = []
             for fleet, w in homes.items():
-                findings += [f"{fleet}: {f}" for f in check_history(
-                    w.history, api, url, w.all_users, initial[fleet],
-                    rebuild=rebuild(url, fleet=fleet), fleet=fleet)]
-            default_models = {u: api.get(f"/v1/users/{u}/model").json()
-                              for u in homes["default"].all_users}
-            care_after = {u: api.get(f"/v1/users/{u}/model", params={"fleet": "care"}).json()
-                          ["mission_version"] for u in homes["care"].all_users}
-            missions = {fleet: api.get("/v1/mission", params={"fleet": fleet}).json()
-                        for fleet in homes}
+                findings += [
+                    f"{fleet}: {f}"
+                    for f in check_history(
+                        w.history,
+                        api,
+                        url,
+                        w.all_users,
+                        initial[fleet],
+                        rebuild=rebuild(url, fleet=fleet),
+                        fleet=fleet,
+                    )
+                ]
+            default_models = {
+                u: api.get(f"/v1/users/{u}/model").json() for u in homes["default"].all_users
+            }
+            care_after = {
+                u: api.get(f"/v1/users/{u}/model", params={"fleet": "care"}).json()[
+                    "mission_version"
+                ]
+                for u in homes["care"].all_users
+            }
+            missions = {
+                fleet: api.get("/v1/mission", params={"fleet": fleet}).json() for fleet in homes
+            }
     acks = {fleet: len(w.history.acks) for fleet, w in homes.items()}
     interrupted = len(homes["default"].history.interrupted)
-    print(f"\n{engine}/{workers}w: {acks} acknowledgements in {driven:.1f} s; the change moved "
-          f"{changed.get('body', {}).get('users_moved')} models and interrupted "
-          f"{changed.get('body', {}).get('episodes_interrupted')} episodes "
-          f"({interrupted} outcomes refused as interrupted)")
+    print(
+        f"\n{engine}/{workers}w: {acks} acknowledgements in {driven:.1f} s; the change moved "
+        f"{changed.get('body', {}).get('users_moved')} models and interrupted "
+        f"{changed.get('body', {}).get('episodes_interrupted')} episodes "
+        f"({interrupted} outcomes refused as interrupted)"
+    )
     assert changed["status"] == 200, changed
     assert changed["during"], "the change came after the traffic"
     assert (changed["body"]["version"], changed["body"]["users_moved"]) == (2, 3)
@@ -124,8 +169,13 @@ def test_a_mission_change_under_load_loses_nothing(engine: str, workers: int) ->
     assert interrupted <= changed["body"]["episodes_interrupted"]
     for view in default_models.values():
         assert view["mission_version"] == 2
-        drinks = [a["action"].get("detail") for c in view["contexts"][:1] for st in c["states"]
-                  for a in st["actions"] if a["action"].get("service") == "ProvideDrink"]
+        drinks = [
+            a["action"].get("detail")
+            for c in view["contexts"][:1]
+            for st in c["states"]
+            for a in st["actions"]
+            if a["action"].get("service") == "ProvideDrink"
+        ]
         assert "cocoa" in drinks
     assert care_after == care_before  # the other fleet's models did not move
     assert [m["version"] for m in missions.values()] == [2, 2]

@@ -4,13 +4,19 @@ from __future__ import annotations
 
 from typing import Any
 
-NAMES = {400: "BadRequest", 401: "Unauthorized", 403: "Forbidden", 404: "NotFound",
-         409: "Conflict", 413: "PayloadTooLarge", 415: "UnsupportedMediaType",
-         422: "ValidationError"}
+NAMES = {
+    400: "BadRequest",
+    401: "Unauthorized",
+    403: "Forbidden",
+    404: "NotFound",
+    409: "Conflict",
+    413: "PayloadTooLarge",
+    415: "UnsupportedMediaType",
+    422: "ValidationError",
+}
 
 
-def assert_error(r: Any, status: int | tuple[int, ...], name: str | None = None
-                 ) -> dict[str, Any]:
+def assert_error(r: Any, status: int | tuple[int, ...], name: str | None = None) -> dict[str, Any]:
     """``r`` (an httpx or TestClient response) has one of the statuses and the contract's error
     body: JSON ``{"error", "detail"}`` (plus ``fields`` for validation, and the request id of
     the ``X-Request-ID`` header), the error named for the status, no traceback. The body."""

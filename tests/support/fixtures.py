@@ -49,8 +49,9 @@ def engines() -> tuple[str, ...]:
     names = tuple(dict.fromkeys(e.strip() for e in chosen.split(",") if e.strip()))
     unknown = [e for e in names if e not in ENGINES]
     if unknown or not names:
-        raise pytest.UsageError(f"ATTUNE_TEST_ENGINES must name engines among "
-                                f"{', '.join(ENGINES)}; got {chosen!r}.")
+        raise pytest.UsageError(
+            f"ATTUNE_TEST_ENGINES must name engines among {', '.join(ENGINES)}; got {chosen!r}."
+        )
     return names
 
 
@@ -60,8 +61,15 @@ def pytest_generate_tests(metafunc: pytest.Metafunc) -> None:
     if "database_url" not in metafunc.fixturenames:
         return
     one = metafunc.definition.get_closest_marker("one_engine") is not None
-    metafunc.parametrize("database_url", ENGINES[:1] if one else engines(), indirect=True,
-                         scope="session")
+    metafunc.parametrize(
+        "database_url", ENGINES[:1] if one else engines(), indirect=True, scope="session"
+    )
+
+
+_TRIGGERED = (
+    "SELECT DISTINCT c.relname FROM pg_trigger t JOIN pg_class c ON c.oid = t.tgrelid "
+    "WHERE NOT t.tgisinternal AND c.relnamespace = 'public'::regnamespace"
+)
 
 
 class EmptyTables:
@@ -92,15 +100,22 @@ class EmptyTables:
         self._engine = create_engine(url, pool_size=1, max_overflow=0)
         tables = [t.name for t in reversed(Base.metadata.sorted_tables)]
         with self._engine.connect() as conn:
-            triggered = set(conn.scalars(text(
-                "SELECT DISTINCT c.relname FROM pg_trigger t JOIN pg_class c ON c.oid = t.tgrelid"
-                " WHERE NOT t.tgisinternal AND c.relnamespace = 'public'::regnamespace")))
-            sequences = list(conn.scalars(text(
-                "SELECT sequencename FROM pg_sequences WHERE schemaname = 'public'")))
+            triggered = set(conn.scalars(text(_TRIGGERED)))
+            sequences = list(
+                conn.scalars(
+                    text("SELECT sequencename FROM pg_sequences WHERE schemaname = 'public'")
+                )
+            )
         off = [f'ALTER TABLE "{t}" DISABLE TRIGGER USER;' for t in tables if t in triggered]
         on = [f'ALTER TABLE "{t}" ENABLE TRIGGER USER;' for t in tables if t in triggered]
-        self._sql = " ".join([*off, *(f'DELETE FROM "{t}";' for t in tables), *on,
-                              *(f"SELECT setval('\"{q}\"', 1, false);" for q in sequences)])
+        self._sql = " ".join(
+            [
+                *off,
+                *(f'DELETE FROM "{t}";' for t in tables),
+                *on,
+                *(f"SELECT setval('\"{q}\"', 1, false);" for q in sequences),
+            ]
+        )
 
     def __call__(self) -> None:
         if self._engine is None:
@@ -122,8 +137,10 @@ class EmptyTables:
         """SQLite: a consistent copy of the database as it is now (open connections and their
         WAL included), for :meth:`restore`."""
         saved = self._path.with_name(f"saved-{name}.db")
-        with closing(sqlite3.connect(self._path)) as source, \
-                closing(sqlite3.connect(saved)) as target:
+        with (
+            closing(sqlite3.connect(self._path)) as source,
+            closing(sqlite3.connect(saved)) as target,
+        ):
             source.backup(target)
         return saved
 
@@ -150,9 +167,12 @@ class WorkerDatabases:
                 url = f"sqlite:///{self._tmp.mktemp(f'sqlite-{self._worker}') / 'attune.db'}"
             else:
                 server_url = self._stack.enter_context(
-                    postgres_database(database_name("test", self._worker)))
-                url = Settings(database_url=server_url,  # type: ignore[call-arg]
-                               _env_file=None).database_url
+                    postgres_database(database_name("test", self._worker))
+                )
+                url = Settings(
+                    database_url=server_url,  # type: ignore[call-arg]
+                    _env_file=None,
+                ).database_url
             emptier = self._empty[url] = EmptyTables(url)
             self._stack.callback(emptier.close)
             emptier()
@@ -171,8 +191,9 @@ class WorkerDatabases:
 
 
 @pytest.fixture(scope="session")
-def worker_databases(worker_id: str,
-                   tmp_path_factory: pytest.TempPathFactory) -> Iterator[WorkerDatabases]:
+def worker_databases(
+    worker_id: str, tmp_path_factory: pytest.TempPathFactory
+) -> Iterator[WorkerDatabases]:
     databases = WorkerDatabases(worker_id, tmp_path_factory)
     yield databases
     databases.close()
@@ -245,10 +266,16 @@ class WarmApps:
 def _shape(application: FastAPI) -> tuple[object, ...]:
     """What a test could change on an app beyond its state (identities, not values)."""
     router = application.router
-    return (tuple(map(id, router.routes)), len(application.user_middleware),
-            len(router.on_startup), len(router.on_shutdown),
-            tuple(application.dependency_overrides.items()), application.__dict__.get("openapi"),
-            application.title, application.root_path)
+    return (
+        tuple(map(id, router.routes)),
+        len(application.user_middleware),
+        len(router.on_startup),
+        len(router.on_shutdown),
+        tuple(application.dependency_overrides.items()),
+        application.__dict__.get("openapi"),
+        application.title,
+        application.root_path,
+    )
 
 
 @pytest.fixture(scope="session")

@@ -56,8 +56,7 @@ def serving(app: Any) -> Iterator[str]:
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
     sock.bind(("127.0.0.1", 0))
     port = sock.getsockname()[1]
-    server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port,
-                                           log_level="warning"))
+    server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning"))
     thread = threading.Thread(target=server.run, kwargs={"sockets": [sock]}, daemon=True)
     thread.start()
     try:
@@ -94,8 +93,11 @@ def postgres_database(name: str) -> Iterator[str]:
     try:
         admin = psycopg.connect(postgres_url("postgres"), autocommit=True, connect_timeout=5)
     except psycopg.OperationalError as exc:
-        pytest.fail(f"PostgreSQL at {PG_SERVER} does not answer ({exc}); the tests need it. "
-                    "Start it (.ci/run does) or set ATTUNE_TEST_POSTGRES_URL.", pytrace=False)
+        pytest.fail(
+            f"PostgreSQL at {PG_SERVER} does not answer ({exc}); the tests need it. "
+            "Start it (.ci/run does) or set ATTUNE_TEST_POSTGRES_URL.",
+            pytrace=False,
+        )
     with admin:
         admin.execute(f'CREATE DATABASE "{name}"')
     try:
@@ -116,15 +118,16 @@ def fresh_database(engine: str, folder: Path | None = None) -> Iterator[str]:
         yield url
 
 
-def make_keys(database_url: str, n: int, role: str = "robot",
-              fleet: str = "default") -> list[str]:
+def make_keys(database_url: str, n: int, role: str = "robot", fleet: str = "default") -> list[str]:
     """``n`` keys of ``fleet`` in a service's database, made in this process (much faster than
     ``attune keys create`` n times)."""
     db = Database(Settings(database_url=database_url, _env_file=None))  # type: ignore[call-arg]
     try:
         with db.transaction() as session:
-            return [create_key(session, role=role, fleet=fleet, name=f"test-{role}-{i}")[1]
-                    for i in range(n)]
+            return [
+                create_key(session, role=role, fleet=fleet, name=f"test-{role}-{i}")[1]
+                for i in range(n)
+            ]
     finally:
         db.dispose()
 
@@ -137,26 +140,44 @@ class LiveService:
     The process's output goes to ``log_path``; ``log()`` returns it (for assertion messages).
     """
 
-    def __init__(self, database_url: str, *, workers: int = 1, log_path: Path | None = None,
-                 env: dict[str, str] | None = None, seed: int = 0) -> None:
+    def __init__(
+        self,
+        database_url: str,
+        *,
+        workers: int = 1,
+        log_path: Path | None = None,
+        env: dict[str, str] | None = None,
+        seed: int = 0,
+    ) -> None:
         self.database_url = database_url
         self.workers = workers
         self.port = free_port()
         self.url = f"http://127.0.0.1:{self.port}"
-        self.log_path = log_path or Path(tempfile.mkstemp(prefix="attune-serve-",
-                                                          suffix=".log")[1])
-        self.env = {**os.environ, "ATTUNE_DATABASE_URL": database_url,
-                    "ATTUNE_SEED": str(seed), "ATTUNE_LOG_LEVEL": "warning", **(env or {})}
+        self.log_path = log_path or Path(tempfile.mkstemp(prefix="attune-serve-", suffix=".log")[1])
+        self.env = {
+            **os.environ,
+            "ATTUNE_DATABASE_URL": database_url,
+            "ATTUNE_SEED": str(seed),
+            "ATTUNE_LOG_LEVEL": "warning",
+            **(env or {}),
+        }
         self.process: subprocess.Popen[bytes] | None = None
 
     # -- the command line ---------------------------------------------------------------------
     def attune(self, *args: str, timeout: float = 120) -> subprocess.CompletedProcess[str]:
         """Run another ``attune`` command against the same database."""
-        return subprocess.run([ATTUNE, *args], env=self.env, capture_output=True, text=True,
-                              timeout=timeout, check=False)
+        return subprocess.run(
+            [ATTUNE, *args],
+            env=self.env,
+            capture_output=True,
+            text=True,
+            timeout=timeout,
+            check=False,
+        )
 
-    def create_key(self, role: str = "robot", fleet: str = "default",
-                   name: str | None = None) -> str:
+    def create_key(
+        self, role: str = "robot", fleet: str = "default", name: str | None = None
+    ) -> str:
         """``attune keys create``: the secret (the last line it prints)."""
         args = ["keys", "create", "--role", role, "--fleet", fleet]
         if name:
@@ -170,14 +191,27 @@ class LiveService:
         assert self.process is None or self.process.poll() is not None, "already running"
         with open(self.log_path, "ab") as log:
             self.process = subprocess.Popen(
-                [ATTUNE, "serve", "--host", "127.0.0.1", "--port", str(self.port),
-                 "--workers", str(self.workers)],
-                env=self.env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
+                [
+                    ATTUNE,
+                    "serve",
+                    "--host",
+                    "127.0.0.1",
+                    "--port",
+                    str(self.port),
+                    "--workers",
+                    str(self.workers),
+                ],
+                env=self.env,
+                stdout=log,
+                stderr=subprocess.STDOUT,
+                start_new_session=True,
+            )
         deadline = time.monotonic() + timeout
         while True:
             if self.process.poll() is not None:
-                raise AssertionError(f"attune serve exited with {self.process.returncode}:\n"
-                                     f"{self.log()}")
+                raise AssertionError(
+                    f"attune serve exited with {self.process.returncode}:\n{self.log()}"
+                )
             try:
                 if httpx.get(f"{self.url}/readyz", timeout=2).status_code == 200:
                     return
@@ -220,6 +254,10 @@ class LiveService:
         self.start()
         return self
 
-    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
-                 tb: TracebackType | None) -> None:
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
         self.stop()

@@ -37,10 +37,19 @@ def _fields(action: Any) -> tuple[str, str | None, str | None]:
     return str(action.kind), action.service, action.detail
 
 
-def answer(action: Any, *, need: Need | None = TEA, rng: random.Random | None = None,
-           picky: bool = True, busy: bool = False, yes: float = 1.0, asks: float = 1.0,
-           precise: float = 0.0, smiles: float = 0.0, mission: Mission = MISSION
-           ) -> dict[str, Any]:
+def answer(
+    action: Any,
+    *,
+    need: Need | None = TEA,
+    rng: random.Random | None = None,
+    picky: bool = True,
+    busy: bool = False,
+    yes: float = 1.0,
+    asks: float = 1.0,
+    precise: float = 0.0,
+    smiles: float = 0.0,
+    mission: Mission = MISSION,
+) -> dict[str, Any]:
     """The outcome fields a person with ``need`` gives to ``action`` (see the module), under
     ``mission`` (the service's: a non-picky person answers a question with its first
     detail)."""
@@ -64,8 +73,11 @@ def answer(action: Any, *, need: Need | None = TEA, rng: random.Random | None = 
             return out
         return {"response": "none"}
     if kind == "query_type":
-        return {"response": "answered", "service": need[0]} if need is not None \
+        return (
+            {"response": "answered", "service": need[0]}
+            if need is not None
             else {"response": "terminated"}
+        )
     if kind == "query_detail":
         if need is not None and service == need[0]:
             return {"response": "answered", "detail": need[1]}

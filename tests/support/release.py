@@ -21,15 +21,25 @@ from sqlalchemy import create_engine, text
 
 from tests.support.live import free_port
 
-__all__ = ["REPO", "OldService", "play", "previous_release", "rebuild", "release_code", "revision",
-           "scalars", "table_rows"]
+__all__ = [
+    "REPO",
+    "OldService",
+    "play",
+    "previous_release",
+    "rebuild",
+    "release_code",
+    "revision",
+    "scalars",
+    "table_rows",
+]
 
 REPO = Path(__file__).resolve().parents[2]
 
 
 def _git(*args: str) -> str:
-    return subprocess.run(["git", *args], cwd=REPO, capture_output=True, text=True,
-                          check=True).stdout.strip()
+    return subprocess.run(
+        ["git", *args], cwd=REPO, capture_output=True, text=True, check=True
+    ).stdout.strip()
 
 
 def previous_release(*paths: str) -> str:
@@ -46,26 +56,50 @@ class OldService:
         self.code, self.url, self.log = code, url, log
         self.port = free_port()
         self.base = f"http://127.0.0.1:{self.port}"
-        self.env = {**os.environ, "ATTUNE_DATABASE_URL": url, "ATTUNE_SEED": "0",
-                    "ATTUNE_LOG_LEVEL": "warning", "PYTHONPATH": str(code)}
+        self.env = {
+            **os.environ,
+            "ATTUNE_DATABASE_URL": url,
+            "ATTUNE_SEED": "0",
+            "ATTUNE_LOG_LEVEL": "warning",
+            "PYTHONPATH": str(code),
+        }
         self.process: subprocess.Popen[bytes] | None = None
 
     def attune(self, *args: str) -> str:
         done = subprocess.run(
-            [sys.executable, "-c", "import sys; from app.cli import main; "
-             "sys.argv[0] = 'attune'; main()", *args],
-            cwd=self.code, env=self.env, capture_output=True, text=True, timeout=120,
-            check=False)
+            [
+                sys.executable,
+                "-c",
+                "import sys; from app.cli import main; sys.argv[0] = 'attune'; main()",
+                *args,
+            ],
+            cwd=self.code,
+            env=self.env,
+            capture_output=True,
+            text=True,
+            timeout=120,
+            check=False,
+        )
         assert done.returncode == 0, done.stderr
         return done.stdout
 
     def __enter__(self) -> OldService:
         with open(self.log, "wb") as out:
             self.process = subprocess.Popen(
-                [sys.executable, "-c", "import sys; from app.cli import main; "
-                 "sys.argv[0] = 'attune'; main()", "serve", "--port", str(self.port)],
-                cwd=self.code, env=self.env, stdout=out, stderr=subprocess.STDOUT,
-                start_new_session=True)
+                [
+                    sys.executable,
+                    "-c",
+                    "import sys; from app.cli import main; sys.argv[0] = 'attune'; main()",
+                    "serve",
+                    "--port",
+                    str(self.port),
+                ],
+                cwd=self.code,
+                env=self.env,
+                stdout=out,
+                stderr=subprocess.STDOUT,
+                start_new_session=True,
+            )
         deadline = time.monotonic() + 90
         while True:
             assert self.process.poll() is None, self.log.read_text()
@@ -90,9 +124,16 @@ SITUATIONS = ("arriving", "working", "stretching")
 def play(api: httpx.Client, user: str, event: str, n: int) -> str:
     """One episode of ``user`` to its end, as a cooperative person; its id."""
     hour = (7, 12, 15, 19)[n % 4]
-    started = api.post(f"/v1/users/{user}/episodes", json={
-        "event_id": event, "occurred_at": f"2026-11-{1 + n % 28:02d}T{hour:02d}:10:00+08:00",
-        "situation": SITUATIONS[n % 3], "initiator": "robot", "robot_id": "r1"})
+    started = api.post(
+        f"/v1/users/{user}/episodes",
+        json={
+            "event_id": event,
+            "occurred_at": f"2026-11-{1 + n % 28:02d}T{hour:02d}:10:00+08:00",
+            "situation": SITUATIONS[n % 3],
+            "initiator": "robot",
+            "robot_id": "r1",
+        },
+    )
     assert started.status_code == 201, started.text
     episode = started.json()
     decision = episode["decision"]
@@ -100,8 +141,9 @@ def play(api: httpx.Client, user: str, event: str, n: int) -> str:
         kind = decision["action"]["kind"]
         body: dict[str, Any] = {"decision_id": decision["decision_id"]}
         if kind == "pass":
-            body.update(response="human_request", service="ProvideDrink") if n % 3 else \
-                body.update(response="none")
+            body.update(response="human_request", service="ProvideDrink") if n % 3 else body.update(
+                response="none"
+            )
         elif kind == "query_type":
             body.update(response="answered", service="BriefInformation")
         elif kind == "query_detail":
@@ -117,8 +159,11 @@ def play(api: httpx.Client, user: str, event: str, n: int) -> str:
 def release_code(commit: str, folder: Path) -> Path:
     """``app`` and ``migrations`` of ``commit``, extracted into ``folder``."""
     archive = folder / "release.tar"
-    subprocess.run(["git", "archive", "--format=tar", "-o", str(archive), commit, "app",
-                    "migrations"], cwd=REPO, check=True)
+    subprocess.run(
+        ["git", "archive", "--format=tar", "-o", str(archive), commit, "app", "migrations"],
+        cwd=REPO,
+        check=True,
+    )
     with tarfile.open(archive) as tar:
         tar.extractall(folder, filter="data")
     assert (folder / "migrations" / "versions").is_dir()
@@ -128,9 +173,13 @@ def release_code(commit: str, folder: Path) -> Path:
 Row = dict[str, Any]
 
 
-def table_rows(url: str, tables: Iterable[str], *, leave_out: Iterable[str] = (),
-               rewrite: Callable[[str, Row], None] | None = None
-               ) -> dict[str, list[tuple[Any, ...]]]:
+def table_rows(
+    url: str,
+    tables: Iterable[str],
+    *,
+    leave_out: Iterable[str] = (),
+    rewrite: Callable[[str, Row], None] | None = None,
+) -> dict[str, list[tuple[Any, ...]]]:
     """Every row of ``tables`` as sorted (column, value) pairs, the rows sorted, for comparing
     a database before and after a migration: the columns ``leave_out`` names (a later
     release's) are left out, times are compared without their zone (the engines give them
@@ -190,9 +239,13 @@ def rebuild(url: str, user_id: str, fleet: str | None = None) -> dict[str, Any]:
     from app import cli
 
     where = [] if fleet is None else ["--fleet", fleet]
-    result = CliRunner().invoke(cli.app, ["models", "rebuild", user_id, *where],
-                                env={"ATTUNE_DATABASE_URL": url, "ATTUNE_SEED": "0"})
+    result = CliRunner().invoke(
+        cli.app,
+        ["models", "rebuild", user_id, *where],
+        env={"ATTUNE_DATABASE_URL": url, "ATTUNE_SEED": "0"},
+    )
     assert result.exit_code == 0, result.output
     summary: dict[str, Any] = json.loads(
-        next(ln for ln in result.output.splitlines() if ln.startswith("{")))
+        next(ln for ln in result.output.splitlines() if ln.startswith("{"))
+    )
     return summary

@@ -8,43 +8,68 @@ from fastapi import Path, Query, Response
 from app.schemas.common import CLIENT_ID_PATTERN
 from app.services.episodes import Written
 
-UserId = Annotated[str, Path(pattern=CLIENT_ID_PATTERN, description="Client-chosen user id.",
-                             examples=["lin"])]
-EpisodeId = Annotated[str, Path(max_length=128, description="Server-chosen episode id.",
-                                examples=["ep_0123456789abcdef0123456789abcdef"])]
+UserId = Annotated[
+    str, Path(pattern=CLIENT_ID_PATTERN, description="Client-chosen user id.", examples=["lin"])
+]
+EpisodeId = Annotated[
+    str,
+    Path(
+        max_length=128,
+        description="Server-chosen episode id.",
+        examples=["ep_0123456789abcdef0123456789abcdef"],
+    ),
+]
 # Integer query parameters are bounded, so that no value reaches the database as an integer it
 # cannot hold (a 422 naming the parameter and its range instead, on every engine).
 LIMIT_MAX = 500
 LAST_MAX = 1_000_000
-Limit = Annotated[int, Query(ge=1, le=LIMIT_MAX,
-                             description=f"Items per page, 1 to {LIMIT_MAX}.")]
-Last = Annotated[int | None, Query(ge=1, le=LAST_MAX,
-                                   description=f"Only the last N episodes, 1 to {LAST_MAX} "
-                                   "(all of them when absent).")]
-_CURSOR = ("The `next_cursor` of the previous page, passed back unchanged; treat it as opaque. A "
-           "value that is not of the shape this API returns (the pattern, and for numbers a "
-           "position below 2147483648) is refused with 422; a value of that shape names a "
-           "position in the list, and the page starts after it.")
+Limit = Annotated[int, Query(ge=1, le=LIMIT_MAX, description=f"Items per page, 1 to {LIMIT_MAX}.")]
+Last = Annotated[
+    int | None,
+    Query(
+        ge=1,
+        le=LAST_MAX,
+        description=f"Only the last N episodes, 1 to {LAST_MAX} (all of them when absent).",
+    ),
+]
+_CURSOR = (
+    "The `next_cursor` of the previous page, passed back unchanged; treat it as opaque. A "
+    "value that is not of the shape this API returns (the pattern, and for numbers a "
+    "position below 2147483648) is refused with 422; a value of that shape names a "
+    "position in the list, and the page starts after it."
+)
 # Episode and audit pages: the position of the last item of the previous page.
 SeqCursor = Annotated[str | None, Query(pattern=r"^[0-9]{1,10}$", description=_CURSOR)]
 # Users pages: the fleet and user id of the last user of the previous page, base64url-encoded
 # without padding.
-UserCursor = Annotated[str | None, Query(pattern=r"^[A-Za-z0-9_-]{1,344}$",
-                                         description=_CURSOR)]
-Fleet = Annotated[str | None, Query(
-    pattern=CLIENT_ID_PATTERN, examples=["care-home-north"],
-    description="The user's fleet, for admin keys (default: the key's own fleet). Robot and "
-    "staff keys work in their own fleet: another fleet is answered as a user that does not "
-    "exist.")]
-MissionFleet = Annotated[str | None, Query(
-    pattern=CLIENT_ID_PATTERN, examples=["care-home-north"],
-    description="Whose mission, for admin keys (default: the key's own fleet). Other keys may "
-    "name only their own fleet (403 otherwise).")]
-FleetName = Annotated[str, Path(pattern=CLIENT_ID_PATTERN, examples=["care-home-north"],
-                                description="The fleet.")]
+UserCursor = Annotated[str | None, Query(pattern=r"^[A-Za-z0-9_-]{1,344}$", description=_CURSOR)]
+Fleet = Annotated[
+    str | None,
+    Query(
+        pattern=CLIENT_ID_PATTERN,
+        examples=["care-home-north"],
+        description="The user's fleet, for admin keys (default: the key's own fleet). Robot and "
+        "staff keys work in their own fleet: another fleet is answered as a user that does not "
+        "exist.",
+    ),
+]
+MissionFleet = Annotated[
+    str | None,
+    Query(
+        pattern=CLIENT_ID_PATTERN,
+        examples=["care-home-north"],
+        description="Whose mission, for admin keys (default: the key's own fleet). Other keys may "
+        "name only their own fleet (403 otherwise).",
+    ),
+]
+FleetName = Annotated[
+    str, Path(pattern=CLIENT_ID_PATTERN, examples=["care-home-north"], description="The fleet.")
+]
 REPLAY_HEADER = {
-    "Idempotent-Replay": {"description": "true when this repeats an earlier identical write.",
-                          "schema": {"type": "string", "enum": ["true"]}},
+    "Idempotent-Replay": {
+        "description": "true when this repeats an earlier identical write.",
+        "schema": {"type": "string", "enum": ["true"]},
+    },
 }
 
 
@@ -52,8 +77,12 @@ def written(result: Written) -> Response:
     """A robot write's answer (with ``Idempotent-Replay: true`` when it repeats an earlier
     one), encoded once, with orjson."""
     headers = {"Idempotent-Replay": "true"} if result.replay else None
-    return Response(orjson.dumps(result.body), status_code=result.status, headers=headers,
-                    media_type="application/json")
+    return Response(
+        orjson.dumps(result.body),
+        status_code=result.status,
+        headers=headers,
+        media_type="application/json",
+    )
 
 
 def no_content() -> Response:

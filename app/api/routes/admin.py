@@ -17,15 +17,18 @@ from app.services.context import ServiceContext
 
 from ._common import REPLAY_HEADER, FleetName, Limit, SeqCursor, no_content
 
-KeyId = Annotated[str, Path(max_length=64, description="The key's id (key_...).",
-                            examples=["key_0123456789abcdef"])]
+KeyId = Annotated[
+    str,
+    Path(max_length=64, description="The key's id (key_...).", examples=["key_0123456789abcdef"]),
+]
 
 router = APIRouter(prefix="/v1/admin", tags=["admin"], route_class=TransactionalRoute)
 
 
 @router.get("/audit", response_model=AuditList, responses=responses(403))
 def list_audit(
-    session: Session, principal: CurrentPrincipal,
+    session: Session,
+    principal: CurrentPrincipal,
     limit: Limit = 50,
     cursor: SeqCursor = None,
 ) -> AuditList:
@@ -36,13 +39,13 @@ def list_audit(
     return service.list_audit(session, principal, limit=limit, cursor=cursor)
 
 
-@router.post("/keys", status_code=201, response_model=KeyCreated,
-             responses=responses(403, 415))
+@router.post("/keys", status_code=201, response_model=KeyCreated, responses=responses(403, 415))
 def create_key(body: KeyIn, session: Session, principal: CurrentPrincipal) -> JSONResponse:
     """Make an API key (admin); its secret is in this answer only."""
     made = admin.add_key(session, principal, body)
-    return JSONResponse(made.model_dump(mode="json"), status_code=201,
-                        headers={"Cache-Control": "no-store"})
+    return JSONResponse(
+        made.model_dump(mode="json"), status_code=201, headers={"Cache-Control": "no-store"}
+    )
 
 
 @router.get("/keys", response_model=KeyList, responses=responses(403))
@@ -51,10 +54,12 @@ def list_keys(session: Session, principal: CurrentPrincipal) -> KeyList:
     return admin.keys(session, principal)
 
 
-@router.delete("/keys/{key_id}", status_code=204, response_class=Response,
-               responses=responses(403, 404))
-def revoke_key(key_id: KeyId, session: Session, ctx: ServiceContext,
-               principal: CurrentPrincipal) -> Response:
+@router.delete(
+    "/keys/{key_id}", status_code=204, response_class=Response, responses=responses(403, 404)
+)
+def revoke_key(
+    key_id: KeyId, session: Session, ctx: ServiceContext, principal: CurrentPrincipal
+) -> Response:
     """Revoke a key (admin): its requests get 401 from now on. Revoking a revoked key changes
     nothing (204 again)."""
     admin.remove_key(session, ctx, principal, key_id)
@@ -68,19 +73,26 @@ def list_fleets(session: Session, principal: CurrentPrincipal) -> FleetList:
     return admin.fleets(session, principal)
 
 
-@router.get("/fleets/{fleet}/missions", response_model=MissionVersionList,
-            responses=responses(403))
-def list_missions(fleet: FleetName, session: Session, ctx: ServiceContext,
-                  principal: CurrentPrincipal) -> MissionVersionList:
+@router.get("/fleets/{fleet}/missions", response_model=MissionVersionList, responses=responses(403))
+def list_missions(
+    fleet: FleetName, session: Session, ctx: ServiceContext, principal: CurrentPrincipal
+) -> MissionVersionList:
     """Every version of a fleet's mission, newest first (the fleet's staff, admins)."""
-    return MissionVersionList.model_validate(
-        missions.list_missions(session, ctx, principal, fleet))
+    return MissionVersionList.model_validate(missions.list_missions(session, ctx, principal, fleet))
 
 
-@router.put("/fleets/{fleet}/mission", response_model=MissionChanged,
-            responses={**responses(403, 409, 415), 200: {"headers": REPLAY_HEADER}})
-def set_mission(fleet: FleetName, body: MissionChangeIn, session: Session, ctx: ServiceContext,
-                principal: CurrentPrincipal) -> JSONResponse:
+@router.put(
+    "/fleets/{fleet}/mission",
+    response_model=MissionChanged,
+    responses={**responses(403, 409, 415), 200: {"headers": REPLAY_HEADER}},
+)
+def set_mission(
+    fleet: FleetName,
+    body: MissionChangeIn,
+    session: Session,
+    ctx: ServiceContext,
+    principal: CurrentPrincipal,
+) -> JSONResponse:
     """Give a fleet a new mission (the fleet's staff, admins): a new version, and in the same
     transaction every user's model of the fleet carried to it by names (what exists in both
     versions keeps what was learned; ``renames`` carries it across a rename), and the fleet's
@@ -88,25 +100,38 @@ def set_mission(fleet: FleetName, body: MissionChangeIn, session: Session, ctx: 
     the one in force changes nothing (``changed`` false). 422 names what is wrong with the
     mission or the renames."""
     renames = body.renames.model_dump() if body.renames is not None else None
-    out, replay = missions.set_mission(session, ctx, principal, fleet, change_id=body.change_id,
-                                       mission_doc=body.mission, renames_doc=renames)
+    out, replay = missions.set_mission(
+        session,
+        ctx,
+        principal,
+        fleet,
+        change_id=body.change_id,
+        mission_doc=body.mission,
+        renames_doc=renames,
+    )
     return JSONResponse(out, headers={"Idempotent-Replay": "true"} if replay else None)
 
 
 @router.get("/fleets/{fleet}/prior", response_model=FleetPriorOut, responses=responses(403))
-def get_fleet_prior(fleet: FleetName, session: Session, ctx: ServiceContext,
-                    principal: CurrentPrincipal) -> FleetPriorOut:
+def get_fleet_prior(
+    fleet: FleetName, session: Session, ctx: ServiceContext, principal: CurrentPrincipal
+) -> FleetPriorOut:
     """A fleet's prior for newcomers (the fleet's staff, admins): whether it is on, how many of
     its people can contribute per learner, and for which learners it is in force."""
     return FleetPriorOut.model_validate(prior.fleet_prior_view(session, ctx, principal, fleet))
 
 
-@router.put("/fleets/{fleet}/prior", response_model=FleetPriorOut,
-            responses=responses(403, 415))
-def set_fleet_prior(fleet: FleetName, body: FleetPriorIn, session: Session,
-                    ctx: ServiceContext, principal: CurrentPrincipal) -> FleetPriorOut:
+@router.put("/fleets/{fleet}/prior", response_model=FleetPriorOut, responses=responses(403, 415))
+def set_fleet_prior(
+    fleet: FleetName,
+    body: FleetPriorIn,
+    session: Session,
+    ctx: ServiceContext,
+    principal: CurrentPrincipal,
+) -> FleetPriorOut:
     """Turn a fleet's prior on or off for its next newcomers (the fleet's staff, admins);
     models that started from it keep their start. Audit entry ``fleet.prior`` when it
     changes."""
     return FleetPriorOut.model_validate(
-        prior.set_fleet_prior(session, ctx, principal, fleet, enabled=body.enabled))
+        prior.set_fleet_prior(session, ctx, principal, fleet, enabled=body.enabled)
+    )

@@ -35,15 +35,30 @@ def _count(request: Request, result: service.Written) -> None:
 
 
 @router.post(
-    "/v1/users/{user_id}/episodes", status_code=201, response_model=EpisodeCreated,
-    responses={200: {"model": EpisodeCreated, "description": "Idempotent replay of an earlier "
-                     "event_id.", "headers": REPLAY_HEADER, "links": EPISODE_LINKS},
-               201: {"links": EPISODE_LINKS}, **responses(404, 409, 415)},
+    "/v1/users/{user_id}/episodes",
+    status_code=201,
+    response_model=EpisodeCreated,
+    responses={
+        200: {
+            "model": EpisodeCreated,
+            "description": "Idempotent replay of an earlier event_id.",
+            "headers": REPLAY_HEADER,
+            "links": EPISODE_LINKS,
+        },
+        201: {"links": EPISODE_LINKS},
+        **responses(404, 409, 415),
+    },
 )
 @inline
-def start_episode(user_id: UserId, body: EpisodeIn, request: Request, session: Session,
-                  ctx: ServiceContext, principal: CurrentPrincipal,
-                  fleet: Fleet = None) -> Response:
+def start_episode(
+    user_id: UserId,
+    body: EpisodeIn,
+    request: Request,
+    session: Session,
+    ctx: ServiceContext,
+    principal: CurrentPrincipal,
+    fleet: Fleet = None,
+) -> Response:
     """An event happened near this user: open an episode and get the robot's first action."""
     result = service.start_episode(session, ctx, principal, user_id, body, fleet=fleet)
     _count(request, result)
@@ -51,16 +66,27 @@ def start_episode(user_id: UserId, body: EpisodeIn, request: Request, session: S
 
 
 @router.post(
-    "/v1/episodes/{episode_id}/outcomes", response_model=OutcomeOut,
-    responses={200: {"headers": REPLAY_HEADER, "description": "The reward, the episode, and "
-                     "the next decision (null when the episode ended).",
-                     "links": OUTCOME_LINKS},
-               **responses(404, 409, 415)},
+    "/v1/episodes/{episode_id}/outcomes",
+    response_model=OutcomeOut,
+    responses={
+        200: {
+            "headers": REPLAY_HEADER,
+            "description": "The reward, the episode, and "
+            "the next decision (null when the episode ended).",
+            "links": OUTCOME_LINKS,
+        },
+        **responses(404, 409, 415),
+    },
 )
 @inline
-def report_outcome(episode_id: EpisodeId, body: OutcomeIn, request: Request,
-                   session: Session, ctx: ServiceContext,
-                   principal: CurrentPrincipal) -> Response:
+def report_outcome(
+    episode_id: EpisodeId,
+    body: OutcomeIn,
+    request: Request,
+    session: Session,
+    ctx: ServiceContext,
+    principal: CurrentPrincipal,
+) -> Response:
     """What the person did after the robot's action; answers with the next decision."""
     result = service.report_outcome(session, ctx, principal, episode_id, body)
     if not result.replay and result.kind is not None:
@@ -71,30 +97,40 @@ def report_outcome(episode_id: EpisodeId, body: OutcomeIn, request: Request,
 
 
 @router.post(
-    "/v1/episodes/{episode_id}/feedback", response_model=FeedbackOut,
+    "/v1/episodes/{episode_id}/feedback",
+    response_model=FeedbackOut,
     responses={200: {"headers": REPLAY_HEADER}, **responses(404, 409, 415)},
 )
-def add_feedback(episode_id: EpisodeId, body: FeedbackIn, session: Session,
-                 ctx: ServiceContext, principal: CurrentPrincipal) -> Response:
+def add_feedback(
+    episode_id: EpisodeId,
+    body: FeedbackIn,
+    session: Session,
+    ctx: ServiceContext,
+    principal: CurrentPrincipal,
+) -> Response:
     """Explicit feedback on an episode, during or after it (idempotent on feedback_id)."""
     return written(service.add_feedback(session, ctx, principal, episode_id, body))
 
 
 @router.get("/v1/episodes/{episode_id}", response_model=EpisodeTrace, responses=responses(404))
-def get_episode(episode_id: EpisodeId, session: Session, ctx: ServiceContext,
-                principal: CurrentPrincipal) -> EpisodeTrace:
+def get_episode(
+    episode_id: EpisodeId, session: Session, ctx: ServiceContext, principal: CurrentPrincipal
+) -> EpisodeTrace:
     """The whole trace of an episode: every decision, response, reward and feedback."""
     return service.get_trace(session, ctx, principal, episode_id)
 
 
-@router.get("/v1/users/{user_id}/episodes", response_model=EpisodeList,
-            responses=responses(404))
+@router.get("/v1/users/{user_id}/episodes", response_model=EpisodeList, responses=responses(404))
 def list_episodes(
-    user_id: UserId, session: Session, ctx: ServiceContext, principal: CurrentPrincipal,
+    user_id: UserId,
+    session: Session,
+    ctx: ServiceContext,
+    principal: CurrentPrincipal,
     limit: Limit = 50,
     cursor: SeqCursor = None,
     fleet: Fleet = None,
 ) -> EpisodeList:
     """A user's episodes, newest first, without traces."""
-    return service.list_episodes(session, ctx, principal, user_id, limit=limit, cursor=cursor,
-                                 fleet=fleet)
+    return service.list_episodes(
+        session, ctx, principal, user_id, limit=limit, cursor=cursor, fleet=fleet
+    )

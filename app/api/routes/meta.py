@@ -23,16 +23,17 @@ log = logging.getLogger("attune.api")
 
 
 @router.get("/v1/mission", response_model=FleetMissionOut, responses=responses(403))
-def get_mission(session: Session, ctx: ServiceContext, principal: CurrentPrincipal,
-                fleet: MissionFleet = None) -> FleetMissionOut:
+def get_mission(
+    session: Session, ctx: ServiceContext, principal: CurrentPrincipal, fleet: MissionFleet = None
+) -> FleetMissionOut:
     """Your fleet's mission in force (situations, time slots, services, rewards), with its
     version: what robots negotiate about and what the learners' tables are laid out for."""
-    return FleetMissionOut.model_validate(
-        missions.fleet_mission(session, ctx, principal, fleet))
+    return FleetMissionOut.model_validate(missions.fleet_mission(session, ctx, principal, fleet))
 
 
-@router.get("/healthz", responses={200: {"content": {"application/json": {
-    "example": {"status": "ok"}}}}})
+@router.get(
+    "/healthz", responses={200: {"content": {"application/json": {"example": {"status": "ok"}}}}}
+)
 def healthz() -> dict[str, str]:
     """200 while the process runs."""
     return {"status": "ok"}
@@ -46,18 +47,28 @@ def readyz(request: Request) -> JSONResponse:
         current = migrate.current_revision(db.engine)
     except Exception as exc:  # any failure to reach the database means "not ready"
         log.warning("readiness: database unreachable: %s", exc)
-        return JSONResponse(error_body("ServiceUnavailable", "The database does not answer."),
-                            status_code=503)
+        return JSONResponse(
+            error_body("ServiceUnavailable", "The database does not answer."), status_code=503
+        )
     head = migrate.head_revision()
     if current != head:
         where = "has no schema yet" if current is None else f"is at schema {current}"
-        return JSONResponse(error_body("ServiceUnavailable", f"The database {where}, not "
-                                       f"{head}; run `attune db upgrade`."), status_code=503)
+        return JSONResponse(
+            error_body(
+                "ServiceUnavailable", f"The database {where}, not {head}; run `attune db upgrade`."
+            ),
+            status_code=503,
+        )
     return JSONResponse({"status": "ready", "schema": current})
 
 
-@router.get("/metrics", response_class=Response, responses={200: {"content": {
-    CONTENT_TYPE_LATEST: {}}, "description": "Prometheus text format."}})
+@router.get(
+    "/metrics",
+    response_class=Response,
+    responses={
+        200: {"content": {CONTENT_TYPE_LATEST: {}}, "description": "Prometheus text format."}
+    },
+)
 def metrics(request: Request) -> Response:
     """Request counts and latencies per route; decisions and outcomes per action kind."""
     return Response(request.app.state.metrics.render(), media_type=CONTENT_TYPE_LATEST)

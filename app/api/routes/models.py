@@ -13,51 +13,68 @@ from app.services.context import ServiceContext
 
 from ._common import Fleet, Last, UserId, no_content
 
-router = APIRouter(prefix="/v1/users/{user_id}", tags=["models"],
-                   route_class=TransactionalRoute)
+router = APIRouter(prefix="/v1/users/{user_id}", tags=["models"], route_class=TransactionalRoute)
 
 
 @router.get("/model", response_model=ModelOut, responses=responses(404))
 def get_model(
-    user_id: UserId, session: Session, ctx: ServiceContext, principal: CurrentPrincipal,
+    user_id: UserId,
+    session: Session,
+    ctx: ServiceContext,
+    principal: CurrentPrincipal,
     time_slot: Annotated[str | None, Query(max_length=64)] = None,
     situation: Annotated[str | None, Query(max_length=64)] = None,
     fleet: Fleet = None,
 ) -> ModelOut:
     """What the learner believes now, per context, state and action."""
-    return service.model_view(session, ctx, principal, user_id, time_slot=time_slot,
-                              situation=situation, fleet=fleet)
+    return service.model_view(
+        session, ctx, principal, user_id, time_slot=time_slot, situation=situation, fleet=fleet
+    )
 
 
 @router.get("/stats", response_model=StatsOut, responses=responses(404))
 def get_stats(
-    user_id: UserId, session: Session, principal: CurrentPrincipal,
-    last: Last = None, fleet: Fleet = None,
+    user_id: UserId,
+    session: Session,
+    principal: CurrentPrincipal,
+    last: Last = None,
+    fleet: Fleet = None,
 ) -> StatsOut:
     """The paper's metrics over the user's last N episodes (all by default)."""
     return service.stats(session, principal, user_id, last=last, fleet=fleet)
 
 
-@router.delete("/model", status_code=204, response_class=Response,
-               responses=responses(403, 404))
+@router.delete("/model", status_code=204, response_class=Response, responses=responses(403, 404))
 def reset_model(
-    user_id: UserId, session: Session, ctx: ServiceContext, principal: CurrentPrincipal,
+    user_id: UserId,
+    session: Session,
+    ctx: ServiceContext,
+    principal: CurrentPrincipal,
     fleet: Fleet = None,
-    corrections: Annotated[Literal["keep", "drop"], Query(
-        description="The staff corrections in force: kept by default, or dropped too.",
-    )] = "keep",
+    corrections: Annotated[
+        Literal["keep", "drop"],
+        Query(
+            description="The staff corrections in force: kept by default, or dropped too.",
+        ),
+    ] = "keep",
 ) -> Response:
     """Forget what was learned, keep the history and, unless asked, the staff corrections
     (staff of the fleet, admin)."""
-    service.reset_model(session, ctx, principal, user_id, fleet=fleet,
-                        drop_corrections=corrections == "drop")
+    service.reset_model(
+        session, ctx, principal, user_id, fleet=fleet, drop_corrections=corrections == "drop"
+    )
     return no_content()
 
 
 @router.get("/model/export", responses=responses(403, 404))
 @writes  # an export leaves an audit entry
-def export_model(user_id: UserId, session: Session, ctx: ServiceContext,
-                 principal: CurrentPrincipal, fleet: Fleet = None) -> dict[str, Any]:
+def export_model(
+    user_id: UserId,
+    session: Session,
+    ctx: ServiceContext,
+    principal: CurrentPrincipal,
+    fleet: Fleet = None,
+) -> dict[str, Any]:
     """The model as a self-describing document that PUT /model accepts back (staff of the
     fleet, admin)."""
     return service.export_model(session, ctx, principal, user_id, fleet=fleet)
@@ -65,17 +82,36 @@ def export_model(user_id: UserId, session: Session, ctx: ServiceContext,
 
 @router.put("/model", response_model=ModelOut, responses=responses(403, 404, 415))
 def import_model(
-    user_id: UserId, session: Session, ctx: ServiceContext, principal: CurrentPrincipal,
-    doc: Annotated[dict[str, Any], Body(
-        description="A document from GET /model/export.",
-        examples=[{"format": "attune.learner-state", "format_version": 1, "algorithm": "hri",
-                   "params": {"tau": 0.01},
-                   "mission": {"name": "office", "fingerprint": "sha256:..."},
-                   "version": 412, "episodes": 87,
-                   "arrays": {"visits": {"dtype": "<i8", "shape": [16, 30],
-                                         "encoding": "zlib+base64", "data": "..."}},
-                   "pending": []}],
-    )],
+    user_id: UserId,
+    session: Session,
+    ctx: ServiceContext,
+    principal: CurrentPrincipal,
+    doc: Annotated[
+        dict[str, Any],
+        Body(
+            description="A document from GET /model/export.",
+            examples=[
+                {
+                    "format": "attune.learner-state",
+                    "format_version": 1,
+                    "algorithm": "hri",
+                    "params": {"tau": 0.01},
+                    "mission": {"name": "office", "fingerprint": "sha256:..."},
+                    "version": 412,
+                    "episodes": 87,
+                    "arrays": {
+                        "visits": {
+                            "dtype": "<i8",
+                            "shape": [16, 30],
+                            "encoding": "zlib+base64",
+                            "data": "...",
+                        }
+                    },
+                    "pending": [],
+                }
+            ],
+        ),
+    ],
     fleet: Fleet = None,
 ) -> ModelOut:
     """Replace the model with an exported document (staff of the fleet, admin); 422 for

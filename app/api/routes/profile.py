@@ -16,52 +16,84 @@ from app.services.context import ServiceContext
 
 from ._common import REPLAY_HEADER, Fleet, UserId, no_content
 
-router = APIRouter(prefix="/v1/users/{user_id}", tags=["profile"],
-                   route_class=TransactionalRoute)
+router = APIRouter(prefix="/v1/users/{user_id}", tags=["profile"], route_class=TransactionalRoute)
 
-CorrectionId = Annotated[str, Path(pattern=CLIENT_ID_PATTERN,
-                                   description="The correction_id it was made with.")]
+CorrectionId = Annotated[
+    str, Path(pattern=CLIENT_ID_PATTERN, description="The correction_id it was made with.")
+]
 
 
 @router.get("/profile", response_model=ProfileOut, responses=responses(404))
-def get_profile(user_id: UserId, session: Session, ctx: ServiceContext,
-                principal: CurrentPrincipal, fleet: Fleet = None) -> ProfileOut:
+def get_profile(
+    user_id: UserId,
+    session: Session,
+    ctx: ServiceContext,
+    principal: CurrentPrincipal,
+    fleet: Fleet = None,
+) -> ProfileOut:
     """What Attune believes the person wants in each context, how sure it is, what the robot
     will do there, and the staff corrections in force, in plain words."""
     return service.profile_view(session, ctx, principal, user_id, fleet=fleet)
 
 
 @router.post(
-    "/corrections", status_code=201, response_model=CorrectionOut,
-    responses={200: {"model": CorrectionOut, "headers": REPLAY_HEADER,
-                     "description": "Idempotent replay of an earlier correction_id."},
-               **responses(403, 404, 409, 415)},
+    "/corrections",
+    status_code=201,
+    response_model=CorrectionOut,
+    responses={
+        200: {
+            "model": CorrectionOut,
+            "headers": REPLAY_HEADER,
+            "description": "Idempotent replay of an earlier correction_id.",
+        },
+        **responses(403, 404, 409, 415),
+    },
 )
-def add_correction(user_id: UserId, body: CorrectionIn, session: Session, ctx: ServiceContext,
-                   principal: CurrentPrincipal, fleet: Fleet = None) -> JSONResponse:
+def add_correction(
+    user_id: UserId,
+    body: CorrectionIn,
+    session: Session,
+    ctx: ServiceContext,
+    principal: CurrentPrincipal,
+    fleet: Fleet = None,
+) -> JSONResponse:
     """Correct what was learned about the person in one context (staff of the fleet, admin):
     they prefer a service and detail there, the robot must avoid a service (or a detail)
     there, or stay quiet there."""
-    out, created = corrections.add_correction(session, ctx, principal, user_id, body,
-                                              fleet=fleet)
+    out, created = corrections.add_correction(session, ctx, principal, user_id, body, fleet=fleet)
     headers = {} if created else {"Idempotent-Replay": "true"}
-    return JSONResponse(out.model_dump(mode="json"), status_code=201 if created else 200,
-                        headers=headers)
+    return JSONResponse(
+        out.model_dump(mode="json"), status_code=201 if created else 200, headers=headers
+    )
 
 
 @router.get("/corrections", response_model=CorrectionList, responses=responses(404))
-def list_corrections(user_id: UserId, session: Session, ctx: ServiceContext,
-                     principal: CurrentPrincipal, fleet: Fleet = None) -> CorrectionList:
+def list_corrections(
+    user_id: UserId,
+    session: Session,
+    ctx: ServiceContext,
+    principal: CurrentPrincipal,
+    fleet: Fleet = None,
+) -> CorrectionList:
     """The person's corrections, lifted ones too, oldest first, with author, time, note and
     status."""
     return corrections.list_corrections(session, ctx, principal, user_id, fleet=fleet)
 
 
-@router.delete("/corrections/{correction_id}", status_code=204, response_class=Response,
-               responses=responses(403, 404))
-def lift_correction(user_id: UserId, correction_id: CorrectionId, session: Session,
-                    ctx: ServiceContext, principal: CurrentPrincipal,
-                    fleet: Fleet = None) -> Response:
+@router.delete(
+    "/corrections/{correction_id}",
+    status_code=204,
+    response_class=Response,
+    responses=responses(403, 404),
+)
+def lift_correction(
+    user_id: UserId,
+    correction_id: CorrectionId,
+    session: Session,
+    ctx: ServiceContext,
+    principal: CurrentPrincipal,
+    fleet: Fleet = None,
+) -> Response:
     """Lift a correction (staff of the fleet, admin); lifting a lifted one changes nothing."""
     corrections.lift_correction(session, ctx, principal, user_id, correction_id, fleet=fleet)
     return no_content()

@@ -20,51 +20,76 @@ router = APIRouter(prefix="/v1/users", tags=["users"], route_class=Transactional
 
 
 @router.put(
-    "/{user_id}", response_model=UserOut, status_code=200, responses={
+    "/{user_id}",
+    response_model=UserOut,
+    status_code=200,
+    responses={
         200: {"links": USER_LINKS},
         201: {"model": UserOut, "description": "Created.", "links": USER_LINKS},
-        **responses(404, 409, 415)},
+        **responses(404, 409, 415),
+    },
 )
 def put_user(
-    user_id: UserId, session: Session, ctx: ServiceContext, principal: CurrentPrincipal,
+    user_id: UserId,
+    session: Session,
+    ctx: ServiceContext,
+    principal: CurrentPrincipal,
     body: UserIn | None = None,
-    reset_model: Annotated[bool, Query(description="Allow changing the learner of a user with "
-                                       "history (forgets what was learned).")] = False,
+    reset_model: Annotated[
+        bool,
+        Query(
+            description="Allow changing the learner of a user with "
+            "history (forgets what was learned)."
+        ),
+    ] = False,
     fleet: Fleet = None,
 ) -> JSONResponse:
     """Create or update a user of your fleet (idempotent): 201 when created, 200 when
     updated."""
-    out, created = service.put_user(session, ctx, principal, user_id, body or UserIn(),
-                                    reset_model=reset_model, fleet=fleet)
+    out, created = service.put_user(
+        session, ctx, principal, user_id, body or UserIn(), reset_model=reset_model, fleet=fleet
+    )
     return JSONResponse(out.model_dump(mode="json"), status_code=201 if created else 200)
 
 
 @router.get("/{user_id}", response_model=UserOut, responses=responses(404))
-def get_user(user_id: UserId, session: Session, principal: CurrentPrincipal,
-             fleet: Fleet = None) -> UserOut:
+def get_user(
+    user_id: UserId, session: Session, principal: CurrentPrincipal, fleet: Fleet = None
+) -> UserOut:
     """One user."""
     return service.get_user(session, principal, user_id, fleet=fleet)
 
 
 @router.get("", response_model=UserList, responses=responses(404))
 def list_users(
-    session: Session, principal: CurrentPrincipal,
+    session: Session,
+    principal: CurrentPrincipal,
     limit: Limit = 50,
     cursor: UserCursor = None,
-    fleet: Annotated[str | None, Query(
-        pattern=CLIENT_ID_PATTERN,
-        description="Only this fleet's users (admin keys; other keys list their own fleet, "
-        "and naming another is 404).")] = None,
+    fleet: Annotated[
+        str | None,
+        Query(
+            pattern=CLIENT_ID_PATTERN,
+            description="Only this fleet's users (admin keys; other keys list their own fleet, "
+            "and naming another is 404).",
+        ),
+    ] = None,
 ) -> UserList:
     """Users of your fleet by user id (admins: of every fleet, by fleet then user id), a page at
     a time."""
     return service.list_users(session, principal, limit=limit, cursor=cursor, fleet=fleet)
 
 
-@router.delete("/{user_id}", status_code=204, response_class=Response,
-               responses=responses(403, 404))
-def delete_user(user_id: UserId, session: Session, ctx: ServiceContext,
-                principal: CurrentPrincipal, fleet: Fleet = None) -> Response:
+@router.delete(
+    "/{user_id}", status_code=204, response_class=Response, responses=responses(403, 404)
+)
+def delete_user(
+    user_id: UserId,
+    session: Session,
+    ctx: ServiceContext,
+    principal: CurrentPrincipal,
+    fleet: Fleet = None,
+) -> Response:
     """Remove a user with its history and model (staff of the fleet, admin)."""
     service.delete_user(session, ctx, principal, user_id, fleet=fleet)
     return no_content()

@@ -42,8 +42,14 @@ def batch(session: Session) -> Iterator[None]:
         lost = dialect.is_disconnect(exc, connection.connection.dbapi_connection, None)
         if lost:
             connection.invalidate(exc)
-        raise DBAPIError.instance(None, None, exc, dialect.loaded_dbapi.Error,
-                                  connection_invalidated=lost, dialect=dialect) from exc
+        raise DBAPIError.instance(
+            None,
+            None,
+            exc,
+            dialect.loaded_dbapi.Error,
+            connection_invalidated=lost,
+            dialect=dialect,
+        ) from exc
 
 
 def conn(session: Session) -> Connection:
@@ -83,8 +89,18 @@ class _Compiled:
     """One statement compiled for one dialect, with SQLAlchemy's own conversions of its
     parameters and result columns for that dialect."""
 
-    __slots__ = ("sql", "order", "getter", "positional", "converts", "binds", "types", "dialect",
-                 "results", "named_converts")
+    __slots__ = (
+        "sql",
+        "order",
+        "getter",
+        "positional",
+        "converts",
+        "binds",
+        "types",
+        "dialect",
+        "results",
+        "named_converts",
+    )
 
     def __init__(self, stmt: ClauseElement, dialect: Dialect, keys: Sequence[str] | None) -> None:
         compiled: Any = stmt.compile(dialect=dialect, column_keys=list(keys) if keys else None)
@@ -96,10 +112,12 @@ class _Compiled:
         self.order: tuple[str, ...] = tuple(compiled.positiontup) if self.positional else ()
         self.getter = operator.itemgetter(*self.order) if len(self.order) > 1 else None
         self.converts: tuple[tuple[int, Callable[[Any], Any]], ...] = tuple(
-            (i, f) for i, name in enumerate(self.order) if (f := procs.get(name)) is not None)
+            (i, f) for i, name in enumerate(self.order) if (f := procs.get(name)) is not None
+        )
         # Named drivers (psycopg): only the parameters with a conversion are touched.
         self.named_converts: tuple[tuple[str, Callable[[Any], Any]], ...] = tuple(
-            (name, f) for name, f in procs.items() if f is not None)
+            (name, f) for name, f in procs.items() if f is not None
+        )
         self.types = [entry.type for entry in compiled._result_columns]
         self.dialect = dialect
         self.results: tuple[tuple[int, Callable[[Any], Any]], ...] | None = None
@@ -125,14 +143,17 @@ class _Compiled:
         """The result columns that need a conversion, with it: it may depend on the driver's
         column types (PostgreSQL numbers), known once the statement ran."""
         if self.results is None:
-            found = (t._cached_result_processor(self.dialect, d[1])
-                     for t, d in zip(self.types, cursor.description, strict=True))
+            found = (
+                t._cached_result_processor(self.dialect, d[1])
+                for t, d in zip(self.types, cursor.description, strict=True)
+            )
             self.results = tuple((i, f) for i, f in enumerate(found) if f is not None)
         return self.results
 
     @staticmethod
-    def row(processors: tuple[tuple[int, Callable[[Any], Any]], ...], raw: Sequence[Any]
-            ) -> list[Any]:
+    def row(
+        processors: tuple[tuple[int, Callable[[Any], Any]], ...], raw: Sequence[Any]
+    ) -> list[Any]:
         values = list(raw)
         for i, f in processors:
             if values[i] is not None:
@@ -166,8 +187,9 @@ class Prepared:
             self._compiled[key] = found
         return found[1]
 
-    def _execute(self, session: Session, params: Mapping[str, Any] | list[Mapping[str, Any]],
-                 fetch: int) -> list[list[Any]]:
+    def _execute(
+        self, session: Session, params: Mapping[str, Any] | list[Mapping[str, Any]], fetch: int
+    ) -> list[list[Any]]:
         """Run on the session's driver connection; ``fetch``: 0 nothing, 1 the first row, 2
         every row. A driver error leaves as SQLAlchemy's own (``DataError``, ``IntegrityError``,
         ``OperationalError``...), and a lost connection is invalidated, as SQLAlchemy does."""
@@ -198,8 +220,14 @@ class Prepared:
             lost = dialect.is_disconnect(exc, connection.connection.dbapi_connection, cursor)
             if lost:
                 connection.invalidate(exc)
-            raise DBAPIError.instance(compiled.sql, params, exc, dialect.loaded_dbapi.Error,
-                                      connection_invalidated=lost, dialect=dialect) from exc
+            raise DBAPIError.instance(
+                compiled.sql,
+                params,
+                exc,
+                dialect.loaded_dbapi.Error,
+                connection_invalidated=lost,
+                dialect=dialect,
+            ) from exc
         finally:
             cursor.close()
 

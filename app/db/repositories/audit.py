@@ -34,14 +34,23 @@ _COLS = columns(_audit, AuditRow)
 
 
 def add(session: Session, entry: AuditRow) -> None:
-    conn(session).execute(insert(_audit).values(
-        at=entry.at, actor_key_id=entry.actor_key_id, actor_role=entry.actor_role,
-        actor_fleet=entry.actor_fleet, action=entry.action, target=entry.target,
-        fleet=entry.fleet, detail=entry.detail))
+    conn(session).execute(
+        insert(_audit).values(
+            at=entry.at,
+            actor_key_id=entry.actor_key_id,
+            actor_role=entry.actor_role,
+            actor_fleet=entry.actor_fleet,
+            action=entry.action,
+            target=entry.target,
+            fleet=entry.fleet,
+            detail=entry.detail,
+        )
+    )
 
 
-def list_page(session: Session, *, before_id: int | None, limit: int,
-              fleet: str | None = None) -> list[AuditRow]:
+def list_page(
+    session: Session, *, before_id: int | None, limit: int, fleet: str | None = None
+) -> list[AuditRow]:
     """Newest first; of one fleet's users and keys, or of every fleet (``None``)."""
     stmt = select(*_COLS).order_by(_audit.c.id.desc()).limit(limit)
     if before_id is not None:

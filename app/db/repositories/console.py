@@ -14,8 +14,15 @@ from ..models import Episode, User
 from ._rows import columns, conn, table
 from .users import UserRow
 
-__all__ = ["Activity", "count_users", "episode_offsets", "latest_episode_in_context",
-           "open_episodes", "recent_activity", "search_users"]
+__all__ = [
+    "Activity",
+    "count_users",
+    "episode_offsets",
+    "latest_episode_in_context",
+    "open_episodes",
+    "recent_activity",
+    "search_users",
+]
 
 _S = TypeVar("_S", bound=Select[Any])
 
@@ -35,18 +42,25 @@ def _matching(stmt: _S, *, fleet: str | None, text: str | None) -> _S:
     if fleet is not None:
         stmt = stmt.where(User.fleet == fleet)
     if text:
-        stmt = stmt.where(or_(User.user_id.icontains(text, autoescape=True),
-                              User.display_name.icontains(text, autoescape=True)))
+        stmt = stmt.where(
+            or_(
+                User.user_id.icontains(text, autoescape=True),
+                User.display_name.icontains(text, autoescape=True),
+            )
+        )
     return stmt
 
 
 def search_users(
     session: Session, *, fleet: str | None, text: str | None, offset: int, limit: int
 ) -> list[UserRow]:
-    stmt = select(*columns(table(User), UserRow)).order_by(User.fleet, User.user_id) \
-        .offset(offset).limit(limit)
-    return [UserRow(*row) for row in conn(session).execute(_matching(stmt, fleet=fleet,
-                                                                      text=text))]
+    stmt = (
+        select(*columns(table(User), UserRow))
+        .order_by(User.fleet, User.user_id)
+        .offset(offset)
+        .limit(limit)
+    )
+    return [UserRow(*row) for row in conn(session).execute(_matching(stmt, fleet=fleet, text=text))]
 
 
 def count_users(session: Session, *, fleet: str | None, text: str | None) -> int:
@@ -54,43 +68,63 @@ def count_users(session: Session, *, fleet: str | None, text: str | None) -> int
     return int(conn(session).execute(_matching(stmt, fleet=fleet, text=text)).scalar() or 0)
 
 
-def recent_activity(session: Session, user_pks: Sequence[int], *, window: int
-                    ) -> dict[int, Activity]:
+def recent_activity(
+    session: Session, user_pks: Sequence[int], *, window: int
+) -> dict[int, Activity]:
     """Per user (by its number): counts over the episodes with ``seq`` in the last ``window``
     (the user's own 1-based index, so the unique (user_pk, seq) index serves the range), and
     the time of the latest episode's last change (opened or closed)."""
     if not user_pks:
         return {}
     mission = Episode.interaction_class != "none"
-    counts = conn(session).execute(
-        select(Episode.user_pk, func.count(),
-               func.sum(case((mission, 1), else_=0)),
-               func.sum(case((Episode.success, 1), else_=0)))
-        .join(User, User.id == Episode.user_pk)
-        .where(Episode.user_pk.in_(user_pks), Episode.seq > User.episode_count - window)
-        .group_by(Episode.user_pk)
-    ).all()
-    latest = conn(session).execute(
-        select(Episode.user_pk, Episode.created_at, Episode.closed_at, Episode.utc_offset)
-        .join(User, User.id == Episode.user_pk)
-        .where(Episode.user_pk.in_(user_pks), Episode.seq == User.episode_count)
-    ).all()
-    last_at = {uid: max(t for t in (created, closed) if t is not None)
-               for uid, created, closed, _ in latest}
+    counts = (
+        conn(session)
+        .execute(
+            select(
+                Episode.user_pk,
+                func.count(),
+                func.sum(case((mission, 1), else_=0)),
+                func.sum(case((Episode.success, 1), else_=0)),
+            )
+            .join(User, User.id == Episode.user_pk)
+            .where(Episode.user_pk.in_(user_pks), Episode.seq > User.episode_count - window)
+            .group_by(Episode.user_pk)
+        )
+        .all()
+    )
+    latest = (
+        conn(session)
+        .execute(
+            select(Episode.user_pk, Episode.created_at, Episode.closed_at, Episode.utc_offset)
+            .join(User, User.id == Episode.user_pk)
+            .where(Episode.user_pk.in_(user_pks), Episode.seq == User.episode_count)
+        )
+        .all()
+    )
+    last_at = {
+        uid: max(t for t in (created, closed) if t is not None)
+        for uid, created, closed, _ in latest
+    }
     offsets = {uid: offset for uid, _, _, offset in latest}
-    out = {uid: Activity(int(n), int(m or 0), int(s or 0), last_at.get(uid), offsets.get(uid))
-           for uid, n, m, s in counts}
+    out = {
+        uid: Activity(int(n), int(m or 0), int(s or 0), last_at.get(uid), offsets.get(uid))
+        for uid, n, m, s in counts
+    }
     return {uid: out.get(uid, Activity(0, 0, 0, None)) for uid in user_pks}
 
 
-def latest_episode_in_context(session: Session, user_pk: int, time_slot: str,
-                              situation: str) -> str | None:
+def latest_episode_in_context(
+    session: Session, user_pk: int, time_slot: str, situation: str
+) -> str | None:
     """Id of the user's most recent episode in (``time_slot``, ``situation``), if any (by
     names: the context's number may differ between mission versions)."""
     stmt = (
         select(Episode.id)
-        .where(Episode.user_pk == user_pk, Episode.time_slot == time_slot,
-               Episode.situation == situation)
+        .where(
+            Episode.user_pk == user_pk,
+            Episode.time_slot == time_slot,
+            Episode.situation == situation,
+        )
         .order_by(Episode.seq.desc())
         .limit(1)
     )
@@ -100,8 +134,11 @@ def latest_episode_in_context(session: Session, user_pk: int, time_slot: str,
 
 def open_episodes(session: Session, user_pk: int) -> int:
     """How many of the user's episodes are still open (a robot waiting for an answer)."""
-    stmt = select(func.count()).select_from(Episode).where(Episode.user_pk == user_pk,
-                                                           Episode.status == "open")
+    stmt = (
+        select(func.count())
+        .select_from(Episode)
+        .where(Episode.user_pk == user_pk, Episode.status == "open")
+    )
     return int(conn(session).execute(stmt).scalar() or 0)
 
 
@@ -109,6 +146,9 @@ def episode_offsets(session: Session, episode_ids: Sequence[str]) -> dict[str, i
     """Per episode id: minutes east of UTC its time came with (None: not known)."""
     if not episode_ids:
         return {}
-    rows = conn(session).execute(
-        select(Episode.id, Episode.utc_offset).where(Episode.id.in_(list(episode_ids)))).all()
+    rows = (
+        conn(session)
+        .execute(select(Episode.id, Episode.utc_offset).where(Episode.id.in_(list(episode_ids))))
+        .all()
+    )
     return {episode_id: offset for episode_id, offset in rows}

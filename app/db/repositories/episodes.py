@@ -13,12 +13,34 @@ from ..models import Decision, Episode, Feedback, LearnerModel, User
 from ._rows import Prepared, columns, conn, names, record, table, values
 from .models import ModelRow
 
-__all__ = ["DecisionRow", "EpisodeRow", "FeedbackRow", "HistoryAnswer", "HistoryEpisode",
-           "MetricRow", "add_feedback", "by_event", "decision", "decisions",
-           "decisions_for_rebuild", "feedback", "feedback_list", "get", "history",
-           "insert_decisions", "insert_episode", "interrupt_open", "list_page", "local_time",
-           "load_for_outcome", "metric_rows", "occurred_at_of", "owner", "save_answer",
-           "save_episode"]
+__all__ = [
+    "DecisionRow",
+    "EpisodeRow",
+    "FeedbackRow",
+    "HistoryAnswer",
+    "HistoryEpisode",
+    "MetricRow",
+    "add_feedback",
+    "by_event",
+    "decision",
+    "decisions",
+    "decisions_for_rebuild",
+    "feedback",
+    "feedback_list",
+    "get",
+    "history",
+    "insert_decisions",
+    "insert_episode",
+    "interrupt_open",
+    "list_page",
+    "local_time",
+    "load_for_outcome",
+    "metric_rows",
+    "occurred_at_of",
+    "owner",
+    "save_answer",
+    "save_episode",
+]
 
 
 @dataclass(slots=True)
@@ -110,58 +132,99 @@ _EPISODE_NAMES = names(EpisodeRow)
 _DECISION_NAMES = names(DecisionRow)
 # What an outcome or feedback changes in its episode (the rest, the stored response too, is set
 # when it is created).
-_EPISODE_MUTABLE = ("status", "state", "total_reward", "interaction_class", "initiated",
-                    "success", "queries", "closed_at")
-_ANSWER = ("response", "service", "detail", "feedback", "reward", "next_state", "answered_at",
-           "outcome_hash", "outcome_response")
+_EPISODE_MUTABLE = (
+    "status",
+    "state",
+    "total_reward",
+    "interaction_class",
+    "initiated",
+    "success",
+    "queries",
+    "closed_at",
+)
+_ANSWER = (
+    "response",
+    "service",
+    "detail",
+    "feedback",
+    "reward",
+    "next_state",
+    "answered_at",
+    "outcome_hash",
+    "outcome_response",
+)
 
-_LATEST = (select(func.max(_decisions.c.position))
-           .where(_decisions.c.episode_id == _episodes.c.id)
-           .correlate(_episodes).scalar_subquery())
+_LATEST = (
+    select(func.max(_decisions.c.position))
+    .where(_decisions.c.episode_id == _episodes.c.id)
+    .correlate(_episodes)
+    .scalar_subquery()
+)
 _FOR_OUTCOME = Prepared(
     select(*_EPISODE_COLS, *columns(_models, ModelRow), *_DECISION_COLS)
     .join(_models, _models.c.user_pk == _episodes.c.user_pk)
-    .outerjoin(_decisions, and_(_decisions.c.episode_id == _episodes.c.id,
-                                _decisions.c.position == _LATEST))
+    .outerjoin(
+        _decisions,
+        and_(_decisions.c.episode_id == _episodes.c.id, _decisions.c.position == _LATEST),
+    )
     .where(_episodes.c.id == bindparam("episode_id"))
 )
 _GET = select(*_EPISODE_COLS).where(_episodes.c.id == bindparam("episode_id"))
-_OWNER = (select(_users.c.id, _users.c.fleet, _users.c.user_id)
-          .join(_users, _users.c.id == _episodes.c.user_pk)
-          .where(_episodes.c.id == bindparam("episode_id")))
-_DECISION = Prepared(select(*_DECISION_COLS).where(
-    _decisions.c.id == bindparam("decision_id"),
-    _decisions.c.episode_id == bindparam("episode_id")))
-_DECISIONS = (select(*_DECISION_COLS).where(_decisions.c.episode_id == bindparam("episode_id"))
-              .order_by(_decisions.c.position))
-_BY_EVENT = Prepared(select(_episodes.c.request_hash, _episodes.c.response).where(
-    _episodes.c.user_pk == bindparam("user_pk"), _episodes.c.event_id == bindparam("event_id")))
+_OWNER = (
+    select(_users.c.id, _users.c.fleet, _users.c.user_id)
+    .join(_users, _users.c.id == _episodes.c.user_pk)
+    .where(_episodes.c.id == bindparam("episode_id"))
+)
+_DECISION = Prepared(
+    select(*_DECISION_COLS).where(
+        _decisions.c.id == bindparam("decision_id"),
+        _decisions.c.episode_id == bindparam("episode_id"),
+    )
+)
+_DECISIONS = (
+    select(*_DECISION_COLS)
+    .where(_decisions.c.episode_id == bindparam("episode_id"))
+    .order_by(_decisions.c.position)
+)
+_BY_EVENT = Prepared(
+    select(_episodes.c.request_hash, _episodes.c.response).where(
+        _episodes.c.user_pk == bindparam("user_pk"), _episodes.c.event_id == bindparam("event_id")
+    )
+)
 _FEEDBACK_COLS = columns(_feedback, FeedbackRow)
-_FEEDBACK = select(*_FEEDBACK_COLS).where(_feedback.c.episode_id == bindparam("episode_id"),
-                                          _feedback.c.feedback_id == bindparam("feedback_id"))
-_FEEDBACK_LIST = (select(*_FEEDBACK_COLS)
-                  .where(_feedback.c.episode_id == bindparam("episode_id"))
-                  .order_by(_feedback.c.id))
+_FEEDBACK = select(*_FEEDBACK_COLS).where(
+    _feedback.c.episode_id == bindparam("episode_id"),
+    _feedback.c.feedback_id == bindparam("feedback_id"),
+)
+_FEEDBACK_LIST = (
+    select(*_FEEDBACK_COLS)
+    .where(_feedback.c.episode_id == bindparam("episode_id"))
+    .order_by(_feedback.c.id)
+)
 _INSERT_EPISODE = Prepared(insert(_episodes), keyed=True)
 _INSERT_DECISION = Prepared(insert(_decisions), keyed=True)
 _INSERT_FEEDBACK = insert(_feedback)
 # Updates: the SET columns are the keys of the parameters; the row's key is a "b_" parameter.
-_UPDATE_DECISION = Prepared(update(_decisions).where(_decisions.c.id == bindparam("b_id")),
-                            keyed=True)
-_UPDATE_EPISODE = Prepared(update(_episodes).where(_episodes.c.id == bindparam("b_id")),
-                           keyed=True)
+_UPDATE_DECISION = Prepared(
+    update(_decisions).where(_decisions.c.id == bindparam("b_id")), keyed=True
+)
+_UPDATE_EPISODE = Prepared(update(_episodes).where(_episodes.c.id == bindparam("b_id")), keyed=True)
 
 
-def load_for_outcome(session: Session, episode_id: str
-                     ) -> tuple[EpisodeRow, ModelRow, DecisionRow | None] | None:
+def load_for_outcome(
+    session: Session, episode_id: str
+) -> tuple[EpisodeRow, ModelRow, DecisionRow | None] | None:
     """The episode, its user's model head and its current (latest) decision, in one query."""
     row = _FOR_OUTCOME.first(session, {"episode_id": episode_id})
     if row is None:
         return None
     v = tuple(row)
-    rest = v[_N_EPISODE + _N_MODEL:]
-    return (EpisodeRow(*v[:_N_EPISODE]), ModelRow(*v[_N_EPISODE:_N_EPISODE + _N_MODEL]),
-            DecisionRow(*rest) if rest[0] is not None else None)
+    rest = v[_N_EPISODE + _N_MODEL :]
+    return (
+        EpisodeRow(*v[:_N_EPISODE]),
+        ModelRow(*v[_N_EPISODE : _N_EPISODE + _N_MODEL]),
+        DecisionRow(*rest) if rest[0] is not None else None,
+    )
 
 
 def get(session: Session, episode_id: str) -> EpisodeRow | None:
@@ -174,22 +237,24 @@ def owner(session: Session, episode_id: str) -> tuple[int, str, str] | None:
     return None if row is None else (row[0], row[1], row[2])
 
 
-def by_event(session: Session, user_pk: int, event_id: str
-             ) -> tuple[str, dict[str, Any]] | None:
+def by_event(session: Session, user_pk: int, event_id: str) -> tuple[str, dict[str, Any]] | None:
     """(request hash, stored response) of the episode an event opened, if any."""
     row = _BY_EVENT.first(session, {"user_pk": user_pk, "event_id": event_id})
     return None if row is None else (row[0], row[1])
 
 
 def decision(session: Session, episode_id: str, decision_id: str) -> DecisionRow | None:
-    return record(DecisionRow, _DECISION.first(session, {"decision_id": decision_id,
-                                                         "episode_id": episode_id}))
+    return record(
+        DecisionRow,
+        _DECISION.first(session, {"decision_id": decision_id, "episode_id": episode_id}),
+    )
 
 
 def decisions(session: Session, episode_id: str) -> list[DecisionRow]:
     """The episode's decisions in order."""
-    return [DecisionRow(*row) for row in conn(session).execute(
-        _DECISIONS, {"episode_id": episode_id})]
+    return [
+        DecisionRow(*row) for row in conn(session).execute(_DECISIONS, {"episode_id": episode_id})
+    ]
 
 
 def insert_episode(session: Session, episode: EpisodeRow) -> None:
@@ -210,13 +275,19 @@ def save_answer(session: Session, row: DecisionRow) -> None:
 
 
 def feedback(session: Session, episode_id: str, feedback_id: str) -> FeedbackRow | None:
-    return record(FeedbackRow, conn(session).execute(
-        _FEEDBACK, {"episode_id": episode_id, "feedback_id": feedback_id}).first())
+    return record(
+        FeedbackRow,
+        conn(session)
+        .execute(_FEEDBACK, {"episode_id": episode_id, "feedback_id": feedback_id})
+        .first(),
+    )
 
 
 def feedback_list(session: Session, episode_id: str) -> list[FeedbackRow]:
-    return [FeedbackRow(*row) for row in conn(session).execute(
-        _FEEDBACK_LIST, {"episode_id": episode_id})]
+    return [
+        FeedbackRow(*row)
+        for row in conn(session).execute(_FEEDBACK_LIST, {"episode_id": episode_id})
+    ]
 
 
 def add_feedback(session: Session, row: FeedbackRow) -> None:
@@ -227,16 +298,23 @@ def interrupt_open(session: Session, user_pk: int, *, at: dt.datetime) -> int:
     """Close the user's open episodes as ``interrupted`` (their mission was replaced); how
     many."""
     result = conn(session).execute(
-        update(_episodes).where(_episodes.c.user_pk == user_pk, _episodes.c.status == "open")
-        .values(status="interrupted", closed_at=at))
+        update(_episodes)
+        .where(_episodes.c.user_pk == user_pk, _episodes.c.status == "open")
+        .values(status="interrupted", closed_at=at)
+    )
     return int(result.rowcount or 0)
 
 
-def list_page(session: Session, user_pk: int, *, before_seq: int | None, limit: int
-              ) -> list[EpisodeRow]:
+def list_page(
+    session: Session, user_pk: int, *, before_seq: int | None, limit: int
+) -> list[EpisodeRow]:
     """A user's episodes, newest first, before ``before_seq``."""
-    stmt = (select(*_EPISODE_COLS).where(_episodes.c.user_pk == user_pk)
-            .order_by(_episodes.c.seq.desc()).limit(limit))
+    stmt = (
+        select(*_EPISODE_COLS)
+        .where(_episodes.c.user_pk == user_pk)
+        .order_by(_episodes.c.seq.desc())
+        .limit(limit)
+    )
     if before_seq is not None:
         stmt = stmt.where(_episodes.c.seq < before_seq)
     return [EpisodeRow(*row) for row in conn(session).execute(stmt)]
@@ -245,9 +323,16 @@ def list_page(session: Session, user_pk: int, *, before_seq: int | None, limit: 
 def metric_rows(session: Session, user_pk: int, *, last: int | None) -> list[MetricRow]:
     """The figures of the user's last ``last`` episodes (all: ``None``), oldest first."""
     stmt = (
-        select(_episodes.c.seq, _episodes.c.initiated, _episodes.c.interaction_class,
-               _episodes.c.success, _episodes.c.queries, _episodes.c.total_reward)
-        .where(_episodes.c.user_pk == user_pk).order_by(_episodes.c.seq.desc())
+        select(
+            _episodes.c.seq,
+            _episodes.c.initiated,
+            _episodes.c.interaction_class,
+            _episodes.c.success,
+            _episodes.c.queries,
+            _episodes.c.total_reward,
+        )
+        .where(_episodes.c.user_pk == user_pk)
+        .order_by(_episodes.c.seq.desc())
     )
     if last is not None:
         stmt = stmt.limit(last)
@@ -255,20 +340,23 @@ def metric_rows(session: Session, user_pk: int, *, last: int | None) -> list[Met
     return rows[::-1]
 
 
-def decisions_for_rebuild(session: Session, user_pk: int, version: int
-                          ) -> list[tuple[DecisionRow, int, int]]:
+def decisions_for_rebuild(
+    session: Session, user_pk: int, version: int
+) -> list[tuple[DecisionRow, int, int]]:
     """Drawn decisions of the user from model ``version`` on, in draw order: (decision,
     context, learner's episode index)."""
     stmt = (
         select(*_DECISION_COLS, _episodes.c.context, _episodes.c.learner_episode)
         .join(_episodes, _episodes.c.id == _decisions.c.episode_id)
-        .where(_episodes.c.user_pk == user_pk, _decisions.c.draw.is_not(None),
-               _decisions.c.model_version >= version)
+        .where(
+            _episodes.c.user_pk == user_pk,
+            _decisions.c.draw.is_not(None),
+            _decisions.c.model_version >= version,
+        )
         .order_by(_decisions.c.draw)
     )
     n = len(_DECISION_COLS)
-    return [(DecisionRow(*row[:n]), row[n], row[n + 1])
-            for row in conn(session).execute(stmt)]
+    return [(DecisionRow(*row[:n]), row[n], row[n + 1]) for row in conn(session).execute(stmt)]
 
 
 @dataclass(slots=True)
@@ -298,31 +386,46 @@ class HistoryAnswer:
     detail: str | None
 
 
-def history(session: Session, user_pk: int
-            ) -> tuple[list[HistoryEpisode], list[HistoryAnswer]]:
+def history(session: Session, user_pk: int) -> tuple[list[HistoryEpisode], list[HistoryAnswer]]:
     """Every episode of the user (oldest first) and the person's answers to the robot's own
     decisions, in order."""
     c = conn(session)
     eps = c.execute(
         select(*[_episodes.c[n] for n in names(HistoryEpisode)])
-        .where(_episodes.c.user_pk == user_pk).order_by(_episodes.c.seq))
+        .where(_episodes.c.user_pk == user_pk)
+        .order_by(_episodes.c.seq)
+    )
     answers = c.execute(
-        select(_episodes.c.seq, _decisions.c.action, _decisions.c.response,
-               _decisions.c.service, _decisions.c.detail)
+        select(
+            _episodes.c.seq,
+            _decisions.c.action,
+            _decisions.c.response,
+            _decisions.c.service,
+            _decisions.c.detail,
+        )
         .join(_episodes, _episodes.c.id == _decisions.c.episode_id)
-        .where(_episodes.c.user_pk == user_pk, _decisions.c.response.is_not(None),
-               _decisions.c.forced.is_(False))
-        .order_by(_episodes.c.seq, _decisions.c.position))
+        .where(
+            _episodes.c.user_pk == user_pk,
+            _decisions.c.response.is_not(None),
+            _decisions.c.forced.is_(False),
+        )
+        .order_by(_episodes.c.seq, _decisions.c.position)
+    )
     return ([HistoryEpisode(*row) for row in eps], [HistoryAnswer(*row) for row in answers])
 
 
 def occurred_at_of(session: Session, user_pk: int, learner_episode: int) -> dt.datetime | None:
     """When the user's episode of learner index ``learner_episode`` happened, in the local time
     it was reported in (``None``: no such episode)."""
-    row = conn(session).execute(
-        select(_episodes.c.occurred_at, _episodes.c.utc_offset)
-        .where(_episodes.c.user_pk == user_pk,
-               _episodes.c.learner_episode == learner_episode)).first()
+    row = (
+        conn(session)
+        .execute(
+            select(_episodes.c.occurred_at, _episodes.c.utc_offset).where(
+                _episodes.c.user_pk == user_pk, _episodes.c.learner_episode == learner_episode
+            )
+        )
+        .first()
+    )
     return None if row is None else local_time(row[0], row[1])
 
 

@@ -27,18 +27,26 @@ _settings = table(FleetSettings)
 
 
 def get(session: Session, fleet: str) -> FleetSettingsRow | None:
-    return record(FleetSettingsRow, conn(session).execute(
-        select(*columns(_settings, FleetSettingsRow))
-        .where(_settings.c.fleet == fleet)).first())
+    return record(
+        FleetSettingsRow,
+        conn(session)
+        .execute(select(*columns(_settings, FleetSettingsRow)).where(_settings.c.fleet == fleet))
+        .first(),
+    )
 
 
-def set_prior(session: Session, fleet: str, *, enabled: bool, now: dt.datetime,
-              actor: str | None) -> None:
+def set_prior(
+    session: Session, fleet: str, *, enabled: bool, now: dt.datetime, actor: str | None
+) -> None:
     """Turn the fleet's prior on or off (the row is made when missing)."""
     c = conn(session)
     dialect = postgresql if c.dialect.name == "postgresql" else sqlite
-    stmt = dialect.insert(_settings).values(fleet=fleet, prior_enabled=enabled, updated_at=now,
-                                            updated_by=actor)
-    c.execute(stmt.on_conflict_do_update(
-        index_elements=["fleet"],
-        set_={"prior_enabled": enabled, "updated_at": now, "updated_by": actor}))
+    stmt = dialect.insert(_settings).values(
+        fleet=fleet, prior_enabled=enabled, updated_at=now, updated_by=actor
+    )
+    c.execute(
+        stmt.on_conflict_do_update(
+            index_elements=["fleet"],
+            set_={"prior_enabled": enabled, "updated_at": now, "updated_by": actor},
+        )
+    )

@@ -54,8 +54,11 @@ def list_all(session: Session, *, fleet: str | None = None) -> list[KeyRow]:
 
 def live_counts(session: Session) -> dict[str, int]:
     """Keys not revoked, per fleet."""
-    stmt = (select(_keys.c.fleet, func.count()).where(_keys.c.revoked_at.is_(None))
-            .group_by(_keys.c.fleet))
+    stmt = (
+        select(_keys.c.fleet, func.count())
+        .where(_keys.c.revoked_at.is_(None))
+        .group_by(_keys.c.fleet)
+    )
     return {fleet: int(n) for fleet, n in conn(session).execute(stmt)}
 
 

@@ -14,8 +14,18 @@ from sqlalchemy.orm import Session
 from ..models import Episode, FleetMission, LearnerModel, User
 from ._rows import conn, names, table
 
-__all__ = ["MissionRow", "add", "add_first", "by_change", "get", "latest_version",
-           "list_versions", "lock_latest", "models_behind", "open_episodes"]
+__all__ = [
+    "MissionRow",
+    "add",
+    "add_first",
+    "by_change",
+    "get",
+    "latest_version",
+    "list_versions",
+    "lock_latest",
+    "models_behind",
+    "open_episodes",
+]
 
 
 @dataclass(slots=True)
@@ -43,14 +53,20 @@ def _row(row: Any) -> MissionRow | None:
 
 
 def get(session: Session, fleet: str, version: int) -> MissionRow | None:
-    return _row(conn(session).execute(select(*_COLS).where(
-        _missions.c.fleet == fleet, _missions.c.version == version)).first())
+    return _row(
+        conn(session)
+        .execute(select(*_COLS).where(_missions.c.fleet == fleet, _missions.c.version == version))
+        .first()
+    )
 
 
 def latest_version(session: Session, fleet: str) -> int | None:
     """The version in force (``None``: the fleet has none stored, it uses the default)."""
-    found: int | None = conn(session).execute(
-        select(func.max(_missions.c.version)).where(_missions.c.fleet == fleet)).scalar()
+    found: int | None = (
+        conn(session)
+        .execute(select(func.max(_missions.c.version)).where(_missions.c.fleet == fleet))
+        .scalar()
+    )
     return found
 
 
@@ -64,34 +80,46 @@ def lock_latest(session: Session, fleet: str) -> None:
     if conn(session).dialect.name != "postgresql":
         return
     newest = select(func.max(_missions.c.version)).where(_missions.c.fleet == fleet)
-    conn(session).execute(select(_missions.c.id).where(
-        _missions.c.fleet == fleet, _missions.c.version == newest.scalar_subquery())
-        .with_for_update())
+    conn(session).execute(
+        select(_missions.c.id)
+        .where(_missions.c.fleet == fleet, _missions.c.version == newest.scalar_subquery())
+        .with_for_update()
+    )
 
 
 def add_first(session: Session, row: MissionRow) -> None:
     """Store a fleet's version 1 unless it has one (two first users at once: one stores it)."""
     c = conn(session)
     dialect = postgresql if c.dialect.name == "postgresql" else sqlite
-    c.execute(dialect.insert(_missions).values({name: getattr(row, name) for name in _NAMES})
-              .on_conflict_do_nothing(index_elements=["fleet", "version"]))
+    c.execute(
+        dialect.insert(_missions)
+        .values({name: getattr(row, name) for name in _NAMES})
+        .on_conflict_do_nothing(index_elements=["fleet", "version"])
+    )
 
 
 def add(session: Session, row: MissionRow) -> None:
-    conn(session).execute(insert(_missions).values({name: getattr(row, name)
-                                                     for name in _NAMES}))
+    conn(session).execute(insert(_missions).values({name: getattr(row, name) for name in _NAMES}))
 
 
 def by_change(session: Session, fleet: str, change_id: str) -> MissionRow | None:
-    return _row(conn(session).execute(select(*_COLS).where(
-        _missions.c.fleet == fleet, _missions.c.change_id == change_id)).first())
+    return _row(
+        conn(session)
+        .execute(
+            select(*_COLS).where(_missions.c.fleet == fleet, _missions.c.change_id == change_id)
+        )
+        .first()
+    )
 
 
 def list_versions(session: Session, fleet: str) -> list[MissionRow]:
     """Every version of the fleet's mission, newest first."""
-    return [MissionRow(*row) for row in conn(session).execute(
-        select(*_COLS).where(_missions.c.fleet == fleet)
-        .order_by(_missions.c.version.desc()))]
+    return [
+        MissionRow(*row)
+        for row in conn(session).execute(
+            select(*_COLS).where(_missions.c.fleet == fleet).order_by(_missions.c.version.desc())
+        )
+    ]
 
 
 _users, _models, _episodes = table(User), table(LearnerModel), table(Episode)
@@ -100,15 +128,26 @@ _users, _models, _episodes = table(User), table(LearnerModel), table(Episode)
 def models_behind(session: Session, fleet: str, version: int) -> list[int]:
     """The users of ``fleet`` whose models are laid out for an older version than ``version``,
     by their number (the order every multi-user lock takes)."""
-    return list(conn(session).execute(
-        select(_users.c.id).join(_models, _models.c.user_pk == _users.c.id)
-        .where(_users.c.fleet == fleet, _models.c.mission_version < version)
-        .order_by(_users.c.id)).scalars())
+    return list(
+        conn(session)
+        .execute(
+            select(_users.c.id)
+            .join(_models, _models.c.user_pk == _users.c.id)
+            .where(_users.c.fleet == fleet, _models.c.mission_version < version)
+            .order_by(_users.c.id)
+        )
+        .scalars()
+    )
 
 
 def open_episodes(session: Session, fleet: str) -> int:
     """How many episodes of ``fleet``'s users are open (a change of mission interrupts them)."""
-    return int(conn(session).execute(
-        select(func.count())
-        .select_from(_episodes.join(_users, _episodes.c.user_pk == _users.c.id))
-        .where(_users.c.fleet == fleet, _episodes.c.status == "open")).scalar_one())
+    return int(
+        conn(session)
+        .execute(
+            select(func.count())
+            .select_from(_episodes.join(_users, _episodes.c.user_pk == _users.c.id))
+            .where(_users.c.fleet == fleet, _episodes.c.status == "open")
+        )
+        .scalar_one()
+    )

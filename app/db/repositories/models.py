@@ -20,9 +20,22 @@ from sqlalchemy.orm import Session
 from ..models import LearnerModel, Sample, User
 from ._rows import Prepared, columns, conn, names, record, table
 
-__all__ = ["ModelRow", "Origin", "SampleRow", "add_samples", "advance", "base_state",
-           "has_transition", "head", "origin", "prior_contributors", "replace", "samples_since",
-           "snapshot", "store_snapshot"]
+__all__ = [
+    "ModelRow",
+    "Origin",
+    "SampleRow",
+    "add_samples",
+    "advance",
+    "base_state",
+    "has_transition",
+    "head",
+    "origin",
+    "prior_contributors",
+    "replace",
+    "samples_since",
+    "snapshot",
+    "store_snapshot",
+]
 
 
 @dataclass(slots=True)
@@ -69,17 +82,18 @@ class SampleRow:
 _models = table(LearnerModel)
 _users = table(User)
 _samples = table(Sample)
-_HEAD = Prepared(select(*columns(_models, ModelRow))
-                 .where(_models.c.user_pk == bindparam("user_pk")))
+_HEAD = Prepared(
+    select(*columns(_models, ModelRow)).where(_models.c.user_pk == bindparam("user_pk"))
+)
 _SNAPSHOT = Prepared(select(_models.c.state).where(_models.c.user_pk == bindparam("user_pk")))
-_ADVANCE = Prepared(update(_models).where(_models.c.user_pk == bindparam("b_user_pk")),
-                    keyed=True)
+_ADVANCE = Prepared(update(_models).where(_models.c.user_pk == bindparam("b_user_pk")), keyed=True)
 _INSERT_SAMPLES = Prepared(insert(_samples), keyed=True)
 _SAMPLE_NAMES = names(SampleRow)
-_SINCE = Prepared(select(*columns(_samples, SampleRow))
-                  .where(_samples.c.user_pk == bindparam("user_pk"),
-                         _samples.c.version > bindparam("version"))
-                  .order_by(_samples.c.version, _samples.c.id))
+_SINCE = Prepared(
+    select(*columns(_samples, SampleRow))
+    .where(_samples.c.user_pk == bindparam("user_pk"), _samples.c.version > bindparam("version"))
+    .order_by(_samples.c.version, _samples.c.id)
+)
 
 
 def head(session: Session, user_pk: int) -> ModelRow | None:
@@ -96,37 +110,67 @@ def snapshot(session: Session, user_pk: int) -> dict[str, Any]:
 
 
 def base_state(session: Session, user_pk: int) -> dict[str, Any] | None:
-    doc: dict[str, Any] | None = conn(session).execute(
-        select(_models.c.base_state).where(_models.c.user_pk == user_pk)).scalar_one()
+    doc: dict[str, Any] | None = (
+        conn(session)
+        .execute(select(_models.c.base_state).where(_models.c.user_pk == user_pk))
+        .scalar_one()
+    )
     return doc
 
 
 def origin(session: Session, user_pk: int) -> Origin:
-    row = conn(session).execute(
-        select(_models.c.base_origin, _models.c.base_contributors)
-        .where(_models.c.user_pk == user_pk)).first()
+    row = (
+        conn(session)
+        .execute(
+            select(_models.c.base_origin, _models.c.base_contributors).where(
+                _models.c.user_pk == user_pk
+            )
+        )
+        .first()
+    )
     return Origin() if row is None else Origin(row[0], row[1])
 
 
-def prior_contributors(session: Session, *, fleet: str, algorithm: str, mission_version: int,
-                       min_episodes: int, limit: int) -> list[int]:
+def prior_contributors(
+    session: Session,
+    *,
+    fleet: str,
+    algorithm: str,
+    mission_version: int,
+    min_episodes: int,
+    limit: int,
+) -> list[int]:
     """The users of ``fleet`` whose models may add to its prior for a newcomer learning with
     ``algorithm``: taking part, with that learner, at least ``min_episodes`` episodes and laid
     out for ``mission_version``; at most ``limit``, those whose models changed last first."""
-    stmt = (select(_users.c.id).join(_models, _models.c.user_pk == _users.c.id)
-            .where(_users.c.fleet == fleet, _users.c.fleet_prior.is_(True),
-                   _users.c.algorithm == algorithm, _users.c.episode_count >= min_episodes,
-                   _models.c.mission_version == mission_version)
-            .order_by(_models.c.updated_at.desc(), _users.c.id).limit(limit))
+    stmt = (
+        select(_users.c.id)
+        .join(_models, _models.c.user_pk == _users.c.id)
+        .where(
+            _users.c.fleet == fleet,
+            _users.c.fleet_prior.is_(True),
+            _users.c.algorithm == algorithm,
+            _users.c.episode_count >= min_episodes,
+            _models.c.mission_version == mission_version,
+        )
+        .order_by(_models.c.updated_at.desc(), _users.c.id)
+        .limit(limit)
+    )
     return list(conn(session).execute(stmt).scalars())
 
 
-def advance(session: Session, user_pk: int, *, version: int, updated_at: dt.datetime,
-            state: dict[str, Any] | None = None, mission_version: int | None = None) -> None:
+def advance(
+    session: Session,
+    user_pk: int,
+    *,
+    version: int,
+    updated_at: dt.datetime,
+    state: dict[str, Any] | None = None,
+    mission_version: int | None = None,
+) -> None:
     """Move the model to ``version``; with ``state``, the snapshot moves there too; with
     ``mission_version``, the model is now laid out for that mission version."""
-    params: dict[str, Any] = {"b_user_pk": user_pk, "version": version,
-                              "updated_at": updated_at}
+    params: dict[str, Any] = {"b_user_pk": user_pk, "version": version, "updated_at": updated_at}
     if state is not None:
         params["state"], params["state_version"] = state, version
     if mission_version is not None:
@@ -134,45 +178,77 @@ def advance(session: Session, user_pk: int, *, version: int, updated_at: dt.date
     _ADVANCE.run(session, params)
 
 
-def store_snapshot(session: Session, user_pk: int, *, version: int,
-                   state: dict[str, Any]) -> None:
+def store_snapshot(session: Session, user_pk: int, *, version: int, state: dict[str, Any]) -> None:
     """The learner's state as of ``version`` (the model's own version stays)."""
-    conn(session).execute(update(_models).where(_models.c.user_pk == user_pk).values(
-        state=state, state_version=version))
+    conn(session).execute(
+        update(_models)
+        .where(_models.c.user_pk == user_pk)
+        .values(state=state, state_version=version)
+    )
 
 
-def replace(session: Session, user_pk: int, *, version: int, state: dict[str, Any],
-            base_state: dict[str, Any] | None, episode_offset: int, mission_version: int,
-            updated_at: dt.datetime, base_origin: Origin | None = None) -> None:
+def replace(
+    session: Session,
+    user_pk: int,
+    *,
+    version: int,
+    state: dict[str, Any],
+    base_state: dict[str, Any] | None,
+    episode_offset: int,
+    mission_version: int,
+    updated_at: dt.datetime,
+    base_origin: Origin | None = None,
+) -> None:
     """Start the model over at ``version`` from ``state`` (a reset, a new learner, an import:
     ``base_state`` is the imported document or the fleet's prior, ``None`` for a fresh
     learner; ``base_origin`` says which), laid out for ``mission_version``."""
     made = base_origin or Origin("fresh" if base_state is None else "imported")
-    conn(session).execute(update(_models).where(_models.c.user_pk == user_pk).values(
-        version=version, state=state, state_version=version, base_state=base_state,
-        base_version=version, episode_offset=episode_offset, mission_version=mission_version,
-        base_mission_version=mission_version, updated_at=updated_at, base_origin=made.kind,
-        base_contributors=made.contributors))
+    conn(session).execute(
+        update(_models)
+        .where(_models.c.user_pk == user_pk)
+        .values(
+            version=version,
+            state=state,
+            state_version=version,
+            base_state=base_state,
+            base_version=version,
+            episode_offset=episode_offset,
+            mission_version=mission_version,
+            base_mission_version=mission_version,
+            updated_at=updated_at,
+            base_origin=made.kind,
+            base_contributors=made.contributors,
+        )
+    )
 
 
 def add_samples(session: Session, rows: list[SampleRow]) -> None:
-    _INSERT_SAMPLES.run_many(session, [{name: getattr(r, name) for name in _SAMPLE_NAMES}
-                                       for r in rows])
+    _INSERT_SAMPLES.run_many(
+        session, [{name: getattr(r, name) for name in _SAMPLE_NAMES} for r in rows]
+    )
 
 
 def samples_since(session: Session, user_pk: int, version: int) -> list[SampleRow]:
     """The journal after ``version``, in the order it was taught."""
-    return [SampleRow(*row) for row in _SINCE.all(session, {"user_pk": user_pk,
-                                                            "version": version})]
+    return [
+        SampleRow(*row) for row in _SINCE.all(session, {"user_pk": user_pk, "version": version})
+    ]
 
 
-def has_transition(session: Session, user_pk: int, *, episode: int, action: int,
-                   after_version: int) -> bool:
+def has_transition(
+    session: Session, user_pk: int, *, episode: int, action: int, after_version: int
+) -> bool:
     """Whether the model taught after ``after_version`` holds ``action``'s sample of
     ``episode``."""
-    stmt = select(_samples.c.id).where(
-        _samples.c.user_pk == user_pk, _samples.c.episode == episode,
-        _samples.c.action == action, _samples.c.kind == "transition",
-        _samples.c.version > after_version,
-    ).limit(1)
+    stmt = (
+        select(_samples.c.id)
+        .where(
+            _samples.c.user_pk == user_pk,
+            _samples.c.episode == episode,
+            _samples.c.action == action,
+            _samples.c.kind == "transition",
+            _samples.c.version > after_version,
+        )
+        .limit(1)
+    )
     return conn(session).execute(stmt).first() is not None

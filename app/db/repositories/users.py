@@ -15,8 +15,21 @@ from ..models import Episode, LearnerModel, User
 from ..session import NOWAIT, LockBusy
 from ._rows import Prepared, columns, conn, record, table
 
-__all__ = ["UserRow", "all_ids", "create", "delete_user", "fleet_counts", "fleets_with", "get",
-           "list_page", "lock", "lock_fleet", "lock_owner", "save_counters", "save_profile"]
+__all__ = [
+    "UserRow",
+    "all_ids",
+    "create",
+    "delete_user",
+    "fleet_counts",
+    "fleets_with",
+    "get",
+    "list_page",
+    "lock",
+    "lock_fleet",
+    "lock_owner",
+    "save_counters",
+    "save_profile",
+]
 
 
 @dataclass(slots=True)
@@ -42,13 +55,18 @@ _users = table(User)
 _models = table(LearnerModel)
 _episodes = table(Episode)
 _COLS = columns(_users, UserRow)
-_GET = select(*_COLS).where(_users.c.fleet == bindparam("fleet"),
-                            _users.c.user_id == bindparam("user_id"))
+_GET = select(*_COLS).where(
+    _users.c.fleet == bindparam("fleet"), _users.c.user_id == bindparam("user_id")
+)
 # PostgreSQL: the row lock is the per-user lock. SQLite ignores FOR UPDATE: its write
 # transactions are BEGIN IMMEDIATE, which already hold the database's single write lock.
 _LOCK = Prepared(_GET.with_for_update())
-_OWNER_OF = select(*_COLS).where(_users.c.id == select(_episodes.c.user_pk).where(
-    _episodes.c.id == bindparam("episode_id")).scalar_subquery())
+_OWNER_OF = select(*_COLS).where(
+    _users.c.id
+    == select(_episodes.c.user_pk)
+    .where(_episodes.c.id == bindparam("episode_id"))
+    .scalar_subquery()
+)
 _LOCK_OWNER = Prepared(_OWNER_OF.with_for_update())
 # In a session that must not wait (app.db.session.NOWAIT): the lock only if it is free at once.
 _LOCK_NOWAIT = Prepared(_GET.with_for_update(nowait=True))
@@ -58,12 +76,14 @@ _SAVE_COUNTERS = Prepared(update(_users).where(_users.c.id == bindparam("b_id"))
 
 
 def get(session: Session, fleet: str, user_id: str) -> UserRow | None:
-    return record(UserRow, conn(session).execute(_GET, {"fleet": fleet,
-                                                        "user_id": user_id}).first())
+    return record(
+        UserRow, conn(session).execute(_GET, {"fleet": fleet, "user_id": user_id}).first()
+    )
 
 
-def _locked(session: Session, waiting: Prepared, at_once: Prepared, params: dict[str, Any]
-            ) -> UserRow | None:
+def _locked(
+    session: Session, waiting: Prepared, at_once: Prepared, params: dict[str, Any]
+) -> UserRow | None:
     if not session.info.get(NOWAIT):
         return record(UserRow, waiting.first(session, params))
     try:
@@ -84,8 +104,12 @@ def lock_fleet(session: Session, fleet: str) -> None:
     """Lock every user of ``fleet`` for the rest of the transaction, in the order of their
     numbers (a mission change: no write of the fleet's users runs beside it)."""
     if conn(session).dialect.name == "postgresql":
-        conn(session).execute(select(_users.c.id).where(_users.c.fleet == fleet)
-                              .order_by(_users.c.id).with_for_update())
+        conn(session).execute(
+            select(_users.c.id)
+            .where(_users.c.fleet == fleet)
+            .order_by(_users.c.id)
+            .with_for_update()
+        )
 
 
 def lock_owner(session: Session, episode_id: str) -> UserRow | None:
@@ -98,10 +122,20 @@ def lock_owner(session: Session, episode_id: str) -> UserRow | None:
     return _locked(session, _LOCK_OWNER, _LOCK_OWNER_NOWAIT, {"episode_id": episode_id})
 
 
-def create(session: Session, *, user_id: str, fleet: str, algorithm: str,
-           params: dict[str, Any], display_name: str | None, state: dict[str, Any],
-           mission_version: int, now: dt.datetime, fleet_prior: bool = True,
-           base: tuple[dict[str, Any], int] | None = None) -> bool:
+def create(
+    session: Session,
+    *,
+    user_id: str,
+    fleet: str,
+    algorithm: str,
+    params: dict[str, Any],
+    display_name: str | None,
+    state: dict[str, Any],
+    mission_version: int,
+    now: dt.datetime,
+    fleet_prior: bool = True,
+    base: tuple[dict[str, Any], int] | None = None,
+) -> bool:
     """Insert the user and its model unless the fleet has that id; True when inserted. The
     model starts as ``state``: a fresh learner, or with ``base`` (the prior's document, its
     contributors) the fleet's prior, kept as the model's base.
@@ -114,39 +148,67 @@ def create(session: Session, *, user_id: str, fleet: str, algorithm: str,
     c = conn(session)
     dialect = postgresql if c.dialect.name == "postgresql" else sqlite
     stmt = (
-        dialect.insert(_users).values(
-            user_id=user_id, fleet=fleet, algorithm=algorithm, params=params,
-            display_name=display_name, created_at=now, episode_count=0, draws=0,
-            seed_key=f"{fleet}/{user_id}", fleet_prior=fleet_prior)
-        .on_conflict_do_nothing(index_elements=["fleet", "user_id"]).returning(_users.c.id)
+        dialect.insert(_users)
+        .values(
+            user_id=user_id,
+            fleet=fleet,
+            algorithm=algorithm,
+            params=params,
+            display_name=display_name,
+            created_at=now,
+            episode_count=0,
+            draws=0,
+            seed_key=f"{fleet}/{user_id}",
+            fleet_prior=fleet_prior,
+        )
+        .on_conflict_do_nothing(index_elements=["fleet", "user_id"])
+        .returning(_users.c.id)
     )
     made = c.execute(stmt).first()
     if made is None:
         return False
-    c.execute(insert(_models).values(
-        user_pk=made[0], version=0, state=state, base_state=None if base is None else base[0],
-        base_version=0, episode_offset=0, mission_version=mission_version,
-        base_mission_version=mission_version, updated_at=now,
-        base_origin="fresh" if base is None else "fleet_prior",
-        base_contributors=None if base is None else base[1]))
+    c.execute(
+        insert(_models).values(
+            user_pk=made[0],
+            version=0,
+            state=state,
+            base_state=None if base is None else base[0],
+            base_version=0,
+            episode_offset=0,
+            mission_version=mission_version,
+            base_mission_version=mission_version,
+            updated_at=now,
+            base_origin="fresh" if base is None else "fleet_prior",
+            base_contributors=None if base is None else base[1],
+        )
+    )
     return True
 
 
 def save_counters(session: Session, user: UserRow) -> None:
-    _SAVE_COUNTERS.run(session, {"b_id": user.id, "episode_count": user.episode_count,
-                                 "draws": user.draws})
+    _SAVE_COUNTERS.run(
+        session, {"b_id": user.id, "episode_count": user.episode_count, "draws": user.draws}
+    )
 
 
 def save_profile(session: Session, user: UserRow) -> None:
     """Store the display name, the learner's algorithm and parameters, and whether the person
     takes part in the fleet's prior."""
-    conn(session).execute(update(_users).where(_users.c.id == user.id).values(
-        display_name=user.display_name, algorithm=user.algorithm, params=user.params,
-        fleet_prior=user.fleet_prior))
+    conn(session).execute(
+        update(_users)
+        .where(_users.c.id == user.id)
+        .values(
+            display_name=user.display_name,
+            algorithm=user.algorithm,
+            params=user.params,
+            fleet_prior=user.fleet_prior,
+        )
+    )
 
 
-def list_page(session: Session, *, fleet: str | None, after: tuple[str, str] | None,
-              limit: int) -> list[UserRow]:
+def list_page(
+    session: Session, *, fleet: str | None, after: tuple[str, str] | None, limit: int
+) -> list[UserRow]:
     """Users of one fleet by user id, or of every fleet (``None``) by fleet and user id; those
     after ``after`` (fleet, user id)."""
     stmt = select(*_COLS).order_by(_users.c.fleet, _users.c.user_id).limit(limit)
@@ -176,6 +238,7 @@ def all_ids(session: Session) -> list[tuple[str, str]]:
 
 def fleet_counts(session: Session) -> dict[str, tuple[int, int]]:
     """Per fleet that has users: (users, episodes)."""
-    stmt = select(_users.c.fleet, func.count(), func.coalesce(func.sum(_users.c.episode_count),
-                                                               0)).group_by(_users.c.fleet)
+    stmt = select(
+        _users.c.fleet, func.count(), func.coalesce(func.sum(_users.c.episode_count), 0)
+    ).group_by(_users.c.fleet)
     return {fleet: (int(n), int(e)) for fleet, n, e in conn(session).execute(stmt)}

@@ -56,8 +56,10 @@ class CallChecks:
         return np.random.default_rng(np.random.SeedSequence([self.seed, *words]))
 
     def at(self, obs: Observation) -> str:
-        return (f"episode {obs.episode}, context {obs.context}, "
-                f"state {self.space.state_name(obs.state)}")
+        return (
+            f"episode {obs.episode}, context {obs.context}, "
+            f"state {self.space.state_name(obs.state)}"
+        )
 
     # -- one call, checked -------------------------------------------------------------------------
     def update(self, learner: Learner, batch: Sequence[Transition], *, count: bool = True) -> None:
@@ -65,8 +67,9 @@ class CallChecks:
         try:
             learner.update(batch)
         except Exception as exc:  # noqa: BLE001 - any exception on a valid report is the finding
-            self.fail(f"update #{self.calls + 1} of a valid report raised "
-                      f"{type(exc).__name__}: {exc}")
+            self.fail(
+                f"update #{self.calls + 1} of a valid report raised {type(exc).__name__}: {exc}"
+            )
         if learner.version != version + 1:
             self.fail(
                 f"update #{self.calls + 1} moved version from {version} to {learner.version}; "
@@ -102,8 +105,11 @@ class CallChecks:
         if not isinstance(view, ContextView):
             self.fail(f"{where} returned {type(view).__name__}, not a ContextView.")
         fields: dict[str, Any] = {
-            "q": view.q, "visits": view.visits, "kept_visits": view.kept_visits,
-            "since_last": view.since_last, "measure": view.measure,
+            "q": view.q,
+            "visits": view.visits,
+            "kept_visits": view.kept_visits,
+            "since_last": view.since_last,
+            "measure": view.measure,
             "probabilities": view.probabilities,
         }
         for name, value in fields.items():
@@ -115,8 +121,10 @@ class CallChecks:
             if arr.dtype.kind not in "fiu":
                 self.fail(f"{where}.{name} has dtype {arr.dtype}, expected numbers.")
             if not np.all(np.isfinite(arr)):
-                self.fail(f"{where}.{name} holds NaN or infinity at pairs "
-                          f"{np.flatnonzero(~np.isfinite(arr)).tolist()}.")
+                self.fail(
+                    f"{where}.{name} holds NaN or infinity at pairs "
+                    f"{np.flatnonzero(~np.isfinite(arr)).tolist()}."
+                )
         if np.any(np.asarray(view.visits) < 0):
             self.fail(f"{where}.visits holds negative counts.")
         probs = np.asarray(view.probabilities)
@@ -124,11 +132,15 @@ class CallChecks:
             sl = slice(space.actions_of(s).start, space.actions_of(s).stop)
             total = float(probs[sl].sum())
             if np.any(probs[sl] < 0):
-                self.fail(f"{where}.probabilities of {space.state_name(s)} are negative: "
-                          f"{probs[sl].tolist()}.")
+                self.fail(
+                    f"{where}.probabilities of {space.state_name(s)} are negative: "
+                    f"{probs[sl].tolist()}."
+                )
             if abs(total - 1.0) > _TOL:
-                self.fail(f"{where}.probabilities of {space.state_name(s)} sum to {total!r}, "
-                          f"not 1: {probs[sl].tolist()}.")
+                self.fail(
+                    f"{where}.probabilities of {space.state_name(s)} sum to {total!r}, "
+                    f"not 1: {probs[sl].tolist()}."
+                )
 
     def round_trip(self, learner: Learner, probes: Sequence[Observation]) -> Learner:
         """Export, check the document, import it: the same version, an identical re-export and
@@ -140,12 +152,15 @@ class CallChecks:
         except Exception as exc:  # noqa: BLE001 - any exception is the finding
             self.fail(f"importing the learner's own export raised {type(exc).__name__}: {exc}")
         if clone.version != learner.version:
-            self.fail(f"the imported learner has version {clone.version}, the exported one "
-                      f"{learner.version}.")
+            self.fail(
+                f"the imported learner has version {clone.version}, the exported one "
+                f"{learner.version}."
+            )
         again = self.export(clone)
         if canonical(again) != text:
-            self.fail("export -> import -> export differs in "
-                      f"{', '.join(_differences(doc, again))}.")
+            self.fail(
+                f"export -> import -> export differs in {', '.join(_differences(doc, again))}."
+            )
         for i, obs in enumerate(probes):
             d1 = self.decide(learner, obs, self.rng(10, i))
             d2 = self.decide(clone, obs, self.rng(10, i))
@@ -173,32 +188,45 @@ class CallChecks:
         for i, step in enumerate(d.chain):
             what = f"{where}, chain step {i}"
             if step.state != state:
-                self.fail(f"{what} starts in {space.state_name(step.state)}, expected "
-                          f"{space.state_name(state)}.")
+                self.fail(
+                    f"{what} starts in {space.state_name(step.state)}, expected "
+                    f"{space.state_name(state)}."
+                )
             self.check_probabilities(step.probabilities, step.state, step.action, what)
             if not space.is_valid(step.state, step.action):
-                self.fail(f"{what}: action {step.action} is not available in "
-                          f"{space.state_name(step.state)}.")
+                self.fail(
+                    f"{what}: action {step.action} is not available in "
+                    f"{space.state_name(step.state)}."
+                )
             if not space.silent[step.action]:
-                self.fail(f"{what}: {space.action_name(step.action)} needs the person; a chain "
-                          "step must be silent.")
+                self.fail(
+                    f"{what}: {space.action_name(step.action)} needs the person; a chain "
+                    "step must be silent."
+                )
             if step.next_state != int(space.silent_next[step.action]):
-                self.fail(f"{what}: {space.action_name(step.action)} leads to "
-                          f"{space.state_name(int(space.silent_next[step.action]))}, not "
-                          f"{space.state_name(step.next_state)}.")
+                self.fail(
+                    f"{what}: {space.action_name(step.action)} leads to "
+                    f"{space.state_name(int(space.silent_next[step.action]))}, not "
+                    f"{space.state_name(step.next_state)}."
+                )
             if step.reward != float(space.silent_reward[step.action]):
-                self.fail(f"{what}: reward {step.reward!r}, the mission says "
-                          f"{float(space.silent_reward[step.action])!r}.")
+                self.fail(
+                    f"{what}: reward {step.reward!r}, the mission says "
+                    f"{float(space.silent_reward[step.action])!r}."
+                )
             state = step.next_state
         if d.state != state:
-            self.fail(f"{where}: the decision is in {space.state_name(d.state)}, but its chain "
-                      f"ends in {space.state_name(state)}.")
+            self.fail(
+                f"{where}: the decision is in {space.state_name(d.state)}, but its chain "
+                f"ends in {space.state_name(state)}."
+            )
         if not 0 <= d.state < space.n_states:
             self.fail(f"{where}: the decision's state {d.state} is not a state of the mission.")
         self.check_probabilities(d.probabilities, d.state, d.action, where)
         if not space.is_valid(d.state, d.action):
-            self.fail(f"{where}: action {d.action} is not available in "
-                      f"{space.state_name(d.state)}.")
+            self.fail(
+                f"{where}: action {d.action} is not available in {space.state_name(d.state)}."
+            )
         if space.silent[d.action]:
             self.fail(f"{where}: the visible action {space.action_name(d.action)} is silent.")
 
@@ -206,8 +234,10 @@ class CallChecks:
         actions = self.space.actions_of(state)
         arr = np.asarray(probs)
         if arr.shape != (len(actions),):
-            self.fail(f"{what}: probabilities have shape {arr.shape}, expected "
-                      f"({len(actions)},) for the actions of {self.space.state_name(state)}.")
+            self.fail(
+                f"{what}: probabilities have shape {arr.shape}, expected "
+                f"({len(actions)},) for the actions of {self.space.state_name(state)}."
+            )
         if arr.dtype.kind != "f":
             self.fail(f"{what}: probabilities have dtype {arr.dtype}, expected floats.")
         if not np.all(np.isfinite(arr)):
@@ -243,12 +273,16 @@ class CallChecks:
     def same_decision(self, d1: Decision, d2: Decision, where: str) -> None:
         sp = self.space
         if (d1.context, d1.state, d1.action) != (d2.context, d2.state, d2.action):
-            self.fail(f"{where}: decided {sp.action_name(d2.action)} in "
-                      f"{sp.state_name(d2.state)}, expected {sp.action_name(d1.action)} in "
-                      f"{sp.state_name(d1.state)}.")
+            self.fail(
+                f"{where}: decided {sp.action_name(d2.action)} in "
+                f"{sp.state_name(d2.state)}, expected {sp.action_name(d1.action)} in "
+                f"{sp.state_name(d1.state)}."
+            )
         if not np.array_equal(d1.probabilities, d2.probabilities):
-            self.fail(f"{where}: probabilities {np.asarray(d2.probabilities).tolist()} differ "
-                      f"from {np.asarray(d1.probabilities).tolist()}.")
+            self.fail(
+                f"{where}: probabilities {np.asarray(d2.probabilities).tolist()} differ "
+                f"from {np.asarray(d1.probabilities).tolist()}."
+            )
         steps1 = [(s.state, s.action, s.next_state, s.reward) for s in d1.chain]
         steps2 = [(s.state, s.action, s.next_state, s.reward) for s in d2.chain]
         if steps1 != steps2 or not all(
@@ -260,8 +294,7 @@ class CallChecks:
     def same_state(self, a: Learner, b: Learner, where: str) -> None:
         da, db = self.export(a), self.export(b)
         if canonical(da) != canonical(db):
-            self.fail(f"{where}: the exported states differ in "
-                      f"{', '.join(_differences(da, db))}.")
+            self.fail(f"{where}: the exported states differ in {', '.join(_differences(da, db))}.")
 
 
 def canonical(doc: Mapping[str, Any]) -> str:

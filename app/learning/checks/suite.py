@@ -89,7 +89,12 @@ class _Suite:
         self.check = CallChecks(label, mission, self.space, seed)
         r = mission.rewards
         self.vocabulary = (
-            0.0, r.positive, r.negative, r.query, r.query + r.negative, r.max_step,
+            0.0,
+            r.positive,
+            r.negative,
+            r.query,
+            r.query + r.negative,
+            r.max_step,
         )
 
     def make(self) -> Learner:
@@ -195,10 +200,25 @@ class _Suite:
                     da, db, f"two learners with the same seed, {self.check.at(obs)}"
                 )
                 batch = da.chain_transitions(episode)
-                reaction = respond(space, profile, context, da.state, da.action,
-                                   uniforms[e, 2 * step : 2 * step + 2])
-                batch.append(Transition(episode, context, da.state, da.action, reaction.reward,
-                                        reaction.next_state, reaction.signal))
+                reaction = respond(
+                    space,
+                    profile,
+                    context,
+                    da.state,
+                    da.action,
+                    uniforms[e, 2 * step : 2 * step + 2],
+                )
+                batch.append(
+                    Transition(
+                        episode,
+                        context,
+                        da.state,
+                        da.action,
+                        reaction.reward,
+                        reaction.next_state,
+                        reaction.signal,
+                    )
+                )
                 self.check.update(a, batch)
                 self.check.update(b, batch, count=False)
                 state, step = reaction.next_state, step + 1
@@ -214,12 +234,14 @@ class _Suite:
     def check_refusals(self, learner: Learner, episode: int) -> None:
         """Invalid reports raise ValueError and change nothing (validated before applied)."""
         space = self.space
-        ok = Transition(episode, 0, space.OBSERVE, space.INITIATE, -1.0, space.END,
-                        Polarity.NEGATIVE)
+        ok = Transition(
+            episode, 0, space.OBSERVE, space.INITIATE, -1.0, space.END, Polarity.NEGATIVE
+        )
         bad = {
             "an action of another state": dataclasses.replace(ok, action=space.n_actions - 1),
             "a successor that cannot follow": dataclasses.replace(
-                ok, next_state=space.ENGAGED + 1),  # TYPE_KNOWN of the first service
+                ok, next_state=space.ENGAGED + 1
+            ),  # TYPE_KNOWN of the first service
             "a NaN reward": dataclasses.replace(ok, reward=math.nan),
             "an infinite reward": dataclasses.replace(ok, reward=math.inf),
             "episode 0": dataclasses.replace(ok, episode=0),
@@ -235,19 +257,28 @@ class _Suite:
                 self.check.fail(
                     f"a refused report with {why} changed the learner (validate first)."
                 )
-        for obs, why in ((Observation(space.n_contexts, 0, 1), "a context out of range"),
-                         (Observation(0, space.END, 1), "the END state"),
-                         (Observation(0, 0, 0), "episode 0")):
-            self.check.expect_value_error(f"select_action with {why}", learner.select_action, obs,
-                                    self.check.rng(6))
+        for obs, why in (
+            (Observation(space.n_contexts, 0, 1), "a context out of range"),
+            (Observation(0, space.END, 1), "the END state"),
+            (Observation(0, 0, 0), "episode 0"),
+        ):
+            self.check.expect_value_error(
+                f"select_action with {why}", learner.select_action, obs, self.check.rng(6)
+            )
 
     def root_rejections(self, learner: Learner, episode: int, calls: int) -> int:
         sp, r = self.space, self.mission.rewards
         c = 0
         for _ in range(calls):
             episode += 1
-            self.check.update(learner, [Transition(episode, c, sp.OBSERVE, sp.INITIATE, r.negative,
-                                             sp.END, Polarity.NEGATIVE)])
+            self.check.update(
+                learner,
+                [
+                    Transition(
+                        episode, c, sp.OBSERVE, sp.INITIATE, r.negative, sp.END, Polarity.NEGATIVE
+                    )
+                ],
+            )
         return episode
 
     def accepted_services(self, learner: Learner, episode: int, calls: int) -> int:
@@ -261,13 +292,28 @@ class _Suite:
         perform = sp.action_index(Action(ActionKind.PERFORM, k, d))
         for _ in range(calls // 2):
             episode += 1
-            self.check.update(learner, [Transition(episode, c, sp.OBSERVE, sp.INITIATE, r.positive,
-                                             sp.ENGAGED, Polarity.POSITIVE)])
-            self.check.update(learner, [
-                Transition(episode, c, sp.ENGAGED, infer_type, 0.0, tk),
-                Transition(episode, c, tk, infer_detail, 0.0, dk),
-                Transition(episode, c, dk, perform, r.max_step, sp.END, Polarity.POSITIVE),
-            ])
+            self.check.update(
+                learner,
+                [
+                    Transition(
+                        episode,
+                        c,
+                        sp.OBSERVE,
+                        sp.INITIATE,
+                        r.positive,
+                        sp.ENGAGED,
+                        Polarity.POSITIVE,
+                    )
+                ],
+            )
+            self.check.update(
+                learner,
+                [
+                    Transition(episode, c, sp.ENGAGED, infer_type, 0.0, tk),
+                    Transition(episode, c, tk, infer_detail, 0.0, dk),
+                    Transition(episode, c, dk, perform, r.max_step, sp.END, Polarity.POSITIVE),
+                ],
+            )
         return episode
 
     def wrong_services(self, learner: Learner, episode: int, calls: int) -> int:
@@ -281,13 +327,17 @@ class _Suite:
         perform = sp.action_index(Action(ActionKind.PERFORM, k, d))
         for _ in range(calls // 2):
             episode += 1
-            self.check.update(learner, [Transition(episode, c, sp.OBSERVE, sp.PASS, 0.0, rq,
-                                             Polarity.POSITIVE)])
-            self.check.update(learner, [
-                Transition(episode, c, rq, respond_, r.positive, tk),
-                Transition(episode, c, tk, infer_detail, 0.0, dk),
-                Transition(episode, c, dk, perform, r.negative, sp.END, Polarity.NEGATIVE),
-            ])
+            self.check.update(
+                learner, [Transition(episode, c, sp.OBSERVE, sp.PASS, 0.0, rq, Polarity.POSITIVE)]
+            )
+            self.check.update(
+                learner,
+                [
+                    Transition(episode, c, rq, respond_, r.positive, tk),
+                    Transition(episode, c, tk, infer_detail, 0.0, dk),
+                    Transition(episode, c, dk, perform, r.negative, sp.END, Polarity.NEGATIVE),
+                ],
+            )
         return episode
 
     def random_block(self, learner: Learner, episode: int, updates: int) -> int:
@@ -346,8 +396,14 @@ class _Suite:
         return batches
 
     def hot_contexts(self) -> list[int]:
-        return sorted({0, min(1, self.space.n_contexts - 1), min(2, self.space.n_contexts - 1),
-                       self.space.n_contexts - 1})
+        return sorted(
+            {
+                0,
+                min(1, self.space.n_contexts - 1),
+                min(2, self.space.n_contexts - 1),
+                self.space.n_contexts - 1,
+            }
+        )
 
     # -- 5. checkpoints ----------------------------------------------------------------------------
     def checkpoint(self, learner: Learner, episode: int, contexts: Sequence[int]) -> Learner:
@@ -387,8 +443,9 @@ class _Suite:
         self.check.same_state(learner, clone, "an imported clone after one more update")
 
     # -- observations to probe with ----------------------------------------------------------------
-    def probes(self, episode: int, contexts: Sequence[int], *, state: int | None = None
-               ) -> list[Observation]:
+    def probes(
+        self, episode: int, contexts: Sequence[int], *, state: int | None = None
+    ) -> list[Observation]:
         states = [self.space.OBSERVE, self.space.ENGAGED] if state is None else [state]
         return [Observation(c, s, episode) for c in contexts for s in states]
 
@@ -398,13 +455,23 @@ def _bad_values(default: object) -> list[tuple[object, str]]:
     if isinstance(default, bool):
         return [(1, "a number, not true or false"), ("yes", "a string, not true or false")]
     if isinstance(default, int):
-        return [("3", "a string, not a whole number"), (2.5, "not a whole number"),
-                (True, "a boolean, not a whole number"), (-1, "below the range"),
-                (10**12, "above the range")]
+        return [
+            ("3", "a string, not a whole number"),
+            (2.5, "not a whole number"),
+            (True, "a boolean, not a whole number"),
+            (-1, "below the range"),
+            (10**12, "above the range"),
+        ]
     if isinstance(default, float):
-        return [("0.5", "a string, not a number"), (None, "not a number"),
-                (True, "a boolean, not a number"), (math.nan, "NaN"), (math.inf, "infinite"),
-                (-1e12, "below the range"), (1e12, "above the range")]
+        return [
+            ("0.5", "a string, not a number"),
+            (None, "not a number"),
+            (True, "a boolean, not a number"),
+            (math.nan, "NaN"),
+            (math.inf, "infinite"),
+            (-1e12, "below the range"),
+            (1e12, "above the range"),
+        ]
     if isinstance(default, str):
         return [(3, "not a string"), ("no_such_option", "not one of the allowed values")]
     return [(object(), "an arbitrary object")]

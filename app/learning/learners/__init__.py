@@ -28,8 +28,7 @@ __all__ = [
 ]
 
 ALGORITHMS: dict[str, type[TabularLearner[Any]]] = {
-    cls.algorithm: cls
-    for cls in (HriLearner, RmaxLearner, QLearner, DtsLearner, DtsAdaptLearner)
+    cls.algorithm: cls for cls in (HriLearner, RmaxLearner, QLearner, DtsLearner, DtsAdaptLearner)
 }
 
 

@@ -93,8 +93,9 @@ class TabularLearner(Generic[P]):
     def _close(self, rows: list[Transition]) -> None:
         """Learn from a whole episode once its last transition arrived (rows in order)."""
 
-    def _reinforce(self, context: int, action: int, episode: int, reward: float, *,
-                   pending: bool) -> None:
+    def _reinforce(
+        self, context: int, action: int, episode: int, reward: float, *, pending: bool
+    ) -> None:
         """Add ``reward`` to what was learned from the sample of (context, action) in ``episode``.
 
         ``pending``: the episode is still open and its last row of that pair already carries the
@@ -321,8 +322,15 @@ class TabularLearner(Generic[P]):
             "episodes": self.episodes,
             "arrays": {name: encode_array(arr) for name, (arr, _) in self._exported().items()},
             "pending": [
-                [int(t.episode), int(t.context), int(t.state), int(t.action), float(t.reward),
-                 int(t.next_state), int(t.signal)]
+                [
+                    int(t.episode),
+                    int(t.context),
+                    int(t.state),
+                    int(t.action),
+                    float(t.reward),
+                    int(t.next_state),
+                    int(t.signal),
+                ]
                 for rows in self._pending.values()
                 for t in rows
             ],
@@ -359,8 +367,11 @@ class TabularLearner(Generic[P]):
         learner = cls(mission, params)  # type: ignore[arg-type]
         for field in ("version", "episodes"):
             value = doc.get(field)
-            if isinstance(value, bool) or not isinstance(value, int) \
-                    or not 0 <= value < cls.MAX_EPISODE:
+            if (
+                isinstance(value, bool)
+                or not isinstance(value, int)
+                or not 0 <= value < cls.MAX_EPISODE
+            ):
                 raise StateFormatError(f"{field} must be a whole number in [0, 2**62).")
             setattr(learner, field, value)
         arrays = doc.get("arrays")

@@ -106,8 +106,11 @@ class DtsLearner(TabularLearner[DtsParams]):
                 answers = float(prior[a].sum() - prior[a, space.end_column[a]])
                 prior[a, space.end_column[a]] = answers * (len(self.mission.services) - 1)
         self._succ_prior = prior
-        self._answer_prior = rewards.positive + rewards.accepted_service \
-            if self._params.trust_answers else self._params.reward_prior
+        self._answer_prior = (
+            rewards.positive + rewards.accepted_service
+            if self._params.trust_answers
+            else self._params.reward_prior
+        )
         # What a decision's models need, laid out once (_plan). A model draws one gamma variate
         # per possible successor: the flat positions of succ_mask in a (P * M) row, in order,
         # which is the stream of drawing the whole (samples, P, M) Dirichlet table (its other
@@ -117,8 +120,11 @@ class DtsLearner(TabularLearner[DtsParams]):
         self._prior_flat = prior.ravel()[self._succ_flat]
         # The pairs _fold_answers ends at once: those that earn what a named service is worth
         # (query_type, with trust_answers), then those that earn the answer's value.
-        named = self._query_type if self._params.trust_answers \
+        named = (
+            self._query_type
+            if self._params.trust_answers
             else np.zeros(space.n_actions, dtype=bool)
+        )
         folded = self._query_detail | named
         fold_rows = np.concatenate([np.flatnonzero(named), np.flatnonzero(self._query_detail)])
         self._n_named = int(named.sum())
@@ -127,8 +133,7 @@ class DtsLearner(TabularLearner[DtsParams]):
         # its reward whatever its row says), then the folded ones, for their chance of END. They
         # are normalised as a (samples, rows, M) table: _drawn_cols picks their draws and
         # _drawn_pos places them in its (rows * M) row.
-        learned_rows = np.flatnonzero(
-            ~space.silent & ~folded & (space.succ_mask.sum(axis=1) > 1))
+        learned_rows = np.flatnonzero(~space.silent & ~folded & (space.succ_mask.sum(axis=1) > 1))
         drawn = np.concatenate([learned_rows, fold_rows])
         position = np.full(space.n_actions, -1, dtype=np.int64)
         position[drawn] = np.arange(len(drawn))
@@ -141,8 +146,9 @@ class DtsLearner(TabularLearner[DtsParams]):
         self._learned_rows = _slice_or_index(learned_rows)
         self._fold_rows = fold_rows  # their columns in the rewards
         # ...and where their END successor is in the normalised table's (rows * M) row
-        self._fold_end = (len(learned_rows) + np.arange(len(fold_rows))) * M \
-            + space.end_column[fold_rows]
+        self._fold_end = (len(learned_rows) + np.arange(len(fold_rows))) * M + space.end_column[
+            fold_rows
+        ]
         # The other rows of the solved model: a silent pair moves to its target (its first
         # successor); folded and END-only pairs end.
         first = np.zeros_like(self._to_end)
@@ -152,8 +158,11 @@ class DtsLearner(TabularLearner[DtsParams]):
         self._silent_reward = space.silent_reward[self._silent_rows]
         # How far a state's policy needs the models solved: the highest level of its pairs.
         levels = space_levels(space)
-        self._state_level = None if levels is None \
+        self._state_level = (
+            None
+            if levels is None
             else [int(x) for x in np.maximum.reduceat(levels, space.state_start)]
+        )
 
     def _add(self, c: int, a: int, reward: float, column: int) -> None:
         lam = self._params.forgetting
@@ -169,18 +178,30 @@ class DtsLearner(TabularLearner[DtsParams]):
             return
         if space.actions[tr.action].kind is ActionKind.PERFORM:
             before = self._pending.get(tr.episode)
-            if before and before[-1].next_state == tr.state and space.is_query[before[-1].action] \
-                    and before[-1].state != space.ENGAGED:
+            if (
+                before
+                and before[-1].next_state == tr.state
+                and space.is_query[before[-1].action]
+                and before[-1].state != space.ENGAGED
+            ):
                 # The service the person named when asked: how well "doing as asked" pays.
                 lam = self._params.forgetting
                 self.answered *= lam
                 self.answered += (1.0, tr.reward)
                 self._cache.clear()
         kind = space.actions[tr.action].kind
-        if self._params.change_alpha > 0.0 and tr.signal != Polarity.NEUTRAL and (
-                kind is ActionKind.PERFORM or (self._params.change_on_questions
-                                               and tr.signal == Polarity.NEGATIVE
-                                               and kind is ActionKind.QUERY_DETAIL)):
+        if (
+            self._params.change_alpha > 0.0
+            and tr.signal != Polarity.NEUTRAL
+            and (
+                kind is ActionKind.PERFORM
+                or (
+                    self._params.change_on_questions
+                    and tr.signal == Polarity.NEGATIVE
+                    and kind is ActionKind.QUERY_DETAIL
+                )
+            )
+        ):
             # Tested before the sample is learned: a restart keeps the answer that set it off.
             self._test_change(tr.context, accepted=tr.signal == Polarity.POSITIVE)
         column = space.successor_column(tr.action, tr.next_state)
@@ -221,8 +242,9 @@ class DtsLearner(TabularLearner[DtsParams]):
             row[:] = 0.0
             self._cache.pop(c, None)
 
-    def _reinforce(self, context: int, action: int, episode: int, reward: float, *,
-                   pending: bool) -> None:
+    def _reinforce(
+        self, context: int, action: int, episode: int, reward: float, *, pending: bool
+    ) -> None:
         c, a = context, action
         if self.space.silent[action] or self.dn[c, a] <= 0:
             return  # silent pairs are not learned (their reward is known)
@@ -258,8 +280,9 @@ class DtsLearner(TabularLearner[DtsParams]):
         mean = (total + prior * prm.reward_prior_count) / (n + prm.reward_prior_count)
         return mean, prm.reward_sd / float(np.sqrt(n + prm.reward_prior_count))
 
-    def _fold_answers(self, reward: FloatArray, trans: FloatArray, v_answer: FloatArray
-                      ) -> tuple[FloatArray, FloatArray]:
+    def _fold_answers(
+        self, reward: FloatArray, trans: FloatArray, v_answer: FloatArray
+    ) -> tuple[FloatArray, FloatArray]:
         """Asking for the detail ends, in the model, with the answered service performed:
         Q(query_detail) = r + gamma * P(answer) * V_answer. This is what makes a question worth
         its cost before any service of that context was ever liked."""
@@ -290,17 +313,20 @@ class DtsLearner(TabularLearner[DtsParams]):
         return self._solve(*self._fold_answers(mean, trans, v_answer))
 
     def _check_tables(self) -> None:
-        check_nonnegative(dn=self.dn, dns=self.dns, answered=self.answered[:1],
-                          change=self.change)
+        check_nonnegative(dn=self.dn, dns=self.dns, answered=self.answered[:1], change=self.change)
         if np.any(self.change[:, 3] > 1.0):
             raise StateFormatError("arrays.change: a run's chance must not exceed 1.")
 
-    def _solve(self, reward: FloatArray, trans: FloatArray, level: int | None = None
-               ) -> FloatArray:
+    def _solve(self, reward: FloatArray, trans: FloatArray, level: int | None = None) -> FloatArray:
         v_max = self.mission.v_max
         q = value_iteration(
-            self.space, reward, trans, gamma=self.mission.gamma, tol=self._params.vi_tol,
-            max_sweeps=self._params.vi_max_sweeps, level=level,
+            self.space,
+            reward,
+            trans,
+            gamma=self.mission.gamma,
+            tol=self._params.vi_tol,
+            max_sweeps=self._params.vi_max_sweeps,
+            level=level,
         )
         return q.clip(-v_max, v_max, out=q)
 

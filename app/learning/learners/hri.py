@@ -87,8 +87,9 @@ class HriLearner(TabularLearner[HriParams]):
         for c in contexts:
             self._cache.pop(c, None)
 
-    def _reinforce(self, context: int, action: int, episode: int, reward: float, *,
-                   pending: bool) -> None:
+    def _reinforce(
+        self, context: int, action: int, episode: int, reward: float, *, pending: bool
+    ) -> None:
         if pending:
             return  # the open row carries the feedback: it is learned with the episode at close
         c, a = context, action
@@ -135,8 +136,14 @@ class HriLearner(TabularLearner[HriParams]):
         if prm.unknown == "vmax_if_never_tried":
             fixed = self.visits[context] == 0
         q = value_iteration(
-            space, reward, trans, gamma=mission.gamma, tol=prm.vi_tol,
-            max_sweeps=prm.vi_max_sweeps, fixed=fixed, fixed_value=mission.v_max,
+            space,
+            reward,
+            trans,
+            gamma=mission.gamma,
+            tol=prm.vi_tol,
+            max_sweeps=prm.vi_max_sweeps,
+            fixed=fixed,
+            fixed_value=mission.v_max,
         )
         out: FloatArray = np.clip(q, -mission.v_max, mission.v_max)
         return out
@@ -148,8 +155,9 @@ class HriLearner(TabularLearner[HriParams]):
         unvisited = float(np.mean(self.visits[context] == 0))
         return prm.tau * (1.0 + prm.kappa * unvisited)
 
-    def _pref_parts(self, q: FloatArray, context: int, state: int, episode: int
-                    ) -> tuple[FloatArray, FloatArray]:
+    def _pref_parts(
+        self, q: FloatArray, context: int, state: int, episode: int
+    ) -> tuple[FloatArray, FloatArray]:
         """Q~ and M for the actions of one state."""
         actions = self.space.actions_of(state)
         sl = slice(actions.start, actions.stop)

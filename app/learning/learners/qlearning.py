@@ -34,8 +34,9 @@ class QLearner(TabularLearner[QLearningParams]):
             target += self.mission.gamma * float(self.q[c, nxt.start : nxt.stop].max())
         self.q[c, a] += alpha * (target - self.q[c, a])
 
-    def _reinforce(self, context: int, action: int, episode: int, reward: float, *,
-                   pending: bool) -> None:
+    def _reinforce(
+        self, context: int, action: int, episode: int, reward: float, *, pending: bool
+    ) -> None:
         # The sample's target grows by ``reward``: its update moves Q by alpha times as much.
         c, a = context, action
         alpha = max(self._params.alpha_min, 1.0 / float(self.visits[c, a]))

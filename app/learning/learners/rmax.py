@@ -41,8 +41,9 @@ class RmaxLearner(TabularLearner[RmaxParams]):
         self.ns[c, a, self.space.successor_column(a, tr.next_state)] += 1.0
         self._cache.pop(c, None)
 
-    def _reinforce(self, context: int, action: int, episode: int, reward: float, *,
-                   pending: bool) -> None:
+    def _reinforce(
+        self, context: int, action: int, episode: int, reward: float, *, pending: bool
+    ) -> None:
         c, a = context, action
         if self.ns[c, a].sum() > 0:  # a reward sum with no count under it would mean nothing
             self.r[c, a] += reward

@@ -9,5 +9,12 @@ from .read import get_trace, list_episodes
 from .render import action_out
 from .write import Written, add_feedback, report_outcome, start_episode
 
-__all__ = ["Written", "action_out", "add_feedback", "get_trace", "list_episodes",
-           "report_outcome", "start_episode"]
+__all__ = [
+    "Written",
+    "action_out",
+    "add_feedback",
+    "get_trace",
+    "list_episodes",
+    "report_outcome",
+    "start_episode",
+]

@@ -19,12 +19,19 @@ def check_episode(mission: Mission, body: EpisodeIn) -> None:
     if body.request is not None:
         if body.initiator != "human":
             raise ValidationFailed("request is only for initiator human (the person asked).")
-        check_service(mission, body.request.service, body.request.detail, need_service=True,
-                      need_detail=False)
+        check_service(
+            mission, body.request.service, body.request.detail, need_service=True, need_detail=False
+        )
 
 
-def check_service(mission: Mission, service: str | None, detail: str | None, *,
-                  need_service: bool, need_detail: bool) -> None:
+def check_service(
+    mission: Mission,
+    service: str | None,
+    detail: str | None,
+    *,
+    need_service: bool,
+    need_detail: bool,
+) -> None:
     names = [s.name for s in mission.services]
     if service is None:
         if need_service:
@@ -60,12 +67,15 @@ def check_outcome(space: NegotiationSpace, action: int, body: OutcomeIn) -> None
     elif body.response == "answered" and act.kind is ActionKind.QUERY_TYPE:
         check_service(mission, body.service, body.detail, need_service=True, need_detail=False)
         if body.detail is not None:
-            raise ValidationFailed("answer query_type with the service only; the detail is "
-                                   "asked next.")
+            raise ValidationFailed(
+                "answer query_type with the service only; the detail is asked next."
+            )
     elif body.response == "answered":  # query_detail
         if body.service is not None and body.service != act.service:
-            raise ValidationFailed(f"this query_detail is about {act.service}; service must "
-                                   f"be {act.service} or omitted.")
+            raise ValidationFailed(
+                f"this query_detail is about {act.service}; service must "
+                f"be {act.service} or omitted."
+            )
         check_service(mission, act.service, body.detail, need_service=True, need_detail=True)
     else:
         for name in ("service", "detail"):

@@ -79,19 +79,30 @@ class _Negotiation:
     the episode's figures; the caller stores the new decision rows and teaches the learner the
     transitions, in one batch."""
 
-    def __init__(self, ctx: ServiceContext, space: NegotiationSpace, user: UserRow,
-                 episode: EpisodeRow, learner: TabularLearner[Any], model_version: int, *,
-                 position: int) -> None:
+    def __init__(
+        self,
+        ctx: ServiceContext,
+        space: NegotiationSpace,
+        user: UserRow,
+        episode: EpisodeRow,
+        learner: TabularLearner[Any],
+        model_version: int,
+        *,
+        position: int,
+    ) -> None:
         self.ctx, self.space = ctx, space
         self.user, self.episode = user, episode
         self.learner, self.model_version = learner, model_version
         self.transitions: list[Transition] = []
         self.new_rows: list[DecisionRow] = []
         self._position = position  # of the next decision row in the episode
-        self.tally = Tally(initiated=episode.initiated,
-                           interaction=Interaction(episode.interaction_class),
-                           success=episode.success, queries=episode.queries,
-                           reward=episode.total_reward)
+        self.tally = Tally(
+            initiated=episode.initiated,
+            interaction=Interaction(episode.interaction_class),
+            success=episode.success,
+            queries=episode.queries,
+            reward=episode.total_reward,
+        )
 
     def _draw(self, state: int) -> tuple[Decision, int]:
         draw = self.user.draws
@@ -100,24 +111,53 @@ class _Negotiation:
         obs = Observation(self.episode.context, state, self.episode.learner_episode)
         return self.learner.select_action(obs, rng), draw
 
-    def _row(self, drawn: Decision, draw: int, chain: list[dict[str, Any]], *, forced: bool,
-             action: int | None = None) -> DecisionRow:
+    def _row(
+        self,
+        drawn: Decision,
+        draw: int,
+        chain: list[dict[str, Any]],
+        *,
+        forced: bool,
+        action: int | None = None,
+    ) -> DecisionRow:
         row = DecisionRow(
-            id=_new_id("dec_"), episode_id=self.episode.id, position=self._position,
-            state=drawn.state, action=drawn.action if action is None else action,
-            probabilities=[float(p) for p in drawn.probabilities], chain=chain, draw=draw,
-            forced=forced, model_version=self.model_version, decided_at=utcnow(),
+            id=_new_id("dec_"),
+            episode_id=self.episode.id,
+            position=self._position,
+            state=drawn.state,
+            action=drawn.action if action is None else action,
+            probabilities=[float(p) for p in drawn.probabilities],
+            chain=chain,
+            draw=draw,
+            forced=forced,
+            model_version=self.model_version,
+            decided_at=utcnow(),
         )
         self._position += 1
         self.new_rows.append(row)
         return row
 
-    def execute(self, state: int, action: int, reward: float, next_state: int,
-                signal: Polarity = Polarity.NEUTRAL) -> None:
+    def execute(
+        self,
+        state: int,
+        action: int,
+        reward: float,
+        next_state: int,
+        signal: Polarity = Polarity.NEUTRAL,
+    ) -> None:
         """A step was taken: count it in the episode's figures and teach it."""
         self.tally.step(self.space, state, action, reward, next_state, signal)
-        self.transitions.append(Transition(self.episode.learner_episode, self.episode.context,
-                                           state, action, float(reward), next_state, signal))
+        self.transitions.append(
+            Transition(
+                self.episode.learner_episode,
+                self.episode.context,
+                state,
+                action,
+                float(reward),
+                next_state,
+                signal,
+            )
+        )
 
     def decide(self, state: int, *, forced_path: tuple[int, ...] = ()) -> DecisionRow:
         """The next visible decision from ``state``; ``forced_path`` are silent actions the
@@ -127,21 +167,43 @@ class _Negotiation:
         for action in forced_path:
             nxt = int(space.silent_next[action])
             reward = float(space.silent_reward[action])
-            chain.append({"state": state, "action": action, "p": 1.0, "next_state": nxt,
-                          "reward": reward, "forced": True})
+            chain.append(
+                {
+                    "state": state,
+                    "action": action,
+                    "p": 1.0,
+                    "next_state": nxt,
+                    "reward": reward,
+                    "forced": True,
+                }
+            )
             self.execute(state, action, reward, nxt)
             state = nxt
         drawn, draw = self._draw(state)
         for step in drawn.chain:
             p = float(step.probabilities[step.action - space.actions_of(step.state).start])
-            chain.append({"state": step.state, "action": step.action, "p": p,
-                          "next_state": step.next_state, "reward": step.reward})
+            chain.append(
+                {
+                    "state": step.state,
+                    "action": step.action,
+                    "p": p,
+                    "next_state": step.next_state,
+                    "reward": step.reward,
+                }
+            )
             self.execute(step.state, step.action, step.reward, step.next_state)
         self.episode.state = drawn.state
         return self._row(drawn, draw, chain, forced=False)
 
-    def answer(self, row: DecisionRow, *, response: str,
-               service: str | None, detail: str | None, feedback: str | None) -> float:
+    def answer(
+        self,
+        row: DecisionRow,
+        *,
+        response: str,
+        service: str | None,
+        detail: str | None,
+        feedback: str | None,
+    ) -> float:
         """The person's response to ``row``: the step's reward (explicit feedback included),
         stored on the row, counted and taught; the episode moves to the next state."""
         space = self.space
@@ -162,12 +224,10 @@ class _Negotiation:
         space = self.space
         drawn, draw = self._draw(space.OBSERVE)
         row = self._row(drawn, draw, [], forced=True, action=space.PASS)
-        self.answer(row, response="human_request", service=service, detail=detail,
-                    feedback=None)
+        self.answer(row, response="human_request", service=service, detail=detail, feedback=None)
         return row
 
-    def after_request(self, state: int, service: str | None, detail: str | None
-                      ) -> DecisionRow:
+    def after_request(self, state: int, service: str | None, detail: str | None) -> DecisionRow:
         """Continue after a person's request: respond, and infer the detail if they gave it."""
         space = self.space
         if service is None:
@@ -189,12 +249,19 @@ def _store(session: Session, ctx: ServiceContext, step: _Negotiation, model: Mod
     transitions (journal, version, snapshot when due)."""
     episodes_repo.insert_decisions(session, step.new_rows)
     users_repo.save_counters(session, step.user)
-    save_learner(session, ctx, step.user.id, model, step.learner,
-                 transition_samples(step.user.id, step.transitions, model.mission_version))
+    save_learner(
+        session,
+        ctx,
+        step.user.id,
+        model,
+        step.learner,
+        transition_samples(step.user.id, step.transitions, model.mission_version),
+    )
 
 
-def _lock_or_create(session: Session, ctx: ServiceContext, principal: Principal,
-                    user_id: str, fleet: str | None) -> UserRow:
+def _lock_or_create(
+    session: Session, ctx: ServiceContext, principal: Principal, user_id: str, fleet: str | None
+) -> UserRow:
     """Lock the user of the caller's fleet (an admin's: of ``fleet``), creating it on its
     first event."""
     in_fleet = fleet_of(principal, fleet, user_id)
@@ -209,8 +276,9 @@ def _lock_or_create(session: Session, ctx: ServiceContext, principal: Principal,
     return user
 
 
-def _locked_owner(session: Session, principal: Principal, episode_id: str
-                  ) -> tuple[UserRow, EpisodeRow, ModelRow, DecisionRow | None]:
+def _locked_owner(
+    session: Session, principal: Principal, episode_id: str
+) -> tuple[UserRow, EpisodeRow, ModelRow, DecisionRow | None]:
     """Lock the user of an episode and load the episode, its user's model head and its current
     decision; another fleet's episode is answered as one that does not exist."""
     user = users_repo.lock_owner(session, episode_id)
@@ -220,8 +288,14 @@ def _locked_owner(session: Session, principal: Principal, episode_id: str
     return (user, *loaded)
 
 
-def _carried(session: Session, ctx: ServiceContext, fleet: str, episode: EpisodeRow,
-             target: DecisionRow, layout: int) -> tuple[int, int, int] | None:
+def _carried(
+    session: Session,
+    ctx: ServiceContext,
+    fleet: str,
+    episode: EpisodeRow,
+    target: DecisionRow,
+    layout: int,
+) -> tuple[int, int, int] | None:
     """(context, state, action) of an answered step in the model's layout (the episode may be
     of an older mission version); ``None`` if the step no longer exists."""
     context, state, action = episode.context, target.state, target.action
@@ -234,8 +308,13 @@ def _carried(session: Session, ctx: ServiceContext, fleet: str, episode: Episode
 
 
 def start_episode(
-    session: Session, ctx: ServiceContext, principal: Principal, user_id: str, body: EpisodeIn,
-    *, fleet: str | None = None,
+    session: Session,
+    ctx: ServiceContext,
+    principal: Principal,
+    user_id: str,
+    body: EpisodeIn,
+    *,
+    fleet: str | None = None,
 ) -> Written:
     """An event near a user: open an episode and decide the robot's first action."""
     digest = body_hash(body)
@@ -259,16 +338,32 @@ def start_episode(
     user.episode_count += 1
     request = body.request
     episode = EpisodeRow(
-        id=_new_id("ep_"), user_pk=user.id, seq=user.episode_count,
-        learner_episode=user.episode_count + model.episode_offset, event_id=body.event_id,
-        robot_id=body.robot_id, occurred_at=body.occurred_at.astimezone(dt.UTC),
-        time_slot=slot, situation=body.situation, context=context, initiator=body.initiator,
+        id=_new_id("ep_"),
+        user_pk=user.id,
+        seq=user.episode_count,
+        learner_episode=user.episode_count + model.episode_offset,
+        event_id=body.event_id,
+        robot_id=body.robot_id,
+        occurred_at=body.occurred_at.astimezone(dt.UTC),
+        time_slot=slot,
+        situation=body.situation,
+        context=context,
+        initiator=body.initiator,
         request_service=request.service if request else None,
         request_detail=request.detail if request else None,
-        status="open", state=space.OBSERVE, total_reward=0.0,
-        interaction_class=Interaction.NONE.value, initiated=False, success=False, queries=0,
-        request_hash=digest, response={}, created_at=utcnow(), closed_at=None,
-        mission_version=model.mission_version, utc_offset=_offset_minutes(body.occurred_at),
+        status="open",
+        state=space.OBSERVE,
+        total_reward=0.0,
+        interaction_class=Interaction.NONE.value,
+        initiated=False,
+        success=False,
+        queries=0,
+        request_hash=digest,
+        response={},
+        created_at=utcnow(),
+        closed_at=None,
+        mission_version=model.mission_version,
+        utc_offset=_offset_minutes(body.occurred_at),
     )
     step = _Negotiation(ctx, space, user, episode, learner, model.version, position=0)
     if body.initiator == "human":
@@ -280,10 +375,14 @@ def start_episode(
         decision = step.decide(space.OBSERVE)
     step.finish()
     out = {
-        "episode_id": episode.id, "user_id": user_id, "status": "open",
+        "episode_id": episode.id,
+        "user_id": user_id,
+        "status": "open",
         "context": {"time_slot": slot, "situation": body.situation},
-        "state": state_name(space, episode.state), "total_reward": episode.total_reward,
-        "decision": decision_out(space, decision), "mission_version": model.mission_version,
+        "state": state_name(space, episode.state),
+        "total_reward": episode.total_reward,
+        "decision": decision_out(space, decision),
+        "mission_version": model.mission_version,
     }
     episode.response = out
     with batch(session):  # writes only: one round trip on PostgreSQL
@@ -298,15 +397,20 @@ def report_outcome(
     """What the person did after the robot's action: reward, learning, the next decision."""
     digest = body_hash(body)
     user, episode, model, current = _locked_owner(session, principal, episode_id)
-    row = current if current is not None and current.id == body.decision_id \
+    row = (
+        current
+        if current is not None and current.id == body.decision_id
         else episodes_repo.decision(session, episode_id, body.decision_id)
+    )
     if row is not None and row.outcome_hash is not None:
         if row.outcome_hash != digest:
             raise Conflict(f"Decision {body.decision_id!r} already has a different outcome.")
         return Written(row.outcome_response or {}, 200, True)
     if episode.status == "interrupted":
-        raise Conflict(f"Episode {episode_id!r} was interrupted when its fleet's mission "
-                       "changed; it takes no more outcomes. Start a new episode.")
+        raise Conflict(
+            f"Episode {episode_id!r} was interrupted when its fleet's mission "
+            "changed; it takes no more outcomes. Start a new episode."
+        )
     if episode.status != "open":
         raise Conflict(f"Episode {episode_id!r} is closed; it takes no more outcomes.")
     if row is None or current is None or row.id != current.id:
@@ -318,12 +422,17 @@ def report_outcome(
     space = ctx.missions.get(session, user.fleet, episode.mission_version).space
     validate.check_outcome(space, row.action, body)
     learner = load_learner(session, ctx, user.fleet, user.id, model, for_write=True)
-    step = _Negotiation(ctx, space, user, episode, learner, model.version,
-                        position=row.position + 1)
+    step = _Negotiation(
+        ctx, space, user, episode, learner, model.version, position=row.position + 1
+    )
     named = body.response in ("human_request", "answered")
-    reward = step.answer(row, response=body.response,
-                         service=body.service if named else row.service,
-                         detail=body.detail if named else row.detail, feedback=body.feedback)
+    reward = step.answer(
+        row,
+        response=body.response,
+        service=body.service if named else row.service,
+        detail=body.detail if named else row.detail,
+        feedback=body.feedback,
+    )
     # The next decision is drawn before the learner is taught this outcome, so that the write
     # makes one ``update`` call (one version). In a context the negotiation is a DAG: learning
     # about the step just answered cannot change the values of the states after it.
@@ -335,8 +444,11 @@ def report_outcome(
         else:
             decision = step.decide(next_state)
     step.finish()
-    out = {"reward": reward, "episode": brief(space, episode),
-           "decision": decision_out(space, decision) if decision is not None else None}
+    out = {
+        "reward": reward,
+        "episode": brief(space, episode),
+        "decision": decision_out(space, decision) if decision is not None else None,
+    }
     row.outcome_hash, row.outcome_response = digest, out
     with batch(session):  # writes only: one round trip on PostgreSQL
         episodes_repo.save_answer(session, row)
@@ -355,14 +467,16 @@ def add_feedback(
     earlier = episodes_repo.feedback(session, episode_id, body.feedback_id)
     if earlier is not None:
         if earlier.request_hash != digest:
-            raise Conflict(f"feedback_id {body.feedback_id!r} was already used with another "
-                           "body.")
+            raise Conflict(f"feedback_id {body.feedback_id!r} was already used with another body.")
         return Written(earlier.response, 200, True)
-    answered = [d for d in episodes_repo.decisions(session, episode_id)
-                if d.answered_at is not None]
+    answered = [
+        d for d in episodes_repo.decisions(session, episode_id) if d.answered_at is not None
+    ]
     if not answered:
-        raise Conflict(f"Episode {episode_id!r} has no answered step yet; give feedback with "
-                       "the outcome (its feedback field) or after it.")
+        raise Conflict(
+            f"Episode {episode_id!r} has no answered step yet; give feedback with "
+            "the outcome (its feedback field) or after it."
+        )
     target = answered[-1]
     layout = ctx.missions.get(session, user.fleet, model.mission_version)
     reward = feedback_reward(layout.mission.rewards, body.feedback)
@@ -370,12 +484,27 @@ def add_feedback(
     # after a mission change, if the step still exists (carried to the model's layout).
     place = _carried(session, ctx, user.fleet, episode, target, model.mission_version)
     if place is not None and models_repo.has_transition(
-            session, user.id, episode=episode.learner_episode, action=target.action,
-            after_version=model.base_version):
+        session,
+        user.id,
+        episode=episode.learner_episode,
+        action=target.action,
+        after_version=model.base_version,
+    ):
         learner = load_learner(session, ctx, user.fleet, user.id, model, for_write=True)
         context, state, action = place
-        sample = SampleRow(user.id, 0, "feedback", episode.learner_episode, context, state,
-                           action, reward, None, 0, model.mission_version)
+        sample = SampleRow(
+            user.id,
+            0,
+            "feedback",
+            episode.learner_episode,
+            context,
+            state,
+            action,
+            reward,
+            None,
+            0,
+            model.mission_version,
+        )
         try:
             save_learner(session, ctx, user.id, model, learner, [sample])
         except ValueError:  # the learner no longer holds the sample: history keeps it
@@ -384,7 +513,16 @@ def add_feedback(
     space = ctx.missions.get(session, user.fleet, episode.mission_version).space
     out = {"reward": reward, "episode": brief(space, episode)}
     episodes_repo.save_episode(session, episode)
-    episodes_repo.add_feedback(session, FeedbackRow(
-        episode_id=episode_id, feedback_id=body.feedback_id, feedback=body.feedback,
-        reward=reward, received_at=utcnow(), request_hash=digest, response=out))
+    episodes_repo.add_feedback(
+        session,
+        FeedbackRow(
+            episode_id=episode_id,
+            feedback_id=body.feedback_id,
+            feedback=body.feedback,
+            reward=reward,
+            received_at=utcnow(),
+            request_hash=digest,
+            response=out,
+        ),
+    )
     return Written(out, 200, False)

@@ -18,9 +18,13 @@ Failure = int | httpx.TransportError | tuple[int, dict[str, str]]
 
 
 def decision(decision_id: str, kind: str = "initiate") -> dict[str, Any]:
-    return {"decision_id": decision_id, "action": {"kind": kind},
-            "expects": ["accepted", "rejected", "terminated"],
-            "probabilities": [{"action": {"kind": kind}, "p": 1.0}], "chain": []}
+    return {
+        "decision_id": decision_id,
+        "action": {"kind": kind},
+        "expects": ["accepted", "rejected", "terminated"],
+        "probabilities": [{"action": {"kind": kind}, "p": 1.0}],
+        "chain": [],
+    }
 
 
 class FakeService:
@@ -59,18 +63,26 @@ class FakeService:
             if isinstance(step, httpx.TransportError):
                 raise step
             status, headers = step if isinstance(step, tuple) else (step, {})
-            return httpx.Response(status, headers=headers,
-                                  json={"error": "Scripted", "detail": f"scripted {status}"})
+            return httpx.Response(
+                status, headers=headers, json={"error": "Scripted", "detail": f"scripted {status}"}
+            )
         parts = request.url.path.strip("/").split("/")
         if request.method == "POST" and parts[:2] == ["v1", "episodes"] and len(parts) == 4:
             return self._report(request, parts[2], parts[3])
         if request.method == "GET" and request.url.path == "/healthz":
             return httpx.Response(200, json={"status": "ok"})
         if request.method == "GET" and parts[:2] == ["v1", "users"] and len(parts) == 3:
-            return httpx.Response(200, json={
-                "user_id": parts[2], "fleet": "default", "display_name": None,
-                "learner": {"algorithm": "hri", "params": {}},
-                "created_at": "2026-11-22T03:50:31.603058Z", "episodes": 0})
+            return httpx.Response(
+                200,
+                json={
+                    "user_id": parts[2],
+                    "fleet": "default",
+                    "display_name": None,
+                    "learner": {"algorithm": "hri", "params": {}},
+                    "created_at": "2026-11-22T03:50:31.603058Z",
+                    "episodes": 0,
+                },
+            )
         return httpx.Response(404, json={"error": "NotFound", "detail": "No such endpoint."})
 
     def _report(self, request: httpx.Request, episode_id: str, what: str) -> httpx.Response:
@@ -82,17 +94,27 @@ class FakeService:
             return httpx.Response(status, json={"error": "Refused", "detail": f"{key} refused"})
         earlier = self._answers.get((kind, key))
         if earlier is None and kind == "outcome" and episode_id in self.interrupted:
-            return httpx.Response(409, json={
-                "error": "Conflict", "detail": f"Episode {episode_id!r} was interrupted when "
-                "its fleet's mission changed; it takes no more outcomes. Start a new episode."})
+            return httpx.Response(
+                409,
+                json={
+                    "error": "Conflict",
+                    "detail": f"Episode {episode_id!r} was interrupted when "
+                    "its fleet's mission changed; it takes no more outcomes. Start a new episode.",
+                },
+            )
         if earlier is not None:
             if earlier[0] != request.content:
-                return httpx.Response(409, json={"error": "Conflict",
-                                                 "detail": f"{key} reused with another body"})
+                return httpx.Response(
+                    409, json={"error": "Conflict", "detail": f"{key} reused with another body"}
+                )
             return httpx.Response(200, json=earlier[1], headers={"Idempotent-Replay": "true"})
         self.applied.append((kind, key))
-        episode = {"episode_id": episode_id, "status": "open", "state": "ENGAGED",
-                   "total_reward": float(len(self.applied))}
+        episode = {
+            "episode_id": episode_id,
+            "status": "open",
+            "state": "ENGAGED",
+            "total_reward": float(len(self.applied)),
+        }
         answer: dict[str, Any] = {"reward": 1.0, "episode": episode}
         if kind == "outcome":
             answer["decision"] = decision(f"next-{key}", "query_type")

@@ -35,8 +35,9 @@ def make_client(service: FakeService, sleeps: list[float]) -> Iterator[MakeClien
     """``make_client(handler=None, **kwargs)``: a ``Client`` on a ``MockTransport``."""
     made: list[Client] = []
 
-    def make(handler: Callable[[httpx.Request], httpx.Response] | None = None,
-             **kwargs: Any) -> Client:
+    def make(
+        handler: Callable[[httpx.Request], httpx.Response] | None = None, **kwargs: Any
+    ) -> Client:
         transport = httpx.MockTransport(handler or service.handler)
         client = Client(BASE_URL, KEY, transport=transport, **kwargs)
         client._sleep = sleeps.append
@@ -49,14 +50,16 @@ def make_client(service: FakeService, sleeps: list[float]) -> Iterator[MakeClien
 
 
 @pytest.fixture
-async def make_async_client(service: FakeService,
-                            sleeps: list[float]) -> AsyncIterator[MakeAsyncClient]:
+async def make_async_client(
+    service: FakeService, sleeps: list[float]
+) -> AsyncIterator[MakeAsyncClient]:
     """``make_async_client(handler=None, **kwargs)``: an ``AsyncClient`` on a
     ``MockTransport``."""
     made: list[AsyncClient] = []
 
-    def make(handler: Callable[[httpx.Request], httpx.Response] | None = None,
-             **kwargs: Any) -> AsyncClient:
+    def make(
+        handler: Callable[[httpx.Request], httpx.Response] | None = None, **kwargs: Any
+    ) -> AsyncClient:
         transport = httpx.MockTransport(handler or service.handler)
         client = AsyncClient(BASE_URL, KEY, transport=transport, **kwargs)
 

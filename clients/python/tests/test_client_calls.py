@@ -13,78 +13,202 @@ import pydantic
 import pytest
 from attune_client_fakes import KEY, MakeAsyncClient, MakeClient, decision
 
-USER = {"user_id": "lin", "fleet": "default", "display_name": "Mrs. Lin",
-        "learner": {"algorithm": "hri", "params": {"tau": 0.01}},
-        "created_at": "2026-11-22T03:50:31.603058Z", "episodes": 2}
-STARTED = {"episode_id": "ep_1", "user_id": "lin", "status": "open",
-           "context": {"time_slot": "afternoon", "situation": "stretching"},
-           "state": "OBSERVE", "total_reward": 0.0, "decision": decision("dec_1")}
-SUMMARY = {"episode_id": "ep_1", "user_id": "lin", "event_id": "e1", "robot_id": None,
-           "status": "closed", "context": {"time_slot": "afternoon", "situation": "stretching"},
-           "initiator": "robot", "interaction_class": "I2", "total_reward": 6.0,
-           "state": "END", "occurred_at": "2026-11-22T07:10:00Z", "index": 1}
-TRACE = {**SUMMARY, "decisions": [{
-    "decision_id": "dec_1", "state": "OBSERVE", "action": {"kind": "initiate"},
-    "probabilities": [{"action": {"kind": "initiate"}, "p": 0.5},
-                      {"action": {"kind": "pass"}, "p": 0.5}],
-    "chain": [], "response": "accepted", "service": None, "detail": None, "feedback": None,
-    "reward": 1.0, "decided_at": "2026-11-22T03:50:31.634953Z",
-    "answered_at": "2026-11-22T03:50:32.1Z"}],
-    "feedback": [{"feedback_id": "fb1", "feedback": "positive", "reward": 1.0,
-                  "received_at": "2026-11-22T03:50:33Z"}]}
-MODEL = {"user_id": "lin", "algorithm": "qlearning", "params": {"alpha": 0.1}, "version": 3,
-         "episodes": 1, "contexts": [{"time_slot": "afternoon", "situation": "stretching",
-                                      "states": [{"state": "OBSERVE", "service": None,
-                                                  "detail": None, "actions": [{
-                                                      "action": {"kind": "initiate"}, "q": 3.1,
-                                                      "visits": 12, "kept_visits": None,
-                                                      "since_last": 2, "measure": None,
-                                                      "p": 0.83}]}]}]}
-STATS = {"episodes": 0, "missions": 0, "interaction_rate": None, "success_rate": None,
-         "queries_per_mission": None, "total_reward": 0.0, "cumulative_reward": [0.0]}
-MISSION = {"name": "office", "situations": ["arriving", "working", "stretching", "busy"],
-           "time_slots": [{"name": "morning", "start": "06:00", "end": "11:00"}],
-           "services": [{"name": "ProvideDrink", "details": ["tea", "coffee", "water"]}],
-           "rewards": {"positive": 1.0, "accepted_service": 5.0, "negative": -2.0,
-                       "query": -0.5}, "unavailable_situations": ["busy"], "gamma": 0.9}
-FLEET_MISSION = {**MISSION, "fleet": "care", "version": 3,
-                 "fingerprint": "sha256:0123456789abcdef0123456789abcdef"}
-CHANGED = {"fleet": "care", "version": 3, "previous_version": 2,
-           "fingerprint": "sha256:0123456789abcdef0123456789abcdef", "changed": True,
-           "users_moved": 4, "episodes_interrupted": 1,
-           "diff": {"kept": {"situations": ["arriving"]}, "added": {}, "removed": {},
-                    "renamed": {}}}
+USER = {
+    "user_id": "lin",
+    "fleet": "default",
+    "display_name": "Mrs. Lin",
+    "learner": {"algorithm": "hri", "params": {"tau": 0.01}},
+    "created_at": "2026-11-22T03:50:31.603058Z",
+    "episodes": 2,
+}
+STARTED = {
+    "episode_id": "ep_1",
+    "user_id": "lin",
+    "status": "open",
+    "context": {"time_slot": "afternoon", "situation": "stretching"},
+    "state": "OBSERVE",
+    "total_reward": 0.0,
+    "decision": decision("dec_1"),
+}
+SUMMARY = {
+    "episode_id": "ep_1",
+    "user_id": "lin",
+    "event_id": "e1",
+    "robot_id": None,
+    "status": "closed",
+    "context": {"time_slot": "afternoon", "situation": "stretching"},
+    "initiator": "robot",
+    "interaction_class": "I2",
+    "total_reward": 6.0,
+    "state": "END",
+    "occurred_at": "2026-11-22T07:10:00Z",
+    "index": 1,
+}
+TRACE = {
+    **SUMMARY,
+    "decisions": [
+        {
+            "decision_id": "dec_1",
+            "state": "OBSERVE",
+            "action": {"kind": "initiate"},
+            "probabilities": [
+                {"action": {"kind": "initiate"}, "p": 0.5},
+                {"action": {"kind": "pass"}, "p": 0.5},
+            ],
+            "chain": [],
+            "response": "accepted",
+            "service": None,
+            "detail": None,
+            "feedback": None,
+            "reward": 1.0,
+            "decided_at": "2026-11-22T03:50:31.634953Z",
+            "answered_at": "2026-11-22T03:50:32.1Z",
+        }
+    ],
+    "feedback": [
+        {
+            "feedback_id": "fb1",
+            "feedback": "positive",
+            "reward": 1.0,
+            "received_at": "2026-11-22T03:50:33Z",
+        }
+    ],
+}
+MODEL = {
+    "user_id": "lin",
+    "algorithm": "qlearning",
+    "params": {"alpha": 0.1},
+    "version": 3,
+    "episodes": 1,
+    "contexts": [
+        {
+            "time_slot": "afternoon",
+            "situation": "stretching",
+            "states": [
+                {
+                    "state": "OBSERVE",
+                    "service": None,
+                    "detail": None,
+                    "actions": [
+                        {
+                            "action": {"kind": "initiate"},
+                            "q": 3.1,
+                            "visits": 12,
+                            "kept_visits": None,
+                            "since_last": 2,
+                            "measure": None,
+                            "p": 0.83,
+                        }
+                    ],
+                }
+            ],
+        }
+    ],
+}
+STATS = {
+    "episodes": 0,
+    "missions": 0,
+    "interaction_rate": None,
+    "success_rate": None,
+    "queries_per_mission": None,
+    "total_reward": 0.0,
+    "cumulative_reward": [0.0],
+}
+MISSION = {
+    "name": "office",
+    "situations": ["arriving", "working", "stretching", "busy"],
+    "time_slots": [{"name": "morning", "start": "06:00", "end": "11:00"}],
+    "services": [{"name": "ProvideDrink", "details": ["tea", "coffee", "water"]}],
+    "rewards": {"positive": 1.0, "accepted_service": 5.0, "negative": -2.0, "query": -0.5},
+    "unavailable_situations": ["busy"],
+    "gamma": 0.9,
+}
+FLEET_MISSION = {
+    **MISSION,
+    "fleet": "care",
+    "version": 3,
+    "fingerprint": "sha256:0123456789abcdef0123456789abcdef",
+}
+CHANGED = {
+    "fleet": "care",
+    "version": 3,
+    "previous_version": 2,
+    "fingerprint": "sha256:0123456789abcdef0123456789abcdef",
+    "changed": True,
+    "users_moved": 4,
+    "episodes_interrupted": 1,
+    "diff": {"kept": {"situations": ["arriving"]}, "added": {}, "removed": {}, "renamed": {}},
+}
 
-CORRECTION = {"correction_id": "c-1", "kind": "prefers", "time_slot": "morning",
-              "situation": "arriving", "service": "ProvideDrink", "detail": "coffee",
-              "note": "Her daughter says so.", "author": "key_5aed0c02dbc8f75a",
-              "created_at": "2026-11-30T09:12:03Z", "status": "in_force",
-              "overridden_at": None, "lifted_at": None, "lifted_by": None,
-              "model_version": 42}
-PROFILE = {"user_id": "chen", "display_name": "Mrs. Chen", "episodes": 16, "open_episodes": 1,
-           "utc_offset": 480, "contexts": [{
-               "time_slot": "afternoon", "situation": "stretching", "episodes": 9,
-               "open_episodes": 1, "wants": {"service": "ProvideDrink", "detail": "tea"},
-               "certainty": "confident", "source": "person",
-               "evidence": {"accepted": 7, "refused": 1, "asked_for": 1, "answered": 0,
-                            "last_seen": "2026-11-22T15:10:00+08:00", "support": 7,
-                            "recent": 8},
-               "robot_will": {"action": "offer", "service": "ProvideDrink", "detail": "tea",
-                              "asks_first": False, "probability": 0.97},
-               "summary": "In the afternoon, while stretching, Mrs. Chen usually wants tea.",
-               "changed": {"at": "2026-11-21T15:10:00+08:00", "episode": 7,
-                           "before": {"service": "ProvideDrink", "detail": "coffee"},
-                           "now": {"service": "ProvideDrink", "detail": "tea"},
-                           "by": "person", "overrides": None},
-               "corrections": []}],
-           "corrections": [CORRECTION]}
+CORRECTION = {
+    "correction_id": "c-1",
+    "kind": "prefers",
+    "time_slot": "morning",
+    "situation": "arriving",
+    "service": "ProvideDrink",
+    "detail": "coffee",
+    "note": "Her daughter says so.",
+    "author": "key_5aed0c02dbc8f75a",
+    "created_at": "2026-11-30T09:12:03Z",
+    "status": "in_force",
+    "overridden_at": None,
+    "lifted_at": None,
+    "lifted_by": None,
+    "model_version": 42,
+}
+PROFILE = {
+    "user_id": "chen",
+    "display_name": "Mrs. Chen",
+    "episodes": 16,
+    "open_episodes": 1,
+    "utc_offset": 480,
+    "contexts": [
+        {
+            "time_slot": "afternoon",
+            "situation": "stretching",
+            "episodes": 9,
+            "open_episodes": 1,
+            "wants": {"service": "ProvideDrink", "detail": "tea"},
+            "certainty": "confident",
+            "source": "person",
+            "evidence": {
+                "accepted": 7,
+                "refused": 1,
+                "asked_for": 1,
+                "answered": 0,
+                "last_seen": "2026-11-22T15:10:00+08:00",
+                "support": 7,
+                "recent": 8,
+            },
+            "robot_will": {
+                "action": "offer",
+                "service": "ProvideDrink",
+                "detail": "tea",
+                "asks_first": False,
+                "probability": 0.97,
+            },
+            "summary": "In the afternoon, while stretching, Mrs. Chen usually wants tea.",
+            "changed": {
+                "at": "2026-11-21T15:10:00+08:00",
+                "episode": 7,
+                "before": {"service": "ProvideDrink", "detail": "coffee"},
+                "now": {"service": "ProvideDrink", "detail": "tea"},
+                "by": "person",
+                "overrides": None,
+            },
+            "corrections": [],
+        }
+    ],
+    "corrections": [CORRECTION],
+}
 
 
 class Recorder:
     """Answers ``(status, body, headers)`` for every request and keeps the requests."""
 
-    def __init__(self, status: int = 200, body: Any = None,
-                 headers: dict[str, str] | None = None) -> None:
+    def __init__(
+        self, status: int = 200, body: Any = None, headers: dict[str, str] | None = None
+    ) -> None:
         self.status, self.body, self.headers = status, body, headers or {}
         self.requests: list[httpx.Request] = []
 
@@ -127,14 +251,19 @@ class TestRequests:
 
     def test_put_user(self, make_client: MakeClient) -> None:
         rec = Recorder(201, USER)
-        user = make_client(rec).put_user("lin", display_name="Mrs. Lin",
-                                         learner={"algorithm": "hri", "params": {"tau": 0.01}},
-                                         reset_model=True)
+        user = make_client(rec).put_user(
+            "lin",
+            display_name="Mrs. Lin",
+            learner={"algorithm": "hri", "params": {"tau": 0.01}},
+            reset_model=True,
+        )
         assert rec.last.method == "PUT"
         assert rec.last.url.path == "/v1/users/lin"
         assert rec.last.url.params["reset_model"] == "true"
-        assert rec.sent() == {"display_name": "Mrs. Lin",
-                              "learner": {"algorithm": "hri", "params": {"tau": 0.01}}}
+        assert rec.sent() == {
+            "display_name": "Mrs. Lin",
+            "learner": {"algorithm": "hri", "params": {"tau": 0.01}},
+        }
         assert user.learner == a.LearnerSpec(algorithm="hri", params={"tau": 0.01})
         assert user.created_at == dt.datetime(2026, 11, 22, 3, 50, 31, 603058, tzinfo=dt.UTC)
 
@@ -153,8 +282,10 @@ class TestRequests:
         assert rec.last.url.raw_path == b"/v1/users/%2E%2E"
 
     def test_list_and_iterate_users(self, make_client: MakeClient) -> None:
-        pages = {None: {"items": [USER], "next_cursor": "lin"},
-                 "lin": {"items": [{**USER, "user_id": "mo"}], "next_cursor": None}}
+        pages = {
+            None: {"items": [USER], "next_cursor": "lin"},
+            "lin": {"items": [{**USER, "user_id": "mo"}], "next_cursor": None},
+        }
         seen: list[httpx.Request] = []
 
         def handler(request: httpx.Request) -> httpx.Response:
@@ -172,28 +303,41 @@ class TestRequests:
         rec = Recorder(201, STARTED)
         when = dt.datetime(2026, 11, 22, 15, 10, tzinfo=dt.timezone(dt.timedelta(hours=8)))
         started = make_client(rec).start_episode(
-            "lin", event_id="robot7-000123", occurred_at=when, situation="stretching",
-            initiator="human", request=a.ServiceRequest(service="ProvideDrink", detail="tea"),
-            robot_id="robot7")
+            "lin",
+            event_id="robot7-000123",
+            occurred_at=when,
+            situation="stretching",
+            initiator="human",
+            request=a.ServiceRequest(service="ProvideDrink", detail="tea"),
+            robot_id="robot7",
+        )
         assert rec.last.method == "POST"
         assert rec.last.url.path == "/v1/users/lin/episodes"
         assert rec.last.headers["Content-Type"] == "application/json"
-        assert rec.sent() == {"event_id": "robot7-000123",
-                              "occurred_at": "2026-11-22T15:10:00+08:00",
-                              "situation": "stretching", "initiator": "human",
-                              "request": {"service": "ProvideDrink", "detail": "tea"},
-                              "robot_id": "robot7"}
+        assert rec.sent() == {
+            "event_id": "robot7-000123",
+            "occurred_at": "2026-11-22T15:10:00+08:00",
+            "situation": "stretching",
+            "initiator": "human",
+            "request": {"service": "ProvideDrink", "detail": "tea"},
+            "robot_id": "robot7",
+        }
         assert not started.replayed
         assert started.decision is not None
         assert started.decision.action.kind == "initiate"
         assert started.context.time_slot == "afternoon"
 
     def test_start_episode_takes_text_times_and_mapping_requests(
-            self, make_client: MakeClient) -> None:
+        self, make_client: MakeClient
+    ) -> None:
         rec = Recorder(201, STARTED)
-        make_client(rec).start_episode("lin", event_id="e", situation="busy",
-                                       occurred_at="2026-11-22T15:10:00+08:00",
-                                       request={"service": "ProvideDrink"})
+        make_client(rec).start_episode(
+            "lin",
+            event_id="e",
+            situation="busy",
+            occurred_at="2026-11-22T15:10:00+08:00",
+            request={"service": "ProvideDrink"},
+        )
         sent = rec.sent()
         assert sent["occurred_at"] == "2026-11-22T15:10:00+08:00"
         assert sent["request"] == {"service": "ProvideDrink", "detail": None}
@@ -203,34 +347,54 @@ class TestRequests:
     def test_a_naive_time_is_refused_before_sending(self, make_client: MakeClient) -> None:
         rec = Recorder(201, STARTED)
         with pytest.raises(ValueError, match="time zone"):
-            make_client(rec).start_episode("lin", event_id="e", situation="busy",
-                                           occurred_at=dt.datetime(2026, 11, 22, 15, 10))
+            make_client(rec).start_episode(
+                "lin", event_id="e", situation="busy", occurred_at=dt.datetime(2026, 11, 22, 15, 10)
+            )
         assert rec.requests == []
 
     def test_a_replay_says_so(self, make_client: MakeClient) -> None:
         rec = Recorder(200, STARTED, {"Idempotent-Replay": "true"})
-        started = make_client(rec).start_episode("lin", event_id="e", situation="busy",
-                                                 occurred_at="2026-11-22T15:10:00+08:00")
+        started = make_client(rec).start_episode(
+            "lin", event_id="e", situation="busy", occurred_at="2026-11-22T15:10:00+08:00"
+        )
         assert started.replayed
 
     def test_report_outcome(self, make_client: MakeClient) -> None:
-        answer = {"reward": -0.5, "episode": {"episode_id": "ep_1", "status": "closed",
-                                              "state": "END", "total_reward": 0.5},
-                  "decision": None}
+        answer = {
+            "reward": -0.5,
+            "episode": {
+                "episode_id": "ep_1",
+                "status": "closed",
+                "state": "END",
+                "total_reward": 0.5,
+            },
+            "decision": None,
+        }
         rec = Recorder(200, answer)
-        result = make_client(rec).report_outcome("ep_1", decision_id="dec_1",
-                                                 response="answered", service="ProvideDrink")
+        result = make_client(rec).report_outcome(
+            "ep_1", decision_id="dec_1", response="answered", service="ProvideDrink"
+        )
         assert rec.last.url.path == "/v1/episodes/ep_1/outcomes"
-        assert rec.sent() == {"decision_id": "dec_1", "response": "answered",
-                              "service": "ProvideDrink"}
+        assert rec.sent() == {
+            "decision_id": "dec_1",
+            "response": "answered",
+            "service": "ProvideDrink",
+        }
         assert isinstance(result, a.OutcomeResult)
         assert result.decision is None
         assert result.episode.status == "closed"
         assert not result.replayed
 
     def test_send_feedback(self, make_client: MakeClient) -> None:
-        answer = {"reward": 1.0, "episode": {"episode_id": "ep_1", "status": "closed",
-                                             "state": "END", "total_reward": 7.0}}
+        answer = {
+            "reward": 1.0,
+            "episode": {
+                "episode_id": "ep_1",
+                "status": "closed",
+                "state": "END",
+                "total_reward": 7.0,
+            },
+        }
         rec = Recorder(200, answer, {"Idempotent-Replay": "true"})
         result = make_client(rec).send_feedback("ep_1", feedback_id="fb1", feedback="positive")
         assert rec.last.url.path == "/v1/episodes/ep_1/feedback"
@@ -313,20 +477,46 @@ class TestMissions:
         assert isinstance(mission, a.FleetMission)
         assert isinstance(mission, a.Mission)  # what mission() returned before
         assert (mission.fleet, mission.version, mission.fingerprint) == (
-            "care", 3, "sha256:0123456789abcdef0123456789abcdef")
+            "care",
+            3,
+            "sha256:0123456789abcdef0123456789abcdef",
+        )
         assert mission.document() == MISSION  # the mission alone, as set_mission takes it
         client.mission(fleet="care")
         assert rec.last.url.params["fleet"] == "care"
 
     def test_missions_lists_the_versions(self, make_client: MakeClient) -> None:
-        rec = Recorder(200, {"fleet": "care", "current_version": 2, "items": [
-            {"version": 2, "name": "office", "fingerprint": "sha256:b",
-             "created_at": "2026-12-01T08:00:00Z", "change_id": "menu-2",
-             "renames": {"details": {"cha": "tea"}}, "set_by": "key_1", "stored": True,
-             "mission": MISSION},
-            {"version": 1, "name": "office", "fingerprint": "sha256:a", "created_at": None,
-             "change_id": None, "renames": None, "set_by": None, "stored": False,
-             "mission": MISSION}]})
+        rec = Recorder(
+            200,
+            {
+                "fleet": "care",
+                "current_version": 2,
+                "items": [
+                    {
+                        "version": 2,
+                        "name": "office",
+                        "fingerprint": "sha256:b",
+                        "created_at": "2026-12-01T08:00:00Z",
+                        "change_id": "menu-2",
+                        "renames": {"details": {"cha": "tea"}},
+                        "set_by": "key_1",
+                        "stored": True,
+                        "mission": MISSION,
+                    },
+                    {
+                        "version": 1,
+                        "name": "office",
+                        "fingerprint": "sha256:a",
+                        "created_at": None,
+                        "change_id": None,
+                        "renames": None,
+                        "set_by": None,
+                        "stored": False,
+                        "mission": MISSION,
+                    },
+                ],
+            },
+        )
         versions = make_client(rec).missions("care")
         assert rec.last.url.path == "/v1/admin/fleets/care/missions"
         assert versions.current_version == 2
@@ -340,11 +530,15 @@ class TestMissions:
     def test_set_mission(self, make_client: MakeClient) -> None:
         rec = Recorder(200, CHANGED)
         client = make_client(rec)
-        changed = client.set_mission("care", MISSION, change_id="menu-3",
-                                     renames={"details": {"cha": "tea"}})
+        changed = client.set_mission(
+            "care", MISSION, change_id="menu-3", renames={"details": {"cha": "tea"}}
+        )
         assert (rec.last.method, rec.last.url.path) == ("PUT", "/v1/admin/fleets/care/mission")
-        assert rec.sent() == {"change_id": "menu-3", "mission": MISSION,
-                              "renames": {"details": {"cha": "tea"}}}
+        assert rec.sent() == {
+            "change_id": "menu-3",
+            "mission": MISSION,
+            "renames": {"details": {"cha": "tea"}},
+        }
         assert changed.changed
         assert (changed.version, changed.previous_version) == (3, 2)
         assert changed.users_moved == 4
@@ -376,11 +570,13 @@ class TestMissions:
         assert renamed == a.mission_change_id(MISSION, {"details": {"cha": "tea"}})
         assert a.mission_change_id(MISSION, {}) == first["change_id"]  # no renames at all
 
-    @pytest.mark.parametrize(("status", "cls"), [(403, a.PermissionDeniedError),
-                                                 (409, a.ConflictError),
-                                                 (422, a.UnprocessableEntityError)])
-    def test_errors(self, make_client: MakeClient, status: int,
-                    cls: type[a.APIStatusError], sleeps: list[float]) -> None:
+    @pytest.mark.parametrize(
+        ("status", "cls"),
+        [(403, a.PermissionDeniedError), (409, a.ConflictError), (422, a.UnprocessableEntityError)],
+    )
+    def test_errors(
+        self, make_client: MakeClient, status: int, cls: type[a.APIStatusError], sleeps: list[float]
+    ) -> None:
         rec = Recorder(status, {"error": "Nope", "detail": "mission: situations: bad."})
         with pytest.raises(cls) as caught:
             make_client(rec).set_mission("care", MISSION)
@@ -388,8 +584,9 @@ class TestMissions:
         assert len(rec.requests) == 1
         assert sleeps == []
 
-    def test_a_change_is_retried_as_the_same_change(self, make_client: MakeClient,
-                                                    sleeps: list[float]) -> None:
+    def test_a_change_is_retried_as_the_same_change(
+        self, make_client: MakeClient, sleeps: list[float]
+    ) -> None:
         rec = Recorder(503, {"error": "ServiceUnavailable", "detail": "busy"})
         answers = iter([503, 200])
 
@@ -431,8 +628,9 @@ class TestMissions:
         assert not client.ready()
         assert len(rec.requests) == 3  # no retries for probes
 
-    def test_health_is_false_when_nothing_answers(self, make_client: MakeClient,
-                                                  sleeps: list[float]) -> None:
+    def test_health_is_false_when_nothing_answers(
+        self, make_client: MakeClient, sleeps: list[float]
+    ) -> None:
         def handler(request: httpx.Request) -> httpx.Response:
             raise httpx.ConnectError("refused", request=request)
 
@@ -453,7 +651,8 @@ class TestCorrections:
         assert cell.wants == a.Wanted(service="ProvideDrink", detail="tea")
         assert cell.certainty == "confident"
         assert cell.evidence.last_seen == dt.datetime(
-            2026, 11, 22, 15, 10, tzinfo=dt.timezone(dt.timedelta(hours=8)))
+            2026, 11, 22, 15, 10, tzinfo=dt.timezone(dt.timedelta(hours=8))
+        )
         assert cell.robot_will.probability == 0.97
         assert cell.changed is not None
         assert cell.changed.before == a.Wanted(service="ProvideDrink", detail="coffee")
@@ -465,38 +664,72 @@ class TestCorrections:
     def test_add_correction(self, make_client: MakeClient) -> None:
         rec = Recorder(201, CORRECTION)
         client = make_client(rec)
-        made = client.add_correction("chen", correction_id="c-1", time_slot="morning",
-                                     situation="arriving", kind="prefers",
-                                     service="ProvideDrink", detail="coffee",
-                                     note="Her daughter says so.")
+        made = client.add_correction(
+            "chen",
+            correction_id="c-1",
+            time_slot="morning",
+            situation="arriving",
+            kind="prefers",
+            service="ProvideDrink",
+            detail="coffee",
+            note="Her daughter says so.",
+        )
         assert (rec.last.method, rec.last.url.path) == ("POST", "/v1/users/chen/corrections")
-        assert rec.sent() == {"correction_id": "c-1", "time_slot": "morning",
-                              "situation": "arriving", "kind": "prefers",
-                              "service": "ProvideDrink", "detail": "coffee",
-                              "note": "Her daughter says so."}
+        assert rec.sent() == {
+            "correction_id": "c-1",
+            "time_slot": "morning",
+            "situation": "arriving",
+            "kind": "prefers",
+            "service": "ProvideDrink",
+            "detail": "coffee",
+            "note": "Her daughter says so.",
+        }
         assert isinstance(made, a.Correction)
         assert (made.status, made.model_version, made.replayed) == ("in_force", 42, False)
         rec.status, rec.headers = 200, {"Idempotent-Replay": "true"}
-        again = client.add_correction("chen", correction_id="c-1", time_slot="morning",
-                                      situation="arriving", kind="prefers",
-                                      service="ProvideDrink", detail="coffee",
-                                      note="Her daughter says so.")
+        again = client.add_correction(
+            "chen",
+            correction_id="c-1",
+            time_slot="morning",
+            situation="arriving",
+            kind="prefers",
+            service="ProvideDrink",
+            detail="coffee",
+            note="Her daughter says so.",
+        )
         assert again.replayed
         assert again.model_dump(exclude={"replayed"}) == made.model_dump(exclude={"replayed"})
 
     def test_a_quiet_correction_sends_no_service(self, make_client: MakeClient) -> None:
-        rec = Recorder(201, {**CORRECTION, "kind": "quiet", "service": None, "detail": None,
-                             "note": None})
-        make_client(rec).add_correction("chen", correction_id="hush", time_slot="morning",
-                                        situation="arriving", kind="quiet")
-        assert rec.sent() == {"correction_id": "hush", "time_slot": "morning",
-                              "situation": "arriving", "kind": "quiet"}
+        rec = Recorder(
+            201, {**CORRECTION, "kind": "quiet", "service": None, "detail": None, "note": None}
+        )
+        make_client(rec).add_correction(
+            "chen", correction_id="hush", time_slot="morning", situation="arriving", kind="quiet"
+        )
+        assert rec.sent() == {
+            "correction_id": "hush",
+            "time_slot": "morning",
+            "situation": "arriving",
+            "kind": "quiet",
+        }
 
     def test_list_and_lift(self, make_client: MakeClient) -> None:
-        rec = Recorder(200, {"items": [CORRECTION, {**CORRECTION, "correction_id": "c/2",
-                                                    "status": "lifted",
-                                                    "lifted_at": "2026-11-30T10:00:00Z",
-                                                    "lifted_by": "key_1"}]})
+        rec = Recorder(
+            200,
+            {
+                "items": [
+                    CORRECTION,
+                    {
+                        **CORRECTION,
+                        "correction_id": "c/2",
+                        "status": "lifted",
+                        "lifted_at": "2026-11-30T10:00:00Z",
+                        "lifted_by": "key_1",
+                    },
+                ]
+            },
+        )
         client = make_client(rec)
         listed = client.list_corrections("chen")
         assert (rec.last.method, rec.last.url.path) == ("GET", "/v1/users/chen/corrections")
@@ -512,9 +745,15 @@ class TestCorrections:
         client = make_async_client(rec)
         assert (await client.get_profile("chen")).episodes == 16
         rec.status, rec.body = 201, CORRECTION
-        made = await client.add_correction("chen", correction_id="c-1", time_slot="morning",
-                                           situation="arriving", kind="prefers",
-                                           service="ProvideDrink", detail="coffee")
+        made = await client.add_correction(
+            "chen",
+            correction_id="c-1",
+            time_slot="morning",
+            situation="arriving",
+            kind="prefers",
+            service="ProvideDrink",
+            detail="coffee",
+        )
         assert made.correction_id == "c-1"
         assert "note" not in rec.sent()
         rec.status, rec.body = 200, {"items": [CORRECTION]}
@@ -538,8 +777,9 @@ class TestModels:
         assert got.action.kind == "dance"
 
     def test_an_interrupted_episode_and_its_mission_version(self) -> None:
-        summary = a.EpisodeSummary.model_validate({**SUMMARY, "status": "interrupted",
-                                                   "mission_version": 2})
+        summary = a.EpisodeSummary.model_validate(
+            {**SUMMARY, "status": "interrupted", "mission_version": 2}
+        )
         assert summary.status == "interrupted"
         assert summary.mission_version == 2
         started = a.EpisodeStarted.model_validate({**STARTED, "mission_version": 1})
@@ -558,8 +798,9 @@ class TestAsyncCalls:
     async def test_the_same_requests(self, make_async_client: MakeAsyncClient) -> None:
         rec = Recorder(201, STARTED)
         client = make_async_client(rec)
-        started = await client.start_episode("lin", event_id="e1", situation="stretching",
-                                             occurred_at="2026-11-22T15:10:00+08:00")
+        started = await client.start_episode(
+            "lin", event_id="e1", situation="stretching", occurred_at="2026-11-22T15:10:00+08:00"
+        )
         assert started.episode_id == "ep_1"
         assert rec.last.url.path == "/v1/users/lin/episodes"
         rec.body = {"items": [SUMMARY], "next_cursor": None}

@@ -24,11 +24,15 @@ STATUS_CLASSES = [
 
 
 @pytest.mark.parametrize(("status", "cls", "name"), STATUS_CLASSES)
-def test_each_status_has_its_class(make_client: MakeClient, status: int,
-                                   cls: type[a.APIStatusError], name: str) -> None:
+def test_each_status_has_its_class(
+    make_client: MakeClient, status: int, cls: type[a.APIStatusError], name: str
+) -> None:
     def handler(request: httpx.Request) -> httpx.Response:
-        return httpx.Response(status, json={"error": name, "detail": f"Because {status}."},
-                              headers={"X-Request-ID": "req-42"})
+        return httpx.Response(
+            status,
+            json={"error": name, "detail": f"Because {status}."},
+            headers={"X-Request-ID": "req-42"},
+        )
 
     client = make_client(handler, max_retries=0)
     with pytest.raises(cls) as caught:
@@ -48,8 +52,9 @@ def test_validation_fields_are_kept(make_client: MakeClient) -> None:
     fields = [{"loc": ["body", "situation"], "msg": "bad", "type": "value_error"}]
 
     def handler(request: httpx.Request) -> httpx.Response:
-        return httpx.Response(422, json={"error": "ValidationFailed",
-                                         "detail": "situation: bad.", "fields": fields})
+        return httpx.Response(
+            422, json={"error": "ValidationFailed", "detail": "situation: bad.", "fields": fields}
+        )
 
     with pytest.raises(a.UnprocessableEntityError) as caught:
         make_client(handler).get_user("lin")
@@ -66,14 +71,19 @@ def test_no_request_id_without_the_header(make_client: MakeClient) -> None:
     assert caught.value.fields is None
 
 
-@pytest.mark.parametrize(("status", "cls"), [(502, a.InternalServerError),
-                                             (404, a.NotFoundError),
-                                             (413, a.PayloadTooLargeError)])
-def test_a_body_that_is_not_json_still_gives_the_class(make_client: MakeClient, status: int,
-                                                       cls: type[a.APIStatusError]) -> None:
+@pytest.mark.parametrize(
+    ("status", "cls"),
+    [(502, a.InternalServerError), (404, a.NotFoundError), (413, a.PayloadTooLargeError)],
+)
+def test_a_body_that_is_not_json_still_gives_the_class(
+    make_client: MakeClient, status: int, cls: type[a.APIStatusError]
+) -> None:
     def handler(request: httpx.Request) -> httpx.Response:
-        return httpx.Response(status, text="<html><body><h1>Bad   gateway</h1></body></html>",
-                              headers={"Content-Type": "text/html"})
+        return httpx.Response(
+            status,
+            text="<html><body><h1>Bad   gateway</h1></body></html>",
+            headers={"Content-Type": "text/html"},
+        )
 
     with pytest.raises(cls) as caught:
         make_client(handler, max_retries=0).get_user("lin")
@@ -108,8 +118,9 @@ def test_json_that_is_not_the_error_shape(make_client: MakeClient) -> None:
 def test_rate_limit_and_unavailable_carry_retry_after(make_client: MakeClient) -> None:
     def handler(request: httpx.Request) -> httpx.Response:
         status = 429 if request.url.path.endswith("a") else 503
-        return httpx.Response(status, headers={"Retry-After": "7"},
-                              json={"error": "Busy", "detail": "Later."})
+        return httpx.Response(
+            status, headers={"Retry-After": "7"}, json={"error": "Busy", "detail": "Later."}
+        )
 
     client = make_client(handler, max_retries=0)
     with pytest.raises(a.RateLimitError) as limited:

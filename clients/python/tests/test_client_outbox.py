@@ -24,8 +24,9 @@ def feedback(client: a.Client, n: int) -> a.FeedbackResult | a.Queued:
 
 
 class TestQueueing:
-    def test_without_an_outbox_failures_raise(self, make_client: MakeClient,
-                                              service: FakeService) -> None:
+    def test_without_an_outbox_failures_raise(
+        self, make_client: MakeClient, service: FakeService
+    ) -> None:
         service.down = True
         client = make_client()
         with pytest.raises(a.APIConnectionError):
@@ -33,9 +34,9 @@ class TestQueueing:
         assert client.pending() == []
         assert client.flush() == a.FlushReport()
 
-    def test_offline_reports_are_queued_in_order(self, make_client: MakeClient,
-                                                 service: FakeService, outbox_path: Path,
-                                                 sleeps: list[float]) -> None:
+    def test_offline_reports_are_queued_in_order(
+        self, make_client: MakeClient, service: FakeService, outbox_path: Path, sleeps: list[float]
+    ) -> None:
         client = make_client(outbox=outbox_path, max_retries=2)
         service.down = True
         first = outcome(client, 1)
@@ -53,28 +54,34 @@ class TestQueueing:
         assert service.applied == []
 
     @pytest.mark.parametrize("status", [408, 429, 500, 502, 503, 504])
-    def test_retryable_statuses_are_queued_too(self, make_client: MakeClient,
-                                               service: FakeService, outbox_path: Path,
-                                               status: int) -> None:
+    def test_retryable_statuses_are_queued_too(
+        self, make_client: MakeClient, service: FakeService, outbox_path: Path, status: int
+    ) -> None:
         service.script = [status] * 4
         result = outcome(make_client(outbox=outbox_path), 1)
         assert isinstance(result, a.Queued)
 
-    @pytest.mark.parametrize(("status", "cls"), [(409, a.ConflictError),
-                                                 (422, a.UnprocessableEntityError),
-                                                 (401, a.AuthenticationError)])
-    def test_a_report_refused_at_once_raises(self, make_client: MakeClient,
-                                             service: FakeService, outbox_path: Path,
-                                             status: int, cls: type[a.APIStatusError]) -> None:
+    @pytest.mark.parametrize(
+        ("status", "cls"),
+        [(409, a.ConflictError), (422, a.UnprocessableEntityError), (401, a.AuthenticationError)],
+    )
+    def test_a_report_refused_at_once_raises(
+        self,
+        make_client: MakeClient,
+        service: FakeService,
+        outbox_path: Path,
+        status: int,
+        cls: type[a.APIStatusError],
+    ) -> None:
         service.refuse["dec_1"] = status
         client = make_client(outbox=outbox_path)
         with pytest.raises(cls):
             outcome(client, 1)
         assert client.pending() == []
 
-    def test_the_same_report_queued_twice_is_one_entry(self, make_client: MakeClient,
-                                                       service: FakeService,
-                                                       outbox_path: Path) -> None:
+    def test_the_same_report_queued_twice_is_one_entry(
+        self, make_client: MakeClient, service: FakeService, outbox_path: Path
+    ) -> None:
         client = make_client(outbox=outbox_path, max_retries=0)
         service.down = True
         outcome(client, 1)
@@ -83,28 +90,35 @@ class TestQueueing:
         assert again == a.Queued(kind="outcome", episode_id="ep_1", key="dec_1", position=1)
         assert len(client.pending()) == 2
 
-    def test_start_episode_is_never_queued(self, make_client: MakeClient,
-                                           service: FakeService, outbox_path: Path) -> None:
+    def test_start_episode_is_never_queued(
+        self, make_client: MakeClient, service: FakeService, outbox_path: Path
+    ) -> None:
         client = make_client(outbox=outbox_path, max_retries=0)
         service.down = True
         with pytest.raises(a.APIConnectionError):
-            client.start_episode("lin", event_id="e1", situation="busy",
-                                 occurred_at="2026-11-22T15:10:00+08:00")
+            client.start_episode(
+                "lin", event_id="e1", situation="busy", occurred_at="2026-11-22T15:10:00+08:00"
+            )
         assert client.pending() == []
 
 
 class TestDelivery:
-    def test_flush_delivers_in_order_with_the_answers(self, make_client: MakeClient,
-                                                      service: FakeService,
-                                                      outbox_path: Path) -> None:
+    def test_flush_delivers_in_order_with_the_answers(
+        self, make_client: MakeClient, service: FakeService, outbox_path: Path
+    ) -> None:
         client = make_client(outbox=outbox_path, max_retries=0)
         service.down = True
         for n in range(1, 6):
             (outcome if n % 2 else feedback)(client, n)
         service.down = False
         report = client.flush()
-        expected = [("outcome", "dec_1"), ("feedback", "fb_2"), ("outcome", "dec_3"),
-                    ("feedback", "fb_4"), ("outcome", "dec_5")]
+        expected = [
+            ("outcome", "dec_1"),
+            ("feedback", "fb_2"),
+            ("outcome", "dec_3"),
+            ("feedback", "fb_4"),
+            ("outcome", "dec_5"),
+        ]
         assert service.applied == expected
         assert [(p.kind, p.key) for p, _ in report.delivered] == expected
         entry, answer = report.delivered[0]
@@ -117,8 +131,9 @@ class TestDelivery:
         assert client.pending() == []
         assert client.flush() == a.FlushReport()
 
-    def test_the_next_call_delivers_first(self, make_client: MakeClient, service: FakeService,
-                                          outbox_path: Path) -> None:
+    def test_the_next_call_delivers_first(
+        self, make_client: MakeClient, service: FakeService, outbox_path: Path
+    ) -> None:
         client = make_client(outbox=outbox_path, max_retries=0)
         service.down = True
         outcome(client, 1)
@@ -127,15 +142,18 @@ class TestDelivery:
         service.requests.clear()
         assert client.get_user("lin").user_id == "lin"
         assert [r.url.path for r in service.requests] == [
-            "/v1/episodes/ep_1/outcomes", "/v1/episodes/ep_0/feedback", "/v1/users/lin"]
+            "/v1/episodes/ep_1/outcomes",
+            "/v1/episodes/ep_0/feedback",
+            "/v1/users/lin",
+        ]
         assert client.pending() == []
         # what was delivered on the way is in the next flush report
         report = client.flush()
         assert [p.key for p, _ in report.delivered] == ["dec_1", "fb_2"]
 
-    def test_a_new_report_goes_behind_the_waiting_ones(self, make_client: MakeClient,
-                                                       service: FakeService,
-                                                       outbox_path: Path) -> None:
+    def test_a_new_report_goes_behind_the_waiting_ones(
+        self, make_client: MakeClient, service: FakeService, outbox_path: Path
+    ) -> None:
         client = make_client(outbox=outbox_path, max_retries=0)
         service.down = True
         outcome(client, 1)
@@ -145,21 +163,20 @@ class TestDelivery:
         assert queued == a.Queued(kind="feedback", episode_id="ep_0", key="fb_2", position=2)
         assert service.applied == []
         outcome(client, 3)  # the next call delivers both, then sends its own
-        assert service.applied == [("outcome", "dec_1"), ("feedback", "fb_2"),
-                                   ("outcome", "dec_3")]
+        assert service.applied == [("outcome", "dec_1"), ("feedback", "fb_2"), ("outcome", "dec_3")]
 
-    def test_a_report_sent_directly_when_the_queue_is_empty(self, make_client: MakeClient,
-                                                            service: FakeService,
-                                                            outbox_path: Path) -> None:
+    def test_a_report_sent_directly_when_the_queue_is_empty(
+        self, make_client: MakeClient, service: FakeService, outbox_path: Path
+    ) -> None:
         client = make_client(outbox=outbox_path)
         result = outcome(client, 1)
         assert isinstance(result, a.OutcomeResult)
         assert service.applied == [("outcome", "dec_1")]
         assert client.pending() == []
 
-    def test_flush_stops_at_a_report_that_cannot_get_through(self, make_client: MakeClient,
-                                                             service: FakeService,
-                                                             outbox_path: Path) -> None:
+    def test_flush_stops_at_a_report_that_cannot_get_through(
+        self, make_client: MakeClient, service: FakeService, outbox_path: Path
+    ) -> None:
         client = make_client(outbox=outbox_path, max_retries=1)
         service.down = True
         outcome(client, 1)
@@ -171,9 +188,9 @@ class TestDelivery:
         assert head.attempts == 2 + 1 + 2  # when queued, before the second report, by flush
         assert second.attempts == 0  # queued behind: never tried
 
-    def test_calls_while_offline_leave_the_queue_alone(self, make_client: MakeClient,
-                                                       service: FakeService,
-                                                       outbox_path: Path) -> None:
+    def test_calls_while_offline_leave_the_queue_alone(
+        self, make_client: MakeClient, service: FakeService, outbox_path: Path
+    ) -> None:
         client = make_client(outbox=outbox_path, max_retries=0)
         service.down = True
         outcome(client, 1)
@@ -185,9 +202,9 @@ class TestDelivery:
 
 class TestRejection:
     @pytest.mark.parametrize("status", [404, 409, 413, 422])
-    def test_a_refused_report_leaves_the_queue(self, make_client: MakeClient,
-                                               service: FakeService, outbox_path: Path,
-                                               status: int) -> None:
+    def test_a_refused_report_leaves_the_queue(
+        self, make_client: MakeClient, service: FakeService, outbox_path: Path, status: int
+    ) -> None:
         client = make_client(outbox=outbox_path, max_retries=0)
         service.down = True
         for n in (1, 2, 3):
@@ -207,8 +224,9 @@ class TestRejection:
         assert kept == entry
         assert reason.status_code == status
 
-    def test_an_unusable_key_keeps_the_queue(self, make_client: MakeClient,
-                                             service: FakeService, outbox_path: Path) -> None:
+    def test_an_unusable_key_keeps_the_queue(
+        self, make_client: MakeClient, service: FakeService, outbox_path: Path
+    ) -> None:
         client = make_client(outbox=outbox_path, max_retries=0)
         service.down = True
         outcome(client, 1)
@@ -225,9 +243,9 @@ class TestRejection:
 class TestInterruptedEpisodes:
     """A mission change interrupts open episodes: their outcomes get a 409 for good."""
 
-    def test_sent_directly_it_raises_at_once(self, make_client: MakeClient,
-                                             service: FakeService, outbox_path: Path,
-                                             sleeps: list[float]) -> None:
+    def test_sent_directly_it_raises_at_once(
+        self, make_client: MakeClient, service: FakeService, outbox_path: Path, sleeps: list[float]
+    ) -> None:
         service.interrupted.add("ep_1")
         client = make_client(outbox=outbox_path)
         with pytest.raises(a.EpisodeInterruptedError) as caught:
@@ -239,9 +257,9 @@ class TestInterruptedEpisodes:
         assert sleeps == []
         assert client.pending() == []
 
-    def test_queued_it_leaves_the_queue_and_is_reported(self, make_client: MakeClient,
-                                                        service: FakeService,
-                                                        outbox_path: Path) -> None:
+    def test_queued_it_leaves_the_queue_and_is_reported(
+        self, make_client: MakeClient, service: FakeService, outbox_path: Path
+    ) -> None:
         client = make_client(outbox=outbox_path, max_retries=0)
         service.down = True
         for n in (1, 2, 3):
@@ -259,17 +277,16 @@ class TestInterruptedEpisodes:
         assert report.remaining == 0
         assert client.pending() == []
         kept = client.rejected()
-        assert [(p.key, why.interrupted) for p, why in kept] == [("dec_1", True),
-                                                                 ("dec_3", True)]
+        assert [(p.key, why.interrupted) for p, why in kept] == [("dec_1", True), ("dec_3", True)]
         # final: never sent again, by flush or by the next call
         posts = len(service.posts)
         assert client.flush() == a.FlushReport()
         client.get_user("lin")
         assert len(service.posts) == posts
 
-    def test_another_conflict_is_not_an_interruption(self, make_client: MakeClient,
-                                                     service: FakeService,
-                                                     outbox_path: Path) -> None:
+    def test_another_conflict_is_not_an_interruption(
+        self, make_client: MakeClient, service: FakeService, outbox_path: Path
+    ) -> None:
         client = make_client(outbox=outbox_path, max_retries=0)
         service.down = True
         outcome(client, 1)
@@ -284,8 +301,9 @@ class TestInterruptedEpisodes:
         assert not isinstance(caught.value, a.EpisodeInterruptedError)
 
     @pytest.mark.anyio
-    async def test_the_async_client_too(self, make_async_client: MakeAsyncClient,
-                                        service: FakeService, outbox_path: Path) -> None:
+    async def test_the_async_client_too(
+        self, make_async_client: MakeAsyncClient, service: FakeService, outbox_path: Path
+    ) -> None:
         client = make_async_client(outbox=outbox_path, max_retries=0)
         service.down = True
         await client.report_outcome("ep_1", decision_id="dec_1", response="accepted")
@@ -299,8 +317,9 @@ class TestInterruptedEpisodes:
 
 
 class TestDurability:
-    def test_the_queue_survives_a_restart(self, make_client: MakeClient, service: FakeService,
-                                          outbox_path: Path) -> None:
+    def test_the_queue_survives_a_restart(
+        self, make_client: MakeClient, service: FakeService, outbox_path: Path
+    ) -> None:
         robot = make_client(outbox=outbox_path, max_retries=0)
         service.down = True
         outcome(robot, 1)
@@ -314,8 +333,12 @@ class TestDurability:
         assert service.applied == [("outcome", "dec_1"), ("feedback", "fb_2")]
 
     def test_a_crash_between_send_and_delete_only_replays(
-            self, make_client: MakeClient, service: FakeService, outbox_path: Path,
-            monkeypatch: pytest.MonkeyPatch) -> None:
+        self,
+        make_client: MakeClient,
+        service: FakeService,
+        outbox_path: Path,
+        monkeypatch: pytest.MonkeyPatch,
+    ) -> None:
         robot = make_client(outbox=outbox_path, max_retries=0)
         service.down = True
         outcome(robot, 1)
@@ -339,15 +362,18 @@ class TestDurability:
         again = make_client(outbox=outbox_path)
         assert [p.key for p in again.pending()] == ["dec_1", "fb_2"]  # ...the file kept it
         report = again.flush()
-        assert [(p.key, r.replayed) for p, r in report.delivered] == [("dec_1", True),
-                                                                      ("fb_2", False)]
+        assert [(p.key, r.replayed) for p, r in report.delivered] == [
+            ("dec_1", True),
+            ("fb_2", False),
+        ]
         assert service.applied == [("outcome", "dec_1"), ("feedback", "fb_2")]
         sent = [r.content for r in service.posts if r.url.path.endswith("outcomes")]
         assert len(sent) == 2
         assert sent[0] == sent[1]
 
-    def test_the_file_is_sqlite_in_wal_mode(self, make_client: MakeClient,
-                                            service: FakeService, outbox_path: Path) -> None:
+    def test_the_file_is_sqlite_in_wal_mode(
+        self, make_client: MakeClient, service: FakeService, outbox_path: Path
+    ) -> None:
         client = make_client(outbox=outbox_path, max_retries=0)
         service.down = True
         outcome(client, 1)
@@ -356,7 +382,8 @@ class TestDurability:
             assert conn.execute("SELECT key FROM outbox").fetchall() == [("dec_1",)]
 
     def test_two_clients_on_one_file_never_send_a_report_twice(
-            self, make_client: MakeClient, service: FakeService, outbox_path: Path) -> None:
+        self, make_client: MakeClient, service: FakeService, outbox_path: Path
+    ) -> None:
         robot = make_client(outbox=outbox_path, max_retries=0)
         service.down = True
         for n in range(12):
@@ -366,8 +393,9 @@ class TestDurability:
         service.on_request = lambda request: time.sleep(0.01)  # let the flushes overlap
         others = [make_client(outbox=outbox_path) for _ in range(2)]
         reports: list[a.FlushReport] = []
-        threads = [threading.Thread(target=lambda c=c: reports.append(c.flush()))
-                   for c in (*others, robot)]
+        threads = [
+            threading.Thread(target=lambda c=c: reports.append(c.flush())) for c in (*others, robot)
+        ]
         for thread in threads:
             thread.start()
         for thread in threads:
@@ -381,9 +409,9 @@ class TestDurability:
 
 class TestAsyncOutbox:
     @pytest.mark.anyio
-    async def test_queue_then_deliver_in_order(self, make_async_client: MakeAsyncClient,
-                                               service: FakeService,
-                                               outbox_path: Path) -> None:
+    async def test_queue_then_deliver_in_order(
+        self, make_async_client: MakeAsyncClient, service: FakeService, outbox_path: Path
+    ) -> None:
         client = make_async_client(outbox=outbox_path, max_retries=1)
         service.down = True
         first = await client.report_outcome("ep_1", decision_id="dec_1", response="accepted")
@@ -399,13 +427,13 @@ class TestAsyncOutbox:
         assert third.position == 3
         report = await client.flush()
         assert [p.key for p, _ in report.delivered] == ["dec_1", "fb_1", "dec_2"]
-        assert service.applied == [("outcome", "dec_1"), ("feedback", "fb_1"),
-                                   ("outcome", "dec_2")]
+        assert service.applied == [("outcome", "dec_1"), ("feedback", "fb_1"), ("outcome", "dec_2")]
         assert await client.pending() == []
 
     @pytest.mark.anyio
-    async def test_rejections_and_restart(self, make_async_client: MakeAsyncClient,
-                                          service: FakeService, outbox_path: Path) -> None:
+    async def test_rejections_and_restart(
+        self, make_async_client: MakeAsyncClient, service: FakeService, outbox_path: Path
+    ) -> None:
         robot = make_async_client(outbox=outbox_path, max_retries=0)
         service.down = True
         await robot.report_outcome("ep_1", decision_id="dec_1", response="accepted")
@@ -422,8 +450,9 @@ class TestAsyncOutbox:
         assert [p.key for p, _ in await again.rejected()] == ["dec_1"]
 
     @pytest.mark.anyio
-    async def test_without_an_outbox(self, make_async_client: MakeAsyncClient,
-                                     service: FakeService) -> None:
+    async def test_without_an_outbox(
+        self, make_async_client: MakeAsyncClient, service: FakeService
+    ) -> None:
         service.down = True
         client = make_async_client(max_retries=0)
         with pytest.raises(a.APIConnectionError):

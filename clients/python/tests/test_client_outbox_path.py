@@ -45,14 +45,17 @@ def refused(opener: Opener, path: Path) -> a.OutboxError:
 def test_a_missing_folder_is_not_created(opener: Opener, tmp_path: Path) -> None:
     path = tmp_path / "robot7" / "outbox.db"
     error = refused(opener, path)
-    assert str(error) == (f"Cannot open the outbox {str(path)!r}: its folder {tmp_path / 'robot7'} "
-                          "does not exist (the client does not create folders).")
+    assert str(error) == (
+        f"Cannot open the outbox {str(path)!r}: its folder {tmp_path / 'robot7'} "
+        "does not exist (the client does not create folders)."
+    )
     assert not (tmp_path / "robot7").exists()
 
 
 @pytest.mark.parametrize("opener", OPENERS)
-def test_a_relative_path_names_the_folder_it_means(opener: Opener, tmp_path: Path,
-                                                   monkeypatch: pytest.MonkeyPatch) -> None:
+def test_a_relative_path_names_the_folder_it_means(
+    opener: Opener, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     monkeypatch.chdir(tmp_path)
     error = refused(opener, Path("state") / "outbox.db")
     assert f"its folder {tmp_path / 'state'} does not exist" in str(error)
@@ -115,10 +118,18 @@ def open_in_locked(path: Path) -> dict[str, Any]:
             found[name] = [caught.value.path, str(caught.value)]
         return found
     if shutil.which("setpriv") is None:
-        pytest.fail("Running as root, this test needs setpriv (util-linux) to drop root's "
-                    "permission override.", pytrace=False)
-    done = subprocess.run([*NO_OVERRIDE, sys.executable, "-c", CHECK, str(path)],
-                          capture_output=True, text=True, timeout=60, check=False)
+        pytest.fail(
+            "Running as root, this test needs setpriv (util-linux) to drop root's "
+            "permission override.",
+            pytrace=False,
+        )
+    done = subprocess.run(
+        [*NO_OVERRIDE, sys.executable, "-c", CHECK, str(path)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
     assert done.returncode == 0, done.stderr
     result: dict[str, Any] = json.loads(done.stdout)
     return result
@@ -127,7 +138,9 @@ def open_in_locked(path: Path) -> dict[str, Any]:
 def test_a_folder_that_is_not_writable(locked_folder: Path) -> None:
     path = locked_folder / "outbox.db"
     found = open_in_locked(path)
-    expected = (f"Cannot open the outbox {str(path)!r}: its folder {locked_folder} is not "
-                "writable (the outbox keeps journal files beside it).")
+    expected = (
+        f"Cannot open the outbox {str(path)!r}: its folder {locked_folder} is not "
+        "writable (the outbox keeps journal files beside it)."
+    )
     assert found == {"Client": [str(path), expected], "AsyncClient": [str(path), expected]}
     assert not path.exists()

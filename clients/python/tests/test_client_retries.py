@@ -15,8 +15,9 @@ from attune_client._retry import Backoff, parse_retry_after
 from attune_client_fakes import FakeService, MakeAsyncClient, MakeClient
 
 
-def scripted(*steps: int | httpx.TransportError | tuple[int, dict[str, str]],
-             ) -> tuple[list[httpx.Request], Callable[[httpx.Request], httpx.Response]]:
+def scripted(
+    *steps: int | httpx.TransportError | tuple[int, dict[str, str]],
+) -> tuple[list[httpx.Request], Callable[[httpx.Request], httpx.Response]]:
     """A handler that answers the steps in turn, then 200 with a user."""
     seen: list[httpx.Request] = []
     queue = list(steps)
@@ -28,8 +29,9 @@ def scripted(*steps: int | httpx.TransportError | tuple[int, dict[str, str]],
             if isinstance(step, httpx.TransportError):
                 raise step
             status, headers = step if isinstance(step, tuple) else (step, {})
-            return httpx.Response(status, headers=headers,
-                                  json={"error": "Scripted", "detail": f"{status}"})
+            return httpx.Response(
+                status, headers=headers, json={"error": "Scripted", "detail": f"{status}"}
+            )
         return FakeService().handler(request)
 
     return seen, handler
@@ -40,8 +42,9 @@ def connect_error() -> httpx.ConnectError:
 
 
 class TestWhatIsRetried:
-    def test_a_connection_error_then_success(self, make_client: MakeClient,
-                                             sleeps: list[float]) -> None:
+    def test_a_connection_error_then_success(
+        self, make_client: MakeClient, sleeps: list[float]
+    ) -> None:
         seen, handler = scripted(connect_error())
         user = make_client(handler).get_user("lin")
         assert user.user_id == "lin"
@@ -49,7 +52,8 @@ class TestWhatIsRetried:
         assert len(sleeps) == 1
 
     def test_read_timeouts_are_retried_then_raise_a_timeout_error(
-            self, make_client: MakeClient, sleeps: list[float]) -> None:
+        self, make_client: MakeClient, sleeps: list[float]
+    ) -> None:
         seen, handler = scripted(*[httpx.ReadTimeout("slow") for _ in range(10)])
         with pytest.raises(a.APITimeoutError):
             make_client(handler, max_retries=2).get_user("lin")
@@ -62,21 +66,30 @@ class TestWhatIsRetried:
         assert len(seen) == 2
 
     @pytest.mark.parametrize("status", [408, 429, 500, 502, 503, 504])
-    def test_retried_statuses(self, make_client: MakeClient, sleeps: list[float],
-                              status: int) -> None:
+    def test_retried_statuses(
+        self, make_client: MakeClient, sleeps: list[float], status: int
+    ) -> None:
         seen, handler = scripted(status, status)
         assert make_client(handler).get_user("lin").user_id == "lin"
         assert len(seen) == 3
         assert len(sleeps) == 2
 
-    @pytest.mark.parametrize(("status", "cls"), [
-        (400, a.BadRequestError), (401, a.AuthenticationError),
-        (403, a.PermissionDeniedError), (404, a.NotFoundError), (409, a.ConflictError),
-        (413, a.PayloadTooLargeError), (422, a.UnprocessableEntityError),
-        (501, a.InternalServerError),
-    ])
-    def test_other_errors_are_not_retried(self, make_client: MakeClient, sleeps: list[float],
-                                          status: int, cls: type[a.APIStatusError]) -> None:
+    @pytest.mark.parametrize(
+        ("status", "cls"),
+        [
+            (400, a.BadRequestError),
+            (401, a.AuthenticationError),
+            (403, a.PermissionDeniedError),
+            (404, a.NotFoundError),
+            (409, a.ConflictError),
+            (413, a.PayloadTooLargeError),
+            (422, a.UnprocessableEntityError),
+            (501, a.InternalServerError),
+        ],
+    )
+    def test_other_errors_are_not_retried(
+        self, make_client: MakeClient, sleeps: list[float], status: int, cls: type[a.APIStatusError]
+    ) -> None:
         seen, handler = scripted(status)
         with pytest.raises(cls) as caught:
             make_client(handler).get_user("lin")
@@ -86,8 +99,9 @@ class TestWhatIsRetried:
         assert sleeps == []
 
     @pytest.mark.parametrize("retries", [0, 1, 3, 5])
-    def test_retries_are_bounded(self, make_client: MakeClient, sleeps: list[float],
-                                 retries: int) -> None:
+    def test_retries_are_bounded(
+        self, make_client: MakeClient, sleeps: list[float], retries: int
+    ) -> None:
         seen, handler = scripted(*[503] * 20)
         with pytest.raises(a.ServiceUnavailableError):
             make_client(handler, max_retries=retries).get_user("lin")
@@ -105,12 +119,14 @@ class TestWhatIsRetried:
         with pytest.raises(ValueError, match="max_retries"):
             a.Client("http://x", "k", max_retries=-1)
 
-    def test_every_attempt_sends_the_same_request(self, make_client: MakeClient,
-                                                  service: FakeService) -> None:
+    def test_every_attempt_sends_the_same_request(
+        self, make_client: MakeClient, service: FakeService
+    ) -> None:
         service.script = [connect_error(), 503, httpx.ReadTimeout("slow"), 502]
         client = make_client(service.handler, max_retries=4)
-        result = client.report_outcome("ep_1", decision_id="dec_1", response="accepted",
-                                       feedback="positive")
+        result = client.report_outcome(
+            "ep_1", decision_id="dec_1", response="accepted", feedback="positive"
+        )
         assert isinstance(result, a.OutcomeResult)
         posts = service.posts
         assert len(posts) == 5
@@ -120,7 +136,8 @@ class TestWhatIsRetried:
         assert service.applied == [("outcome", "dec_1")]
 
     def test_an_answer_lost_on_the_way_is_replayed_not_counted_twice(
-            self, make_client: MakeClient, service: FakeService) -> None:
+        self, make_client: MakeClient, service: FakeService
+    ) -> None:
         # The service applied the first attempt, but its answer never arrived.
         first = True
 
@@ -132,8 +149,7 @@ class TestWhatIsRetried:
                 raise httpx.ReadError("connection reset")
             return response
 
-        result = make_client(handler).send_feedback("ep_1", feedback_id="fb-1",
-                                                    feedback="positive")
+        result = make_client(handler).send_feedback("ep_1", feedback_id="fb-1", feedback="positive")
         assert isinstance(result, a.FeedbackResult)
         assert result.replayed
         assert service.applied == [("feedback", "fb-1")]
@@ -154,8 +170,9 @@ class TestHowLongItWaits:
             assert 0.75 * base <= delay <= base
             assert delay == pytest.approx(base * (1 - 0.25 * draw))
 
-    def test_the_client_waits_with_growing_jittered_delays(self, make_client: MakeClient,
-                                                           sleeps: list[float]) -> None:
+    def test_the_client_waits_with_growing_jittered_delays(
+        self, make_client: MakeClient, sleeps: list[float]
+    ) -> None:
         seen, handler = scripted(*[connect_error() for _ in range(20)])
         client = make_client(handler, max_retries=6)
         client._random = lambda: 0.5
@@ -163,8 +180,9 @@ class TestHowLongItWaits:
             client.get_user("lin")
         assert sleeps == pytest.approx([b * 0.875 for b in (0.5, 1, 2, 4, 8, 8)])
 
-    def test_real_jitter_stays_in_bounds(self, make_client: MakeClient,
-                                         sleeps: list[float]) -> None:
+    def test_real_jitter_stays_in_bounds(
+        self, make_client: MakeClient, sleeps: list[float]
+    ) -> None:
         seen, handler = scripted(*[500] * 50)
         with pytest.raises(a.InternalServerError):
             make_client(handler, max_retries=6).get_user("lin")
@@ -177,8 +195,9 @@ class TestHowLongItWaits:
         assert make_client(handler).get_user("lin").user_id == "lin"
         assert sleeps == [2.0, 0.25]
 
-    def test_retry_after_as_an_http_date(self, make_client: MakeClient,
-                                         sleeps: list[float]) -> None:
+    def test_retry_after_as_an_http_date(
+        self, make_client: MakeClient, sleeps: list[float]
+    ) -> None:
         when = email.utils.formatdate(time.time() + 30, usegmt=True)
         seen, handler = scripted((429, {"Retry-After": when}))
         assert make_client(handler).get_user("lin").user_id == "lin"
@@ -191,7 +210,8 @@ class TestHowLongItWaits:
         assert sleeps == [60.0]
 
     def test_an_unreadable_retry_after_falls_back_to_the_backoff(
-            self, make_client: MakeClient, sleeps: list[float]) -> None:
+        self, make_client: MakeClient, sleeps: list[float]
+    ) -> None:
         seen, handler = scripted((429, {"Retry-After": "soon"}))
         client = make_client(handler)
         client._random = lambda: 0.0
@@ -218,20 +238,29 @@ class TestTimeouts:
     def test_every_request_carries_the_timeout(self, make_client: MakeClient) -> None:
         seen, handler = scripted()
         make_client(handler).get_user("lin")
-        assert seen[0].extensions["timeout"] == {"connect": 3.0, "read": 10.0, "write": 10.0,
-                                                 "pool": 10.0}
+        assert seen[0].extensions["timeout"] == {
+            "connect": 3.0,
+            "read": 10.0,
+            "write": 10.0,
+            "pool": 10.0,
+        }
 
     def test_a_number_sets_every_timeout(self, make_client: MakeClient) -> None:
         seen, handler = scripted()
         make_client(handler, timeout=2.5).get_user("lin")
-        assert seen[0].extensions["timeout"] == {"connect": 2.5, "read": 2.5, "write": 2.5,
-                                                 "pool": 2.5}
+        assert seen[0].extensions["timeout"] == {
+            "connect": 2.5,
+            "read": 2.5,
+            "write": 2.5,
+            "pool": 2.5,
+        }
 
 
 class TestAsync:
     @pytest.mark.anyio
-    async def test_a_connection_error_then_success(self, make_async_client: MakeAsyncClient,
-                                                   sleeps: list[float]) -> None:
+    async def test_a_connection_error_then_success(
+        self, make_async_client: MakeAsyncClient, sleeps: list[float]
+    ) -> None:
         seen, handler = scripted(connect_error())
         user = await make_async_client(handler).get_user("lin")
         assert user.user_id == "lin"
@@ -239,8 +268,9 @@ class TestAsync:
         assert len(sleeps) == 1
 
     @pytest.mark.anyio
-    async def test_retry_after_and_bounds(self, make_async_client: MakeAsyncClient,
-                                          sleeps: list[float]) -> None:
+    async def test_retry_after_and_bounds(
+        self, make_async_client: MakeAsyncClient, sleeps: list[float]
+    ) -> None:
         seen, handler = scripted(*[(429, {"Retry-After": "3"})] * 10)
         with pytest.raises(a.RateLimitError) as caught:
             await make_async_client(handler, max_retries=2).get_user("lin")
@@ -249,8 +279,7 @@ class TestAsync:
         assert len(seen) == 3
 
     @pytest.mark.anyio
-    async def test_timeouts_become_timeout_errors(self, make_async_client: MakeAsyncClient
-                                                  ) -> None:
+    async def test_timeouts_become_timeout_errors(self, make_async_client: MakeAsyncClient) -> None:
         seen, handler = scripted(*[httpx.ConnectTimeout("slow") for _ in range(5)])
         with pytest.raises(a.APITimeoutError):
             await make_async_client(handler, max_retries=1).get_user("lin")
@@ -258,8 +287,9 @@ class TestAsync:
 
     @pytest.mark.anyio
     @pytest.mark.parametrize("status", [400, 401, 403, 404, 409, 413, 422])
-    async def test_client_errors_are_not_retried(self, make_async_client: MakeAsyncClient,
-                                                 status: int) -> None:
+    async def test_client_errors_are_not_retried(
+        self, make_async_client: MakeAsyncClient, status: int
+    ) -> None:
         seen, handler = scripted(status)
         with pytest.raises(a.APIStatusError) as caught:
             await make_async_client(handler).get_user("lin")
@@ -268,7 +298,8 @@ class TestAsync:
 
     @pytest.mark.anyio
     async def test_every_attempt_sends_the_same_request(
-            self, make_async_client: MakeAsyncClient, service: FakeService) -> None:
+        self, make_async_client: MakeAsyncClient, service: FakeService
+    ) -> None:
         service.script = [503, connect_error(), 504]
         client = make_async_client()
         result = await client.report_outcome("ep_1", decision_id="dec_1", response="accepted")

@@ -20,16 +20,27 @@ from app.experiments.claims_map import (
 )
 from app.learning.claims_map import AXES, ClaimMap, Grid, Setting
 
-INFO = {"seeds": 2, "users": 6, "runs": 10, "worlds": 1, "seconds": 1.0, "workers": 1,
-        "load_average": 0.5, "confirm_seeds": 3, "confirm_first_seed": 2, "confirm_runs": 4}
+INFO = {
+    "seeds": 2,
+    "users": 6,
+    "runs": 10,
+    "worlds": 1,
+    "seconds": 1.0,
+    "workers": 1,
+    "load_average": 0.5,
+    "confirm_seeds": 3,
+    "confirm_first_seed": 2,
+    "confirm_runs": 4,
+}
 CLAIMS = [("a", "claim a"), ("b", "claim b"), ("c", "claim c")]
 
 
 class TestPlan:
     def test_every_run_once_and_nothing_more(self) -> None:
         values = {a.key: (a.default,) for a in AXES}
-        grid = Grid({**values, "time_slots": (2, 4), "m": (1, 2), "exclusion": ("per_pair",
-                                                                                 "none")})
+        grid = Grid(
+            {**values, "time_slots": (2, 4), "m": (1, 2), "exclusion": ("per_pair", "none")}
+        )
         todo = plan(grid.settings(), range(3), users=2)
         jobs = [job for _, job in todo]
         assert len(todo) == len(grid.worlds()) * len(grid.methods()) * len(PROTOCOLS) * 3
@@ -50,12 +61,15 @@ class TestPlan:
 
 
 def _map() -> ClaimMap:
-    return ClaimMap(CLAIMS, {
-        Setting.default(): [True, False, False],
-        Setting.of(m=1): [True, True, False],
-        Setting.of(m=4, noise=0.0): [True, True, True],
-        Setting.of(m=4): [False, False, False],
-    })
+    return ClaimMap(
+        CLAIMS,
+        {
+            Setting.default(): [True, False, False],
+            Setting.of(m=1): [True, True, False],
+            Setting.of(m=4, noise=0.0): [True, True, True],
+            Setting.of(m=4): [False, False, False],
+        },
+    )
 
 
 class TestReport:
@@ -67,10 +81,14 @@ class TestReport:
 
     def test_summary_table_and_csv(self, tmp_path: Path) -> None:
         claim_map = _map()
-        confirmed = ClaimMap(CLAIMS, {Setting.default(): [True, False, False],
-                                      Setting.of(m=4, noise=0.0): [True, True, False]},
-                             {Setting.default(): ["x"] * 3,
-                              Setting.of(m=4, noise=0.0): ["y"] * 3})
+        confirmed = ClaimMap(
+            CLAIMS,
+            {
+                Setting.default(): [True, False, False],
+                Setting.of(m=4, noise=0.0): [True, True, False],
+            },
+            {Setting.default(): ["x"] * 3, Setting.of(m=4, noise=0.0): ["y"] * 3},
+        )
         summary = build_summary(claim_map, confirmed, Grid.full(), INFO)
         assert [c["share"] for c in summary["claims"]] == [0.75, 0.5, 0.25]
         assert summary["default"]["held"] == 1
@@ -82,8 +100,12 @@ class TestReport:
         assert "best 1, held-out seeds" in text
         assert "1. reading: noise=0, m=4" in text
         files = write_report(summary, tmp_path)
-        assert [f.name for f in files] == ["claims-map.md", "claims-map.csv", "claims-map.png",
-                                           "summary.json"]
+        assert [f.name for f in files] == [
+            "claims-map.md",
+            "claims-map.csv",
+            "claims-map.png",
+            "summary.json",
+        ]
         with files[1].open(encoding="utf-8") as handle:
             rows = list(csv.DictReader(handle))
         assert [r["label"] for r in rows] == [s.label() for s in claim_map.settings]

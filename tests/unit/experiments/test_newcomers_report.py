@@ -27,12 +27,26 @@ LABEL = "L"
 
 
 def info(seeds: int = 3) -> dict[str, Any]:
-    return {"seeds": seeds, "residents": 2, "events": EVENTS, "strength": 4.0,
-            "min_support": 3, "seconds": 1.0, "workers": 1}
+    return {
+        "seeds": seeds,
+        "residents": 2,
+        "events": EVENTS,
+        "strength": 4.0,
+        "min_support": 3,
+        "seconds": 1.0,
+        "workers": 1,
+    }
 
 
-def run(family: str, seed: int, fresh: float, prior: float, *, oracle: float = 1.0,
-        prior_after100: float | None = None) -> NewcomerRun:
+def run(
+    family: str,
+    seed: int,
+    fresh: float,
+    prior: float,
+    *,
+    oracle: float = 1.0,
+    prior_after100: float | None = None,
+) -> NewcomerRun:
     """Two residents; every event the oracle earns ``oracle``, the learner ``fresh`` or
     ``prior`` times as much (``prior_after100`` from event 101 on, when given)."""
     o = np.full((2, EVENTS), oracle)
@@ -88,8 +102,7 @@ class TestShares:
 
 class TestTargets:
     @pytest.mark.parametrize(("share", "met"), [(0.80, True), (0.7951, True), (0.79, False)])
-    def test_home_first_20_is_decided_in_whole_percentages(self, share: float,
-                                                           met: bool) -> None:
+    def test_home_first_20_is_decided_in_whole_percentages(self, share: float, met: bool) -> None:
         runs = [run("home", s, 0.2, share) for s in range(3)]
         summary = build_summary(runs, ["home"], [LABEL], EVENTS, info())
         assert targets(summary)[("a", "home", "first20")] is met
@@ -110,8 +123,10 @@ class TestTargets:
     def test_a_loss_after_100_misses_c_only(self) -> None:
         runs = [run("home", s, 0.5, 0.9, prior_after100=0.4 + 0.01 * s) for s in range(3)]
         summary = build_summary(runs, ["home"], [LABEL], EVENTS, info())
-        assert targets(summary) == {("a", "home", "first20"): True,
-                                    ("c", "home", "after100"): False}
+        assert targets(summary) == {
+            ("a", "home", "first20"): True,
+            ("c", "home", "after100"): False,
+        }
         text = markdown(summary)
         assert "1 of 2 met" in text
         assert text.count("MISSED") == 1

@@ -32,10 +32,21 @@ PAPER_FILES = ("fig2.png", "fig3.png", "rewards.csv", "table2.md", "summary.json
 def paper_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, str]:
     """``attune experiment paper`` on one seed and two users, once for the module."""
     out = tmp_path_factory.mktemp("paper")
-    result = CliRunner().invoke(app, [
-        "experiment", "paper", "--seeds", str(SEEDS), "--users", str(USERS), "--jobs", "1",
-        "--out", str(out),
-    ])
+    result = CliRunner().invoke(
+        app,
+        [
+            "experiment",
+            "paper",
+            "--seeds",
+            str(SEEDS),
+            "--users",
+            str(USERS),
+            "--jobs",
+            "1",
+            "--out",
+            str(out),
+        ],
+    )
     assert result.exit_code == 0, result.output
     return out, result.output
 
@@ -114,10 +125,22 @@ def test_summary_json_rates_are_fractions(paper_run: tuple[Path, str]) -> None:
 
 
 def test_ablation_writes_its_table(tmp_path: Path) -> None:
-    result = CliRunner().invoke(app, [
-        "experiment", "ablation", "--seeds", "1", "--users", "1", "--jobs", "1",
-        "--out", str(tmp_path), "--no-progress",
-    ])
+    result = CliRunner().invoke(
+        app,
+        [
+            "experiment",
+            "ablation",
+            "--seeds",
+            "1",
+            "--users",
+            "1",
+            "--jobs",
+            "1",
+            "--out",
+            str(tmp_path),
+            "--no-progress",
+        ],
+    )
     assert result.exit_code == 0, result.output
     text = (tmp_path / "ablation.md").read_text(encoding="utf-8")
     for method in ABLATION_METHODS:
@@ -164,8 +187,9 @@ def test_cumulative_curve_re_zeroes_at_the_block_start() -> None:
     def result(rewards: list[list[float]]) -> RunResult:
         reward = np.asarray(rewards)
         zeros = np.zeros_like(reward, dtype=bool)
-        return RunResult("m", "e1e2", 0, reward, zeros, zeros.astype(np.int8), zeros,
-                         zeros.astype(np.int64))
+        return RunResult(
+            "m", "e1e2", 0, reward, zeros, zeros.astype(np.int8), zeros, zeros.astype(np.int64)
+        )
 
     results = [result([[5.0, 1.0, 2.0], [5.0, 3.0, 4.0]])]
     mean, half = cumulative_curve(results, "m", 1, 3)
@@ -174,8 +198,17 @@ def test_cumulative_curve_re_zeroes_at_the_block_start() -> None:
 
 
 def test_user_overrides_reach_the_simulated_users(tmp_path: Path) -> None:
-    base = ["experiment", "ablation", "--seeds", "1", "--users", "1", "--jobs", "1",
-            "--no-progress"]
+    base = [
+        "experiment",
+        "ablation",
+        "--seeds",
+        "1",
+        "--users",
+        "1",
+        "--jobs",
+        "1",
+        "--no-progress",
+    ]
     shy = CliRunner().invoke(app, [*base, "--out", str(tmp_path / "shy"), "--user", "p_self=0"])
     assert shy.exit_code == 0, shy.output
     summary = json.loads((tmp_path / "shy" / "summary.json").read_text("utf-8"))
@@ -187,13 +220,27 @@ def test_user_overrides_reach_the_simulated_users(tmp_path: Path) -> None:
 
 @pytest.mark.parametrize(
     ("value", "words"),
-    [("p_self", "expected NAME=VALUE"), ("mood=0.5", "p_acc, p_self"), ("p_acc=2", "[0, 1]"),
-     ("eps_fb=x", "[0, 1]")],
+    [
+        ("p_self", "expected NAME=VALUE"),
+        ("mood=0.5", "p_acc, p_self"),
+        ("p_acc=2", "[0, 1]"),
+        ("eps_fb=x", "[0, 1]"),
+    ],
 )
 def test_bad_user_overrides_are_refused(tmp_path: Path, value: str, words: str) -> None:
-    result = CliRunner().invoke(app, [
-        "experiment", "paper", "--seeds", "1", "--out", str(tmp_path), "--user", value,
-    ])
+    result = CliRunner().invoke(
+        app,
+        [
+            "experiment",
+            "paper",
+            "--seeds",
+            "1",
+            "--out",
+            str(tmp_path),
+            "--user",
+            value,
+        ],
+    )
     assert result.exit_code == 2
     assert words in " ".join(result.output.split())
     assert not any(tmp_path.iterdir())

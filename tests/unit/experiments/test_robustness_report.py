@@ -26,8 +26,14 @@ from app.experiments.statistics import mean_ci95, t95
 from app.learning.population import FamilyRun, change_event
 
 W = {w.key: w for w in WINDOWS}
-INFO = {"seeds": 3, "persons": 2, "events": 160, "change_at_event": 101, "seconds": 1.0,
-        "workers": 1}
+INFO = {
+    "seeds": 3,
+    "persons": 2,
+    "events": 160,
+    "change_at_event": 101,
+    "seconds": 1.0,
+    "workers": 1,
+}
 
 
 class TestWindows:
@@ -68,13 +74,19 @@ class TestIntervals:
         assert mean_ci95([0.4]) == (0.4, 0.4, 0.4)
 
 
-def fake_run(family: str, seed: int, oracle: float, shares: dict[str, float],
-             change: bool) -> FamilyRun:
+def fake_run(
+    family: str, seed: int, oracle: float, shares: dict[str, float], change: bool
+) -> FamilyRun:
     """Two persons, 160 events: the oracle earns ``oracle`` per event, a learner ``share`` of
     it."""
     o = np.full((2, 160), oracle)
-    return FamilyRun(family, seed, o, {k: o * v for k, v in shares.items()},
-                     change_event(160) if change else None)
+    return FamilyRun(
+        family,
+        seed,
+        o,
+        {k: o * v for k, v in shares.items()},
+        change_event(160) if change else None,
+    )
 
 
 class TestSummary:
@@ -105,8 +117,9 @@ class TestSummary:
 
     def test_a_seed_whose_oracle_earns_nothing_has_no_share(self) -> None:
         runs = self.runs()
-        runs.append(fake_run("paper", 3, MIN_ORACLE_REWARD / 1000, {"A": 50.0, "B": 1.0},
-                             change=True))
+        runs.append(
+            fake_run("paper", 3, MIN_ORACLE_REWARD / 1000, {"A": 50.0, "B": 1.0}, change=True)
+        )
         summary = build_summary(runs, ["paper"], ["A", "B"], 160, {**INFO, "seeds": 4})
         cell = summary["families"]["paper"]["learners"]["A"]["all"]
         assert cell["undefined_seeds"] == 1
@@ -118,8 +131,12 @@ class TestSummary:
     def test_the_files(self, tmp_path: Path) -> None:
         summary = build_summary(self.runs(), ["paper", "shy"], ["A", "B"], 160, INFO)
         files = write_report(summary, tmp_path)
-        assert [f.name for f in files] == ["robustness.md", "robustness.csv", "robustness.png",
-                                           "summary.json"]
+        assert [f.name for f in files] == [
+            "robustness.md",
+            "robustness.csv",
+            "robustness.png",
+            "summary.json",
+        ]
         assert all(f.stat().st_size > 0 for f in files)
         assert files[2].read_bytes().startswith(b"\x89PNG")
         with files[1].open(encoding="utf-8") as handle:

@@ -81,8 +81,10 @@ class TestRmax:
         assert lr.explain(0, 1).q == pytest.approx(np.full(S.n_actions, VMAX), rel=1e-12)
         assert probs(lr, OBS, 1) == [0.5, 0.5]
         assert probs(lr, TK, 1) == [0.25] * 4
-        picks = {lr.select_action(Observation(0, OBS, 1), np.random.default_rng(s)).action
-                 for s in range(20)}
+        picks = {
+            lr.select_action(Observation(0, OBS, 1), np.random.default_rng(s)).action
+            for s in range(20)
+        }
         assert picks == {INITIATE, PASS}  # a seeded tie-break, not always the first
 
     def test_known_after_m_visits(self) -> None:
@@ -119,8 +121,12 @@ class TestRmax:
 
     def test_greedy_with_ties_among_the_best(self) -> None:
         lr = learner("rmax", m=1)
-        lr.update([Transition(1, 0, OBS, INITIATE, 1.0, ENGAGED, POS),
-                   Transition(1, 0, ENGAGED, QUERY_TYPE, -0.5, TK, POS)])
+        lr.update(
+            [
+                Transition(1, 0, OBS, INITIATE, 1.0, ENGAGED, POS),
+                Transition(1, 0, ENGAGED, QUERY_TYPE, -0.5, TK, POS),
+            ]
+        )
         q = lr.explain(0, 2).q
         assert q[QUERY_TYPE] == pytest.approx(-0.5 + G * VMAX)  # 53.5 < Vmax
         assert probs(lr, ENGAGED, 2) == pytest.approx([0.0, 1 / 3, 1 / 3, 1 / 3])
@@ -221,8 +227,12 @@ class TestQLearning:
 
 
 DTS_PARAMS: dict[str, Any] = {
-    "forgetting": 0.8, "prior_count": 0.25, "reward_prior": 0.0, "reward_prior_count": 1.0,
-    "reward_sd": 1.0, "samples": 8,
+    "forgetting": 0.8,
+    "prior_count": 0.25,
+    "reward_prior": 0.0,
+    "reward_prior_count": 1.0,
+    "reward_sd": 1.0,
+    "samples": 8,
 }
 
 

@@ -56,15 +56,13 @@ def perform(item: Item) -> int:
 
 class TestEvidence:
     def test_a_performed_service_taken(self) -> None:
-        ev = episode_evidence(S, 1, [Answer(INITIATE, "accepted"),
-                                     Answer(PERFORM_TEA, "accepted")])
+        ev = episode_evidence(S, 1, [Answer(INITIATE, "accepted"), Answer(PERFORM_TEA, "accepted")])
         assert ev.chose == TEA
         assert (ev.accepted, ev.refused_count) == (1, 0)
         assert ev.relevant
 
     def test_a_performed_service_turned_down(self) -> None:
-        ev = episode_evidence(S, 1, [Answer(INITIATE, "accepted"),
-                                     Answer(PERFORM_TEA, "rejected")])
+        ev = episode_evidence(S, 1, [Answer(INITIATE, "accepted"), Answer(PERFORM_TEA, "rejected")])
         assert ev.chose is None
         assert ev.refused == [TEA]
         assert ev.refused_count == 1
@@ -81,12 +79,19 @@ class TestEvidence:
         assert (asked.chose, asked.asked_for) == (TEA, 1)
         named = episode_evidence(S, 2, [Answer(PASS, "human_request", DRINK, "coffee")])
         assert (named.chose, named.asked_for) == (COFFEE, 1)
-        typed = episode_evidence(S, 3, [Answer(INITIATE, "accepted"),
-                                        Answer(QUERY_TYPE, "answered", DRINK)])
+        typed = episode_evidence(
+            S, 3, [Answer(INITIATE, "accepted"), Answer(QUERY_TYPE, "answered", DRINK)]
+        )
         assert (typed.chose, typed.answered) == (A_DRINK, 1)
-        detailed = episode_evidence(S, 4, [
-            Answer(INITIATE, "accepted"), Answer(QUERY_TYPE, "answered", DRINK),
-            Answer(act(ActionKind.QUERY_DETAIL, DRINK), "answered", None, "water")])
+        detailed = episode_evidence(
+            S,
+            4,
+            [
+                Answer(INITIATE, "accepted"),
+                Answer(QUERY_TYPE, "answered", DRINK),
+                Answer(act(ActionKind.QUERY_DETAIL, DRINK), "answered", None, "water"),
+            ],
+        )
         assert (detailed.chose, detailed.answered) == (Item(DRINK, "water"), 2)
 
     def test_no_answer_says_nothing(self) -> None:
@@ -142,8 +147,9 @@ class TestCertainty:
                 b = belief(self._mixed(support, refusals))
                 assert b.wants == TEA
                 assert (b.support, b.recent) == (support, support + refusals)
-                confident = support >= CONFIDENT_SUPPORT \
-                    and support >= CONFIDENT_SHARE * (support + refusals)
+                confident = support >= CONFIDENT_SUPPORT and support >= CONFIDENT_SHARE * (
+                    support + refusals
+                )
                 assert b.certainty == ("confident" if confident else "tentative"), b
 
     def test_the_share_boundary(self) -> None:
@@ -177,14 +183,16 @@ class TestChange:
         assert b.change.before == TEA
         assert b.change.now == COFFEE
         assert b.change.seq == 6  # where the new wish first showed
-        assert b.certainty == ("confident" if CHANGE_RUN >= CONFIDENT_SUPPORT
-                               else "tentative")
+        assert b.certainty == ("confident" if CHANGE_RUN >= CONFIDENT_SUPPORT else "tentative")
         assert b.support == CHANGE_RUN
         assert b.recent == CHANGE_RUN  # counted since the change
 
     def test_the_latest_choice_of_the_run_is_the_new_belief(self) -> None:
-        run = [chose(10, NEWS)] + [refused_offer(11 + i) for i in range(CHANGE_RUN - 2)] \
+        run = (
+            [chose(10, NEWS)]
+            + [refused_offer(11 + i) for i in range(CHANGE_RUN - 2)]
             + [chose(10 + CHANGE_RUN, COFFEE)]
+        )
         b = belief([chose(i, TEA) for i in range(1, 4)] + run)
         assert b.change is not None
         assert b.change.before == TEA
@@ -192,9 +200,10 @@ class TestChange:
         assert b.change.seq == 10
 
     def test_refusals_only_leave_nothing_wanted(self) -> None:
-        b = belief([chose(1, TEA), chose(2, TEA)]
-                   + [refused(3 + i, TEA) if i % 2 else refused_offer(3 + i)
-                      for i in range(CHANGE_RUN)])
+        b = belief(
+            [chose(1, TEA), chose(2, TEA)]
+            + [refused(3 + i, TEA) if i % 2 else refused_offer(3 + i) for i in range(CHANGE_RUN)]
+        )
         assert b.change is not None
         assert b.change.before == TEA
         assert b.change.now is None
@@ -202,9 +211,11 @@ class TestChange:
         assert b.wants is None
         assert b.certainty == "unknown"
         # the next choice becomes the belief
-        after = belief([chose(1, TEA), chose(2, TEA)]
-                       + [refused_offer(3 + i) for i in range(CHANGE_RUN)]
-                       + [chose(3 + CHANGE_RUN, NEWS)])
+        after = belief(
+            [chose(1, TEA), chose(2, TEA)]
+            + [refused_offer(3 + i) for i in range(CHANGE_RUN)]
+            + [chose(3 + CHANGE_RUN, NEWS)]
+        )
         assert after.wants == NEWS
         assert after.certainty == "tentative"
 
@@ -246,8 +257,7 @@ class TestChange:
 
 class TestServiceAndDetail:
     def test_refusing_coffee_does_not_contradict_wanting_a_drink(self) -> None:
-        evidence = [chose(1, A_DRINK)] + [refused(2 + i, COFFEE)
-                                           for i in range(2 * CHANGE_RUN)]
+        evidence = [chose(1, A_DRINK)] + [refused(2 + i, COFFEE) for i in range(2 * CHANGE_RUN)]
         b = belief(evidence)
         assert b.wants == A_DRINK
         assert b.change is None
@@ -271,9 +281,15 @@ class TestServiceAndDetail:
         assert b.support == CHANGE_RUN + 2
 
     def test_taking_then_refusing_the_same_is_no_choice(self) -> None:
-        ev = episode_evidence(S, 1, [Answer(INITIATE, "accepted"),
-                                     Answer(perform(TEA), "accepted"),
-                                     Answer(perform(TEA), "rejected")])
+        ev = episode_evidence(
+            S,
+            1,
+            [
+                Answer(INITIATE, "accepted"),
+                Answer(perform(TEA), "accepted"),
+                Answer(perform(TEA), "rejected"),
+            ],
+        )
         assert ev.chose is None
         assert ev.refused == [TEA]
         assert not ev.supports(TEA)

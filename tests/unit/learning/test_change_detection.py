@@ -91,17 +91,19 @@ def test_the_test_fires_soon_after_a_switch_and_only_where_it_happened() -> None
         assert after, f"seed {seed}: no restart after the switch"
         # Events of context 0 from the switch to the first restart after it.
         who, _ = person(seed, switch=True)
-        delays.append(int(np.sum(who.contexts[SWITCH: after[0]] == 0)))
+        delays.append(int(np.sum(who.contexts[SWITCH : after[0]] == 0)))
         kept += len([ep for c, ep in fired if c == 1 and ep > SWITCH])  # its wish stayed
     assert np.mean(delays) <= 4.0  # a few rejections, not a slow drift of the counts
     assert kept <= 1  # a rare run of the person's own noise (5 % of right services refused)
 
 
 def test_a_steady_noisy_person_restarts_less_than_a_switching_one() -> None:
-    steady = [len([ep for _, ep in restarts(s, switch=False, p_random=0.1) if ep > 40])
-              for s in SEEDS]
-    switching = [len([ep for c, ep in restarts(s, switch=True) if c == 0 and ep > SWITCH])
-                 for s in SEEDS]
+    steady = [
+        len([ep for _, ep in restarts(s, switch=False, p_random=0.1) if ep > 40]) for s in SEEDS
+    ]
+    switching = [
+        len([ep for c, ep in restarts(s, switch=True) if c == 0 and ep > SWITCH]) for s in SEEDS
+    ]
     assert np.mean(steady) < np.mean(switching)
     assert np.mean(steady) <= 1.0  # seldom, once learned, in 80 events of 10 % random answers
 
@@ -227,8 +229,10 @@ def test_a_state_from_before_the_test_existed_still_loads() -> None:
     assert not restored.change.any()  # type: ignore[attr-defined]
 
 
-@pytest.mark.parametrize("bad", [{"change_alpha": -0.1}, {"change_alpha": 0.6},
-                                 {"change_keep": 1.0}, {"change_keep": -1.0}])
+@pytest.mark.parametrize(
+    "bad",
+    [{"change_alpha": -0.1}, {"change_alpha": 0.6}, {"change_keep": 1.0}, {"change_keep": -1.0}],
+)
 def test_bad_change_parameters_are_refused(bad: dict[str, float]) -> None:
     with pytest.raises(ValueError, match=next(iter(bad))):
         dts(**bad)

@@ -32,12 +32,17 @@ class TestDefault:
         default = Setting.default()
         profile = UserProfile(())
         assert default.world().user_params() == {
-            "p_acc": profile.p_acc, "p_self": profile.p_self, "eps_fb": profile.eps_fb}
+            "p_acc": profile.p_acc,
+            "p_self": profile.p_self,
+            "eps_fb": profile.eps_fb,
+        }
         assert default["time_slots"] == len(office_mission().time_slots)
         assert default.world().mission(office_mission()) is office_mission()
         assert (default["m"], default["optimism"]) == (RmaxParams().m, RmaxParams().optimism)
         assert (default["exclusion"], default["pref_scale"]) == (
-            HriParams().exclusion, HriParams().pref_scale)
+            HriParams().exclusion,
+            HriParams().pref_scale,
+        )
 
     def test_its_methods_are_the_papers(self) -> None:
         mission = office_mission()
@@ -91,8 +96,10 @@ class TestGrid:
         methods = grid.methods()
         keys = [method_key(m) for m in methods]
         assert len(set(keys)) == len(keys)
-        size = {scope: math.prod(len(a.values) for a in AXES if a.scope == scope)
-                for scope in ("rmax", "hri")}
+        size = {
+            scope: math.prod(len(a.values) for a in AXES if a.scope == scope)
+            for scope in ("rmax", "hri")
+        }
         # R-MAX variants, one Q-learning, and the HRI variants at both temperatures
         assert len(methods) == size["rmax"] + 1 + 2 * size["hri"]
         assert {m.label for m in methods} == {m.label for m in PAPER_METHODS[:4]}
@@ -119,7 +126,11 @@ class TestTimeSlots:
         assert len(other.time_slots) == n
         assert other.n_contexts == n * len(office.situations)
         assert (other.situations, other.services, other.rewards, other.gamma) == (
-            office.situations, office.services, office.rewards, office.gamma)
+            office.situations,
+            office.services,
+            office.rewards,
+            office.gamma,
+        )
         for minute in range(0, 24 * 60, 15):
             t = time(minute // 60, minute % 60)
             mine = next(s.name for s in office.time_slots if s.contains(t))
@@ -155,8 +166,9 @@ def _map(verdicts: dict[Setting, list[bool]]) -> ClaimMap:
 class TestClaimMap:
     def test_shares_best_marginals_and_histogram(self) -> None:
         default, one, two = Setting.default(), Setting.of(m=1), Setting.of(m=1, noise=0.0)
-        claim_map = _map({default: [True, False, False], two: [True, True, False],
-                          one: [True, True, False]})
+        claim_map = _map(
+            {default: [True, False, False], two: [True, True, False], one: [True, True, False]}
+        )
         assert [claim_map.share(i) for i in range(3)] == [1.0, 2 / 3, 0.0]
         assert claim_map.best() == [one, two]  # tied: fewest changes first
         assert claim_map.held(default) == 1
@@ -176,13 +188,12 @@ class TestClaimMap:
         for method in grid.methods():
             runs[(world, method_key(method))] = [
                 run(method, protocol, 0, mission, n_users=1, user_params=world.user_params())
-                for protocol in (E1E2, E3)]
+                for protocol in (E1E2, E3)
+            ]
         claim_map = build_map(grid.settings(), runs)
         assert len(claim_map.claims) == 12  # the paper's; DTS is not run
-        paper = [run(m, p, 0, mission, n_users=1) for m in PAPER_METHODS[:4]
-                 for p in (E1E2, E3)]
-        assert claim_map.verdicts[Setting.default()] == [c.reproduced for c in
-                                                          check_claims(paper)]
+        paper = [run(m, p, 0, mission, n_users=1) for m in PAPER_METHODS[:4] for p in (E1E2, E3)]
+        assert claim_map.verdicts[Setting.default()] == [c.reproduced for c in check_claims(paper)]
         # Q-learning's runs are shared, and its rebound does not involve R-MAX
         rebound = [key for key, _ in claim_map.claims].index("E1-Q-rebound")
         assert len({v[rebound] for v in claim_map.verdicts.values()}) == 1

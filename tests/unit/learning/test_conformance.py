@@ -131,8 +131,13 @@ class SilentVisibleAction(HriLearner):
         d = super().select_action(obs, rng)
         if d.chain:
             step = d.chain[-1]
-            return dataclasses.replace(d, state=step.state, action=step.action,
-                                       probabilities=step.probabilities, chain=d.chain[:-1])
+            return dataclasses.replace(
+                d,
+                state=step.state,
+                action=step.action,
+                probabilities=step.probabilities,
+                chain=d.chain[:-1],
+            )
         return d
 
 
@@ -174,8 +179,9 @@ class NanInExplain(HriLearner):
 class OverflowsWhenStale(HriLearner):
     """Computes t^dQ naively, so huge staleness gives infinite preferences."""
 
-    def _pref_parts(self, q: FloatArray, context: int, state: int, episode: int
-                    ) -> tuple[FloatArray, FloatArray]:
+    def _pref_parts(
+        self, q: FloatArray, context: int, state: int, episode: int
+    ) -> tuple[FloatArray, FloatArray]:
         qs, _ = super()._pref_parts(q, context, state, episode)
         t = np.maximum(episode - self.last[context, self.space.actions_of(state).start], 1)
         with np.errstate(over="ignore"):

@@ -45,9 +45,15 @@ def test_its_defaults_are_dts_with_the_adapting_options_on() -> None:
     # dts keeps its behaviour: the options are off there, also for a document that lacks them.
     plain = DtsParams()
     assert (plain.trust_answers, plain.change_on_questions, plain.change_alpha) == (
-        False, False, 0.0)
-    old = {k: v for k, v in plain.to_dict().items()
-           if k not in ("trust_answers", "change_on_questions")}
+        False,
+        False,
+        0.0,
+    )
+    old = {
+        k: v
+        for k, v in plain.to_dict().items()
+        if k not in ("trust_answers", "change_on_questions")
+    }
     assert DtsParams.from_dict(old) == plain
 
 
@@ -58,15 +64,18 @@ def test_a_state_keeps_its_algorithm_name() -> None:
     again = learner_from_state(doc, MISSION)
     assert isinstance(again, DtsAdaptLearner)
     assert again.params == learner.params
-    assert type(learner_from_state(make_learner("dts", {}, MISSION).to_state(), MISSION)) \
-        is DtsLearner
+    assert (
+        type(learner_from_state(make_learner("dts", {}, MISSION).to_state(), MISSION)) is DtsLearner
+    )
 
 
 def share(state: int, action: int, learner: DtsLearner, context: int = 3) -> float:
     """The chance of ``action`` in ``state`` of a fresh context, over many draws."""
     rng = np.random.default_rng(5)
-    hits = sum(learner.select_action(Observation(context, state, 1), rng).action == action
-               for _ in range(200))
+    hits = sum(
+        learner.select_action(Observation(context, state, 1), rng).action == action
+        for _ in range(200)
+    )
     return hits / 200
 
 
@@ -87,17 +96,37 @@ def test_an_ended_detail_question_counts_in_the_change_test() -> None:
         ep = 0
         for _ in range(25):  # the detail question about drinks is answered, time after time
             ep += 1
-            learner.update([Transition(ep, 0, OBS, INITIATE, 1.0, ENGAGED, POS),
-                            Transition(ep, 0, ENGAGED, INFER_DRINK, 0.0, TK),
-                            Transition(ep, 0, TK, QUERY_DRINK, -0.5,
-                                       S.detail_known_state("ProvideDrink", "tea"), POS)])
+            learner.update(
+                [
+                    Transition(ep, 0, OBS, INITIATE, 1.0, ENGAGED, POS),
+                    Transition(ep, 0, ENGAGED, INFER_DRINK, 0.0, TK),
+                    Transition(
+                        ep,
+                        0,
+                        TK,
+                        QUERY_DRINK,
+                        -0.5,
+                        S.detail_known_state("ProvideDrink", "tea"),
+                        POS,
+                    ),
+                ]
+            )
             perform = S.actions_of(S.detail_known_state("ProvideDrink", "tea")).start
-            learner.update([Transition(ep, 0, S.detail_known_state("ProvideDrink", "tea"),
-                                       perform, 6.0, END, POS)])
+            learner.update(
+                [
+                    Transition(
+                        ep, 0, S.detail_known_state("ProvideDrink", "tea"), perform, 6.0, END, POS
+                    )
+                ]
+            )
         ep += 1  # then the person ends the question: they no longer want a drink there
-        learner.update([Transition(ep, 0, OBS, INITIATE, 1.0, ENGAGED, POS),
-                        Transition(ep, 0, ENGAGED, INFER_DRINK, 0.0, TK),
-                        Transition(ep, 0, TK, QUERY_DRINK, -2.5, END, NEG)])
+        learner.update(
+            [
+                Transition(ep, 0, OBS, INITIATE, 1.0, ENGAGED, POS),
+                Transition(ep, 0, ENGAGED, INFER_DRINK, 0.0, TK),
+                Transition(ep, 0, TK, QUERY_DRINK, -2.5, END, NEG),
+            ]
+        )
     counting, ignoring = learners
     assert counting.change[0, 0] == 0.0
     assert counting.dn[0, QUERY_DRINK] == 1.0
@@ -110,10 +139,11 @@ def shares(algorithm: str, family: str, window: tuple[int, int], seeds: range) -
     for seed in seeds:
         persons, flips = people(FAMILIES[family], mission, seed, 2, 120)
         for i, (who, u) in enumerate(zip(persons, flips, strict=True)):
-            rewards = run_learner(make_learner(algorithm, {}, mission), who, u,
-                                  np.random.default_rng([seed, i]))
-            total += float(rewards[window[0]:window[1]].sum())
-            oracle += float(run_oracle(S, who, u)[window[0]:window[1]].sum())
+            rewards = run_learner(
+                make_learner(algorithm, {}, mission), who, u, np.random.default_rng([seed, i])
+            )
+            total += float(rewards[window[0] : window[1]].sum())
+            oracle += float(run_oracle(S, who, u)[window[0] : window[1]].sum())
     return total / oracle
 
 
@@ -121,7 +151,8 @@ def test_it_learns_faster_and_recovers_sooner_than_dts() -> None:
     at = change_event(120)
     first = (0, 20)
     after = (at, at + 15)
-    assert shares("dts-adapt", "individual", first, range(3)) \
+    assert (
+        shares("dts-adapt", "individual", first, range(3))
         > shares("dts", "individual", first, range(3)) + 0.05
-    assert shares("dts-adapt", "abrupt", after, range(3)) \
-        > shares("dts", "abrupt", after, range(3))
+    )
+    assert shares("dts-adapt", "abrupt", after, range(3)) > shares("dts", "abrupt", after, range(3))

@@ -193,8 +193,9 @@ def test_many_alternating_feedbacks_stay_finite(algorithm: str) -> None:
     assert learner.version == plain.version + 2_000
     doc = learner.to_state()
     for name, enc in doc["arrays"].items():
-        array = decode_array(enc, name=name, dtype=np.dtype(enc["dtype"]),
-                             shape=tuple(enc["shape"]))
+        array = decode_array(
+            enc, name=name, dtype=np.dtype(enc["dtype"]), shape=tuple(enc["shape"])
+        )
         assert np.all(np.isfinite(array)), name
     q = q_of(learner)
     assert np.all(np.isfinite(q))

@@ -67,19 +67,24 @@ COFFEE = "coffee"
 INFER_COFFEE = act(ActionKind.INFER_DETAIL, DRINK, COFFEE)
 PERFORM_COFFEE = act(ActionKind.PERFORM, DRINK, COFFEE)
 DK_COFFEE = S.detail_known_state(DRINK, COFFEE)
-ROBOT_CHOICES = (ActionKind.INITIATE, ActionKind.QUERY_TYPE, ActionKind.INFER_TYPE,
-                 ActionKind.QUERY_DETAIL, ActionKind.INFER_DETAIL)
+ROBOT_CHOICES = (
+    ActionKind.INITIATE,
+    ActionKind.QUERY_TYPE,
+    ActionKind.INFER_TYPE,
+    ActionKind.QUERY_DETAIL,
+    ActionKind.INFER_DETAIL,
+)
 
 
-def served(ep: int, infer: int, dk: int, perform: int, *, liked: bool = True,
-           context: int = CONTEXT) -> list[Transition]:
+def served(
+    ep: int, infer: int, dk: int, perform: int, *, liked: bool = True, context: int = CONTEXT
+) -> list[Transition]:
     """The robot offered, guessed a drink and brought it; the person took it or turned it down."""
     return [
         Transition(ep, context, OBS, INITIATE, 1.0, ENGAGED, POS),
         Transition(ep, context, ENGAGED, INFER_DRINK, 0.0, TK),
         Transition(ep, context, TK, infer, 0.0, dk),
-        Transition(ep, context, dk, perform, 5.0 if liked else -2.0, END,
-                   POS if liked else NEG),
+        Transition(ep, context, dk, perform, 5.0 if liked else -2.0, END, POS if liked else NEG),
     ]
 
 
@@ -93,12 +98,22 @@ def tea(ep: int, *, liked: bool) -> list[Transition]:
 
 def in_space(space: NegotiationSpace, rows: list[Transition]) -> list[Transition]:
     """``rows`` of the office mission, by names, in ``space``'s indices."""
+
     def state(s: int) -> int:
         return space.END if s == END else space.states.index(S.states[s])
 
-    return [Transition(t.episode, t.context, state(t.state),
-                       space.action_index(S.actions[t.action]), t.reward,
-                       state(t.next_state), t.signal) for t in rows]
+    return [
+        Transition(
+            t.episode,
+            t.context,
+            state(t.state),
+            space.action_index(S.actions[t.action]),
+            t.reward,
+            state(t.next_state),
+            t.signal,
+        )
+        for t in rows
+    ]
 
 
 def learner(algorithm: str, trained: bool) -> TabularLearner[Any]:
@@ -110,10 +125,18 @@ def learner(algorithm: str, trained: bool) -> TabularLearner[Any]:
     return out
 
 
-def rule(rid: str, kind: RuleKind, service: str | None = None, detail: str | None = None,
-         **kw: Any) -> Rule:
-    return Rule(id=rid, kind=kind, time_slot=kw.pop("time_slot", SLOT),
-                situation=kw.pop("situation", SITUATION), service=service, detail=detail, **kw)
+def rule(
+    rid: str, kind: RuleKind, service: str | None = None, detail: str | None = None, **kw: Any
+) -> Rule:
+    return Rule(
+        id=rid,
+        kind=kind,
+        time_slot=kw.pop("time_slot", SLOT),
+        situation=kw.pop("situation", SITUATION),
+        service=service,
+        detail=detail,
+        **kw,
+    )
 
 
 def probs(lrn: TabularLearner[Any], context: int = CONTEXT) -> np.ndarray:
@@ -139,7 +162,7 @@ def renormalised(own: np.ndarray, allowed: list[int], state: int) -> np.ndarray:
 
 def state_probs(p: np.ndarray, state: int) -> np.ndarray:
     actions = S.actions_of(state)
-    return p[actions.start:actions.stop]
+    return p[actions.start : actions.stop]
 
 
 def assert_distributions(p: np.ndarray) -> None:
@@ -207,12 +230,10 @@ class TestAvoid:
         np.testing.assert_allclose(state_probs(p, ENGAGED), renormalised(own, kept, ENGAGED))
         # nowhere does the robot choose its way to a drink
         for pair, a in enumerate(S.actions):
-            if a.kind in ROBOT_CHOICES and a.service == DRINK \
-                    and S.pair_state[pair] != TK:
+            if a.kind in ROBOT_CHOICES and a.service == DRINK and S.pair_state[pair] != TK:
                 assert p[pair] == 0.0, S.action_name(pair)
 
-    def test_the_state_the_person_settled_stays_unmasked(
-            self, lrn: TabularLearner[Any]) -> None:
+    def test_the_state_the_person_settled_stays_unmasked(self, lrn: TabularLearner[Any]) -> None:
         lrn.correct(rule("no-drinks", RuleKind.AVOID, DRINK))
         own, p = probs(bare(lrn)), probs(lrn)
         # in TYPE_KNOWN(drink) every action is forbidden: only the person gets it there (a
@@ -256,8 +277,9 @@ class TestQuiet:
         np.testing.assert_array_equal(p[others], own[others])
         rng = np.random.default_rng(0)
         for _ in range(100):
-            assert lrn.select_action(Observation(CONTEXT, OBS, lrn.episodes + 1),
-                                     rng).action == PASS
+            assert (
+                lrn.select_action(Observation(CONTEXT, OBS, lrn.episodes + 1), rng).action == PASS
+            )
 
     def test_quiet_and_prefers(self, lrn: TabularLearner[Any]) -> None:
         lrn.correct(rule("tea", RuleKind.PREFERS, DRINK, TEA))
@@ -308,8 +330,9 @@ class TestThePersonWins:
     def test_answers_elsewhere_do_not_count(self, lrn: TabularLearner[Any]) -> None:
         lrn.correct(rule("tea", RuleKind.PREFERS, DRINK, TEA))
         for _ in range(2 * CONTRADICTIONS):
-            lrn.update(served(lrn.episodes + 1, INFER_TEA, DK, PERFORM_TEA, liked=False,
-                              context=OTHER))
+            lrn.update(
+                served(lrn.episodes + 1, INFER_TEA, DK, PERFORM_TEA, liked=False, context=OTHER)
+            )
         r = lrn.guidance.get("tea")
         assert r is not None
         assert (r.in_force, r.streak, r.contradicted) == (True, 0, 0)
@@ -317,17 +340,27 @@ class TestThePersonWins:
 
 class TestState:
     def test_round_trip_keeps_rules_and_counters(self, lrn: TabularLearner[Any]) -> None:
-        lrn.correct(rule("tea", RuleKind.PREFERS, DRINK, TEA, meta={"author": "k1",
-                                                                      "note": "daughter"}))
-        lrn.correct(rule("no-news", RuleKind.AVOID, "BriefInformation", "news",
-                         time_slot="morning", situation="arriving"))
+        lrn.correct(
+            rule("tea", RuleKind.PREFERS, DRINK, TEA, meta={"author": "k1", "note": "daughter"})
+        )
+        lrn.correct(
+            rule(
+                "no-news",
+                RuleKind.AVOID,
+                "BriefInformation",
+                "news",
+                time_slot="morning",
+                situation="arriving",
+            )
+        )
         lrn.correct(rule("hush", RuleKind.QUIET, time_slot="evening", situation="working"))
         lrn.update(tea(lrn.episodes + 1, liked=False))
         lrn.update(tea(lrn.episodes + 1, liked=True))
         doc = lrn.to_state()
         back = learner_from_state(doc, MISSION)
-        assert [r.to_dict() for r in back.guidance.rules] == \
-            [r.to_dict() for r in lrn.guidance.rules]
+        assert [r.to_dict() for r in back.guidance.rules] == [
+            r.to_dict() for r in lrn.guidance.rules
+        ]
         r = back.guidance.get("tea")
         assert r is not None
         assert (r.confirmed, r.contradicted, r.streak) == (1, 1, 0)
@@ -360,23 +393,56 @@ class TestState:
         assert not back.guidance
         np.testing.assert_array_equal(probs(back), probs(lrn))
 
-    @pytest.mark.parametrize("bad", [
-        {"not": "a list"},
-        "tea",
-        [1],
-        [{"id": "x", "kind": "sometimes", "time_slot": SLOT, "situation": SITUATION}],
-        [{"kind": "quiet", "time_slot": SLOT, "situation": SITUATION}],
-        [{"id": "x", "kind": "quiet", "time_slot": SLOT, "situation": SITUATION,
-          "streak": -1}],
-        [{"id": "x", "kind": "quiet", "time_slot": SLOT, "situation": SITUATION,
-          "confirmed": True}],
-        [{"id": "x", "kind": "prefers", "time_slot": SLOT, "situation": SITUATION,
-          "service": DRINK, "detail": TEA, "overridden_at": "soon"}],
-        [{"id": "x", "kind": "prefers", "time_slot": SLOT, "situation": SITUATION,
-          "service": 3, "detail": TEA}],
-        [{"id": "x", "kind": "quiet", "time_slot": SLOT, "situation": SITUATION,
-          "meta": "note"}],
-    ])
+    @pytest.mark.parametrize(
+        "bad",
+        [
+            {"not": "a list"},
+            "tea",
+            [1],
+            [{"id": "x", "kind": "sometimes", "time_slot": SLOT, "situation": SITUATION}],
+            [{"kind": "quiet", "time_slot": SLOT, "situation": SITUATION}],
+            [{"id": "x", "kind": "quiet", "time_slot": SLOT, "situation": SITUATION, "streak": -1}],
+            [
+                {
+                    "id": "x",
+                    "kind": "quiet",
+                    "time_slot": SLOT,
+                    "situation": SITUATION,
+                    "confirmed": True,
+                }
+            ],
+            [
+                {
+                    "id": "x",
+                    "kind": "prefers",
+                    "time_slot": SLOT,
+                    "situation": SITUATION,
+                    "service": DRINK,
+                    "detail": TEA,
+                    "overridden_at": "soon",
+                }
+            ],
+            [
+                {
+                    "id": "x",
+                    "kind": "prefers",
+                    "time_slot": SLOT,
+                    "situation": SITUATION,
+                    "service": 3,
+                    "detail": TEA,
+                }
+            ],
+            [
+                {
+                    "id": "x",
+                    "kind": "quiet",
+                    "time_slot": SLOT,
+                    "situation": SITUATION,
+                    "meta": "note",
+                }
+            ],
+        ],
+    )
     def test_bad_guidance_is_refused(self, bad: Any) -> None:
         doc = learner("hri", False).to_state()
         doc["guidance"] = bad
@@ -391,17 +457,20 @@ class TestState:
 
 
 class TestRules:
-    @pytest.mark.parametrize(("made", "word"), [
-        (rule("x", RuleKind.PREFERS, DRINK), "needs a detail"),
-        (rule("x", RuleKind.PREFERS), "needs a service"),
-        (rule("x", RuleKind.AVOID), "needs a service"),
-        (rule("x", RuleKind.QUIET, DRINK), "quiet takes no service"),
-        (rule("x", RuleKind.AVOID, "Dance"), "service"),
-        (rule("x", RuleKind.AVOID, DRINK, "whisky"), "detail"),
-        (rule("x", RuleKind.QUIET, time_slot="midnight"), "midnight"),
-        (rule("x", RuleKind.QUIET, situation="sleeping"), "sleeping"),
-        (rule("x/y", RuleKind.QUIET), "correction id"),
-    ])
+    @pytest.mark.parametrize(
+        ("made", "word"),
+        [
+            (rule("x", RuleKind.PREFERS, DRINK), "needs a detail"),
+            (rule("x", RuleKind.PREFERS), "needs a service"),
+            (rule("x", RuleKind.AVOID), "needs a service"),
+            (rule("x", RuleKind.QUIET, DRINK), "quiet takes no service"),
+            (rule("x", RuleKind.AVOID, "Dance"), "service"),
+            (rule("x", RuleKind.AVOID, DRINK, "whisky"), "detail"),
+            (rule("x", RuleKind.QUIET, time_slot="midnight"), "midnight"),
+            (rule("x", RuleKind.QUIET, situation="sleeping"), "sleeping"),
+            (rule("x/y", RuleKind.QUIET), "correction id"),
+        ],
+    )
     def test_a_rule_that_does_not_fit_changes_nothing(self, made: Rule, word: str) -> None:
         lrn = learner("hri", True)
         before = lrn.to_state()
@@ -424,14 +493,17 @@ class TestRules:
 
 
 class TestLifting:
-    @pytest.mark.parametrize("made", [
-        rule("tea", RuleKind.PREFERS, DRINK, TEA),
-        rule("no-drinks", RuleKind.AVOID, DRINK),
-        rule("no-tea", RuleKind.AVOID, DRINK, TEA),
-        rule("hush", RuleKind.QUIET),
-    ], ids=lambda r: r.id)
-    def test_restores_the_exact_probabilities(self, lrn: TabularLearner[Any],
-                                              made: Rule) -> None:
+    @pytest.mark.parametrize(
+        "made",
+        [
+            rule("tea", RuleKind.PREFERS, DRINK, TEA),
+            rule("no-drinks", RuleKind.AVOID, DRINK),
+            rule("no-tea", RuleKind.AVOID, DRINK, TEA),
+            rule("hush", RuleKind.QUIET),
+        ],
+        ids=lambda r: r.id,
+    )
+    def test_restores_the_exact_probabilities(self, lrn: TabularLearner[Any], made: Rule) -> None:
         before = copy.deepcopy(lrn)
         lrn.correct(made)
         lrn.lift(made.id)
@@ -465,8 +537,9 @@ class TestMissionChange:
         lrn.correct(rule("tea", RuleKind.PREFERS, DRINK, TEA))
         lrn.correct(rule("hush", RuleKind.QUIET, time_slot="morning", situation="arriving"))
         moved = remap_learner(lrn, self._without_schedule())
-        assert [r.to_dict() for r in moved.guidance.rules] == \
-            [r.to_dict() for r in lrn.guidance.rules]
+        assert [r.to_dict() for r in moved.guidance.rules] == [
+            r.to_dict() for r in lrn.guidance.rules
+        ]
         space = moved.space
         p = moved.explain(CONTEXT, moved.episodes + 1).probabilities
         tea_pair = space.action_index(S.actions[INFER_TEA])
@@ -475,18 +548,28 @@ class TestMissionChange:
         assert moved.explain(quiet_ctx, moved.episodes + 1).probabilities[space.INITIATE] == 0
 
     def test_a_rule_of_a_service_the_mission_lacks_lies_idle(
-            self, lrn: TabularLearner[Any]) -> None:
+        self, lrn: TabularLearner[Any]
+    ) -> None:
         new = self._without_schedule()
         lrn.correct(rule("no-agenda", RuleKind.AVOID, "ArrangeSchedule"))
-        lrn.correct(rule("agenda", RuleKind.PREFERS, "ArrangeSchedule", "today_agenda",
-                         time_slot="morning", situation="arriving"))
+        lrn.correct(
+            rule(
+                "agenda",
+                RuleKind.PREFERS,
+                "ArrangeSchedule",
+                "today_agenda",
+                time_slot="morning",
+                situation="arriving",
+            )
+        )
         moved = remap_learner(lrn, new)
         plain = bare(moved)
         assert [r.id for r in moved.guidance.rules] == ["no-agenda", "agenda"]
         for c in range(moved.space.n_contexts):
             ep = moved.episodes + 1
-            np.testing.assert_array_equal(moved.explain(c, ep).probabilities,
-                                          plain.explain(c, ep).probabilities)
+            np.testing.assert_array_equal(
+                moved.explain(c, ep).probabilities, plain.explain(c, ep).probabilities
+            )
         rng = np.random.default_rng(1)
         moved.select_action(Observation(CONTEXT, moved.space.OBSERVE, moved.episodes + 1), rng)
         # the idle rule counts nothing and breaks nothing

@@ -13,9 +13,10 @@ def _renamed_mission() -> Mission:
     doc = office_mission().to_dict()
     doc["situations"] = ["occupied" if s == "busy" else s for s in doc["situations"]]
     doc["unavailable_situations"] = ["occupied"]
-    doc["services"] = [{"name": s["name"],
-                        "details": ["green_tea" if d == "tea" else d for d in s["details"]]}
-                       for s in doc["services"]]
+    doc["services"] = [
+        {"name": s["name"], "details": ["green_tea" if d == "tea" else d for d in s["details"]]}
+        for s in doc["services"]
+    ]
     return Mission.from_dict(doc)
 
 
@@ -23,8 +24,9 @@ def test_renamed_names_follow() -> None:
     learner = make_learner("hri", None, office_mission())
     learner.correct(Rule("r", RuleKind.PREFERS, "morning", "busy", "ProvideDrink", "tea"))
     new = _renamed_mission()
-    moved = remap_learner(learner, new, Renames(situations={"busy": "occupied"},
-                                                details={"tea": "green_tea"}))
+    moved = remap_learner(
+        learner, new, Renames(situations={"busy": "occupied"}, details={"tea": "green_tea"})
+    )
     [rule] = moved.guidance.rules
     assert (rule.situation, rule.detail) == ("occupied", "green_tea")
     view = moved.explain(new.context_index("morning", "occupied"), 1)
@@ -40,5 +42,4 @@ def test_a_removed_name_leaves_the_rule_idle() -> None:
     moved = remap_learner(learner, _renamed_mission())  # no renames: "busy" is gone
     assert [r.id for r in moved.guidance.rules] == ["r"]
     for c in range(moved.space.n_contexts):
-        assert np.array_equal(moved.explain(c, 1).probabilities,
-                              fresh.explain(c, 1).probabilities)
+        assert np.array_equal(moved.explain(c, 1).probabilities, fresh.explain(c, 1).probabilities)

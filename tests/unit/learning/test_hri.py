@@ -58,8 +58,15 @@ def i0(ep: int, c: int = 0) -> list[Transition]:
     return [Transition(ep, c, OBS, PASS, 0.0, END, NEU)]
 
 
-def i2(ep: int, c: int = 0, service: str = DRINK, detail: str = "tea", *,
-       reward: float = 6.0, query_detail: bool = False) -> list[Transition]:
+def i2(
+    ep: int,
+    c: int = 0,
+    service: str = DRINK,
+    detail: str = "tea",
+    *,
+    reward: float = 6.0,
+    query_detail: bool = False,
+) -> list[Transition]:
     """Initiated, accepted, inferred the type, inferred (or asked) the detail, performed."""
     tk, dk = S.type_known_state(service), S.detail_known_state(service, detail)
     rows = [
@@ -70,13 +77,23 @@ def i2(ep: int, c: int = 0, service: str = DRINK, detail: str = "tea", *,
         rows.append(Transition(ep, c, tk, act(ActionKind.QUERY_DETAIL, service), -0.5, dk, POS))
     else:
         rows.append(Transition(ep, c, tk, act(ActionKind.INFER_DETAIL, service, detail), 0.0, dk))
-    rows.append(Transition(ep, c, dk, act(ActionKind.PERFORM, service, detail), reward, END,
-                           POS if reward > 0 else NEG))
+    rows.append(
+        Transition(
+            ep,
+            c,
+            dk,
+            act(ActionKind.PERFORM, service, detail),
+            reward,
+            END,
+            POS if reward > 0 else NEG,
+        )
+    )
     return rows
 
 
-def i1(ep: int, c: int = 0, service: str = DRINK, detail: str = "tea", *,
-       reward: float = 6.0) -> list[Transition]:
+def i1(
+    ep: int, c: int = 0, service: str = DRINK, detail: str = "tea", *, reward: float = 6.0
+) -> list[Transition]:
     """The human asked after a pass; the robot responded, inferred the detail, performed."""
     rq = S.request_state(service)
     tk, dk = S.type_known_state(service), S.detail_known_state(service, detail)
@@ -84,8 +101,15 @@ def i1(ep: int, c: int = 0, service: str = DRINK, detail: str = "tea", *,
         Transition(ep, c, OBS, PASS, 0.0, rq, POS),
         Transition(ep, c, rq, act(ActionKind.RESPOND, service), 1.0, tk),
         Transition(ep, c, tk, act(ActionKind.INFER_DETAIL, service, detail), 0.0, dk),
-        Transition(ep, c, dk, act(ActionKind.PERFORM, service, detail), reward, END,
-                   POS if reward > 0 else NEG),
+        Transition(
+            ep,
+            c,
+            dk,
+            act(ActionKind.PERFORM, service, detail),
+            reward,
+            END,
+            POS if reward > 0 else NEG,
+        ),
     ]
 
 
@@ -300,8 +324,9 @@ class TestModelAndValues:
         tk_drink, tk_info = S.type_known_state(DRINK), S.type_known_state(INFO)
         dk_tea, dk_news = S.detail_known_state(DRINK, "tea"), S.detail_known_state(INFO, "news")
 
-        def asked(ep: int, service: str, detail: str, tk: int, dk: int, reward: float
-                  ) -> list[Transition]:
+        def asked(
+            ep: int, service: str, detail: str, tk: int, dk: int, reward: float
+        ) -> list[Transition]:
             return [
                 Transition(ep, 0, OBS, INITIATE, 1.0, ENGAGED, POS),
                 Transition(ep, 0, ENGAGED, QUERY_TYPE, -0.5, tk, POS),
@@ -309,8 +334,11 @@ class TestModelAndValues:
                 Transition(ep, 0, dk, act(ActionKind.PERFORM, service, detail), reward, END, POS),
             ]
 
-        feed(learner, asked(1, DRINK, "tea", tk_drink, dk_tea, 6.0),
-             asked(2, INFO, "news", tk_info, dk_news, 2.0))
+        feed(
+            learner,
+            asked(1, DRINK, "tea", tk_drink, dk_tea, 6.0),
+            asked(2, INFO, "news", tk_info, dk_news, 2.0),
+        )
         q = view_of(learner, 3).q
         v_tk_drink = -0.5 + G * 6.0  # 4.9
         v_tk_info = -0.5 + G * 2.0  # 1.3
@@ -378,8 +406,7 @@ class TestActionSelection:
         pref_pass = 0.0 + e ** (1 / 60)
         expected = gibbs([pref_init, pref_pass], tau)
         view = view_of(learner, e)
-        assert view.probabilities[[INITIATE, PASS]] == pytest.approx(expected, rel=1e-9,
-                                                                     abs=1e-300)
+        assert view.probabilities[[INITIATE, PASS]] == pytest.approx(expected, rel=1e-9, abs=1e-300)
         d = learner.select_action(Observation(0, OBS, e), np.random.default_rng(0))
         assert d.probabilities == pytest.approx(expected, rel=1e-9, abs=1e-300)
 
@@ -389,8 +416,7 @@ class TestActionSelection:
         tk = S.type_known_state(DRINK)
         actions = list(S.actions_of(tk))
         qd = act(ActionKind.QUERY_DETAIL, DRINK)
-        assert actions == [qd, infer_detail("tea"), infer_detail("coffee"),
-                           infer_detail("water")]
+        assert actions == [qd, infer_detail("tea"), infer_detail("coffee"), infer_detail("water")]
         q = [-0.5 + G * 6.0, 0.0, G * -2.0, 0.0]  # asked-and-liked, never, failed, never
         e = 10
         t = [e - 1, e, e - 2, e]
@@ -402,7 +428,8 @@ class TestActionSelection:
         assert view.q[actions] == pytest.approx(q)
         assert list(view.since_last[actions]) == t
         assert view.measure[actions] == pytest.approx(
-            [t[i] ** (qs[i] - mean) for i in range(4)], rel=1e-12)
+            [t[i] ** (qs[i] - mean) for i in range(4)], rel=1e-12
+        )
         assert view.probabilities[actions] == pytest.approx(expected, rel=1e-9, abs=1e-300)
         d = learner.select_action(Observation(0, tk, e), np.random.default_rng(1))
         assert d.state == tk and d.chain == () or d.chain[0].state == tk
@@ -436,7 +463,7 @@ class TestActionSelection:
         feed(learner, i3(1))
         e = 3
         # Q raw = (-2, 0): dQ = (-1, +1); t = (2, 3).
-        prefs = [-2.0 + 2.0 ** -1, 0.0 + 3.0**1]
+        prefs = [-2.0 + 2.0**-1, 0.0 + 3.0**1]
         view = view_of(learner, e)
         assert view.measure[[INITIATE, PASS]] == pytest.approx([0.5, 3.0])
         assert view.probabilities[[INITIATE, PASS]] == pytest.approx(gibbs(prefs, 10.0))
@@ -466,7 +493,8 @@ class TestActionSelection:
         mean = (q_init + q_pass) / 2
         prefs = [q_init + 1 ** (q_init - mean), q_pass + 3 ** (q_pass - mean)]  # t = (1, 3)
         assert view_of(adaptive, 3).probabilities[[INITIATE, PASS]] == pytest.approx(
-            gibbs(prefs, tau_c), rel=1e-9)
+            gibbs(prefs, tau_c), rel=1e-9
+        )
 
     def test_context_staleness(self) -> None:
         glob, ctx = hri(), hri(staleness="context")
@@ -475,9 +503,11 @@ class TestActionSelection:
         e = 10
         # Global: t = (9, 10). Per context: context 0 saw one episode, so now = 2: t = (1, 2).
         assert view_of(glob, e).measure[[INITIATE, PASS]] == pytest.approx(
-            [9 ** (-1 / 60), 10 ** (1 / 60)], rel=1e-12)
+            [9 ** (-1 / 60), 10 ** (1 / 60)], rel=1e-12
+        )
         assert view_of(ctx, e).measure[[INITIATE, PASS]] == pytest.approx(
-            [1.0, 2 ** (1 / 60)], rel=1e-12)
+            [1.0, 2 ** (1 / 60)], rel=1e-12
+        )
         # The inspection view reports the t the measure used.
         assert list(view_of(glob, e).since_last[[INITIATE, PASS]]) == [9, 10]
         assert list(view_of(ctx, e).since_last[[INITIATE, PASS]]) == [1, 2]
@@ -485,8 +515,10 @@ class TestActionSelection:
     def test_zero_tau_is_greedy_with_seeded_ties(self) -> None:
         learner = hri(tau=0.0)
         assert list(view_of(learner, 1).probabilities[[INITIATE, PASS]]) == [0.5, 0.5]
-        picks = {learner.select_action(Observation(0, OBS, 1), np.random.default_rng(s)).action
-                 for s in range(20)}
+        picks = {
+            learner.select_action(Observation(0, OBS, 1), np.random.default_rng(s)).action
+            for s in range(20)
+        }
         assert picks == {INITIATE, PASS}
         feed(learner, i3(1))
         assert list(view_of(learner, 2).probabilities[[INITIATE, PASS]]) == [0.0, 1.0]

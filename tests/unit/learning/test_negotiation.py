@@ -71,17 +71,26 @@ class TestOutcome:
     def test_queries_cost_their_price_whatever_the_answer(self) -> None:
         qt = act(ActionKind.QUERY_TYPE)
         assert outcome(S, qt, "answered", service="ProvideDrink") == (
-            R.query, S.type_known_state("ProvideDrink"), Polarity.POSITIVE)
+            R.query,
+            S.type_known_state("ProvideDrink"),
+            Polarity.POSITIVE,
+        )
         assert outcome(S, qt, "terminated") == (R.query + R.negative, S.END, Polarity.NEGATIVE)
         qd = act(ActionKind.QUERY_DETAIL, "ProvideDrink")
         assert outcome(S, qd, "answered", detail="coffee") == (
-            R.query, S.detail_known_state("ProvideDrink", "coffee"), Polarity.POSITIVE)
+            R.query,
+            S.detail_known_state("ProvideDrink", "coffee"),
+            Polarity.POSITIVE,
+        )
         assert outcome(S, qd, "terminated") == (R.query + R.negative, S.END, Polarity.NEGATIVE)
 
     def test_perform(self) -> None:
         a = act(ActionKind.PERFORM, "ProvideDrink", "tea")
-        assert outcome(S, a, "accepted") == (R.positive + R.accepted_service, S.END,
-                                             Polarity.POSITIVE)
+        assert outcome(S, a, "accepted") == (
+            R.positive + R.accepted_service,
+            S.END,
+            Polarity.POSITIVE,
+        )
         for no in ("rejected", "terminated"):
             assert outcome(S, a, no) == (R.negative, S.END, Polarity.NEGATIVE)
 
@@ -113,8 +122,10 @@ class TestInteraction:
         assert interaction(S, pas, S.END) is Interaction.NONE
 
     def test_from_an_episode_s_transitions(self) -> None:
-        rows = [Transition(1, 0, S.OBSERVE, S.INITIATE, R.positive, S.ENGAGED),
-                Transition(1, 0, S.ENGAGED, act(ActionKind.QUERY_TYPE), R.query, S.END)]
+        rows = [
+            Transition(1, 0, S.OBSERVE, S.INITIATE, R.positive, S.ENGAGED),
+            Transition(1, 0, S.ENGAGED, act(ActionKind.QUERY_TYPE), R.query, S.END),
+        ]
         assert interaction_class(S, rows) is Interaction.I2
         assert interaction_class(S, rows[1:]) is Interaction.NONE  # no root step: nothing
 
@@ -129,10 +140,18 @@ class TestTally:
         steps = [
             (S.OBSERVE, S.INITIATE, "accepted", {}),
             (S.ENGAGED, act(ActionKind.QUERY_TYPE), "answered", {"service": "ProvideDrink"}),
-            (S.type_known_state("ProvideDrink"), act(ActionKind.QUERY_DETAIL, "ProvideDrink"),
-             "answered", {"detail": "tea"}),
-            (S.detail_known_state("ProvideDrink", "tea"),
-             act(ActionKind.PERFORM, "ProvideDrink", "tea"), "accepted", {}),
+            (
+                S.type_known_state("ProvideDrink"),
+                act(ActionKind.QUERY_DETAIL, "ProvideDrink"),
+                "answered",
+                {"detail": "tea"},
+            ),
+            (
+                S.detail_known_state("ProvideDrink", "tea"),
+                act(ActionKind.PERFORM, "ProvideDrink", "tea"),
+                "accepted",
+                {},
+            ),
         ]
         for state, action, word, named in steps:
             o = outcome(S, action, word, **named)
@@ -141,20 +160,28 @@ class TestTally:
         assert tally.success
         assert tally.interaction is Interaction.I2
         assert tally.queries == 2
-        assert tally.reward == pytest.approx(R.positive + 2 * R.query + R.positive
-                                             + R.accepted_service)
+        assert tally.reward == pytest.approx(
+            R.positive + 2 * R.query + R.positive + R.accepted_service
+        )
 
     def test_a_rejected_service_is_no_success_and_silent_steps_count_their_reward(self) -> None:
         tally = Tally()
         o = outcome(S, S.PASS, "human_request", service="ProvideDrink")
         tally.step(S, S.OBSERVE, S.PASS, o.reward, o.next_state, o.signal)
         respond = act(ActionKind.RESPOND, "ProvideDrink")
-        tally.step(S, o.next_state, respond, float(S.silent_reward[respond]),
-                   int(S.silent_next[respond]))
+        tally.step(
+            S, o.next_state, respond, float(S.silent_reward[respond]), int(S.silent_next[respond])
+        )
         perform = act(ActionKind.PERFORM, "ProvideDrink", "coffee")
         o = outcome(S, perform, "rejected")
-        tally.step(S, S.detail_known_state("ProvideDrink", "coffee"), perform, o.reward,
-                   o.next_state, o.signal)
+        tally.step(
+            S,
+            S.detail_known_state("ProvideDrink", "coffee"),
+            perform,
+            o.reward,
+            o.next_state,
+            o.signal,
+        )
         assert not tally.initiated
         assert not tally.success
         assert tally.interaction is Interaction.I1
@@ -173,12 +200,15 @@ def test_the_simulated_people_answer_by_the_same_rules() -> None:
     ``outcome``'s, for every action, need and coin flip."""
     from app.learning.simulation import Need, UserProfile, respond
 
-    profile = UserProfile((Need(MISSION.context_index("afternoon", "stretching"), 0, 0),),
-                          p_abort=0.3)
-    for context, action, u in itertools.product(range(MISSION.n_contexts), VISIBLE,
-                                                (0.01, 0.4, 0.99)):
+    profile = UserProfile(
+        (Need(MISSION.context_index("afternoon", "stretching"), 0, 0),), p_abort=0.3
+    )
+    for context, action, u in itertools.product(
+        range(MISSION.n_contexts), VISIBLE, (0.01, 0.4, 0.99)
+    ):
         state = int(S.pair_state[action])
         reaction = respond(S, profile, context, state, action, np.array([u, u]))
-        expected = outcome(S, action, reaction.response, service=reaction.service,
-                           detail=reaction.detail)
+        expected = outcome(
+            S, action, reaction.response, service=reaction.service, detail=reaction.detail
+        )
         assert (reaction.reward, reaction.next_state, reaction.signal) == tuple(expected)

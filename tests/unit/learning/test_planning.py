@@ -45,8 +45,10 @@ OFFICE = office_mission()
 # Another shape: other numbers of services and details (so another M), situations and rewards.
 WORKSHOP = Mission(
     name="workshop",
-    time_slots=(TimeSlot("day", time(8, 0), time(20, 0)), TimeSlot("night", time(20, 0),
-                                                                  time(8, 0))),
+    time_slots=(
+        TimeSlot("day", time(8, 0), time(20, 0)),
+        TimeSlot("night", time(20, 0), time(8, 0)),
+    ),
     situations=("bench", "break", "away"),
     services=(
         Service("Fetch", ("screws", "glue", "tape", "clamp", "drill", "saw")),
@@ -66,8 +68,9 @@ def identical(a: FloatArray, b: FloatArray) -> bool:
 # -- the reference: the planner as it was, by full sweeps --------------------------------------
 
 
-def reference_plan(learner: DtsLearner, context: int, rng: np.random.Generator | None
-                   ) -> FloatArray:
+def reference_plan(
+    learner: DtsLearner, context: int, rng: np.random.Generator | None
+) -> FloatArray:
     """Q (samples, P) of a decision's models: the whole (samples, P, M) Dirichlet table drawn
     at once, every model solved by full sweeps."""
     if rng is None:
@@ -84,8 +87,12 @@ def reference_plan(learner: DtsLearner, context: int, rng: np.random.Generator |
     v_answer = a_mean + a_sd * rng.standard_normal(k)
     folded_reward, folded_trans = learner._fold_answers(reward, trans, v_answer)
     q = sweep_value_iteration(
-        space, folded_reward, folded_trans, gamma=learner.mission.gamma,
-        tol=learner.params.vi_tol, max_sweeps=learner.params.vi_max_sweeps,
+        space,
+        folded_reward,
+        folded_trans,
+        gamma=learner.mission.gamma,
+        tol=learner.params.vi_tol,
+        max_sweeps=learner.params.vi_max_sweeps,
     )
     out: FloatArray = np.clip(q, -learner.mission.v_max, learner.mission.v_max)
     return out
@@ -175,8 +182,13 @@ def test_a_negotiation_is_acyclic_by_levels(mission: Mission) -> None:
         assert np.all((nxt > space.pair_state[p]) | (nxt == space.END))
     level = space_levels(space)
     assert level is not None
-    expected = {StateKind.DETAIL_KNOWN: 0, StateKind.TYPE_KNOWN: 1, StateKind.ENGAGED: 2,
-                StateKind.REQUEST: 2, StateKind.OBSERVE: 3}
+    expected = {
+        StateKind.DETAIL_KNOWN: 0,
+        StateKind.TYPE_KNOWN: 1,
+        StateKind.ENGAGED: 2,
+        StateKind.REQUEST: 2,
+        StateKind.OBSERVE: 3,
+    }
     kinds = [space.states[int(s)].kind for s in space.pair_state]
     assert level.tolist() == [expected[kind] for kind in kinds]
 
@@ -200,8 +212,9 @@ def test_pair_levels_of_hand_made_spaces() -> None:
 # -- value iteration by levels against full sweeps ---------------------------------------------
 
 
-def random_model(space: NegotiationSpace, rng: np.random.Generator, batch: tuple[int, ...]
-                 ) -> tuple[FloatArray, FloatArray]:
+def random_model(
+    space: NegotiationSpace, rng: np.random.Generator, batch: tuple[int, ...]
+) -> tuple[FloatArray, FloatArray]:
     """Rewards and transitions; some probabilities tiny, so that sweeps stop before the end."""
     P, M = space.n_actions, space.max_succ
     weights = np.where(space.succ_mask, rng.random((*batch, P, M)) ** rng.choice([1, 12]), 0.0)
@@ -226,15 +239,18 @@ def test_value_iteration_is_the_full_sweeps_bit_for_bit(mission: Mission) -> Non
             elif trial % 3 == 2:
                 fixed = rng.random((*batch, space.n_actions)) < 0.3
             kw: dict[str, Any] = {
-                "gamma": mission.gamma, "tol": float(rng.choice([1e-8, 1e-3, 0.5, 1.0])),
-                "max_sweeps": int(rng.choice([1, 2, 3, 500, 500])), "fixed": fixed,
+                "gamma": mission.gamma,
+                "tol": float(rng.choice([1e-8, 1e-3, 0.5, 1.0])),
+                "max_sweeps": int(rng.choice([1, 2, 3, 500, 500])),
+                "fixed": fixed,
                 "fixed_value": mission.v_max,
             }
             expected = sweep_value_iteration(space, reward, trans, **kw)
             got = value_iteration(space, reward, trans, **kw)
             assert identical(got, expected)
-            converged = sweep_value_iteration(space, reward, trans, **{**kw, "tol": 0.0,
-                                                                       "max_sweeps": 10})
+            converged = sweep_value_iteration(
+                space, reward, trans, **{**kw, "tol": 0.0, "max_sweeps": 10}
+            )
             if not np.array_equal(expected, converged):  # stopped before every value was final
                 early["by the tolerance" if kw["max_sweeps"] > 3 else "by the limit"] += 1
             for wanted in range(4):
@@ -260,8 +276,9 @@ def test_a_cyclic_space_takes_the_full_sweeps() -> None:
     kw: dict[str, Any] = {"gamma": 0.9, "tol": 1e-10, "max_sweeps": 1000}
     q = value_iteration(space, reward, trans, **kw)
     assert identical(q, sweep_value_iteration(space, reward, trans, **kw))
-    v = np.concatenate([np.maximum.reduceat(q, space.state_start, axis=-1),
-                        np.zeros((16, 1))], axis=-1)
+    v = np.concatenate(
+        [np.maximum.reduceat(q, space.state_start, axis=-1), np.zeros((16, 1))], axis=-1
+    )
     bellman = reward + 0.9 * np.einsum("kpm,kpm->kp", trans, v[:, succ])
     assert np.allclose(q, bellman, atol=1e-8)  # converged over the cycle
 
@@ -294,13 +311,17 @@ def test_a_zero_gamma_shape_draws_nothing() -> None:
 
 
 def same_decision(a: Decision, b: Decision) -> bool:
-    return (a.context, a.state, a.action) == (b.context, b.state, b.action) \
-        and np.array_equal(a.probabilities, b.probabilities) \
-        and len(a.chain) == len(b.chain) \
-        and all((x.state, x.action, x.next_state, x.reward) == (y.state, y.action, y.next_state,
-                                                               y.reward)
-                and np.array_equal(x.probabilities, y.probabilities)
-                for x, y in zip(a.chain, b.chain, strict=True))
+    return (
+        (a.context, a.state, a.action) == (b.context, b.state, b.action)
+        and np.array_equal(a.probabilities, b.probabilities)
+        and len(a.chain) == len(b.chain)
+        and all(
+            (x.state, x.action, x.next_state, x.reward)
+            == (y.state, y.action, y.next_state, y.reward)
+            and np.array_equal(x.probabilities, y.probabilities)
+            for x, y in zip(a.chain, b.chain, strict=True)
+        )
+    )
 
 
 @pytest.mark.parametrize("seed", [1, 2])
@@ -321,8 +342,10 @@ def test_decisions_are_the_reference_planners(seed: int) -> None:
             for state in range(space.n_states):
                 obs = Observation(context, state, learner.episodes + 1)
                 draw_seed = int(rng.integers(2**32))
-                new_rng, old_rng = np.random.default_rng(draw_seed), np.random.default_rng(
-                    draw_seed)
+                new_rng, old_rng = (
+                    np.random.default_rng(draw_seed),
+                    np.random.default_rng(draw_seed),
+                )
                 got = learner.select_action(obs, new_rng)
                 with as_reference(learner):
                     expected = learner.select_action(obs, old_rng)

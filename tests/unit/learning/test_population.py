@@ -31,7 +31,9 @@ from tests.support.office import INITIATE, MISSION, OBS, PASS, S, act
 N_EVENTS = 160
 BUSY = {c for c in range(MISSION.n_contexts) if MISSION.context_names(c)[1] == "busy"}
 LEARNERS: tuple[tuple[str, str, dict[str, Any]], ...] = (
-    ("R-MAX", "rmax", {}), ("Q-learning", "qlearning", {}), ("HRI τ=0.01", "hri", {"tau": 0.01}),
+    ("R-MAX", "rmax", {}),
+    ("Q-learning", "qlearning", {}),
+    ("HRI τ=0.01", "hri", {"tau": 0.01}),
     ("DTS", "dts", {}),
 )
 
@@ -46,8 +48,17 @@ def persons(name: str, seed: int = 0, n: int = 4, n_events: int = N_EVENTS) -> t
 
 class TestRegistry:
     def test_the_families_of_the_issue_are_there(self) -> None:
-        assert {"paper", "individual", "home", "abrupt", "gradual", "noisy", "shy", "refusing",
-                "many"} <= set(FAMILIES)
+        assert {
+            "paper",
+            "individual",
+            "home",
+            "abrupt",
+            "gradual",
+            "noisy",
+            "shy",
+            "refusing",
+            "many",
+        } <= set(FAMILIES)
         for name, family in FAMILIES.items():
             assert isinstance(family, Family)
             assert family.name == name
@@ -78,8 +89,10 @@ class TestRegistry:
             assert np.array_equal(x.schedule, y.schedule)
             assert np.array_equal(x.contexts, y.contexts)
         other = persons(name, seed=4)
-        assert any(x.profiles != y.profiles or not np.array_equal(x.contexts, y.contexts)
-                   for x, y in zip(a, other, strict=True))
+        assert any(
+            x.profiles != y.profiles or not np.array_equal(x.contexts, y.contexts)
+            for x, y in zip(a, other, strict=True)
+        )
 
     def test_most_events_fall_in_a_need_context(self) -> None:
         hits = total = 0
@@ -107,8 +120,10 @@ class TestSteadyFamilies:
             for person in persons("noisy", seed):
                 assert NOISE_RANGE[0] <= person.p_random <= NOISE_RANGE[1]
                 flips = rng(seed, 2).random((4000, 4))
-                random = [person.respond(S, e % person.n_events, OBS, INITIATE, flips[e])[1]
-                          for e in range(len(flips))]
+                random = [
+                    person.respond(S, e % person.n_events, OBS, INITIATE, flips[e])[1]
+                    for e in range(len(flips))
+                ]
                 share = float(np.mean(random))
                 sigma = math.sqrt(person.p_random * (1 - person.p_random) / len(flips))
                 assert abs(share - person.p_random) < 4 * sigma
@@ -121,8 +136,11 @@ class TestSteadyFamilies:
         query_detail = act(ActionKind.QUERY_DETAIL, "ProvideDrink")
         seen: dict[ActionKind, set[Response]] = {}
         for u in np.linspace(0.0, 0.999, 60):
-            for state, action in ((OBS, INITIATE), (S.ENGAGED, act(ActionKind.QUERY_TYPE)),
-                                  (S.type_known_state("ProvideDrink"), query_detail)):
+            for state, action in (
+                (OBS, INITIATE),
+                (S.ENGAGED, act(ActionKind.QUERY_TYPE)),
+                (S.type_known_state("ProvideDrink"), query_detail),
+            ):
                 flips = np.array([0.5, 0.5, 0.0, float(u)])  # noise coin 0 < p_random
                 reaction, random = person.respond(S, 0, state, action, flips)
                 assert random
@@ -134,8 +152,9 @@ class TestSteadyFamilies:
 
     def test_noise_never_makes_a_person_speak_first(self) -> None:
         person = persons("noisy")[0]
-        no_need = next(c for c in range(MISSION.n_contexts)
-                       if person.profile_at(0).need_at(c) is None)
+        no_need = next(
+            c for c in range(MISSION.n_contexts) if person.profile_at(0).need_at(c) is None
+        )
         quiet = Person(person.profiles, person.schedule[:1], np.array([no_need]), 1.0)
         for u in np.linspace(0.0, 0.999, 30):
             reaction, random = quiet.respond(S, 0, OBS, PASS, np.array([u, u, 0.0, u]))
@@ -187,29 +206,32 @@ class TestChangingFamilies:
             assert all(person.profile_at(e) == before for e in range(at))
             assert all(person.profile_at(e) == after for e in range(at, N_EVENTS))
             if name == "abrupt":  # half the routines (rounded up) change, in the same context
-                changed = [(b, a) for b, a in zip(before.needs, after.needs, strict=True)
-                           if b != a]
+                changed = [(b, a) for b, a in zip(before.needs, after.needs, strict=True) if b != a]
                 assert len(changed) == math.ceil(len(before.needs) / 2)
                 assert all(b.context == a.context for b, a in changed)
 
     def test_paper_users_change_somewhere(self) -> None:
-        changed = sum(p.profile_at(0) != p.profile_at(N_EVENTS - 1)
-                      for seed in range(4) for p in persons("paper", seed))
+        changed = sum(
+            p.profile_at(0) != p.profile_at(N_EVENTS - 1)
+            for seed in range(4)
+            for p in persons("paper", seed)
+        )
         assert changed >= 14  # drift may rarely find nothing to move (§11)
 
     @pytest.mark.parametrize("seed", range(4))
     def test_gradual_drift_starts_at_the_stated_event_and_ends_after_the_ramp(
-            self, seed: int) -> None:
+        self, seed: int
+    ) -> None:
         at = change_event(N_EVENTS)
         for person in persons("gradual", seed):
             assert person.change_at == at
             start = person.profile_at(0)
             final = len(person.profiles) - 1  # every drifting routine changed
             assert all(person.profile_at(e) == start for e in range(at))
-            assert (person.schedule[at + RAMP - 1:] == final).all()
+            assert (person.schedule[at + RAMP - 1 :] == final).all()
             assert person.profiles[final] != start
-            ramp = person.schedule[at: at + RAMP]
-            early, late = ramp[: RAMP // 4], ramp[-RAMP // 4:]
+            ramp = person.schedule[at : at + RAMP]
+            early, late = ramp[: RAMP // 4], ramp[-RAMP // 4 :]
             # the new routines are wanted ever more often along the ramp
             bits = np.vectorize(lambda m: bin(int(m)).count("1"))
             assert bits(early).mean() < bits(late).mean()
@@ -228,8 +250,9 @@ class TestOracle:
         service = MISSION.services[1]
         assert oracle_action(S, need, True, S.ENGAGED) == act(ActionKind.INFER_TYPE, service.name)
         tk = S.type_known_state(service.name)
-        assert oracle_action(S, need, True, tk) == act(ActionKind.INFER_DETAIL, service.name,
-                                                       service.details[2])
+        assert oracle_action(S, need, True, tk) == act(
+            ActionKind.INFER_DETAIL, service.name, service.details[2]
+        )
         dk = S.detail_known_state(service.name, service.details[2])
         assert S.actions[oracle_action(S, need, True, dk)].kind is ActionKind.PERFORM
 
@@ -270,8 +293,7 @@ class TestCommonRandomNumbers:
         assert [p.profiles for p in a_people] == [p.profiles for p in b_people]
 
     def test_adding_a_learner_changes_no_other_numbers(self) -> None:
-        one = run_family(FAMILIES["abrupt"], 1, LEARNERS[2:3], MISSION, n_persons=2,
-                         n_events=40)
+        one = run_family(FAMILIES["abrupt"], 1, LEARNERS[2:3], MISSION, n_persons=2, n_events=40)
         all_ = run_family(FAMILIES["abrupt"], 1, LEARNERS, MISSION, n_persons=2, n_events=40)
         assert np.array_equal(one.oracle, all_.oracle)
         label = LEARNERS[2][0]

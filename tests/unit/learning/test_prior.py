@@ -40,8 +40,9 @@ def rng(*words: int) -> np.random.Generator:
 
 
 @cache
-def served(algorithm: str, seed: int = 0, n: int = 5, n_events: int = 60
-           ) -> tuple[TabularLearner[Any], ...]:
+def served(
+    algorithm: str, seed: int = 0, n: int = 5, n_events: int = 60
+) -> tuple[TabularLearner[Any], ...]:
     """``n`` residents of one home (family ``home``), each served by a fresh learner."""
     family = FAMILIES["home"]
     persons, flips = people(family, office(), seed, n, n_events)
@@ -75,8 +76,7 @@ def assert_fresh(learner: TabularLearner[Any]) -> None:
 
 class TestSupport:
     @pytest.mark.parametrize("algorithm", ALGORITHMS)
-    def test_fewer_contributors_than_min_support_give_a_fresh_learner(self,
-                                                                      algorithm: str) -> None:
+    def test_fewer_contributors_than_min_support_give_a_fresh_learner(self, algorithm: str) -> None:
         few = served(algorithm)[: MIN_SUPPORT - 1]
         prior = population_prior(algorithm, None, office(), few)
         assert_fresh(prior)
@@ -117,7 +117,6 @@ class TestSupport:
         assert q[4, 1] == pytest.approx(np.mean(range(5)))
         assert prior.visits.sum() == 0  # no counts of episodes are taken
 
-
     def test_a_value_found_worse_than_a_fresh_start_stays_at_the_start(self) -> None:
         """Q-learning has no posterior: a pair the contributors found bad would never be tried
         again by a greedy newcomer, so the prior never starts a value below a fresh one."""
@@ -135,8 +134,7 @@ class TestSupport:
 
 class TestWeights:
     @pytest.mark.parametrize("algorithm", COUNTING)
-    def test_a_contributor_served_ten_times_as_much_weighs_the_same(self,
-                                                                    algorithm: str) -> None:
+    def test_a_contributor_served_ten_times_as_much_weighs_the_same(self, algorithm: str) -> None:
         spec = PRIOR_TABLES[algorithm]
         contributors = served(algorithm)
         before = population_prior(algorithm, None, office(), contributors)
@@ -160,17 +158,23 @@ class TestWeights:
             assert 0.0 < getattr(prior, name)[0] <= strength + 1e-9
 
     @pytest.mark.parametrize("algorithm", COUNTING)
-    def test_the_weight_is_the_share_of_contributors_with_evidence(self,
-                                                                   algorithm: str) -> None:
+    def test_the_weight_is_the_share_of_contributors_with_evidence(self, algorithm: str) -> None:
         contributors = served(algorithm)
         counts = PRIOR_TABLES[algorithm].counts or ""
-        support = np.stack([
-            np.asarray(getattr(o, counts)).reshape(*pair_weight(o).shape, -1).sum(axis=-1) > 0
-            for o in contributors]).sum(axis=0)
-        expected = np.where(support >= MIN_SUPPORT,
-                            DEFAULT_STRENGTH * support / len(contributors), 0.0)
-        np.testing.assert_allclose(pair_weight(population_prior(
-            algorithm, None, office(), contributors)), expected, atol=1e-9)
+        support = np.stack(
+            [
+                np.asarray(getattr(o, counts)).reshape(*pair_weight(o).shape, -1).sum(axis=-1) > 0
+                for o in contributors
+            ]
+        ).sum(axis=0)
+        expected = np.where(
+            support >= MIN_SUPPORT, DEFAULT_STRENGTH * support / len(contributors), 0.0
+        )
+        np.testing.assert_allclose(
+            pair_weight(population_prior(algorithm, None, office(), contributors)),
+            expected,
+            atol=1e-9,
+        )
 
 
 class TestLearner:
@@ -197,12 +201,14 @@ class TestLearner:
         with pytest.raises(ValueError, match="another mission"):
             population_prior("dts", None, office(), [*served("dts")[:3], other])
 
-    @pytest.mark.parametrize(("strength", "min_support"), [(0.0, 3), (float("nan"), 3),
-                                                           (-1.0, 3), (4.0, 0)])
+    @pytest.mark.parametrize(
+        ("strength", "min_support"), [(0.0, 3), (float("nan"), 3), (-1.0, 3), (4.0, 0)]
+    )
     def test_bad_settings_are_refused(self, strength: float, min_support: int) -> None:
         with pytest.raises(ValueError, match="must be"):
-            population_prior("dts", None, office(), served("dts"), strength=strength,
-                             min_support=min_support)
+            population_prior(
+                "dts", None, office(), served("dts"), strength=strength, min_support=min_support
+            )
 
 
 class TestNewcomers:
@@ -220,8 +226,9 @@ class TestNewcomers:
                 contributors.append(learner)
             newcomer, u = persons[0], flips[0]
             fresh = run_learner(make_learner("dts", None, office()), newcomer, u, rng(seed, 0))
-            prior = run_learner(population_prior("dts", None, office(), contributors),
-                                newcomer, u, rng(seed, 0))
+            prior = run_learner(
+                population_prior("dts", None, office(), contributors), newcomer, u, rng(seed, 0)
+            )
             fresh_total += float(fresh[:20].sum())
             prior_total += float(prior[:20].sum())
         assert prior_total > fresh_total

@@ -102,9 +102,7 @@ CONTEXT_ONLY: dict[str, tuple[Mission, dict[str, dict[str, str]]]] = {
     "situation": VARIANTS["situation"],
     "rename": VARIANTS["rename"],
     "slot-renamed": (_mission(noon_to_lunch), {"time_slots": {"noon": "lunch"}}),
-    "situation-dropped": (
-        _mission(lambda d: d["situations"].remove("arriving")), {}
-    ),
+    "situation-dropped": (_mission(lambda d: d["situations"].remove("arriving")), {}),
 }
 # Changes to the pairs of every context (a detail or service added or dropped).
 PAIRS_CHANGED = ("cocoa", "service", "drop", "cocoa+service")
@@ -120,8 +118,9 @@ CONFIGS: dict[str, tuple[str, dict[str, Any]]] = {
 EPISODES = 300
 
 
-def _simulate(learner: TabularLearner[Any], profile: UserProfile, n: int, seed: int,
-              *, start: int = 0) -> tuple[np.ndarray, np.ndarray]:
+def _simulate(
+    learner: TabularLearner[Any], profile: UserProfile, n: int, seed: int, *, start: int = 0
+) -> tuple[np.ndarray, np.ndarray]:
     """``n`` episodes of ``profile`` numbered ``start + 1 ..``; returns the context of each and
     (episode, pair) of every service the person accepted."""
     rng = np.random.default_rng([seed, start])
@@ -135,13 +134,30 @@ def _simulate(learner: TabularLearner[Any], profile: UserProfile, n: int, seed: 
         while state != space.END:
             decision = learner.select_action(Observation(context, state, episode), rng)
             batch = decision.chain_transitions(episode)
-            reaction = respond(space, profile, context, decision.state, decision.action,
-                               uniforms[e, 2 * step : 2 * step + 2])
-            batch.append(Transition(episode, context, decision.state, decision.action,
-                                    reaction.reward, reaction.next_state, reaction.signal))
+            reaction = respond(
+                space,
+                profile,
+                context,
+                decision.state,
+                decision.action,
+                uniforms[e, 2 * step : 2 * step + 2],
+            )
+            batch.append(
+                Transition(
+                    episode,
+                    context,
+                    decision.state,
+                    decision.action,
+                    reaction.reward,
+                    reaction.next_state,
+                    reaction.signal,
+                )
+            )
             learner.update(batch)
-            if reaction.response is Response.ACCEPTED and \
-                    space.actions[decision.action].kind is ActionKind.PERFORM:
+            if (
+                reaction.response is Response.ACCEPTED
+                and space.actions[decision.action].kind is ActionKind.PERFORM
+            ):
                 accepted.append((episode, decision.action))
             state, step = reaction.next_state, step + 1
     return contexts, np.asarray(accepted, dtype=np.int64).reshape(-1, 2)
@@ -161,8 +177,11 @@ def _needs(mission: Mission, needs: tuple[tuple[str, str, str, str], ...]) -> tu
     out = []
     for slot, situation, service, detail in needs:
         k = [s.name for s in mission.services].index(service)
-        out.append(Need(mission.context_index(slot, situation), k,
-                        mission.services[k].details.index(detail)))
+        out.append(
+            Need(
+                mission.context_index(slot, situation), k, mission.services[k].details.index(detail)
+            )
+        )
     return tuple(out)
 
 
@@ -200,8 +219,9 @@ def _detail(ren: dict[str, dict[str, str]], service: str, detail: str) -> str:
     return details.get(f"{service}/{detail}", details.get(detail, detail))
 
 
-def _state_key(space: NegotiationSpace, s: int, ren: dict[str, dict[str, str]]
-               ) -> tuple[str, str | None, str | None]:
+def _state_key(
+    space: NegotiationSpace, s: int, ren: dict[str, dict[str, str]]
+) -> tuple[str, str | None, str | None]:
     info = space.state_info(s)
     service = None if info.service is None else _rename(ren, "services", info.service)
     detail = None if info.detail is None else _detail(ren, info.service or "", info.detail)
@@ -220,8 +240,9 @@ def _context_key(mission: Mission, c: int, ren: dict[str, dict[str, str]]) -> tu
     return _rename(ren, "time_slots", slot), _rename(ren, "situations", situation)
 
 
-def _entries(learner: TabularLearner[Any], name: str, code: str,
-             ren: dict[str, dict[str, str]]) -> dict[tuple[Any, ...], float]:
+def _entries(
+    learner: TabularLearner[Any], name: str, code: str, ren: dict[str, dict[str, str]]
+) -> dict[tuple[Any, ...], float]:
     """Every entry of an exported table, keyed by names (padding columns by position)."""
     space, mission = learner.space, learner.mission
     table = learner._exported()[name][0]
@@ -246,8 +267,9 @@ def _entries(learner: TabularLearner[Any], name: str, code: str,
     return out
 
 
-def _lost_successor(old: TabularLearner[Any], new: TabularLearner[Any],
-                    ren: dict[str, dict[str, str]]) -> set[tuple[Any, ...]]:
+def _lost_successor(
+    old: TabularLearner[Any], new: TabularLearner[Any], ren: dict[str, dict[str, str]]
+) -> set[tuple[Any, ...]]:
     """Pair keys (new names) of kept pairs that lost a successor state."""
     new_states = {_state_key(new.space, s, {}) for s in range(new.space.n_states + 1)}
     new_pairs = {_pair_key(new.space, p, {}) for p in range(new.space.n_actions)}
@@ -354,8 +376,9 @@ def test_identity_remap_is_the_same_learner(config: str) -> None:
     assert new.to_state() == old.to_state()
     episode = old.episodes + 1
     for c in range(OFFICE.n_contexts):
-        np.testing.assert_array_equal(new.explain(c, episode).probabilities,
-                                      old.explain(c, episode).probabilities)
+        np.testing.assert_array_equal(
+            new.explain(c, episode).probabilities, old.explain(c, episode).probabilities
+        )
         for state in (old.space.OBSERVE, old.space.ENGAGED):
             a = old.select_action(Observation(c, state, episode), np.random.default_rng(c))
             b = new.select_action(Observation(c, state, episode), np.random.default_rng(c))
@@ -380,23 +403,42 @@ def test_open_episodes_are_dropped_and_the_clock_kept() -> None:
     ("renames", "message"),
     [
         ({"details": {"cha": "tea"}}, r"renames\.details\.cha: no service of the old mission"),
-        ({"details": {"tea": "cocoa"}}, r"renames\.details\.tea: 'cocoa' is not a detail of "
-                                        r"ProvideDrink in the new mission"),
-        ({"details": {"tea": "coffee"}}, r"renames\.details\.tea: 'coffee' would also be the new "
-                                         r"name of the old detail 'coffee' of ProvideDrink"),
+        (
+            {"details": {"tea": "cocoa"}},
+            r"renames\.details\.tea: 'cocoa' is not a detail of "
+            r"ProvideDrink in the new mission",
+        ),
+        (
+            {"details": {"tea": "coffee"}},
+            r"renames\.details\.tea: 'coffee' would also be the new "
+            r"name of the old detail 'coffee' of ProvideDrink",
+        ),
         ({"details": {"Drinks/tea": "chai"}}, r"renames\.details\.Drinks/tea: there is no service"),
-        ({"details": {"ProvideDrink/news": "chai"}},
-         r"renames\.details\.ProvideDrink/news: ProvideDrink has no detail 'news'"),
-        ({"services": {"ProvideFood": "Tidy"}}, r"renames\.services\.ProvideFood: there is no "
-                                                r"service 'ProvideFood' in the old mission"),
-        ({"services": {"ProvideDrink": "Drinks"}}, r"renames\.services\.ProvideDrink: 'Drinks' "
-                                                   r"is not a service of the new mission"),
-        ({"situations": {"arriving": "working"}}, r"renames\.situations\.arriving: 'working' "
-                                                  r"would also be the new name"),
+        (
+            {"details": {"ProvideDrink/news": "chai"}},
+            r"renames\.details\.ProvideDrink/news: ProvideDrink has no detail 'news'",
+        ),
+        (
+            {"services": {"ProvideFood": "Tidy"}},
+            r"renames\.services\.ProvideFood: there is no "
+            r"service 'ProvideFood' in the old mission",
+        ),
+        (
+            {"services": {"ProvideDrink": "Drinks"}},
+            r"renames\.services\.ProvideDrink: 'Drinks' "
+            r"is not a service of the new mission",
+        ),
+        (
+            {"situations": {"arriving": "working"}},
+            r"renames\.situations\.arriving: 'working' "
+            r"would also be the new name",
+        ),
         ({"time_slots": {"dawn": "morning"}}, r"renames\.time_slots\.dawn: there is no time slot"),
-        ({"time_slots": {"morning": "evening", "noon": "evening"}},
-         r"renames\.time_slots\.noon: 'evening' would also be the new name of the old time slot "
-         r"'morning'"),
+        (
+            {"time_slots": {"morning": "evening", "noon": "evening"}},
+            r"renames\.time_slots\.noon: 'evening' would also be the new name of the old time slot "
+            r"'morning'",
+        ),
     ],
 )
 def test_bad_renames_name_the_entry(renames: dict[str, Any], message: str) -> None:
@@ -436,8 +478,11 @@ def test_a_plain_detail_rename_must_fit_every_service_that_has_it() -> None:
     chai_in_drink = _mission(
         lambda d: d["services"][1]["details"].append("tea"), tea_to_chai, name="office2"
     )
-    with pytest.raises(RenamesError, match=r"'chai' is not a detail of BriefInformation.*"
-                                           r"'BriefInformation/tea' names one"):
+    with pytest.raises(
+        RenamesError,
+        match=r"'chai' is not a detail of BriefInformation.*"
+        r"'BriefInformation/tea' names one",
+    ):
         check_renames(both, chai_in_drink, Renames.from_dict(CHAI))
     check_renames(both, chai_in_drink, Renames.from_dict({"details": {"ProvideDrink/tea": "chai"}}))
 
@@ -462,20 +507,25 @@ def test_space_map_carries_journal_samples() -> None:
     c_old = old.context_index("noon", "working")
     c_new = new.context_index("lunch", "working")
     assert smap.context(c_old) == c_new
-    assert smap.context(old.context_index("morning", "arriving")) == \
-        new.context_index("morning", "arriving")
+    assert smap.context(old.context_index("morning", "arriving")) == new.context_index(
+        "morning", "arriving"
+    )
     # pass answered by a request for a drink
-    tr = Transition(7, c_old, so.OBSERVE, so.PASS, 0.0, so.request_state("ProvideDrink"),
-                    Polarity.POSITIVE)
+    tr = Transition(
+        7, c_old, so.OBSERVE, so.PASS, 0.0, so.request_state("ProvideDrink"), Polarity.POSITIVE
+    )
     moved = smap.transition(tr)
-    assert moved == Transition(7, c_new, sn.OBSERVE, sn.PASS, 0.0,
-                               sn.request_state("ProvideDrink"), Polarity.POSITIVE)
+    assert moved == Transition(
+        7, c_new, sn.OBSERVE, sn.PASS, 0.0, sn.request_state("ProvideDrink"), Polarity.POSITIVE
+    )
     # tea is chai now
     perform_tea = so.action_index(_action("perform", "ProvideDrink", "tea"))
     dk_tea = so.detail_known_state("ProvideDrink", "tea")
     assert smap.sample(c_old, dk_tea, perform_tea, so.END) == (
-        c_new, sn.detail_known_state("ProvideDrink", "chai"),
-        sn.action_index(_action("perform", "ProvideDrink", "chai")), sn.END,
+        c_new,
+        sn.detail_known_state("ProvideDrink", "chai"),
+        sn.action_index(_action("perform", "ProvideDrink", "chai")),
+        sn.END,
     )
     # an answer that is no longer possible
     query = so.action_index(_action("query_detail", "BriefInformation"))
@@ -485,8 +535,9 @@ def test_space_map_carries_journal_samples() -> None:
     assert smap.next_state(stocks) is None
     assert smap.action(so.action_index(_action("perform", "BriefInformation", "stocks"))) is None
     assert smap.sample(c_old, tk, query, stocks) is None
-    assert smap.sample(c_old, tk, query, so.detail_known_state("BriefInformation", "news")) \
-        is not None
+    assert (
+        smap.sample(c_old, tk, query, so.detail_known_state("BriefInformation", "news")) is not None
+    )
     assert smap.next_state(so.END) == sn.END
     with pytest.raises(ValueError, match="state must be in"):
         smap.state(so.END)
@@ -524,8 +575,9 @@ def space_size(mission: Mission) -> int:
 
 
 # -- what stays identical ------------------------------------------------------------------------
-def _probabilities_by_name(learner: TabularLearner[Any], c: int, episode: int
-                           ) -> dict[tuple[Any, ...], float]:
+def _probabilities_by_name(
+    learner: TabularLearner[Any], c: int, episode: int
+) -> dict[tuple[Any, ...], float]:
     probs = learner.explain(c, episode).probabilities
     return {_pair_key(learner.space, p, {}): float(probs[p]) for p in range(len(probs))}
 
@@ -544,8 +596,10 @@ def test_a_context_the_change_left_alone_decides_as_before(config: str, variant:
     compared = 0
     for c_old, c_new in zip(*smap.kept_contexts(), strict=True):
         c_old, c_new = int(c_old), int(c_new)
-        was = {_pair_key(old.space, p, ren): v
-               for p, v in enumerate(old.explain(c_old, episode).probabilities)}
+        was = {
+            _pair_key(old.space, p, ren): v
+            for p, v in enumerate(old.explain(c_old, episode).probabilities)
+        }
         if not (config.startswith("dts") and c_old != c_new):
             # DTS explains with a fixed draw seeded by the context's number: a context that
             # moved is shown another draw of the same posterior (its decisions below, drawn
@@ -554,10 +608,13 @@ def test_a_context_the_change_left_alone_decides_as_before(config: str, variant:
         for state in range(old.space.n_states):
             if len(old.space.actions_of(state)) == 1:
                 continue
-            a = old.select_action(Observation(c_old, state, episode),
-                                  np.random.default_rng([c_old, state]))
-            b = new.select_action(Observation(c_new, int(smap.states[state]), episode),
-                                  np.random.default_rng([c_old, state]))
+            a = old.select_action(
+                Observation(c_old, state, episode), np.random.default_rng([c_old, state])
+            )
+            b = new.select_action(
+                Observation(c_new, int(smap.states[state]), episode),
+                np.random.default_rng([c_old, state]),
+            )
             assert int(smap.actions[a.action]) == b.action
             np.testing.assert_array_equal(a.probabilities, b.probabilities)
             compared += 1
@@ -601,22 +658,28 @@ def test_planning_learners_decide_as_before_where_nothing_below_changed(
     smap = SpaceMap(old.space, new.space)
     episode = old.episodes + 1
     untouched_services = {
-        s.name for s in OFFICE.services
+        s.name
+        for s in OFFICE.services
         if s.name in {t.name for t in mission.services}
         and mission.service(s.name).details == s.details
     }
     checked = {"type_known": 0, "upstream": 0}
     for c_old, c_new in zip(*smap.kept_contexts(), strict=True):
         c_old, c_new = int(c_old), int(c_new)
-        was, now = _probabilities_by_name(old, c_old, episode), \
-            _probabilities_by_name(new, c_new, episode)
+        was, now = (
+            _probabilities_by_name(old, c_old, episode),
+            _probabilities_by_name(new, c_new, episode),
+        )
         v_was, v_now = _values(old, c_old, episode), _values(new, c_new, episode)
         for state in range(old.space.n_states):
             actions = old.space.actions_of(state)
             keys = [_pair_key(old.space, p, {}) for p in actions]
             s_new = int(smap.states[state])
-            if len(actions) == 1 or s_new < 0 or \
-                    keys != [_pair_key(new.space, p, {}) for p in new.space.actions_of(s_new)]:
+            if (
+                len(actions) == 1
+                or s_new < 0
+                or keys != [_pair_key(new.space, p, {}) for p in new.space.actions_of(s_new)]
+            ):
                 continue
             below = [_state_key(new.space, s, {}) for s in _reachable(new.space, s_new)]
             # States new to the mission count through the value of the kept state before them.
@@ -652,17 +715,22 @@ def test_q_learning_decides_as_before_wherever_the_actions_are_the_same(
         for state in range(old.space.n_states):
             s_new = int(smap.states[state])
             keys = [_pair_key(old.space, p, {}) for p in old.space.actions_of(state)]
-            if s_new < 0 or \
-                    keys != [_pair_key(new.space, p, {}) for p in new.space.actions_of(s_new)]:
+            if s_new < 0 or keys != [
+                _pair_key(new.space, p, {}) for p in new.space.actions_of(s_new)
+            ]:
                 continue
             assert [now[k] for k in keys] == [was[k] for k in keys]
             if len(keys) > 1:
-                a = old.select_action(Observation(c_old, state, episode),
-                                      np.random.default_rng(state))
-                b = new.select_action(Observation(c_new, s_new, episode),
-                                      np.random.default_rng(state))
-                if all(smap.actions[step.action] >= 0 for step in a.chain) and \
-                        smap.actions[a.action] >= 0:
+                a = old.select_action(
+                    Observation(c_old, state, episode), np.random.default_rng(state)
+                )
+                b = new.select_action(
+                    Observation(c_new, s_new, episode), np.random.default_rng(state)
+                )
+                if (
+                    all(smap.actions[step.action] >= 0 for step in a.chain)
+                    and smap.actions[a.action] >= 0
+                ):
                     assert int(smap.actions[a.action]) == b.action
                 checked += 1
     assert checked > 0
@@ -690,8 +758,11 @@ def test_hri_with_a_context_factor_feels_every_new_pair() -> None:
     # any added pair raises, so nothing in the context is guaranteed to stay identical.
     old = _typed(HriLearner, trained_copy("hri-kappa"))
     new = remap_learner(old, VARIANTS["cocoa"][0])
-    assert all(new._tau(c) > old._tau(c) for c in range(OFFICE.n_contexts)
-               if old._tau(c) < old.params.tau * (1 + old.params.kappa))
+    assert all(
+        new._tau(c) > old._tau(c)
+        for c in range(OFFICE.n_contexts)
+        if old._tau(c) < old.params.tau * (1 + old.params.kappa)
+    )
 
 
 # -- values under new rewards and gamma ---------------------------------------------------------

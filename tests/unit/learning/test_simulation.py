@@ -53,8 +53,7 @@ class TestProfiles:
 
     def test_defaults_of_section_7(self) -> None:
         p = random_profile(MISSION, rng(0))
-        assert (p.p_acc, p.p_self, p.eps_fb, p.p_abort, p.p_idle_acc) == (
-            0.95, 0.5, 0.05, 0.0, 0.0)
+        assert (p.p_acc, p.p_self, p.eps_fb, p.p_abort, p.p_idle_acc) == (0.95, 0.5, 0.05, 0.0, 0.0)
 
     def test_same_seed_same_profile(self) -> None:
         assert random_profile(MISSION, rng(5)) == random_profile(MISSION, rng(5))
@@ -73,8 +72,9 @@ class TestDrift:
     def test_changes_half_the_rules(self, seed: int) -> None:
         before = random_profile(MISSION, rng(seed, 0))
         after = drift(before, MISSION, rng(seed, 1))
-        changed = [i for i, (a, b) in enumerate(zip(before.needs, after.needs, strict=True))
-                   if a != b]
+        changed = [
+            i for i, (a, b) in enumerate(zip(before.needs, after.needs, strict=True)) if a != b
+        ]
         assert len(changed) == math.ceil(len(before.needs) / 2)
         contexts = [n.context for n in after.needs]
         assert len(set(contexts)) == len(contexts)
@@ -135,27 +135,38 @@ class TestEventStream:
         assert set(stream[100:].tolist()) == {5}
 
     def test_mission_where_every_context_has_a_need(self) -> None:
-        tiny = Mission.from_dict({
-            "name": "tiny", "situations": ["here"],
-            "time_slots": [{"name": "am", "start": "00:00", "end": "12:00"},
-                           {"name": "pm", "start": "12:00", "end": "00:00"}],
-            "services": [{"name": "Hug", "details": ["short"]}],
-        })
+        tiny = Mission.from_dict(
+            {
+                "name": "tiny",
+                "situations": ["here"],
+                "time_slots": [
+                    {"name": "am", "start": "00:00", "end": "12:00"},
+                    {"name": "pm", "start": "12:00", "end": "00:00"},
+                ],
+                "services": [{"name": "Hug", "details": ["short"]}],
+            }
+        )
         profile = random_profile(tiny, rng(0))
         assert {n.context for n in profile.needs} == {0, 1}
         stream = event_stream([profile], [0], tiny, 500, rng(1))
         assert set(stream.tolist()) == {0, 1}
 
 
-def test_experiment_methods_share_contexts_and_coin_flips(monkeypatch: pytest.MonkeyPatch
-                                                          ) -> None:
+def test_experiment_methods_share_contexts_and_coin_flips(monkeypatch: pytest.MonkeyPatch) -> None:
     seen: dict[str, list[tuple[np.ndarray, np.ndarray, list[UserProfile]]]] = {}
     real = evaluation.run_user
 
-    def spy(learner: Any, profiles: Any, points: Any, contexts: np.ndarray,
-            uniforms: np.ndarray, agent: np.random.Generator) -> dict[str, np.ndarray]:
+    def spy(
+        learner: Any,
+        profiles: Any,
+        points: Any,
+        contexts: np.ndarray,
+        uniforms: np.ndarray,
+        agent: np.random.Generator,
+    ) -> dict[str, np.ndarray]:
         seen.setdefault(learner.algorithm, []).append(
-            (contexts.copy(), uniforms.copy(), list(profiles)))
+            (contexts.copy(), uniforms.copy(), list(profiles))
+        )
         return real(learner, profiles, points, contexts, uniforms, agent)
 
     monkeypatch.setattr(evaluation, "run_user", spy)
@@ -188,8 +199,9 @@ DK_TEA = S.detail_known_state("ProvideDrink", "tea")
 DK_COFFEE = S.detail_known_state("ProvideDrink", "coffee")
 
 
-def reply(profile: UserProfile, context: int, state: int, action: int, u: float,
-          abort: float = 0.99) -> tuple[str, float, int, Polarity]:
+def reply(
+    profile: UserProfile, context: int, state: int, action: int, u: float, abort: float = 0.99
+) -> tuple[str, float, int, Polarity]:
     r = respond(S, profile, context, state, action, np.array([u, abort]))
     return r.response, r.reward, r.next_state, r.signal
 
@@ -198,10 +210,18 @@ class TestResponses:
     def test_initiate_accepted_only_with_a_need_and_not_busy(self) -> None:
         p = profile_with(TEA_NEED)
         assert reply(p, C, S.OBSERVE, S.INITIATE, 0.0) == (
-            "accepted", R.positive, S.ENGAGED, Polarity.POSITIVE)
+            "accepted",
+            R.positive,
+            S.ENGAGED,
+            Polarity.POSITIVE,
+        )
         assert reply(p, C, S.OBSERVE, S.INITIATE, 0.949)[0] == "accepted"
         assert reply(p, C, S.OBSERVE, S.INITIATE, 0.95) == (
-            "rejected", R.negative, S.END, Polarity.NEGATIVE)  # 1 - p_acc
+            "rejected",
+            R.negative,
+            S.END,
+            Polarity.NEGATIVE,
+        )  # 1 - p_acc
         no_need = profile_with(None)
         assert reply(no_need, C, S.OBSERVE, S.INITIATE, 0.0)[0] == "rejected"
         busy = profile_with(Need(C_BUSY, DRINK, TEA))
@@ -213,28 +233,47 @@ class TestResponses:
     def test_pass(self) -> None:
         p = profile_with(TEA_NEED)
         assert reply(p, C, S.OBSERVE, S.PASS, 0.49) == (
-            "human_request", 0.0, S.request_state("ProvideDrink"), Polarity.POSITIVE)
+            "human_request",
+            0.0,
+            S.request_state("ProvideDrink"),
+            Polarity.POSITIVE,
+        )
         assert reply(p, C, S.OBSERVE, S.PASS, 0.5) == ("none", 0.0, S.END, Polarity.NEUTRAL)
         assert reply(profile_with(None), C, S.OBSERVE, S.PASS, 0.0) == (
-            "none", 0.0, S.END, Polarity.NEUTRAL)
+            "none",
+            0.0,
+            S.END,
+            Polarity.NEUTRAL,
+        )
         busy = profile_with(Need(C_BUSY, DRINK, TEA))  # busy: the person never initiates
-        assert reply(busy, C_BUSY, S.OBSERVE, S.PASS, 0.0) == (
-            "none", 0.0, S.END, Polarity.NEUTRAL)
+        assert reply(busy, C_BUSY, S.OBSERVE, S.PASS, 0.0) == ("none", 0.0, S.END, Polarity.NEUTRAL)
 
     def test_queries_are_answered_truthfully(self) -> None:
         p = profile_with(Need(C, DRINK, COFFEE))
         qt = act(ActionKind.QUERY_TYPE)
-        assert reply(p, C, S.ENGAGED, qt, 0.99) == ("answered", R.query, TK_DRINK,
-                                                    Polarity.POSITIVE)
+        assert reply(p, C, S.ENGAGED, qt, 0.99) == (
+            "answered",
+            R.query,
+            TK_DRINK,
+            Polarity.POSITIVE,
+        )
         qd = act(ActionKind.QUERY_DETAIL, "ProvideDrink")
-        assert reply(p, C, TK_DRINK, qd, 0.99) == ("answered", R.query, DK_COFFEE,
-                                                  Polarity.POSITIVE)
+        assert reply(p, C, TK_DRINK, qd, 0.99) == (
+            "answered",
+            R.query,
+            DK_COFFEE,
+            Polarity.POSITIVE,
+        )
 
     def test_query_detail_on_a_wrong_type_ends_the_dialog(self) -> None:
         p = profile_with(TEA_NEED)
         qd = act(ActionKind.QUERY_DETAIL, "BriefInformation")
         assert reply(p, C, TK_INFO, qd, 0.0) == (
-            "terminated", R.query + R.negative, S.END, Polarity.NEGATIVE)
+            "terminated",
+            R.query + R.negative,
+            S.END,
+            Polarity.NEGATIVE,
+        )
         assert R.query + R.negative == -2.5
 
     def test_perform(self) -> None:
@@ -242,24 +281,46 @@ class TestResponses:
         tea = act(ActionKind.PERFORM, "ProvideDrink", "tea")
         coffee = act(ActionKind.PERFORM, "ProvideDrink", "coffee")
         assert reply(p, C, DK_TEA, tea, 0.05) == (
-            "accepted", R.positive + R.accepted_service, S.END, Polarity.POSITIVE)
+            "accepted",
+            R.positive + R.accepted_service,
+            S.END,
+            Polarity.POSITIVE,
+        )
         assert R.positive + R.accepted_service == 6.0
         assert reply(p, C, DK_TEA, tea, 0.049) == (  # the eps_fb noise draw
-            "rejected", R.negative, S.END, Polarity.NEGATIVE)
+            "rejected",
+            R.negative,
+            S.END,
+            Polarity.NEGATIVE,
+        )
         assert reply(p, C, DK_COFFEE, coffee, 0.99) == (
-            "rejected", R.negative, S.END, Polarity.NEGATIVE)
+            "rejected",
+            R.negative,
+            S.END,
+            Polarity.NEGATIVE,
+        )
         assert reply(profile_with(None), C, DK_TEA, tea, 0.99)[0] == "rejected"
 
     def test_abort(self) -> None:
         p = profile_with(TEA_NEED, p_abort=0.3)
         tea = act(ActionKind.PERFORM, "ProvideDrink", "tea")
         assert reply(p, C, DK_TEA, tea, 0.99, abort=0.29) == (
-            "terminated", R.negative, S.END, Polarity.NEGATIVE)
+            "terminated",
+            R.negative,
+            S.END,
+            Polarity.NEGATIVE,
+        )
         assert reply(p, C, DK_TEA, tea, 0.99, abort=0.3)[0] == "accepted"
         assert reply(p, C, S.OBSERVE, S.INITIATE, 0.0, abort=0.0)[0] == "terminated"
 
     def test_silent_actions_get_no_response(self) -> None:
         p = profile_with(TEA_NEED)
         with pytest.raises(ValueError, match="silent"):
-            respond(S, p, C, TK_DRINK, act(ActionKind.INFER_DETAIL, "ProvideDrink", "tea"),
-                    np.array([0.0, 0.0]))
+            respond(
+                S,
+                p,
+                C,
+                TK_DRINK,
+                act(ActionKind.INFER_DETAIL, "ProvideDrink", "tea"),
+                np.array([0.0, 0.0]),
+            )

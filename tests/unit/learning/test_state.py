@@ -57,12 +57,16 @@ def drive(lr: TabularLearner[Any], episodes: int, seed: int, *, own_policy: bool
                     if not S.silent[action]:
                         break
                     nxt = int(S.silent_next[action])
-                    batch.append(Transition(episode, context, state, action,
-                                            float(S.silent_reward[action]), nxt))
+                    batch.append(
+                        Transition(
+                            episode, context, state, action, float(S.silent_reward[action]), nxt
+                        )
+                    )
                     state = nxt
             r = respond(S, profile, context, state, action, uniforms[e, 2 * step : 2 * step + 2])
-            batch.append(Transition(episode, context, state, action, r.reward, r.next_state,
-                                    r.signal))
+            batch.append(
+                Transition(episode, context, state, action, r.reward, r.next_state, r.signal)
+            )
             lr.update(batch)
             state, step = r.next_state, step + 1
 
@@ -112,8 +116,11 @@ class TestRoundTrip:
 
 def test_encode_decode_exact() -> None:
     rng = np.random.default_rng(0)
-    for arr in (rng.normal(size=(3, 4)), rng.integers(-9, 9, size=(5,)),
-                rng.integers(0, 3, size=(2, 2)).astype(np.int8)):
+    for arr in (
+        rng.normal(size=(3, 4)),
+        rng.integers(-9, 9, size=(5,)),
+        rng.integers(0, 3, size=(2, 2)).astype(np.int8),
+    ):
         enc = encode_array(arr)
         back = decode_array(enc, name="x", dtype=arr.dtype, shape=arr.shape)
         assert back.dtype == arr.dtype
@@ -129,6 +136,7 @@ def _set(path: str, value: Any) -> Callable[[dict[str, Any]], None]:
         for key in parents:
             target = target[key]
         target[last] = value
+
     return change
 
 
@@ -139,6 +147,7 @@ def _delete(path: str) -> Callable[[dict[str, Any]], None]:
         for key in parents:
             target = target[key]
         del target[last]
+
     return change
 
 
@@ -170,8 +179,11 @@ MALFORMED: list[tuple[str, Callable[[dict[str, Any]], None], str]] = [
     ("big-endian dtype", _set("arrays.ns.dtype", ">f8"), "arrays.ns.dtype"),
     ("wrong encoding", _set("arrays.visits.encoding", "raw"), "arrays.visits.encoding"),
     ("bad base64", _set("arrays.visits.data", "not base64!"), "arrays.visits.data"),
-    ("not zlib", _set("arrays.visits.data", base64.b64encode(b"plain").decode()),
-     "arrays.visits.data"),
+    (
+        "not zlib",
+        _set("arrays.visits.data", base64.b64encode(b"plain").decode()),
+        "arrays.visits.data",
+    ),
     ("data not a string", _set("arrays.visits.data", 12), "arrays.visits.data"),
     ("too few bytes", _set("arrays.visits.data", _raw(b"\0" * 8)), "arrays.visits.data"),
     ("array not an object", _set("arrays.last", [1, 2, 3]), "arrays.last"),
@@ -179,8 +191,7 @@ MALFORMED: list[tuple[str, Callable[[dict[str, Any]], None], str]] = [
     ("pending not a list", _set("pending", {"0": 1}), "pending"),
     ("short pending row", _set("pending", [[1, 2, 0]]), "pending[0]"),
     ("pending row with text", _set("pending", [["a", 0, 0, 0, 0.0, 17, 0]]), "pending[0]"),
-    ("pending action of another state", _set("pending", [[1, 0, 0, 29, 0.0, 17, 0]]),
-     "pending[0]"),
+    ("pending action of another state", _set("pending", [[1, 0, 0, 29, 0.0, 17, 0]]), "pending[0]"),
     ("pending impossible successor", _set("pending", [[1, 0, 0, 0, 0.0, 5, 0]]), "pending[0]"),
     ("pending NaN reward", _set("pending", [[1, 0, 0, 0, float("nan"), 17, 2]]), "pending[0]"),
     ("pending bad signal", _set("pending", [[1, 0, 0, 0, 1.0, 4, 9]]), "pending[0]"),
@@ -267,8 +278,10 @@ def test_same_state_compares_arrays_by_content() -> None:
     for array in recompressed["arrays"].values():
         raw = zlib.decompress(base64.b64decode(array["data"]))
         array["data"] = base64.b64encode(zlib.compress(raw, 9)).decode("ascii")
-    assert any(recompressed["arrays"][n]["data"] != original["arrays"][n]["data"]
-               for n in original["arrays"])
+    assert any(
+        recompressed["arrays"][n]["data"] != original["arrays"][n]["data"]
+        for n in original["arrays"]
+    )
     assert same_state(original, recompressed)
 
     changed = copy.deepcopy(original)

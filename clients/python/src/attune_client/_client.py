@@ -63,7 +63,6 @@ __all__ = ["AsyncClient", "Client"]
 T = TypeVar("T")
 
 
-
 class Client(BaseClient):
     """A synchronous client of the Attune v1 API. Use it as a context manager, or call
     ``close()``. It is safe to share between threads.
@@ -87,16 +86,21 @@ class Client(BaseClient):
         headers: extra headers sent with every request.
     """
 
-    def __init__(self, base_url: str, api_key: str, *,
-                 timeout: float | httpx.Timeout = DEFAULT_TIMEOUT,
-                 max_retries: int = DEFAULT_MAX_RETRIES,
-                 outbox: str | os.PathLike[str] | None = None,
-                 transport: httpx.BaseTransport | None = None,
-                 headers: Mapping[str, str] | None = None) -> None:
-        super().__init__(base_url, api_key, max_retries=max_retries, outbox=outbox,
-                         headers=headers)
-        self._http = httpx.Client(base_url=base_url, timeout=timeout, transport=transport,
-                                  headers=self._headers())
+    def __init__(
+        self,
+        base_url: str,
+        api_key: str,
+        *,
+        timeout: float | httpx.Timeout = DEFAULT_TIMEOUT,
+        max_retries: int = DEFAULT_MAX_RETRIES,
+        outbox: str | os.PathLike[str] | None = None,
+        transport: httpx.BaseTransport | None = None,
+        headers: Mapping[str, str] | None = None,
+    ) -> None:
+        super().__init__(base_url, api_key, max_retries=max_retries, outbox=outbox, headers=headers)
+        self._http = httpx.Client(
+            base_url=base_url, timeout=timeout, transport=transport, headers=self._headers()
+        )
         self._lock = threading.RLock()
         self._sleep: Callable[[float], None] = time.sleep
 
@@ -114,8 +118,12 @@ class Client(BaseClient):
     def __enter__(self) -> Self:
         return self
 
-    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
-                 tb: TracebackType | None) -> None:
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
         self.close()
 
     # -- sending -------------------------------------------------------------------------------
@@ -139,15 +147,13 @@ class Client(BaseClient):
 
     def _call(self, op: Op[T], *, retries: int | None = None) -> T:
         # Deliver the queue first, unless another thread is busy with it (or with a report).
-        if (self._outbox is not None and self._outbox.count()
-                and self._lock.acquire(blocking=False)):
+        if self._outbox is not None and self._outbox.count() and self._lock.acquire(blocking=False):
             try:
                 self._deliver(max_retries=0, wait=False, strict=False)
             finally:
                 self._lock.release()
         request = self._build(self._http, op)
-        response = self._send(request, max_retries=self.max_retries if retries is None
-                              else retries)
+        response = self._send(request, max_retries=self.max_retries if retries is None else retries)
         return op.parse(response)
 
     def _report(self, op: ReportOp[T]) -> T | Queued:
@@ -165,8 +171,14 @@ class Client(BaseClient):
             except AttuneError as exc:
                 if not is_transient(exc):
                     raise
-                return outbox.append(op.kind, op.episode_id, op.key, op.body,
-                                     attempts=self.max_retries + 1, last_error=str(exc))
+                return outbox.append(
+                    op.kind,
+                    op.episode_id,
+                    op.key,
+                    op.body,
+                    attempts=self.max_retries + 1,
+                    last_error=str(exc),
+                )
         return op.parse(response)
 
     def _deliver(self, *, max_retries: int, wait: bool, strict: bool) -> None:
@@ -305,10 +317,14 @@ class Client(BaseClient):
         """
         return self._call(Api.set_fleet_prior(fleet, enabled))
 
-    def set_mission(self, fleet: str, mission: Mission | Mapping[str, Any], *,
-                    change_id: str | None = None,
-                    renames: MissionRenames | Mapping[str, Any] | None = None
-                    ) -> MissionChanged:
+    def set_mission(
+        self,
+        fleet: str,
+        mission: Mission | Mapping[str, Any],
+        *,
+        change_id: str | None = None,
+        renames: MissionRenames | Mapping[str, Any] | None = None,
+    ) -> MissionChanged:
         """``PUT /v1/admin/fleets/{fleet}/mission``: give a fleet a new mission (the fleet's
         staff, admins).
 
@@ -338,9 +354,15 @@ class Client(BaseClient):
         return self._call(Api.set_mission(fleet, mission, change_id, renames))
 
     # -- users ---------------------------------------------------------------------------------
-    def put_user(self, user_id: str, *, display_name: str | None = None,
-                 learner: LearnerSpec | Mapping[str, Any] | None = None,
-                 reset_model: bool = False, fleet_prior: bool | None = None) -> User:
+    def put_user(
+        self,
+        user_id: str,
+        *,
+        display_name: str | None = None,
+        learner: LearnerSpec | Mapping[str, Any] | None = None,
+        reset_model: bool = False,
+        fleet_prior: bool | None = None,
+    ) -> User:
         """``PUT /v1/users/{user_id}``: create or update a user (idempotent).
 
         Args:
@@ -357,8 +379,7 @@ class Client(BaseClient):
             UnprocessableEntityError: an unknown algorithm or bad parameters.
             ConflictError: a new learner for a user with history, without ``reset_model``.
         """
-        return self._call(Api.put_user(user_id, display_name, learner, reset_model,
-                                       fleet_prior))
+        return self._call(Api.put_user(user_id, display_name, learner, reset_model, fleet_prior))
 
     def get_user(self, user_id: str) -> User:
         """``GET /v1/users/{user_id}``.
@@ -393,10 +414,17 @@ class Client(BaseClient):
         self._call(Api.delete_user(user_id))
 
     # -- episodes ------------------------------------------------------------------------------
-    def start_episode(self, user_id: str, *, event_id: str, occurred_at: dt.datetime | str,
-                      situation: str, initiator: str = "robot",
-                      request: ServiceRequest | Mapping[str, Any] | None = None,
-                      robot_id: str | None = None) -> EpisodeStarted:
+    def start_episode(
+        self,
+        user_id: str,
+        *,
+        event_id: str,
+        occurred_at: dt.datetime | str,
+        situation: str,
+        initiator: str = "robot",
+        request: ServiceRequest | Mapping[str, Any] | None = None,
+        robot_id: str | None = None,
+    ) -> EpisodeStarted:
         """``POST /v1/users/{user_id}/episodes``: an event happened near this person; open an
         episode and get the robot's first decision.
 
@@ -421,13 +449,28 @@ class Client(BaseClient):
             ConflictError: the ``event_id`` was used with other arguments.
             ValueError: ``occurred_at`` is a naive ``datetime``.
         """
-        return self._call(Api.start_episode(
-            user_id, event_id=event_id, occurred_at=occurred_at, situation=situation,
-            initiator=initiator, request=request, robot_id=robot_id))
+        return self._call(
+            Api.start_episode(
+                user_id,
+                event_id=event_id,
+                occurred_at=occurred_at,
+                situation=situation,
+                initiator=initiator,
+                request=request,
+                robot_id=robot_id,
+            )
+        )
 
-    def report_outcome(self, episode_id: str, *, decision_id: str, response: str,
-                       service: str | None = None, detail: str | None = None,
-                       feedback: str | None = None) -> OutcomeResult | Queued:
+    def report_outcome(
+        self,
+        episode_id: str,
+        *,
+        decision_id: str,
+        response: str,
+        service: str | None = None,
+        detail: str | None = None,
+        feedback: str | None = None,
+    ) -> OutcomeResult | Queued:
         """``POST /v1/episodes/{episode_id}/outcomes``: what the person did after the robot's
         action; returns its reward and the next decision (None when the episode ended).
 
@@ -450,12 +493,20 @@ class Client(BaseClient):
                 is rejected at delivery (``FlushReport.interrupted``), never retried.
             NotFoundError: no such episode.
         """
-        return self._report(Api.report_outcome(
-            episode_id, decision_id=decision_id, response=response, service=service,
-            detail=detail, feedback=feedback))
+        return self._report(
+            Api.report_outcome(
+                episode_id,
+                decision_id=decision_id,
+                response=response,
+                service=service,
+                detail=detail,
+                feedback=feedback,
+            )
+        )
 
-    def send_feedback(self, episode_id: str, *, feedback_id: str,
-                      feedback: str) -> FeedbackResult | Queued:
+    def send_feedback(
+        self, episode_id: str, *, feedback_id: str, feedback: str
+    ) -> FeedbackResult | Queued:
         """``POST /v1/episodes/{episode_id}/feedback``: explicit feedback (``"positive"`` or
         ``"negative"``) on an episode, during or after it; idempotent on ``feedback_id``.
 
@@ -466,8 +517,9 @@ class Client(BaseClient):
                 has no answered step yet.
             NotFoundError: no such episode.
         """
-        return self._report(Api.send_feedback(episode_id, feedback_id=feedback_id,
-                                              feedback=feedback))
+        return self._report(
+            Api.send_feedback(episode_id, feedback_id=feedback_id, feedback=feedback)
+        )
 
     def get_episode(self, episode_id: str) -> EpisodeTrace:
         """``GET /v1/episodes/{episode_id}``: the whole trace of an episode.
@@ -477,8 +529,9 @@ class Client(BaseClient):
         """
         return self._call(Api.get_episode(episode_id))
 
-    def list_episodes(self, user_id: str, *, limit: int = 50,
-                      cursor: str | None = None) -> EpisodePage:
+    def list_episodes(
+        self, user_id: str, *, limit: int = 50, cursor: str | None = None
+    ) -> EpisodePage:
         """``GET /v1/users/{user_id}/episodes``: one page of a user's episodes, newest first.
 
         Raises:
@@ -497,8 +550,9 @@ class Client(BaseClient):
             cursor = page.next_cursor
 
     # -- inspection and administration -----------------------------------------------------------
-    def get_model(self, user_id: str, *, time_slot: str | None = None,
-                  situation: str | None = None) -> ModelView:
+    def get_model(
+        self, user_id: str, *, time_slot: str | None = None, situation: str | None = None
+    ) -> ModelView:
         """``GET /v1/users/{user_id}/model``: what the user's learner believes now, optionally
         for one time slot and/or situation only."""
         return self._call(Api.get_model(user_id, time_slot, situation))
@@ -557,10 +611,18 @@ class Client(BaseClient):
         """
         return self._call(Api.list_corrections(user_id))
 
-    def add_correction(self, user_id: str, *, correction_id: str, time_slot: str,
-                       situation: str, kind: CorrectionKind | str,
-                       service: str | None = None, detail: str | None = None,
-                       note: str | None = None) -> Correction:
+    def add_correction(
+        self,
+        user_id: str,
+        *,
+        correction_id: str,
+        time_slot: str,
+        situation: str,
+        kind: CorrectionKind | str,
+        service: str | None = None,
+        detail: str | None = None,
+        note: str | None = None,
+    ) -> Correction:
         """``POST /v1/users/{user_id}/corrections``: correct what was learned about the user
         in one time slot and situation (the fleet's staff, admins). Idempotent on
         ``correction_id``: a repeat of the same correction returns it with ``replayed`` True.
@@ -580,9 +642,18 @@ class Client(BaseClient):
             PermissionDeniedError: a robot key.
             NotFoundError: no such user in your fleet.
         """
-        return self._call(Api.add_correction(
-            user_id, correction_id=correction_id, time_slot=time_slot, situation=situation,
-            kind=kind, service=service, detail=detail, note=note))
+        return self._call(
+            Api.add_correction(
+                user_id,
+                correction_id=correction_id,
+                time_slot=time_slot,
+                situation=situation,
+                kind=kind,
+                service=service,
+                detail=detail,
+                note=note,
+            )
+        )
 
     def lift_correction(self, user_id: str, correction_id: str) -> None:
         """``DELETE /v1/users/{user_id}/corrections/{correction_id}``: take a correction out
@@ -603,16 +674,21 @@ class AsyncClient(BaseClient):
     The arguments are those of ``Client``, with an ``httpx.AsyncBaseTransport``.
     """
 
-    def __init__(self, base_url: str, api_key: str, *,
-                 timeout: float | httpx.Timeout = DEFAULT_TIMEOUT,
-                 max_retries: int = DEFAULT_MAX_RETRIES,
-                 outbox: str | os.PathLike[str] | None = None,
-                 transport: httpx.AsyncBaseTransport | None = None,
-                 headers: Mapping[str, str] | None = None) -> None:
-        super().__init__(base_url, api_key, max_retries=max_retries, outbox=outbox,
-                         headers=headers)
-        self._http = httpx.AsyncClient(base_url=base_url, timeout=timeout, transport=transport,
-                                       headers=self._headers())
+    def __init__(
+        self,
+        base_url: str,
+        api_key: str,
+        *,
+        timeout: float | httpx.Timeout = DEFAULT_TIMEOUT,
+        max_retries: int = DEFAULT_MAX_RETRIES,
+        outbox: str | os.PathLike[str] | None = None,
+        transport: httpx.AsyncBaseTransport | None = None,
+        headers: Mapping[str, str] | None = None,
+    ) -> None:
+        super().__init__(base_url, api_key, max_retries=max_retries, outbox=outbox, headers=headers)
+        self._http = httpx.AsyncClient(
+            base_url=base_url, timeout=timeout, transport=transport, headers=self._headers()
+        )
         self._lock = anyio.Lock()
         self._sleep: Callable[[float], Awaitable[None]] = anyio.sleep
 
@@ -630,8 +706,12 @@ class AsyncClient(BaseClient):
     async def __aenter__(self) -> Self:
         return self
 
-    async def __aexit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
-                        tb: TracebackType | None) -> None:
+    async def __aexit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
         await self.aclose()
 
     # -- sending -------------------------------------------------------------------------------
@@ -671,8 +751,9 @@ class AsyncClient(BaseClient):
                 finally:
                     self._lock.release()
         request = self._build(self._http, op)
-        response = await self._send(request, max_retries=self.max_retries if retries is None
-                                    else retries)
+        response = await self._send(
+            request, max_retries=self.max_retries if retries is None else retries
+        )
         return op.parse(response)
 
     async def _report(self, op: ReportOp[T]) -> T | Queued:
@@ -685,7 +766,8 @@ class AsyncClient(BaseClient):
                 await self._deliver(max_retries=0, wait=False, strict=False)
             if await self._queued():  # keep the order: behind the reports still waiting
                 return await anyio.to_thread.run_sync(
-                    lambda: outbox.append(op.kind, op.episode_id, op.key, op.body))
+                    lambda: outbox.append(op.kind, op.episode_id, op.key, op.body)
+                )
             try:
                 response = await self._send(request, max_retries=self.max_retries)
             except AttuneError as exc:
@@ -693,8 +775,15 @@ class AsyncClient(BaseClient):
                     raise
                 error = str(exc)
                 return await anyio.to_thread.run_sync(
-                    lambda: outbox.append(op.kind, op.episode_id, op.key, op.body,
-                                          attempts=self.max_retries + 1, last_error=error))
+                    lambda: outbox.append(
+                        op.kind,
+                        op.episode_id,
+                        op.key,
+                        op.body,
+                        attempts=self.max_retries + 1,
+                        last_error=error,
+                    )
+                )
         return op.parse(response)
 
     async def _deliver(self, *, max_retries: int, wait: bool, strict: bool) -> None:
@@ -713,8 +802,9 @@ class AsyncClient(BaseClient):
                 entry, body = head
                 op = self._entry_op(entry, body)
                 try:
-                    response = await self._send(self._build(self._http, op),
-                                                max_retries=max_retries)
+                    response = await self._send(
+                        self._build(self._http, op), max_retries=max_retries
+                    )
                 except AttuneError as exc:
                     refused = refusal(exc)
                     if refused is not None:
@@ -789,20 +879,31 @@ class AsyncClient(BaseClient):
         """``PUT /v1/admin/fleets/{fleet}/prior``; see ``Client.set_fleet_prior``."""
         return await self._call(Api.set_fleet_prior(fleet, enabled))
 
-    async def set_mission(self, fleet: str, mission: Mission | Mapping[str, Any], *,
-                          change_id: str | None = None,
-                          renames: MissionRenames | Mapping[str, Any] | None = None
-                          ) -> MissionChanged:
+    async def set_mission(
+        self,
+        fleet: str,
+        mission: Mission | Mapping[str, Any],
+        *,
+        change_id: str | None = None,
+        renames: MissionRenames | Mapping[str, Any] | None = None,
+    ) -> MissionChanged:
         """``PUT /v1/admin/fleets/{fleet}/mission``; see ``Client.set_mission``."""
         return await self._call(Api.set_mission(fleet, mission, change_id, renames))
 
     # -- users ---------------------------------------------------------------------------------
-    async def put_user(self, user_id: str, *, display_name: str | None = None,
-                       learner: LearnerSpec | Mapping[str, Any] | None = None,
-                       reset_model: bool = False, fleet_prior: bool | None = None) -> User:
+    async def put_user(
+        self,
+        user_id: str,
+        *,
+        display_name: str | None = None,
+        learner: LearnerSpec | Mapping[str, Any] | None = None,
+        reset_model: bool = False,
+        fleet_prior: bool | None = None,
+    ) -> User:
         """``PUT /v1/users/{user_id}``; see ``Client.put_user``."""
-        return await self._call(Api.put_user(user_id, display_name, learner, reset_model,
-                                             fleet_prior))
+        return await self._call(
+            Api.put_user(user_id, display_name, learner, reset_model, fleet_prior)
+        )
 
     async def get_user(self, user_id: str) -> User:
         """``GET /v1/users/{user_id}``; see ``Client.get_user``."""
@@ -828,41 +929,73 @@ class AsyncClient(BaseClient):
         await self._call(Api.delete_user(user_id))
 
     # -- episodes ------------------------------------------------------------------------------
-    async def start_episode(self, user_id: str, *, event_id: str,
-                            occurred_at: dt.datetime | str, situation: str,
-                            initiator: str = "robot",
-                            request: ServiceRequest | Mapping[str, Any] | None = None,
-                            robot_id: str | None = None) -> EpisodeStarted:
+    async def start_episode(
+        self,
+        user_id: str,
+        *,
+        event_id: str,
+        occurred_at: dt.datetime | str,
+        situation: str,
+        initiator: str = "robot",
+        request: ServiceRequest | Mapping[str, Any] | None = None,
+        robot_id: str | None = None,
+    ) -> EpisodeStarted:
         """``POST /v1/users/{user_id}/episodes``; see ``Client.start_episode``."""
-        return await self._call(Api.start_episode(
-            user_id, event_id=event_id, occurred_at=occurred_at, situation=situation,
-            initiator=initiator, request=request, robot_id=robot_id))
+        return await self._call(
+            Api.start_episode(
+                user_id,
+                event_id=event_id,
+                occurred_at=occurred_at,
+                situation=situation,
+                initiator=initiator,
+                request=request,
+                robot_id=robot_id,
+            )
+        )
 
-    async def report_outcome(self, episode_id: str, *, decision_id: str, response: str,
-                             service: str | None = None, detail: str | None = None,
-                             feedback: str | None = None) -> OutcomeResult | Queued:
+    async def report_outcome(
+        self,
+        episode_id: str,
+        *,
+        decision_id: str,
+        response: str,
+        service: str | None = None,
+        detail: str | None = None,
+        feedback: str | None = None,
+    ) -> OutcomeResult | Queued:
         """``POST /v1/episodes/{episode_id}/outcomes``; see ``Client.report_outcome``."""
-        return await self._report(Api.report_outcome(
-            episode_id, decision_id=decision_id, response=response, service=service,
-            detail=detail, feedback=feedback))
+        return await self._report(
+            Api.report_outcome(
+                episode_id,
+                decision_id=decision_id,
+                response=response,
+                service=service,
+                detail=detail,
+                feedback=feedback,
+            )
+        )
 
-    async def send_feedback(self, episode_id: str, *, feedback_id: str,
-                            feedback: str) -> FeedbackResult | Queued:
+    async def send_feedback(
+        self, episode_id: str, *, feedback_id: str, feedback: str
+    ) -> FeedbackResult | Queued:
         """``POST /v1/episodes/{episode_id}/feedback``; see ``Client.send_feedback``."""
-        return await self._report(Api.send_feedback(episode_id, feedback_id=feedback_id,
-                                                    feedback=feedback))
+        return await self._report(
+            Api.send_feedback(episode_id, feedback_id=feedback_id, feedback=feedback)
+        )
 
     async def get_episode(self, episode_id: str) -> EpisodeTrace:
         """``GET /v1/episodes/{episode_id}``; see ``Client.get_episode``."""
         return await self._call(Api.get_episode(episode_id))
 
-    async def list_episodes(self, user_id: str, *, limit: int = 50,
-                            cursor: str | None = None) -> EpisodePage:
+    async def list_episodes(
+        self, user_id: str, *, limit: int = 50, cursor: str | None = None
+    ) -> EpisodePage:
         """``GET /v1/users/{user_id}/episodes``; see ``Client.list_episodes``."""
         return await self._call(Api.list_episodes(user_id, limit, cursor))
 
-    async def iter_episodes(self, user_id: str, *,
-                            page_size: int = 100) -> AsyncIterator[EpisodeSummary]:
+    async def iter_episodes(
+        self, user_id: str, *, page_size: int = 100
+    ) -> AsyncIterator[EpisodeSummary]:
         """Every episode of a user, newest first; see ``Client.iter_episodes``."""
         cursor: str | None = None
         while True:
@@ -874,8 +1007,9 @@ class AsyncClient(BaseClient):
             cursor = page.next_cursor
 
     # -- inspection and administration -----------------------------------------------------------
-    async def get_model(self, user_id: str, *, time_slot: str | None = None,
-                        situation: str | None = None) -> ModelView:
+    async def get_model(
+        self, user_id: str, *, time_slot: str | None = None, situation: str | None = None
+    ) -> ModelView:
         """``GET /v1/users/{user_id}/model``; see ``Client.get_model``."""
         return await self._call(Api.get_model(user_id, time_slot, situation))
 
@@ -904,14 +1038,31 @@ class AsyncClient(BaseClient):
         """``GET /v1/users/{user_id}/corrections``; see ``Client.list_corrections``."""
         return await self._call(Api.list_corrections(user_id))
 
-    async def add_correction(self, user_id: str, *, correction_id: str, time_slot: str,
-                             situation: str, kind: CorrectionKind | str,
-                             service: str | None = None, detail: str | None = None,
-                             note: str | None = None) -> Correction:
+    async def add_correction(
+        self,
+        user_id: str,
+        *,
+        correction_id: str,
+        time_slot: str,
+        situation: str,
+        kind: CorrectionKind | str,
+        service: str | None = None,
+        detail: str | None = None,
+        note: str | None = None,
+    ) -> Correction:
         """``POST /v1/users/{user_id}/corrections``; see ``Client.add_correction``."""
-        return await self._call(Api.add_correction(
-            user_id, correction_id=correction_id, time_slot=time_slot, situation=situation,
-            kind=kind, service=service, detail=detail, note=note))
+        return await self._call(
+            Api.add_correction(
+                user_id,
+                correction_id=correction_id,
+                time_slot=time_slot,
+                situation=situation,
+                kind=kind,
+                service=service,
+                detail=detail,
+                note=note,
+            )
+        )
 
     async def lift_correction(self, user_id: str, correction_id: str) -> None:
         """``DELETE /v1/users/{user_id}/corrections/{correction_id}``; see

@@ -94,8 +94,16 @@ class APIStatusError(AttuneError):
     body: object
     request_id: str | None
 
-    def __init__(self, message: str, *, response: httpx.Response, error: str, detail: str,
-                 fields: list[dict[str, Any]] | None = None, body: object = None) -> None:
+    def __init__(
+        self,
+        message: str,
+        *,
+        response: httpx.Response,
+        error: str,
+        detail: str,
+        fields: list[dict[str, Any]] | None = None,
+        body: object = None,
+    ) -> None:
         super().__init__(message)
         self.message = message
         self.response = response
@@ -146,10 +154,19 @@ class RateLimitError(APIStatusError):
 
     retry_after: float | None
 
-    def __init__(self, message: str, *, response: httpx.Response, error: str, detail: str,
-                 fields: list[dict[str, Any]] | None = None, body: object = None) -> None:
-        super().__init__(message, response=response, error=error, detail=detail, fields=fields,
-                         body=body)
+    def __init__(
+        self,
+        message: str,
+        *,
+        response: httpx.Response,
+        error: str,
+        detail: str,
+        fields: list[dict[str, Any]] | None = None,
+        body: object = None,
+    ) -> None:
+        super().__init__(
+            message, response=response, error=error, detail=detail, fields=fields, body=body
+        )
         self.retry_after = parse_retry_after(response.headers.get("retry-after"))
 
 
@@ -162,10 +179,19 @@ class ServiceUnavailableError(InternalServerError):
 
     retry_after: float | None
 
-    def __init__(self, message: str, *, response: httpx.Response, error: str, detail: str,
-                 fields: list[dict[str, Any]] | None = None, body: object = None) -> None:
-        super().__init__(message, response=response, error=error, detail=detail, fields=fields,
-                         body=body)
+    def __init__(
+        self,
+        message: str,
+        *,
+        response: httpx.Response,
+        error: str,
+        detail: str,
+        fields: list[dict[str, Any]] | None = None,
+        body: object = None,
+    ) -> None:
+        super().__init__(
+            message, response=response, error=error, detail=detail, fields=fields, body=body
+        )
         self.retry_after = parse_retry_after(response.headers.get("retry-after"))
 
 

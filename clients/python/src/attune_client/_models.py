@@ -644,7 +644,8 @@ class FlushReport(_Model):
     """
 
     delivered: list[tuple[PendingReport, OutcomeResult | FeedbackResult]] = Field(
-        default_factory=list)
+        default_factory=list
+    )
     rejected: list[tuple[PendingReport, Rejection]] = Field(default_factory=list)
     remaining: int = 0
 

@@ -67,9 +67,16 @@ def _now() -> str:
 
 def _report(row: tuple[Any, ...]) -> PendingReport:
     seq, kind, episode_id, key, body, queued_at, attempts, last_error = row[:8]
-    return PendingReport(seq=seq, kind=kind, episode_id=episode_id, key=key,
-                         body=json.loads(body), queued_at=dt.datetime.fromisoformat(queued_at),
-                         attempts=attempts, last_error=last_error)
+    return PendingReport(
+        seq=seq,
+        kind=kind,
+        episode_id=episode_id,
+        key=key,
+        body=json.loads(body),
+        queued_at=dt.datetime.fromisoformat(queued_at),
+        attempts=attempts,
+        last_error=last_error,
+    )
 
 
 def _why(path: str, exc: sqlite3.Error) -> str:
@@ -114,12 +121,14 @@ class Outbox:
         except sqlite3.Error as exc:
             for conn in opened:
                 conn.close()
-            raise OutboxError(f"Cannot open the outbox {self.path!r}: {_why(self.path, exc)}.",
-                              path=self.path) from exc
+            raise OutboxError(
+                f"Cannot open the outbox {self.path!r}: {_why(self.path, exc)}.", path=self.path
+            ) from exc
 
     def _connect(self) -> sqlite3.Connection:
-        conn = sqlite3.connect(self.path, timeout=self._busy_ms / 1000, isolation_level=None,
-                               check_same_thread=False)
+        conn = sqlite3.connect(
+            self.path, timeout=self._busy_ms / 1000, isolation_level=None, check_same_thread=False
+        )
         conn.execute("PRAGMA journal_mode = WAL")
         conn.execute("PRAGMA synchronous = FULL")
         return conn
@@ -140,25 +149,37 @@ class Outbox:
         self._reader.close()
 
     # -- queueing ----------------------------------------------------------------------------
-    def append(self, kind: ReportKind, episode_id: str, key: str, body: bytes, *,
-               attempts: int = 0, last_error: str | None = None) -> Queued:
+    def append(
+        self,
+        kind: ReportKind,
+        episode_id: str,
+        key: str,
+        body: bytes,
+        *,
+        attempts: int = 0,
+        last_error: str | None = None,
+    ) -> Queued:
         """Queue a report behind the others. The same report queued twice (same kind, episode,
         key and body) stays one entry."""
         text = body.decode()
         with self._transaction():
             row = self._writer.execute(
                 "SELECT seq FROM outbox WHERE kind = ? AND episode_id = ? AND key = ? "
-                "AND body = ? ORDER BY seq LIMIT 1", (kind, episode_id, key, text)).fetchone()
+                "AND body = ? ORDER BY seq LIMIT 1",
+                (kind, episode_id, key, text),
+            ).fetchone()
             if row is not None:
                 seq = row[0]
             else:
                 cur = self._writer.execute(
                     "INSERT INTO outbox (kind, episode_id, key, body, queued_at, attempts, "
                     "last_error) VALUES (?, ?, ?, ?, ?, ?, ?)",
-                    (kind, episode_id, key, text, _now(), attempts, last_error))
+                    (kind, episode_id, key, text, _now(), attempts, last_error),
+                )
                 seq = cur.lastrowid
             (position,) = self._writer.execute(
-                "SELECT COUNT(*) FROM outbox WHERE seq <= ?", (seq,)).fetchone()
+                "SELECT COUNT(*) FROM outbox WHERE seq <= ?", (seq,)
+            ).fetchone()
         return Queued(kind=kind, episode_id=episode_id, key=key, position=position)
 
     # -- delivering (between begin() and commit() or rollback()) -------------------------------
@@ -181,8 +202,7 @@ class Outbox:
 
     def head(self) -> tuple[PendingReport, bytes] | None:
         """The oldest report and the exact body to send, or None when the queue is empty."""
-        row = self._writer.execute(
-            f"SELECT {_COLUMNS} FROM outbox ORDER BY seq LIMIT 1").fetchone()
+        row = self._writer.execute(f"SELECT {_COLUMNS} FROM outbox ORDER BY seq LIMIT 1").fetchone()
         if row is None:
             return None
         return _report(row), str(row[4]).encode()
@@ -196,16 +216,24 @@ class Outbox:
             f"INSERT OR REPLACE INTO rejected ({_COLUMNS}, status_code, error, detail, fields, "
             "request_id, rejected_at) SELECT "
             f"{_COLUMNS}, ?, ?, ?, ?, ?, ? FROM outbox WHERE seq = ?",
-            (rejection.status_code, rejection.error, rejection.detail,
-             None if rejection.fields is None else json.dumps(rejection.fields),
-             rejection.request_id, rejection.rejected_at.isoformat(), entry.seq))
+            (
+                rejection.status_code,
+                rejection.error,
+                rejection.detail,
+                None if rejection.fields is None else json.dumps(rejection.fields),
+                rejection.request_id,
+                rejection.rejected_at.isoformat(),
+                entry.seq,
+            ),
+        )
         self.remove(entry.seq)
 
     def note_failure(self, seq: int, error: str, attempts: int) -> None:
         """Count the failed requests of a delivery of a report that stays queued."""
         self._writer.execute(
             "UPDATE outbox SET attempts = attempts + ?, last_error = ? WHERE seq = ?",
-            (attempts, error, seq))
+            (attempts, error, seq),
+        )
 
     def commit(self) -> None:
         self._in_transaction = False
@@ -226,8 +254,7 @@ class Outbox:
     def entries(self) -> list[PendingReport]:
         """The queued reports, oldest first."""
         with self._read_lock:
-            rows = self._reader.execute(
-                f"SELECT {_COLUMNS} FROM outbox ORDER BY seq").fetchall()
+            rows = self._reader.execute(f"SELECT {_COLUMNS} FROM outbox ORDER BY seq").fetchall()
         return [_report(row) for row in rows]
 
     def rejected(self) -> list[tuple[PendingReport, Rejection]]:
@@ -235,11 +262,19 @@ class Outbox:
         with self._read_lock:
             rows = self._reader.execute(
                 f"SELECT {_COLUMNS}, status_code, error, detail, fields, request_id, "
-                "rejected_at FROM rejected ORDER BY seq").fetchall()
+                "rejected_at FROM rejected ORDER BY seq"
+            ).fetchall()
         return [
-            (_report(row), Rejection(
-                status_code=row[8], error=row[9], detail=row[10],
-                fields=None if row[11] is None else json.loads(row[11]), request_id=row[12],
-                rejected_at=dt.datetime.fromisoformat(row[13])))
+            (
+                _report(row),
+                Rejection(
+                    status_code=row[8],
+                    error=row[9],
+                    detail=row[10],
+                    fields=None if row[11] is None else json.loads(row[11]),
+                    request_id=row[12],
+                    rejected_at=dt.datetime.fromisoformat(row[13]),
+                ),
+            )
             for row in rows
         ]

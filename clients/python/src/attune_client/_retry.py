@@ -59,8 +59,9 @@ class Backoff:
     maximum: float = MAX_RETRY_DELAY
     max_retry_after: float = MAX_RETRY_AFTER
 
-    def delay(self, attempt: int, response: httpx.Response | None,
-              random: Callable[[], float]) -> float:
+    def delay(
+        self, attempt: int, response: httpx.Response | None, random: Callable[[], float]
+    ) -> float:
         """Seconds to wait before retry number ``attempt + 1`` (``attempt`` counts from 0).
 
         ``random`` returns a float in [0, 1) (``random.random``); the delay lies in
@@ -70,5 +71,5 @@ class Backoff:
             retry_after = parse_retry_after(response.headers.get("retry-after"))
             if retry_after is not None:
                 return min(retry_after, self.max_retry_after)
-        base = min(self.initial * 2.0 ** attempt, self.maximum)
+        base = min(self.initial * 2.0**attempt, self.maximum)
         return base * (1.0 - 0.25 * random())
