@@ -318,6 +318,12 @@ class Guidance:
                 out = out / total if total > 0.0 else mask / float(mask.sum())
         return out
 
+    def forbids_initiating(self, space: NegotiationSpace, context: int) -> bool:
+        """Whether the rules in force in ``context`` leave the robot no way to initiate there
+        (a ``quiet`` correction, or ``avoid`` rules that leave nothing to offer)."""
+        overlay = self._overlay(space, context)
+        return overlay is not None and not bool(overlay.allowed[space.INITIATE])
+
     def _overlay(self, space: NegotiationSpace, context: int) -> _Overlay | None:
         if not self._rules:
             return None

@@ -93,6 +93,7 @@ class NegotiationSpace:
         silent: (P,) bool; silent_next: (P,) next state of a silent pair (-1 otherwise);
         silent_reward: (P,) float64 reward of a silent pair.
         root_actions: pairs of OBSERVE, (initiate, pass).
+        unavailable: (C,) bool, the contexts of the mission's unavailable situations.
     """
 
     def __init__(self, mission: Mission) -> None:
@@ -171,6 +172,12 @@ class NegotiationSpace:
         self.is_query = np.asarray([a.kind in QUERY_KINDS for a in actions], dtype=bool)
         self.root_actions = (0, 1)
         self.INITIATE, self.PASS = self.root_actions
+        # Contexts of an unavailable situation ("do not disturb"): the robot never initiates
+        # there (app.learning.masks).
+        quiet = set(mission.unavailable_situations)
+        self.unavailable = np.asarray(
+            [mission.context_names(c)[1] in quiet for c in range(self.n_contexts)], dtype=bool
+        )
         self._succ_column = [{int(s): j for j, s in enumerate(row)} for row in succ]
         self._detail_state = detail_state
         self._service_index = {s.name: k for k, s in enumerate(services)}
@@ -186,6 +193,7 @@ class NegotiationSpace:
             self.silent_next,
             self.silent_reward,
             self.is_query,
+            self.unavailable,
         ):
             arr.setflags(write=False)
 

@@ -22,6 +22,7 @@ from app.learning import ActionKind, NegotiationSpace
 from app.learning.beliefs import Answer, Belief, EpisodeEvidence, Item, belief, episode_evidence
 from app.learning.guidance import Rule, RuleKind
 from app.learning.learners import TabularLearner
+from app.learning.masks import initiates_never
 from app.schemas.models import StartedFrom
 from app.schemas.profile import (
     ChangeOut,
@@ -216,7 +217,7 @@ def _robot_will(
     p = learner.explain(c, now).probabilities
     offer = float(p[space.INITIATE])
     if offer < 0.5:
-        quiet = any(r.kind is RuleKind.QUIET for r in rules if _fits(learner, r))
+        quiet = initiates_never(space, learner.guidance, c)
         return RobotWill(
             action="stay_away" if quiet or turned_down else "wait_to_be_asked",
             service=None,

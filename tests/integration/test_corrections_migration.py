@@ -29,6 +29,7 @@ from app.settings import Settings
 from tests.support.live import fresh_database
 from tests.support.release import (
     OldService,
+    comparable_model,
     play,
     previous_release,
     rebuild,
@@ -128,7 +129,7 @@ def _api_view(api: Any) -> dict[str, Any]:
         traces = [api.get(f"/v1/episodes/{ep['episode_id']}").json() for ep in episodes["items"]]
         user = api.get(f"/v1/users/{uid}").json()
         user.pop("fleet_prior", None)
-        model = api.get(f"/v1/users/{uid}/model").json()
+        model = comparable_model(api.get(f"/v1/users/{uid}/model").json())
         model.pop("started_from", None)
         view[uid] = {
             "user": user,

@@ -30,6 +30,7 @@ from app.settings import Settings
 from tests.support.live import fresh_database
 from tests.support.release import (
     OldService,
+    comparable_model,
     play,
     previous_release,
     release_code,
@@ -120,7 +121,7 @@ def _api_view(api: Any, users: dict[str, list[str]], *, fleet_param: bool) -> di
             q = {"fleet": fleet} if fleet_param else {}
             user = api.get(f"/v1/users/{uid}", params=q).json()
             user.pop("fleet_prior", None)
-            model = api.get(f"/v1/users/{uid}/model", params=q).json()
+            model = comparable_model(api.get(f"/v1/users/{uid}/model", params=q).json())
             model.pop("started_from", None)
             stats = api.get(f"/v1/users/{uid}/stats", params=q).json()
             episodes = api.get(f"/v1/users/{uid}/episodes", params={**q, "limit": 500}).json()

@@ -28,6 +28,7 @@ from app.settings import Settings
 from tests.support.live import fresh_database
 from tests.support.release import (
     OldService,
+    comparable_model,
     play,
     previous_release,
     rebuild,
@@ -131,7 +132,9 @@ def _api_view(api: Any) -> dict[str, Any]:
         episodes = api.get(f"/v1/users/{uid}/episodes", params={"limit": 500}).json()
         view[uid] = {
             "user": _without(api.get(f"/v1/users/{uid}").json(), "fleet_prior"),
-            "model": _without(api.get(f"/v1/users/{uid}/model").json(), "started_from"),
+            "model": comparable_model(
+                _without(api.get(f"/v1/users/{uid}/model").json(), "started_from")
+            ),
             "stats": api.get(f"/v1/users/{uid}/stats").json(),
             "episodes": episodes["items"],
         }

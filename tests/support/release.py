@@ -5,6 +5,7 @@ API."""
 
 from __future__ import annotations
 
+import copy
 import datetime as dt
 import os
 import signal
@@ -24,6 +25,7 @@ from tests.support.live import free_port
 __all__ = [
     "REPO",
     "OldService",
+    "comparable_model",
     "play",
     "previous_release",
     "rebuild",
@@ -249,3 +251,22 @@ def rebuild(url: str, user_id: str, fleet: str | None = None) -> dict[str, Any]:
         next(ln for ln in result.output.splitlines() if ln.startswith("{"))
     )
     return summary
+
+
+def comparable_model(
+    model: dict[str, Any], unavailable: tuple[str, ...] = ("busy",)
+) -> dict[str, Any]:
+    """A model view of ``GET /v1/users/{id}/model`` as an earlier release can show it too: the
+    robot's choice when it notices the person in a do-not-disturb situation (``unavailable``, the
+    office mission's ``busy``) is a rule of later releases, not the learner's, so the OBSERVE
+    probabilities there are left out."""
+    out = copy.deepcopy(model)
+    for context in out.get("contexts", []):
+        if context["situation"] not in unavailable:
+            continue
+        for state in context["states"]:
+            if state["state"] != "OBSERVE":
+                continue
+            for action in state["actions"]:
+                action.pop("p")
+    return out

@@ -17,6 +17,7 @@ import numpy as np
 
 from ..config import Params
 from ..guidance import Guidance, Rule, guidance_from_state
+from ..masks import restrict
 from ..mission import Mission
 from ..planning import draw
 from ..space import space_for
@@ -150,9 +151,13 @@ class TabularLearner(Generic[P]):
                 probs = _ONE
                 action = actions.start
             else:
-                probs = self._policy(plan, obs.context, state, obs.episode)
-                if self.guidance:
-                    probs = self.guidance.adjust(space, obs.context, state, probs)
+                probs = restrict(
+                    space,
+                    self.guidance,
+                    obs.context,
+                    state,
+                    self._policy(plan, obs.context, state, obs.episode),
+                )
                 action = actions.start + draw(probs, rng)
             if not space.silent[action]:
                 return Decision(obs.context, state, action, probs, tuple(chain))
@@ -249,9 +254,9 @@ class TabularLearner(Generic[P]):
             if len(actions) == 1:
                 probs[actions.start : actions.stop] = _ONE
                 continue
-            policy = self._policy(plan, context, s, episode)
-            if self.guidance:
-                policy = self.guidance.adjust(self.space, context, s, policy)
+            policy = restrict(
+                self.space, self.guidance, context, s, self._policy(plan, context, s, episode)
+            )
             probs[actions.start : actions.stop] = policy
         return ContextView(
             q=self._q(context).copy(),
