@@ -16,7 +16,7 @@ from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from app import logs
 
-from .metrics import Metrics
+from .metrics import Metrics, begin_round_trips, end_round_trips
 
 __all__ = [
     "BodyLimitMiddleware",
@@ -35,7 +35,7 @@ log = logging.getLogger("attune.api")
 
 # Probes and scrapes must answer while the service sheds load: they are what tells an operator
 # (or an orchestrator) that it is alive but busy.
-EXEMPT_PATHS = frozenset({"/healthz", "/readyz", "/metrics"})
+EXEMPT_PATHS = frozenset({"/livez", "/healthz", "/readyz", "/metrics"})
 
 
 class BodyTooLarge(Exception):
@@ -233,7 +233,8 @@ class BodyLimitMiddleware:
 
 
 class MetricsMiddleware:
-    """Count requests and time them per route template (``/v1/users/{user_id}``)."""
+    """Count requests, time them and count their round trips to PostgreSQL, per route template
+    (``/v1/users/{user_id}``)."""
 
     def __init__(self, app: ASGIApp, metrics: Metrics) -> None:
         self.app, self.metrics = app, metrics
@@ -250,14 +251,17 @@ class MetricsMiddleware:
                 status["code"] = message["status"]
             await send(message)
 
+        trips, token = begin_round_trips()
         try:
             await self.app(scope, receive, tracking_send)
         finally:
+            end_round_trips(token)
             self.metrics.observe_request(
                 scope.get("method", "?"),
                 route_template(scope),
                 status["code"],
                 time.perf_counter() - start,
+                trips[0],
             )
 
 

@@ -91,7 +91,9 @@ def report_outcome(
     result = service.report_outcome(session, ctx, principal, episode_id, body)
     if not result.replay and result.kind is not None:
         metrics: Metrics = request.app.state.metrics
-        metrics.outcomes.labels(result.fleet or "", result.kind, body.response).inc()
+        metrics.outcome_reported(
+            result.fleet or "", result.kind, body.response, result.body.get("episode")
+        )
     _count(request, result)
     return written(result)
 
