@@ -63,9 +63,12 @@ def describe_exit(exitcode: int) -> str:
 class DrainingServer(uvicorn.Server):
     """uvicorn's server, draining on SIGTERM and SIGINT for up to ``drain_timeout`` seconds."""
 
-    def __init__(self, config: uvicorn.Config, drain_timeout: float) -> None:
+    def __init__(
+        self, config: uvicorn.Config, drain_timeout: float, *, supervisor: int | None = None
+    ) -> None:
         super().__init__(config)
         self.drain_timeout = drain_timeout
+        self.supervisor = supervisor  # a worker's: the process whose death stops it
         self.drain_deadline: float | None = None
         self._told = False
 
@@ -97,6 +100,12 @@ class DrainingServer(uvicorn.Server):
         drain = getattr(lifespan, "state", {}).get(DRAIN_STATE_KEY)
         if drain is not None:
             drain.begin()
+        if self.supervisor is not None and os.getppid() != self.supervisor:
+            log.error(
+                "The supervisor (process %s) is gone; worker process %s stops.",
+                self.supervisor,
+                os.getpid(),
+            )
         log.info(
             "Worker process %s is shutting down: it finishes the requests in flight (at most "
             "%g s), then exits.",
@@ -122,9 +131,11 @@ class Worker(Process):
     def target(self, sockets: list[socket] | None = None) -> None:  # pragma: no cover
         # In the worker process (spawned): uvicorn's, with the supervisor watched and a health
         # check that ends quietly when the supervisor's end of the pipe closes.
-        _leave_with(os.getppid())
+        supervisor = os.getppid()
+        self._server = DrainingServer(self.config, self.drain_timeout, supervisor=supervisor)
+        _leave_with(supervisor)
         threading.Thread(target=self._answer_health_checks, daemon=True).start()
-        self.server.run(sockets)
+        self._server.run(sockets)
 
     def _answer_health_checks(self) -> None:
         with contextlib.suppress(EOFError, OSError):
@@ -147,8 +158,7 @@ def _leave_with(parent: int) -> None:
 def _watch_parent(parent: int) -> None:
     while os.getppid() == parent:  # the parent may be gone already, before prctl took effect
         time.sleep(PARENT_POLL_S)
-    log.error("The supervisor (process %s) is gone; worker process %s stops.", parent, os.getpid())
-    os.kill(os.getpid(), signal.SIGTERM)
+    os.kill(os.getpid(), signal.SIGTERM)  # the drain says why (DrainingServer)
 
 
 def _forget(pid: int | None) -> None:

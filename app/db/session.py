@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import sqlite3
 import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -279,4 +280,8 @@ def _configure_sqlite(engine: Engine, busy_timeout_s: float) -> None:
             return
         # On the driver's connection: a statement through SQLAlchemy costs more than this one.
         driver: Any = conn.connection.driver_connection
-        driver.execute("BEGIN IMMEDIATE" if options.get(_WRITE, False) else "BEGIN")
+        statement = "BEGIN IMMEDIATE" if options.get(_WRITE, False) else "BEGIN"
+        try:
+            driver.execute(statement)
+        except sqlite3.OperationalError as exc:  # "database is locked": SQLAlchemy's, as any
+            raise OperationalError(statement, None, exc) from exc
