@@ -24,7 +24,7 @@ from prometheus_client.parser import text_string_to_metric_families
 from sqlalchemy import create_engine, text
 
 from app.db import migrate
-from tests.support.live import ATTUNE, LiveService, free_port, fresh_database
+from tests.support.live import ATTUNE, LiveService, free_port, fresh_database, make_keys
 
 pytestmark = pytest.mark.live
 
@@ -527,3 +527,101 @@ def test_the_metrics_port_taken_is_one_line(folder: Path, taken_port: int) -> No
     done = _serve(folder, _env(ATTUNE_METRICS_PORT=str(taken_port)), free_port())
     _one_sentence(done, f"Port {taken_port}", "already in use", "ATTUNE_METRICS_PORT")
     assert list(folder.iterdir()) == []
+
+
+ROBOTS = 4
+MOST_EPISODES = 200  # per robot: each goes on until it played two episodes after the restart
+
+
+@pytest.mark.parametrize(("engine", "workers"), [("sqlite", 1), ("postgresql", 2)])
+def test_sigterm_under_robot_traffic_fails_no_request(
+    tmp_path: Path, engine: str, workers: int
+) -> None:
+    """Robots on the Python client (which retries) play episodes while the service is stopped
+    with SIGTERM and started again: none of their calls fails, and every episode and outcome is
+    stored once (the models rebuild identically)."""
+    from attune_client import Client
+
+    from tests.support import people
+
+    with fresh_database(engine, tmp_path) as url:
+        service = LiveService(url, workers=workers, log_path=tmp_path / "serve.log")
+        service.start()
+        try:
+            keys = make_keys(url, ROBOTS)
+            failures: list[str] = []
+            played: dict[str, list[str]] = {f"person{n}": [] for n in range(ROBOTS)}
+            answered: dict[str, int] = {}  # episode id -> outcomes the robot got answers to
+            lock = threading.Lock()
+            restarted = threading.Event()
+            refused: list[str] = []  # transport failures the client met (and retried)
+
+            class Wire(httpx.HTTPTransport):
+                def handle_request(self, request: httpx.Request) -> httpx.Response:
+                    try:
+                        return super().handle_request(request)
+                    except httpx.TransportError as exc:
+                        refused.append(type(exc).__name__)
+                        raise
+
+            def robot(n: int) -> None:
+                user, after = f"person{n}", 0
+                try:
+                    with Client(service.url, keys[n], max_retries=12, transport=Wire()) as client:
+                        for e in range(MOST_EPISODES):
+                            if restarted.is_set():
+                                after += 1
+                                if after > 2:
+                                    return
+                            ep = client.start_episode(
+                                user,
+                                event_id=f"{user}-{e}",
+                                occurred_at="2026-11-22T15:10:00+08:00",
+                                situation="working",
+                            )
+                            played[user].append(f"{user}-{e}")
+                            decision = ep.decision
+                            for _ in range(20):
+                                if decision is None:
+                                    break
+                                need = people.TEA if e % 2 else None
+                                out = client.report_outcome(
+                                    ep.episode_id,
+                                    decision_id=decision.decision_id,
+                                    **people.answer(decision.action, need=need),
+                                )
+                                with lock:
+                                    answered[ep.episode_id] = answered.get(ep.episode_id, 0) + 1
+                                decision = out.decision  # type: ignore[union-attr]
+                except Exception as exc:  # what the robot would see
+                    failures.append(f"{user}: {type(exc).__name__}: {exc}")
+
+            threads = [threading.Thread(target=robot, args=(n,)) for n in range(ROBOTS)]
+            for thread in threads:
+                thread.start()
+            _wait_for(lambda: sum(answered.values()) >= 8 or failures, "robot traffic", service)
+            assert service.process is not None
+            os.kill(service.process.pid, signal.SIGTERM)
+            assert service.process.wait(timeout=120) == 0, service.log()
+            service.start()  # the robots' retries reach it again
+            restarted.set()
+            for thread in threads:
+                thread.join(timeout=600)
+            assert not any(thread.is_alive() for thread in threads)
+            assert failures == []
+            assert refused, "the robots never met the stopped service"
+            assert all(len(events) < MOST_EPISODES for events in played.values())
+            with Client(service.url, make_keys(url, 1, role="admin")[0]) as admin:
+                for user, events in played.items():
+                    stored = list(admin.iter_episodes(user))
+                    assert sorted(s.event_id for s in stored) == sorted(events)
+                    for summary in stored:
+                        assert summary.status == "closed"
+                        trace = admin.get_episode(summary.episode_id)
+                        outcomes = [d for d in trace.decisions if d.response is not None]
+                        assert len(outcomes) == answered[summary.episode_id]
+            rebuilt = service.attune("models", "rebuild", "--all")
+            assert rebuilt.returncode == 0, rebuilt.stdout + rebuilt.stderr
+            assert "Traceback" not in service.log()
+        finally:
+            service.stop()
