@@ -184,6 +184,9 @@ class Metrics:
         self._by_request: dict[tuple[str, str, int], Any] = {}
         self._by_route: dict[tuple[str, str], Any] = {}
         self._trips_by_route: dict[str, Any] = {}
+        self._by_decision: dict[tuple[str, str], Any] = {}
+        self._by_outcome: dict[tuple[str, str, str], Any] = {}
+        self._by_fleet: dict[str, tuple[Any, Any, Any]] = {}
         self._lags: deque[float] = deque(maxlen=LAG_WINDOW)
         self._lock = threading.Lock()
         self._seen: dict[str, tuple[object, float]] = {}
@@ -191,7 +194,7 @@ class Metrics:
         self._cache: LearnerCache | None = None
         self._drain: Drain | None = None
 
-    # -- the request path: counter increments only ----------------------------------------------
+    # -- the request path: counter increments only (each series' child kept: no label lookup) -
     def observe_request(
         self, method: str, route: str, status: int, seconds: float, round_trips: int = 0
     ) -> None:
@@ -210,20 +213,37 @@ class Metrics:
                 trips = self._trips_by_route[route] = self.round_trips.labels(route)
             trips.inc(round_trips)
 
+    def decision_sent(self, fleet: str, kind: str) -> None:
+        counter = self._by_decision.get((fleet, kind))
+        if counter is None:
+            counter = self._by_decision[(fleet, kind)] = self.decisions.labels(fleet, kind)
+        counter.inc()
+
     def outcome_reported(
         self, fleet: str, kind: str, response: str, episode: dict[str, Any] | None
     ) -> None:
         """An outcome was stored (not a replay); ``episode`` is the answer's brief of its
         episode: when the outcome ended it, its total reward counts towards the fleet's."""
-        self.outcomes.labels(fleet, kind, response).inc()
+        key = (fleet, kind, response)
+        counter = self._by_outcome.get(key)
+        if counter is None:
+            counter = self._by_outcome[key] = self.outcomes.labels(fleet, kind, response)
+        counter.inc()
         if episode is None or episode.get("status") != "closed":
             return
-        self.episodes_ended.labels(fleet).inc()
+        ended = self._by_fleet.get(fleet)
+        if ended is None:
+            ended = self._by_fleet[fleet] = (
+                self.episodes_ended.labels(fleet),
+                self.reward_positive.labels(fleet),
+                self.reward_negative.labels(fleet),
+            )
+        ended[0].inc()
         reward = float(episode.get("total_reward") or 0.0)
         if reward > 0:
-            self.reward_positive.labels(fleet).inc(reward)
+            ended[1].inc(reward)
         elif reward < 0:
-            self.reward_negative.labels(fleet).inc(-reward)
+            ended[2].inc(-reward)
 
     # -- the worker's own figures, sampled --------------------------------------------------------
     def attach(self, *, db: Database, cache: LearnerCache, drain: Drain) -> None:

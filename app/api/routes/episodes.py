@@ -31,7 +31,7 @@ def _count(request: Request, result: service.Written) -> None:
     metrics: Metrics = request.app.state.metrics
     decision = result.body.get("decision")
     if isinstance(decision, dict):
-        metrics.decisions.labels(result.fleet or "", decision["action"]["kind"]).inc()
+        metrics.decision_sent(result.fleet or "", decision["action"]["kind"])
 
 
 @router.post(
