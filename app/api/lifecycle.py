@@ -10,15 +10,12 @@ is alive, only leaving.
 
 from __future__ import annotations
 
-import logging
 import time
 
 __all__ = ["STATE_KEY", "Drain"]
 
 STATE_KEY = "attune.drain"
 """The lifespan state's key of the app's :class:`Drain` (read by the server of ``attune serve``)."""
-
-log = logging.getLogger("attune")
 
 
 class Drain:
@@ -34,5 +31,4 @@ class Drain:
     def begin(self) -> None:
         """The worker was told to stop: from now on it is not ready (idempotent)."""
         if self.since is None:
-            self.since = time.monotonic()
-            log.info("shutting down: /readyz answers 503 while the requests in flight finish")
+            self.since = time.monotonic()  # the server logs it (attune.serve)

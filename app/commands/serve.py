@@ -13,8 +13,6 @@ from __future__ import annotations
 
 import contextlib
 import errno
-import hmac
-import http.server
 import os
 import shutil
 import socket
@@ -71,66 +69,63 @@ def _listen(host: str, port: int, *, what: str = "--port") -> socket.socket:
     return sock
 
 
-class _MetricsServer(http.server.ThreadingHTTPServer):
+def _metrics_server(sock: socket.socket, token: str | None) -> Any:
     """``GET /metrics`` on a port of its own (``ATTUNE_METRICS_PORT``), in the process that
     started the workers: the sum of their metrics files, behind the metrics token if one is
-    set."""
+    set. A ``ThreadingHTTPServer`` on ``sock``; its ``serve_forever`` runs in a thread."""
+    import hmac
+    import http.server
 
-    daemon_threads = True
+    from prometheus_client import CONTENT_TYPE_LATEST, CollectorRegistry, generate_latest
+    from prometheus_client.multiprocess import MultiProcessCollector
 
-    def __init__(self, sock: socket.socket, token: str | None) -> None:
-        super().__init__(sock.getsockname()[:2], _MetricsHandler, bind_and_activate=False)
-        self.socket.close()
-        self.socket = sock
-        self.token = token
-        sock.listen(16)
+    class Handler(http.server.BaseHTTPRequestHandler):
+        def do_GET(self) -> None:  # noqa: N802 (http.server's name)
+            if self.path.split("?", 1)[0] != "/metrics":
+                self._answer(404, b'{"error":"NotFound","detail":"Only /metrics is served here."}')
+                return
+            scheme, _, secret = self.headers.get("Authorization", "").partition(" ")
+            if token is not None and not (
+                scheme.lower() == "bearer"
+                and hmac.compare_digest(secret.strip().encode(), token.encode())
+            ):
+                self._answer(
+                    401,
+                    b'{"error":"Unauthorized","detail":"/metrics needs the metrics token: '
+                    b'Authorization: Bearer <ATTUNE_METRICS_TOKEN>."}',
+                    {"WWW-Authenticate": 'Bearer realm="metrics"'},
+                )
+                return
+            registry = CollectorRegistry()
+            MultiProcessCollector(registry)  # type: ignore[no-untyped-call]
+            self._answer(200, generate_latest(registry), content_type=CONTENT_TYPE_LATEST)
 
+        def _answer(
+            self,
+            status: int,
+            body: bytes,
+            headers: dict[str, str] | None = None,
+            content_type: str = "application/json",
+        ) -> None:
+            self.send_response(status)
+            self.send_header("Content-Type", content_type)
+            self.send_header("Content-Length", str(len(body)))
+            for name, value in (headers or {}).items():
+                self.send_header(name, value)
+            self.end_headers()
+            self.wfile.write(body)
 
-class _MetricsHandler(http.server.BaseHTTPRequestHandler):
-    server: _MetricsServer
+        def log_message(self, format: str, *args: Any) -> None:  # noqa: A002 (the base's name)
+            pass  # scrapes are not requests of the service: no access line
 
-    def do_GET(self) -> None:  # noqa: N802 (http.server's name)
-        from prometheus_client import CONTENT_TYPE_LATEST, CollectorRegistry, generate_latest
-        from prometheus_client.multiprocess import MultiProcessCollector
-
-        if self.path.split("?", 1)[0] != "/metrics":
-            self._answer(404, b'{"error":"NotFound","detail":"Only /metrics is served here."}')
-            return
-        token = self.server.token
-        given = self.headers.get("Authorization", "")
-        scheme, _, secret = given.partition(" ")
-        if token is not None and not (
-            scheme.lower() == "bearer"
-            and hmac.compare_digest(secret.strip().encode(), token.encode())
-        ):
-            self._answer(
-                401,
-                b'{"error":"Unauthorized","detail":"/metrics needs the metrics token: '
-                b'Authorization: Bearer <ATTUNE_METRICS_TOKEN>."}',
-                {"WWW-Authenticate": 'Bearer realm="metrics"'},
-            )
-            return
-        registry = CollectorRegistry()
-        MultiProcessCollector(registry)  # type: ignore[no-untyped-call]
-        self._answer(200, generate_latest(registry), content_type=CONTENT_TYPE_LATEST)
-
-    def _answer(
-        self,
-        status: int,
-        body: bytes,
-        headers: dict[str, str] | None = None,
-        content_type: str = "application/json",
-    ) -> None:
-        self.send_response(status)
-        self.send_header("Content-Type", content_type)
-        self.send_header("Content-Length", str(len(body)))
-        for name, value in (headers or {}).items():
-            self.send_header(name, value)
-        self.end_headers()
-        self.wfile.write(body)
-
-    def log_message(self, format: str, *args: Any) -> None:  # noqa: A002 (http.server's name)
-        pass  # scrapes are not requests of the service: no access line
+    server = http.server.ThreadingHTTPServer(
+        sock.getsockname()[:2], Handler, bind_and_activate=False
+    )
+    server.daemon_threads = True
+    server.socket.close()
+    server.socket = sock  # bound by _listen, with its one-line failures
+    sock.listen(16)
+    return server
 
 
 def serve(
@@ -219,10 +214,10 @@ def _run(
         else ""
     )
     say(f"Attune on {where} (docs: {where}/docs){metrics}, {workers} worker(s).")
-    scrapes: _MetricsServer | None = None
+    scrapes: Any = None
     if settings.metrics_port is not None:
         token = settings.metrics_token
-        scrapes = _MetricsServer(sockets[1], token.get_secret_value() if token else None)
+        scrapes = _metrics_server(sockets[1], token.get_secret_value() if token else None)
         threading.Thread(target=scrapes.serve_forever, daemon=True, name="attune-metrics").start()
     # uvicorn's access log is off: the service writes one access line per request itself
     # (logger attune.access), with the route, the key id and the request id.

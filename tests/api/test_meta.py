@@ -102,14 +102,19 @@ class TestDrain:
     def test_readyz_turns_503_and_livez_stays_200(
         self, app: FastAPI, client: TestClient, robot: TestClient
     ) -> None:
-        assert client.get("/readyz").status_code == 200
+        r = client.get("/readyz")
+        assert r.status_code == 200
+        assert "connection" not in r.headers  # keep-alive as usual
         app.state.drain.begin()
         assert_error(client.get("/readyz"), 503, "ServiceUnavailable")
         assert "shutting down" in client.get("/readyz").json()["detail"]
         assert client.get("/livez").status_code == 200
-        # A request that still reaches the worker is served: the robot's write is stored.
+        # A request that still reaches the worker is served: the robot's write is stored; its
+        # connection closes, so that the client's next request goes where the balancer sends it.
         ep = start(robot, "lin", "e1")
-        assert robot.get(f"/v1/episodes/{ep['episode_id']}").status_code == 200
+        r = robot.get(f"/v1/episodes/{ep['episode_id']}")
+        assert r.status_code == 200
+        assert r.headers["connection"] == "close"
         app.state.metrics.sample()
         assert _sample(app, "attune_draining") == 1.0
 
