@@ -119,7 +119,11 @@ class Worker(Process):
     supervisor is gone."""
 
     def __init__(self, config: uvicorn.Config, sockets: list[socket], drain_timeout: float) -> None:
-        self.drain_timeout = drain_timeout  # before the process is made: it is pickled with it
+        # Set before the process is made (it is pickled with it). The supervisor's id is taken
+        # here, not read in the worker: a worker that starts after its supervisor died must see
+        # that it is gone, not adopt its new parent.
+        self.drain_timeout = drain_timeout
+        self.supervisor = os.getpid()
         super().__init__(config, sockets)
 
     @property
@@ -131,9 +135,8 @@ class Worker(Process):
     def target(self, sockets: list[socket] | None = None) -> None:  # pragma: no cover
         # In the worker process (spawned): uvicorn's, with the supervisor watched and a health
         # check that ends quietly when the supervisor's end of the pipe closes.
-        supervisor = os.getppid()
-        self._server = DrainingServer(self.config, self.drain_timeout, supervisor=supervisor)
-        _leave_with(supervisor)
+        self._server = DrainingServer(self.config, self.drain_timeout, supervisor=self.supervisor)
+        _leave_with(self.supervisor)
         threading.Thread(target=self._answer_health_checks, daemon=True).start()
         self._server.run(sockets)
 
@@ -144,8 +147,9 @@ class Worker(Process):
 
 
 def _leave_with(parent: int) -> None:
-    """SIGTERM this process, once, when ``parent`` is no longer its parent: at once on Linux
-    (the kernel's parent-death signal), within :data:`PARENT_POLL_S` elsewhere."""
+    """SIGTERM this process, once, when ``parent`` is no longer its parent (or already is not):
+    at once on Linux (the kernel's parent-death signal), within :data:`PARENT_POLL_S`
+    elsewhere."""
     if sys.platform.startswith("linux"):
         with contextlib.suppress(OSError, AttributeError):
             libc = ctypes.CDLL(None, use_errno=True)

@@ -358,6 +358,15 @@ def _gone(pid: int) -> bool:
     return stat.rsplit(")", 1)[1].split()[0] == "Z"
 
 
+def _serving_workers(service: LiveService) -> float:
+    """The workers that started serving, as the metrics (summed over them) say."""
+    text = httpx.get(f"{service.url}/metrics", timeout=10).text
+    for family in text_string_to_metric_families(text):
+        if family.name == "attune_workers":
+            return sum(s.value for s in family.samples)
+    return 0.0
+
+
 def test_kill_9_of_the_supervisor_takes_its_workers_along(tmp_path: Path) -> None:
     """``kill -9`` cannot be caught: each worker notices that its supervisor is gone, drains and
     exits, so the port is free and the next ``attune serve`` on it starts."""
@@ -367,7 +376,7 @@ def test_kill_9_of_the_supervisor_takes_its_workers_along(tmp_path: Path) -> Non
         assert service.process is not None
         group = service.process.pid  # its own session: the workers are in its group
         try:
-            _wait_for(lambda: len(_workers(service.process.pid)) == 2, "two workers", service)
+            _wait_for(lambda: _serving_workers(service) == 2, "two workers serving", service)
             workers = _workers(service.process.pid)
             os.kill(service.process.pid, signal.SIGKILL)
             service.process.wait(timeout=30)
