@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import asyncio
+import contextlib
 import logging
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
+from typing import Any
 
 from anyio import to_thread
 from fastapi import FastAPI
@@ -12,6 +15,7 @@ from fastapi.routing import APIRoute
 
 from app.api.docs import install_docs
 from app.api.errors import install_error_handlers
+from app.api.lifecycle import STATE_KEY, Drain
 from app.api.metrics import Metrics
 from app.api.middleware import (
     BodyLimitMiddleware,
@@ -25,7 +29,7 @@ from app.api.routes import admin, episodes, meta, models, profile, users
 from app.console import mount_console
 from app.db.session import Database
 from app.services.context import ServiceContext
-from app.settings import Settings, get_settings
+from app.settings import Settings, get_settings, mask_url
 
 __all__ = ["app", "create_app"]
 
@@ -38,8 +42,9 @@ A robot reports an **event** near a person (`POST /v1/users/{user_id}/episodes`)
 (`POST /v1/episodes/{episode_id}/outcomes`), getting the next decision, until the episode ends.
 Writes are idempotent: repeat them with the same ids after a network failure.
 
-Every request but `/healthz`, `/readyz` and `/metrics` needs `Authorization: Bearer <api key>`;
-keys are made with `attune keys create`.
+Every request but `/livez`, `/healthz`, `/readyz` and `/metrics` needs `Authorization: Bearer
+<api key>`; keys are made with `attune keys create` (`/metrics` may need the deployment's metrics
+token instead).
 
 Errors are `{"error": "...", "detail": "...", "request_id": "..."}` (plus `fields` on a 422).
 Every response carries an `X-Request-ID` header: the caller's own when it sent a valid one
@@ -65,17 +70,23 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     db = Database(settings)
 
     @asynccontextmanager
-    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+    async def lifespan(app: FastAPI) -> AsyncIterator[dict[str, Any]]:
         # An admitted request may hold a pool thread while it waits for a user's lock or a
         # connection; with more threads than admitted requests (InFlightLimitMiddleware), the
         # holder of the lock always finds a thread to finish on. The 8 spare threads serve the
         # probes and /metrics, which are not counted.
         to_thread.current_default_thread_limiter().total_tokens = settings.max_in_flight + 8
-        logging.getLogger("attune").info(
-            "serving with database %s", db.engine.url.render_as_string(hide_password=True)
-        )
-        yield
-        db.dispose()
+        logging.getLogger("attune").info("serving with database %s", mask_url(db.url))
+        # The worker's own figures (CPU, memory, pool, cache, event loop), sampled every second.
+        watch = asyncio.create_task(app.state.metrics.watch(), name="attune-metrics")
+        try:
+            # The server of `attune serve` finds the drain here and starts it on SIGTERM.
+            yield {STATE_KEY: app.state.drain}
+        finally:
+            watch.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await watch
+            db.dispose()
 
     app = FastAPI(
         title="Attune",
@@ -90,6 +101,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.db = db
     app.state.ctx = ServiceContext.from_settings(settings)
     app.state.metrics = Metrics()
+    app.state.drain = Drain()
+    app.state.metrics.attach(db=db, cache=app.state.ctx.cache, drain=app.state.drain)
     app.state.limiter = KeyRateLimiter(settings.rate_limit_per_s, settings.rate_limit_burst)
     install_error_handlers(app)
     for module in (users, episodes, models, profile, meta):
@@ -102,7 +115,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.add_middleware(HeadMiddleware)
     app.add_middleware(BodyLimitMiddleware, limit=settings.max_body_bytes)
     app.add_middleware(InFlightLimitMiddleware, limit=settings.max_in_flight)
-    app.add_middleware(MetricsMiddleware, metrics=app.state.metrics)
+    app.add_middleware(MetricsMiddleware, metrics=app.state.metrics, drain=app.state.drain)
     app.add_middleware(RequestContextMiddleware)
     return app
 

@@ -5,10 +5,56 @@ from __future__ import annotations
 import functools
 from pathlib import Path
 
-from pydantic import Field, field_validator
+from pydantic import Field, SecretStr, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
-__all__ = ["Settings", "get_settings"]
+__all__ = ["Settings", "get_settings", "mask_url", "shown"]
+
+SECRET_SETTINGS = frozenset({"metrics_token"})
+"""Settings whose values are never printed, whole or in part."""
+
+
+def mask_url(url: str) -> str:
+    """``url`` with its password (and a ``password=`` query parameter) replaced by ``***``,
+    for every message that shows a database URL; also when the URL is malformed, so that a
+    mistyped URL never prints its password either."""
+    scheme, sep, rest = url.partition("://")
+    if not sep:
+        return url
+    userinfo, at, after = rest.rpartition("@")  # a password may hold an unescaped "@"
+    if at and ":" in userinfo:
+        rest = f"{userinfo.split(':', 1)[0]}:***@{after}"
+    path, q, query = rest.partition("?")
+    if q:
+        params = [
+            f"{k}=***" if k.lower() == "password" else f"{k}{eq}{v}"
+            for k, eq, v in (p.partition("=") for p in query.split("&"))
+        ]
+        rest = f"{path}?{'&'.join(params)}"
+    return f"{scheme}://{rest}"
+
+
+def shown(name: str, value: object) -> object:
+    """A setting's value as a message may show it: a database URL without its password, a
+    secret not at all."""
+    if name in SECRET_SETTINGS:
+        return "***"
+    if name == "database_url" and isinstance(value, str):
+        return mask_url(value)
+    return value
+
+
+def _ports_of(url: str) -> list[str]:
+    """The texts after the hosts' colons in ``url``'s authority (``HOST:PORT,HOST:PORT``)."""
+    rest = url.partition("://")[2]
+    hosts = rest.rpartition("@")[2].split("/", 1)[0].split("?", 1)[0]
+    ports = []
+    for host in hosts.split(","):
+        if host.startswith("["):  # [IPv6]:port
+            host = host.partition("]")[2]
+        if ":" in host:
+            ports.append(host.rpartition(":")[2])
+    return ports
 
 
 class Settings(BaseSettings):
@@ -132,6 +178,26 @@ class Settings(BaseSettings):
         "Retry-After at once instead of waiting in an unbounded queue (/healthz, /readyz and "
         "/metrics are exempt).",
     )
+    drain_timeout_s: float = Field(
+        default=30.0,
+        ge=0,
+        le=3600,
+        description="After SIGTERM or SIGINT, how long a worker goes on serving the requests in "
+        "flight (and those that still reach it) before it stops; /readyz answers 503 from the "
+        "signal on, and the worker stops as soon as no request is in flight.",
+    )
+    metrics_token: SecretStr | None = Field(
+        default=None,
+        description="When set, /metrics answers only requests with Authorization: Bearer "
+        "<this token> (at least 16 characters); unset, it needs no key.",
+    )
+    metrics_port: int | None = Field(
+        default=None,
+        ge=1,
+        le=65535,
+        description="When set, attune serve serves /metrics on this port of --host, and not on "
+        "the service's port; unset, on the service's port.",
+    )
 
     @field_validator("database_url")
     @classmethod
@@ -143,6 +209,31 @@ class Settings(BaseSettings):
             raise ValueError(
                 "database_url must be sqlite:///PATH or postgresql+psycopg://USER@HOST/DB."
             )
+        # Read it now, as the engine will: a malformed URL is a bad setting (one line, exit 2),
+        # not a traceback from the first connection. Nothing of it but the port is quoted.
+        if value.partition("://")[2].rpartition("@")[0].count("@"):
+            raise ValueError("the user or password of database_url holds an '@': write it as %40.")
+        for port in _ports_of(value):
+            if not (port.isdigit() and 1 <= int(port) <= 65535):
+                raise ValueError(
+                    f"the port of database_url must be a number from 1 to 65535, not {port!r}."
+                )
+        from sqlalchemy.engine import make_url  # here: --help needs no SQLAlchemy
+
+        try:
+            make_url(value)
+        except Exception:  # ArgumentError, or ValueError for a part it cannot read
+            raise ValueError(
+                "database_url is not a URL: write sqlite:///PATH or "
+                "postgresql://USER:PASSWORD@HOST:PORT/DB."
+            ) from None
+        return value
+
+    @field_validator("metrics_token")
+    @classmethod
+    def _long_token(cls, value: SecretStr | None) -> SecretStr | None:
+        if value is not None and len(value.get_secret_value()) < 16:
+            raise ValueError("metrics_token must be at least 16 characters long.")
         return value
 
     @field_validator("log_level")

@@ -16,7 +16,8 @@ from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from app import logs
 
-from .metrics import Metrics
+from .lifecycle import Drain
+from .metrics import Metrics, begin_round_trips, end_round_trips
 
 __all__ = [
     "BodyLimitMiddleware",
@@ -35,7 +36,7 @@ log = logging.getLogger("attune.api")
 
 # Probes and scrapes must answer while the service sheds load: they are what tells an operator
 # (or an orchestrator) that it is alive but busy.
-EXEMPT_PATHS = frozenset({"/healthz", "/readyz", "/metrics"})
+EXEMPT_PATHS = frozenset({"/livez", "/healthz", "/readyz", "/metrics"})
 
 
 class BodyTooLarge(Exception):
@@ -233,10 +234,16 @@ class BodyLimitMiddleware:
 
 
 class MetricsMiddleware:
-    """Count requests and time them per route template (``/v1/users/{user_id}``)."""
+    """Count requests, time them and count their round trips to PostgreSQL, per route template
+    (``/v1/users/{user_id}``).
 
-    def __init__(self, app: ASGIApp, metrics: Metrics) -> None:
-        self.app, self.metrics = app, metrics
+    While the worker shuts down (``drain``), every response also closes its connection
+    (``Connection: close``): a client's next request opens a new one, which the load balancer
+    sends to another instance, so the requests in flight here run out.
+    """
+
+    def __init__(self, app: ASGIApp, metrics: Metrics, drain: Drain) -> None:
+        self.app, self.metrics, self.drain = app, metrics, drain
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] != "http":
@@ -244,20 +251,29 @@ class MetricsMiddleware:
             return
         start = time.perf_counter()
         status: dict[str, Any] = {"code": 500}
+        drain = self.drain
 
         async def tracking_send(message: Message) -> None:
             if message["type"] == "http.response.start":
                 status["code"] = message["status"]
+                if drain.since is not None:
+                    headers = [
+                        (k, v) for k, v in message.get("headers", []) if k.lower() != b"connection"
+                    ]
+                    message = {**message, "headers": [*headers, (b"connection", b"close")]}
             await send(message)
 
+        trips, token = begin_round_trips()
         try:
             await self.app(scope, receive, tracking_send)
         finally:
+            end_round_trips(token)
             self.metrics.observe_request(
                 scope.get("method", "?"),
                 route_template(scope),
                 status["code"],
                 time.perf_counter() - start,
+                trips[0],
             )
 
 

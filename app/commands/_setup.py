@@ -21,11 +21,12 @@ from ._lazy import LazyModule, lazy_callable
 if TYPE_CHECKING:
     from app.db import migrate
     from app.db.session import Database
-    from app.settings import Settings
+    from app.settings import Settings, mask_url
 else:  # imported when a command runs: --help needs neither SQLAlchemy, Alembic nor pydantic
     migrate = LazyModule("app.db.migrate")
     Database = lazy_callable("app.db.session", "Database")
     Settings = lazy_callable("app.settings", "Settings")
+    mask_url = lazy_callable("app.settings", "mask_url")
 
 __all__ = [
     "StartFailure",
@@ -57,11 +58,14 @@ def _bad_settings(exc: Exception) -> str:
     errors = getattr(exc, "errors", None)
     if not callable(errors):
         return f"Bad ATTUNE_* setting: {one_line(exc)}."
+    from app.settings import shown  # a database URL without its password, no secret
+
     lines = []
     for e in errors():
-        name = "ATTUNE_" + "_".join(str(part) for part in e.get("loc", ())).upper()
+        field = "_".join(str(part) for part in e.get("loc", ()))
         message = str(e.get("msg", "invalid")).removeprefix("Value error, ").rstrip(".")
-        lines.append(f"Bad setting {name}: {message} (got {e.get('input')!r}).")
+        got = shown(field, e.get("input"))
+        lines.append(f"Bad setting ATTUNE_{field.upper()}: {message} (got {got!r}).")
     return "\n".join(lines) or f"Bad ATTUNE_* setting: {one_line(exc)}."
 
 
@@ -145,7 +149,7 @@ def upgrade_schema(
     made = sqlite is not None and not sqlite.exists()
     try:
         safe = Database(settings)
-        url = safe.engine.url.render_as_string(hide_password=True)
+        url = mask_url(settings.database_url)
         try:
             before = migrate.current_revision(safe.engine)
         except Exception as exc:  # the driver's error: refused, unknown host, bad password...

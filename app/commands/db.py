@@ -20,9 +20,11 @@ from ._setup import (
 if TYPE_CHECKING:
     from app.db import migrate
     from app.db.session import Database
+    from app.settings import mask_url
 else:  # imported when a command runs: --help needs neither SQLAlchemy nor Alembic
     migrate = LazyModule("app.db.migrate")
     Database = lazy_callable("app.db.session", "Database")
+    mask_url = lazy_callable("app.settings", "mask_url")
 
 __all__ = ["db"]
 
@@ -53,7 +55,7 @@ def db_current() -> None:
             where = f" (no file at {sqlite})"
         else:
             database = Database(settings)
-            url = database.engine.url.render_as_string(hide_password=True)
+            url = mask_url(settings.database_url)
             try:
                 current = migrate.current_revision(database.engine)
             except Exception as exc:  # the driver's error: refused, unknown host...

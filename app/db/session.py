@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import sqlite3
 import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -24,13 +25,14 @@ from typing import Any
 
 import orjson
 from sqlalchemy import Engine, create_engine, event
-from sqlalchemy.engine import Connection
+from sqlalchemy.engine import Connection, make_url
 from sqlalchemy.exc import OperationalError
 from sqlalchemy.orm import Session
 
 from app.errors import ServiceUnavailable
 from app.settings import Settings
 
+from .pool import MeteredQueuePool
 from .types import json_dumps
 
 __all__ = ["NOWAIT", "Database", "LockBusy", "WriteGroup"]
@@ -89,15 +91,19 @@ class Database:
             "json_serializer": json_dumps,
             "json_deserializer": orjson.loads,
         }
+        pool: dict[str, Any] = {}  # the main engine's: it counts the checkouts that wait
         if self.is_sqlite:
             kwargs["connect_args"] = {
                 "timeout": settings.sqlite_busy_timeout_s,
                 "check_same_thread": False,
             }
+            if make_url(self.url).database not in (None, "", ":memory:"):
+                pool = {"poolclass": MeteredQueuePool}  # SQLAlchemy's sizes for a file (5 + 10)
         else:
             kwargs["pool_size"] = settings.db_pool_size
             kwargs["max_overflow"] = settings.db_pool_size
-        self.engine: Engine = create_engine(self.url, **kwargs)
+            pool = {"poolclass": MeteredQueuePool}
+        self.engine: Engine = create_engine(self.url, **kwargs, **pool)
         if self.is_sqlite:
             _configure_sqlite(self.engine, settings.sqlite_busy_timeout_s)
         self._write_engine = self.engine.execution_options(**{_WRITE: True})
@@ -274,4 +280,8 @@ def _configure_sqlite(engine: Engine, busy_timeout_s: float) -> None:
             return
         # On the driver's connection: a statement through SQLAlchemy costs more than this one.
         driver: Any = conn.connection.driver_connection
-        driver.execute("BEGIN IMMEDIATE" if options.get(_WRITE, False) else "BEGIN")
+        statement = "BEGIN IMMEDIATE" if options.get(_WRITE, False) else "BEGIN"
+        try:
+            driver.execute(statement)
+        except sqlite3.OperationalError as exc:  # "database is locked": SQLAlchemy's, as any
+            raise OperationalError(statement, None, exc) from exc

@@ -130,6 +130,7 @@ U = "/v1/users/{user_id}"
 C = "/admin/users/{user_id}"
 MATRIX: list[Row] = [
     #    method    path                                  none  rev   rA   rB   sA   sB  adm
+    Row("GET", "/livez", (200, 200, 200, 200, 200, 200, 200)),
     Row("GET", "/healthz", (200, 200, 200, 200, 200, 200, 200)),
     Row("GET", "/readyz", (200, 200, 200, 200, 200, 200, 200)),
     Row("GET", "/metrics", (200, 200, 200, 200, 200, 200, 200)),

@@ -24,6 +24,7 @@ import httpx
 import pytest
 import yaml
 
+from app.settings import Settings
 from tests.support.live import free_port
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -109,7 +110,7 @@ def test_image_shape() -> None:
     assert uid.isdigit(), user
     assert int(uid) >= 1000, user
     (health,) = final.all("HEALTHCHECK")
-    assert "/healthz" in health
+    assert "/livez" in health
     assert exec_form(final.all("CMD")[-1])[:2] == ["attune", "serve"]
 
 
@@ -128,6 +129,10 @@ def test_compose_wiring() -> None:
     assert "/readyz" in " ".join(attune["healthcheck"]["test"])
     assert attune["command"][:2] == ["attune", "serve"]
     assert "--workers" in attune["command"]
+    # Docker waits this long after SIGTERM before SIGKILL: longer than the service's drain.
+    grace = attune["stop_grace_period"]
+    assert grace.endswith("s")
+    assert int(grace[:-1]) > Settings.model_fields["drain_timeout_s"].default
     assert "pgdata" in doc["volumes"]
 
 

@@ -1,9 +1,11 @@
 """``attune serve`` as an operator runs it: a start that cannot succeed says why in one line,
 exits non-zero and leaves no file behind; a worker that dies is reported with its cause; the
-logs are one JSON object per line when asked."""
+workers leave with their supervisor, even after ``kill -9``; SIGTERM drains; a database URL
+never shows its password; the logs are one JSON object per line when asked."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import shutil
@@ -11,16 +13,18 @@ import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
 
 import httpx
 import pytest
+from prometheus_client.parser import text_string_to_metric_families
 from sqlalchemy import create_engine, text
 
 from app.db import migrate
-from tests.support.live import ATTUNE, LiveService, free_port, fresh_database
+from tests.support.live import ATTUNE, LiveService, free_port, fresh_database, make_keys
 
 pytestmark = pytest.mark.live
 
@@ -343,3 +347,290 @@ def test_json_logs_one_object_per_line(tmp_path: Path) -> None:
         for line in lines
     )
     assert secret not in raw
+
+
+def _gone(pid: int) -> bool:
+    """The process is no more (or a zombie that nobody reaped yet: it holds nothing)."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except (FileNotFoundError, ProcessLookupError):
+        return True
+    return stat.rsplit(")", 1)[1].split()[0] == "Z"
+
+
+def _serving_workers(service: LiveService) -> float:
+    """The workers that started serving, as the metrics (summed over them) say."""
+    text = httpx.get(f"{service.url}/metrics", timeout=10).text
+    for family in text_string_to_metric_families(text):
+        if family.name == "attune_workers":
+            return sum(s.value for s in family.samples)
+    return 0.0
+
+
+def test_kill_9_of_the_supervisor_takes_its_workers_along(tmp_path: Path) -> None:
+    """``kill -9`` cannot be caught: each worker notices that its supervisor is gone, drains and
+    exits, so the port is free and the next ``attune serve`` on it starts."""
+    with fresh_database("sqlite", tmp_path) as url:
+        service = LiveService(url, workers=2, log_path=tmp_path / "serve.log")
+        service.start()
+        assert service.process is not None
+        group = service.process.pid  # its own session: the workers are in its group
+        try:
+            _wait_for(lambda: _serving_workers(service) == 2, "two workers serving", service)
+            workers = _workers(service.process.pid)
+            os.kill(service.process.pid, signal.SIGKILL)
+            service.process.wait(timeout=30)
+            _wait_for(lambda: all(_gone(w) for w in workers), "the workers gone", service)
+            for pid in workers:
+                said = f"The supervisor (process {group}) is gone; worker process {pid} stops."
+                assert said in service.log()
+            service.start()  # the same port: it starts, since nothing holds it any more
+            assert httpx.get(f"{service.url}/readyz", timeout=10).status_code == 200
+            assert "already in use" not in service.log()
+        finally:
+            service.stop()
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(group, signal.SIGKILL)  # anything of the first run left behind
+
+
+def _in_use(service: LiveService) -> float:
+    """The service's database connections in use, as its metrics say."""
+    text = httpx.get(f"{service.url}/metrics", timeout=10).text
+    for family in text_string_to_metric_families(text):
+        if family.name == "attune_db_pool_connections_in_use":
+            return sum(s.value for s in family.samples)
+    return 0.0
+
+
+@contextlib.contextmanager
+def _user_locked(url: str, user_id: str) -> Iterator[None]:
+    """Hold what a write of ``user_id`` has to wait for: SQLite's write lock, or PostgreSQL's
+    lock on the user's row."""
+    engine = create_engine(url)
+    try:
+        with engine.connect() as conn:
+            if conn.dialect.name == "sqlite":
+                conn.exec_driver_sql("BEGIN IMMEDIATE")
+            else:
+                conn.execute(
+                    text(
+                        "SELECT id FROM users WHERE fleet = 'default' AND user_id = :u FOR UPDATE"
+                    ),
+                    {"u": user_id},
+                )
+            try:
+                yield
+            finally:
+                conn.rollback()
+    finally:
+        engine.dispose()
+
+
+@pytest.mark.parametrize(("engine", "workers"), [("sqlite", 1), ("postgresql", 2)])
+def test_sigterm_drains_the_requests_in_flight(tmp_path: Path, engine: str, workers: int) -> None:
+    """SIGTERM while a robot's write waits for its user's lock: /readyz answers 503 at once, the
+    process still serves, the write is answered and stored once, then the service exits 0."""
+    env = {
+        "ATTUNE_DRAIN_TIMEOUT_S": "120",
+        "ATTUNE_SQLITE_BUSY_TIMEOUT_S": "120",
+        "ATTUNE_LOG_LEVEL": "info",
+    }
+    with fresh_database(engine, tmp_path) as url:
+        service = LiveService(url, workers=workers, log_path=tmp_path / "serve.log", env=env)
+        service.start()
+        try:
+            assert service.process is not None
+            key = service.create_key("robot")
+            api = httpx.Client(
+                base_url=service.url, headers={"Authorization": f"Bearer {key}"}, timeout=120
+            )
+            body = {
+                "event_id": "held",
+                "occurred_at": "2026-11-22T15:10:00+08:00",
+                "situation": "working",
+                "initiator": "robot",
+            }
+            assert api.put("/v1/users/lin", json={}).status_code == 201
+            answered: list[httpx.Response] = []
+            with _user_locked(url, "lin"):
+                writer = threading.Thread(
+                    target=lambda: answered.append(api.post("/v1/users/lin/episodes", json=body))
+                )
+                writer.start()
+                _wait_for(lambda: _in_use(service) >= 1, "the write in flight", service)
+                os.kill(service.process.pid, signal.SIGTERM)  # as an orchestrator does
+                _wait_for(
+                    lambda: httpx.get(f"{service.url}/readyz", timeout=10).status_code == 503,
+                    "/readyz at 503",
+                    service,
+                )
+                ready = httpx.get(f"{service.url}/readyz", timeout=10)
+                assert "shutting down" in ready.json()["detail"], ready.text
+                assert httpx.get(f"{service.url}/livez", timeout=10).status_code == 200
+                assert api.get("/v1/mission").status_code == 200  # it still serves
+                assert not answered  # the write still waits
+            writer.join(timeout=120)
+            assert [r.status_code for r in answered] == [201], answered
+            assert service.process.wait(timeout=120) == 0
+            log = service.log()
+            assert "is shutting down: it finishes the requests in flight" in log
+            assert "Traceback" not in log
+            api.close()
+            engine_ = create_engine(url)
+            try:
+                with engine_.connect() as conn:
+                    stored = conn.execute(
+                        text("SELECT count(*) FROM episodes WHERE event_id = 'held'")
+                    ).scalar_one()
+            finally:
+                engine_.dispose()
+            assert stored == 1
+        finally:
+            service.stop()
+
+
+class TestBadDatabaseUrl:
+    """A database URL is a secret: no message shows its password, and a malformed one is a bad
+    setting (one line, exit 2), for the service and for the command that migrates."""
+
+    @pytest.mark.parametrize("command", [("serve",), ("db", "upgrade")])
+    @pytest.mark.parametrize(
+        ("url", "words"),
+        [
+            ("postgresql://attune:hunter2secret@db.internal:notaport/attune", "notaport"),
+            ("postgresql://attune:hunter2secret@db.internal:70000/attune", "70000"),
+            ("mysql://attune:hunter2secret@db.internal/attune", "sqlite:///PATH"),
+            ("postgresql://attune:hunter2@secret@db.internal/attune", "%40"),
+        ],
+    )
+    def test_one_line_exit_2_and_no_password(
+        self, folder: Path, command: tuple[str, ...], url: str, words: str
+    ) -> None:
+        done = subprocess.run(
+            [ATTUNE, *command],
+            cwd=folder,
+            capture_output=True,
+            text=True,
+            env=_env(ATTUNE_DATABASE_URL=url),
+            timeout=60,
+            check=False,
+        )
+        assert done.returncode == 2, done.stderr
+        lines = done.stderr.strip().splitlines()
+        assert len(lines) == 1, done.stderr
+        assert lines[0].startswith("Bad setting ATTUNE_DATABASE_URL:"), lines[0]
+        assert words in lines[0], lines[0]
+        assert "hunter2" not in done.stderr + done.stdout
+        assert "secret" not in done.stderr + done.stdout
+        assert "attune:***@" in lines[0]
+        assert list(folder.iterdir()) == []
+
+    def test_a_refused_connection_masks_the_password(self, folder: Path) -> None:
+        url = f"postgresql://postgres:hunter2secret@127.0.0.1:{free_port()}/attune"
+        done = _serve(folder, _env(ATTUNE_DATABASE_URL=url), free_port())
+        line = _one_sentence(done, "Cannot reach the database", "postgres:***@127.0.0.1")
+        assert "hunter2" not in line
+
+
+def test_the_metrics_port_taken_is_one_line(folder: Path, taken_port: int) -> None:
+    done = _serve(folder, _env(ATTUNE_METRICS_PORT=str(taken_port)), free_port())
+    _one_sentence(done, f"Port {taken_port}", "already in use", "ATTUNE_METRICS_PORT")
+    assert list(folder.iterdir()) == []
+
+
+ROBOTS = 4
+MOST_EPISODES = 200  # per robot: each goes on until it played two episodes after the restart
+
+
+@pytest.mark.parametrize(("engine", "workers"), [("sqlite", 1), ("postgresql", 2)])
+def test_sigterm_under_robot_traffic_fails_no_request(
+    tmp_path: Path, engine: str, workers: int
+) -> None:
+    """Robots on the Python client (which retries) play episodes while the service is stopped
+    with SIGTERM and started again: none of their calls fails, and every episode and outcome is
+    stored once (the models rebuild identically)."""
+    from attune_client import Client
+
+    from tests.support import people
+
+    with fresh_database(engine, tmp_path) as url:
+        service = LiveService(url, workers=workers, log_path=tmp_path / "serve.log")
+        service.start()
+        try:
+            keys = make_keys(url, ROBOTS)
+            failures: list[str] = []
+            played: dict[str, list[str]] = {f"person{n}": [] for n in range(ROBOTS)}
+            answered: dict[str, int] = {}  # episode id -> outcomes the robot got answers to
+            lock = threading.Lock()
+            restarted = threading.Event()
+            refused: list[str] = []  # transport failures the client met (and retried)
+
+            class Wire(httpx.HTTPTransport):
+                def handle_request(self, request: httpx.Request) -> httpx.Response:
+                    try:
+                        return super().handle_request(request)
+                    except httpx.TransportError as exc:
+                        refused.append(type(exc).__name__)
+                        raise
+
+            def robot(n: int) -> None:
+                user, after = f"person{n}", 0
+                try:
+                    with Client(service.url, keys[n], max_retries=12, transport=Wire()) as client:
+                        for e in range(MOST_EPISODES):
+                            if restarted.is_set():
+                                after += 1
+                                if after > 2:
+                                    return
+                            ep = client.start_episode(
+                                user,
+                                event_id=f"{user}-{e}",
+                                occurred_at="2026-11-22T15:10:00+08:00",
+                                situation="working",
+                            )
+                            played[user].append(f"{user}-{e}")
+                            decision = ep.decision
+                            for _ in range(20):
+                                if decision is None:
+                                    break
+                                need = people.TEA if e % 2 else None
+                                out = client.report_outcome(
+                                    ep.episode_id,
+                                    decision_id=decision.decision_id,
+                                    **people.answer(decision.action, need=need),
+                                )
+                                with lock:
+                                    answered[ep.episode_id] = answered.get(ep.episode_id, 0) + 1
+                                decision = out.decision  # type: ignore[union-attr]
+                except Exception as exc:  # what the robot would see
+                    failures.append(f"{user}: {type(exc).__name__}: {exc}")
+
+            threads = [threading.Thread(target=robot, args=(n,)) for n in range(ROBOTS)]
+            for thread in threads:
+                thread.start()
+            _wait_for(lambda: sum(answered.values()) >= 8 or failures, "robot traffic", service)
+            assert service.process is not None
+            os.kill(service.process.pid, signal.SIGTERM)
+            assert service.process.wait(timeout=120) == 0, service.log()
+            service.start()  # the robots' retries reach it again
+            restarted.set()
+            for thread in threads:
+                thread.join(timeout=600)
+            assert not any(thread.is_alive() for thread in threads)
+            assert failures == []
+            assert refused, "the robots never met the stopped service"
+            assert all(len(events) < MOST_EPISODES for events in played.values())
+            with Client(service.url, make_keys(url, 1, role="admin")[0]) as admin:
+                for user, events in played.items():
+                    stored = list(admin.iter_episodes(user))
+                    assert sorted(s.event_id for s in stored) == sorted(events)
+                    for summary in stored:
+                        assert summary.status == "closed"
+                        trace = admin.get_episode(summary.episode_id)
+                        outcomes = [d for d in trace.decisions if d.response is not None]
+                        assert len(outcomes) == answered[summary.episode_id]
+            rebuilt = service.attune("models", "rebuild", "--all")
+            assert rebuilt.returncode == 0, rebuilt.stdout + rebuilt.stderr
+            assert "Traceback" not in service.log()
+        finally:
+            service.stop()

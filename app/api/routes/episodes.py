@@ -31,7 +31,7 @@ def _count(request: Request, result: service.Written) -> None:
     metrics: Metrics = request.app.state.metrics
     decision = result.body.get("decision")
     if isinstance(decision, dict):
-        metrics.decisions.labels(result.fleet or "", decision["action"]["kind"]).inc()
+        metrics.decision_sent(result.fleet or "", decision["action"]["kind"])
 
 
 @router.post(
@@ -91,7 +91,9 @@ def report_outcome(
     result = service.report_outcome(session, ctx, principal, episode_id, body)
     if not result.replay and result.kind is not None:
         metrics: Metrics = request.app.state.metrics
-        metrics.outcomes.labels(result.fleet or "", result.kind, body.response).inc()
+        metrics.outcome_reported(
+            result.fleet or "", result.kind, body.response, result.body.get("episode")
+        )
     _count(request, result)
     return written(result)
 

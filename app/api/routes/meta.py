@@ -1,20 +1,27 @@
 from __future__ import annotations
 
+import hmac
 import logging
+from typing import Annotated
 
-from fastapi import APIRouter, Request, Response
+from fastapi import APIRouter, Header, Request, Response
 from fastapi.responses import JSONResponse
 from prometheus_client import CONTENT_TYPE_LATEST
 from sqlalchemy.orm import Session
 
 from app.api.deps import CurrentPrincipal, TransactionalRoute
 from app.api.errors import responses
+from app.api.lifecycle import Drain
+from app.api.metrics import Metrics
 from app.api.middleware import error_body
 from app.db import migrate
 from app.db.session import Database
+from app.errors import NotFound, Unauthorized
+from app.schemas.common import ErrorOut
 from app.schemas.models import FleetMissionOut
 from app.services import missions
 from app.services.context import ServiceContext
+from app.settings import Settings
 
 from ._common import MissionFleet
 
@@ -32,16 +39,37 @@ def get_mission(
 
 
 @router.get(
-    "/healthz", responses={200: {"content": {"application/json": {"example": {"status": "ok"}}}}}
+    "/livez", responses={200: {"content": {"application/json": {"example": {"status": "ok"}}}}}
 )
-def healthz() -> dict[str, str]:
-    """200 while the process runs."""
+def livez() -> dict[str, str]:
+    """200 while the process answers, also while it shuts down: for liveness probes."""
     return {"status": "ok"}
 
 
-@router.get("/readyz", responses={503: {"description": "Database down or schema behind."}})
+@router.get(
+    "/healthz", responses={200: {"content": {"application/json": {"example": {"status": "ok"}}}}}
+)
+def healthz() -> dict[str, str]:
+    """200 while the process runs (as /livez)."""
+    return {"status": "ok"}
+
+
+@router.get(
+    "/readyz",
+    responses={503: {"description": "Shutting down, database down, or schema behind."}},
+)
 def readyz(request: Request) -> JSONResponse:
-    """200 when the database answers and the schema is at the latest migration, else 503."""
+    """200 when the database answers, the schema is at the latest migration and the service is
+    not shutting down, else 503."""
+    drain: Drain = request.app.state.drain
+    if drain.draining:
+        return JSONResponse(
+            error_body(
+                "ServiceUnavailable",
+                "The service is shutting down: it finishes the requests in flight, then stops.",
+            ),
+            status_code=503,
+        )
     db: Database = request.app.state.db
     try:
         current = migrate.current_revision(db.engine)
@@ -66,9 +94,48 @@ def readyz(request: Request) -> JSONResponse:
     "/metrics",
     response_class=Response,
     responses={
-        200: {"content": {CONTENT_TYPE_LATEST: {}}, "description": "Prometheus text format."}
+        200: {"content": {CONTENT_TYPE_LATEST: {}}, "description": "Prometheus text format."},
+        401: {
+            "model": ErrorOut,
+            "description": "ATTUNE_METRICS_TOKEN is set and the request did not send it.",
+        },
+        404: {
+            "model": ErrorOut,
+            "description": "ATTUNE_METRICS_PORT is set: /metrics is served on that port.",
+        },
     },
 )
-def metrics(request: Request) -> Response:
-    """Request counts and latencies per route; decisions and outcomes per action kind."""
-    return Response(request.app.state.metrics.render(), media_type=CONTENT_TYPE_LATEST)
+def metrics(
+    request: Request, authorization: Annotated[str | None, Header(include_in_schema=False)] = None
+) -> Response:
+    """The service's metrics: requests, latencies and round trips per route, the worker
+    processes, the database pool, the learner cache, the event loop, and the learning's health
+    per fleet."""
+    settings: Settings = request.app.state.settings
+    if settings.metrics_port is not None:
+        raise NotFound(
+            "Metrics are served on their own port (ATTUNE_METRICS_PORT), not on this one."
+        )
+    if not metrics_token_matches(settings, authorization):
+        raise MetricsUnauthorized(
+            "/metrics needs the metrics token: Authorization: Bearer <ATTUNE_METRICS_TOKEN>."
+        )
+    served: Metrics = request.app.state.metrics
+    served.sample()
+    return Response(served.render(), media_type=CONTENT_TYPE_LATEST)
+
+
+class MetricsUnauthorized(Unauthorized):
+    def headers(self) -> dict[str, str]:
+        return {"WWW-Authenticate": 'Bearer realm="metrics"'}
+
+
+def metrics_token_matches(settings: Settings, authorization: str | None) -> bool:
+    """True when no token is set, or when ``authorization`` is ``Bearer <the token>``."""
+    if settings.metrics_token is None:
+        return True
+    scheme, _, given = (authorization or "").partition(" ")
+    expected = settings.metrics_token.get_secret_value()
+    return scheme.lower() == "bearer" and hmac.compare_digest(
+        given.strip().encode(), expected.encode()
+    )
