@@ -258,7 +258,9 @@ class TestErrors:
             "lin", event_id="e2", occurred_at=EVENT_TIME, situation="stretching"
         )
         assert started.decision is not None
-        wrong = "answered" if started.decision.action.kind in ("initiate", "pass") else "none"
+        wrong: a.OutcomeResponse = (
+            "answered" if started.decision.action.kind in ("initiate", "pass") else "none"
+        )
         with pytest.raises(a.UnprocessableEntityError) as caught:
             await robot.report_outcome(
                 started.episode_id, decision_id=started.decision.decision_id, response=wrong
