@@ -21,15 +21,17 @@ from app.commands import keys as keys_commands
 from app.commands import missions as missions_commands
 from app.commands import models as models_commands
 from app.commands import serve as serve_command
+from app.commands._help import MAX_WIDTH, Typer
 
 __all__ = ["app", "main", "version"]
 
-app = typer.Typer(
+app = Typer(
     name="attune",
     help="Attune: preference learning for service robots. Learns what each person wants, and "
     "when, from their feedback.",
     no_args_is_help=True,
     add_completion=False,
+    context_settings={"max_content_width": MAX_WIDTH},
 )
 
 

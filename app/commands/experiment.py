@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING, Annotated, Any, TypeVar
 import typer
 
 from ._extras import require
+from ._help import Typer
 from ._output import print_json, stderr_console, stdout_console
 
 if TYPE_CHECKING:  # the commands import these when they run; --help needs none of them
@@ -33,7 +34,7 @@ __all__ = ["experiment"]
 
 T = TypeVar("T")
 
-experiment = typer.Typer(
+experiment = Typer(
     help="Reproduce the paper's experiments with simulated users (docs/method.md §12).\n\n"
     "Every run is seeded and deterministic: the same options give the same numbers, whatever "
     "--jobs is. Runs go to worker processes in parallel, with a progress bar.",
