@@ -13,8 +13,8 @@ import pytest
 from fastapi.testclient import TestClient
 
 from app.settings import Settings
-from tests.api.helpers import answer, start
 from tests.support import people
+from tests.support.episodes import report, start
 from tests.support.release import rebuild
 
 SLOT, SITUATION = "afternoon", "stretching"  # the helpers' event time and situation
@@ -60,7 +60,7 @@ def play(
             steps.append(decision)
             said = people.answer(decision["action"], need=need, picky=picky, rng=rng)
             said.pop("feedback", None)
-            decision = answer(robot, episode_id, decision["decision_id"], **said)["decision"]
+            decision = report(robot, episode_id, decision["decision_id"], **said)["decision"]
         out.append(steps)
     return out
 

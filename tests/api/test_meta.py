@@ -8,8 +8,7 @@ import pytest
 from fastapi.testclient import TestClient
 
 from tests.support.contract import assert_error
-
-from .helpers import answer, start
+from tests.support.episodes import report, start
 
 CONTRACT = {
     "/v1/users": {"get"},
@@ -79,7 +78,7 @@ class TestMetrics:
             initiator="human",
             request={"service": "ProvideDrink", "detail": "tea"},
         )
-        answer(robot, ep["episode_id"], ep["decision"]["decision_id"], "accepted")
+        report(robot, ep["episode_id"], ep["decision"]["decision_id"], "accepted")
         robot.get("/v1/users/nobody")
         r = client.get("/metrics")
         assert r.status_code == 200

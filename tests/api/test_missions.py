@@ -18,9 +18,8 @@ from app.services import audit as audit_service
 from app.services.missions import LIMITS
 from app.services.models import rebuild_model
 from tests.support.contract import assert_error
+from tests.support.episodes import EVENT_TIME, start
 from tests.support.people import Need, answer
-
-from .helpers import EVENT_TIME, start
 
 OFFICE = office_mission()
 Edit = Callable[[dict[str, Any]], None]

@@ -10,8 +10,8 @@ from typing import Any
 
 from fastapi.testclient import TestClient
 
-from tests.api.helpers import start
 from tests.api.test_corrections import SITUATION, SLOT, TEA, _cell, make_user, play
+from tests.support.episodes import start
 
 
 def test_a_routine_becomes_confident(staff: TestClient, robot: TestClient) -> None:

@@ -192,23 +192,6 @@ class Robot:
         return out
 
     # -- the robot's behaviour ----------------------------------------------------------------
-    def answer(self, decision: dict[str, Any]) -> dict[str, Any]:
-        """A cooperative person: yes four times in five, asks for a drink half the time the
-        robot waits (naming tea half of those), smiles at one service in ten."""
-        return {
-            "decision_id": decision["decision_id"],
-            **people.answer(
-                decision["action"],
-                picky=False,
-                rng=self.rng,
-                yes=0.8,
-                asks=0.5,
-                precise=0.5,
-                smiles=0.1,
-                mission=self.w.mission,
-            ),
-        }
-
     def episode(self, k: int) -> bool:
         """One event and its negotiation to the end; False when the run must stop."""
         w = self.w
@@ -234,7 +217,19 @@ class Robot:
         for _ in range(8):  # an episode has at most four visible steps
             if decision is None:
                 break
-            sent = self.answer(decision)
+            # A cooperative person: yes four times in five, asks for a drink half the time the
+            # robot waits (naming tea half of those), smiles at one service in ten.
+            said = people.answer(
+                decision["action"],
+                picky=False,
+                rng=self.rng,
+                yes=0.8,
+                asks=0.5,
+                precise=0.5,
+                smiles=0.1,
+                mission=w.mission,
+            )
+            sent = {"decision_id": decision["decision_id"], **said}
             conflicting = {
                 "decision_id": sent["decision_id"],
                 "response": OTHER_RESPONSE[sent["response"]],

@@ -15,6 +15,9 @@ first detail.
 ``yes`` is the chance of accepting what the person would accept, ``precise`` the chance that
 a request names the detail too, ``smiles`` the chance of positive feedback on the right service.
 A chance of 0 or 1 draws nothing from ``rng`` (answers without chances need no generator).
+
+``cooperative(action, n)`` is the person of the client's tests: one who goes along with the
+robot, whose answers vary with ``n`` and are always the same for the same ``n``.
 """
 
 from __future__ import annotations
@@ -89,3 +92,10 @@ def answer(
     if right and chance(smiles):
         out["feedback"] = "positive"
     return out
+
+
+def cooperative(action: Any, n: int = 0) -> dict[str, Any]:
+    """What a cooperative person answers (``picky=False``): yes four times in five, a request
+    for tea seven times in ten when the robot waits; ``n`` varies the answers a little (a
+    person who says no, stays silent, or asks for something), the same for the same ``n``."""
+    return answer(action, picky=False, rng=random.Random(n), yes=0.8, asks=0.7)
