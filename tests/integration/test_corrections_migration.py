@@ -29,11 +29,11 @@ from app.settings import Settings
 from tests.support.live import fresh_database
 from tests.support.release import (
     OldService,
-    play,
     previous_release,
     rebuild,
     release_code,
     revision,
+    run_episode,
     scalars,
     table_rows,
 )
@@ -51,7 +51,7 @@ NEW_COLUMNS = (
 )
 USERS = ("lin", "chen", "room-12")
 OPEN_USER = "room-12"
-SLOT, SITUATION = "afternoon", "stretching"  # play(): n % 4 == 2 is 15:10, n % 3 == 2
+SLOT, SITUATION = "afternoon", "stretching"  # run_episode(): n % 4 == 2 is 15:10, n % 3 == 2
 
 
 @pytest.fixture(scope="module")
@@ -77,7 +77,7 @@ def _fill(old: OldService) -> dict[str, Any]:
         n = 0
         for uid in USERS:
             for _ in range(6):
-                episode = play(robot, uid, f"{uid}-e{n}", n)
+                episode = run_episode(robot, uid, f"{uid}-e{n}", n)
                 n += 1
                 if n % 4 == 0:
                     assert (
@@ -261,7 +261,7 @@ def test_the_upgrade_keeps_everything_and_corrections_can_be_made(
                 r = robot.post(f"/v1/episodes/{opened['episode_id']}/outcomes", json=body)
                 assert r.status_code == 200, r.text
                 decision = r.json()["decision"]
-            play(robot, OPEN_USER, "after-upgrade", 2)
+            run_episode(robot, OPEN_USER, "after-upgrade", 2)
             profile = admin.get(f"/v1/users/{OPEN_USER}/profile").json()
             assert profile["episodes"] == 8
             assert profile["open_episodes"] == 0

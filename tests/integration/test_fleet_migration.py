@@ -30,9 +30,9 @@ from app.settings import Settings
 from tests.support.live import fresh_database
 from tests.support.release import (
     OldService,
-    play,
     previous_release,
     release_code,
+    run_episode,
     table_rows,
 )
 
@@ -77,7 +77,7 @@ def _fill(old: OldService) -> dict[str, Any]:
                     == 201
                 )
                 for _ in range(9):
-                    episode = play(api, uid, f"{uid}-e{n}", n)
+                    episode = run_episode(api, uid, f"{uid}-e{n}", n)
                     n += 1
                     if n % 4 == 0:  # explicit feedback after the episode
                         assert (
@@ -90,17 +90,17 @@ def _fill(old: OldService) -> dict[str, Any]:
         admin = clients["admin"]
         assert admin.delete("/v1/users/chen/model").status_code == 204  # a reset mid-history
         for i in range(3):
-            play(clients["robot_a"], "chen", f"chen-after-{i}", n + i)
+            run_episode(clients["robot_a"], "chen", f"chen-after-{i}", n + i)
         doc = admin.get("/v1/users/lin/model/export")
         assert doc.status_code == 200
         assert admin.put("/v1/users/bo/model", json=doc.json()).status_code == 200  # imported
-        play(clients["robot_b"], "bo", "bo-after-import", 99)
+        run_episode(clients["robot_b"], "bo", "bo-after-import", 99)
         assert (
             admin.put("/v1/users/dts-user", json={"learner": {"algorithm": "dts"}}).status_code
             == 201
         )
         for i in range(4):
-            play(admin, "dts-user", f"dts-{i}", i)
+            run_episode(admin, "dts-user", f"dts-{i}", i)
         old.attune(
             "keys", "revoke", old.attune("keys", "list", "--json").split('"id": "')[1].split('"')[0]
         )

@@ -34,9 +34,9 @@ from app.settings import Settings
 from tests.support.live import fresh_database
 from tests.support.release import (
     OldService,
-    play,
     previous_release,
     release_code,
+    run_episode,
     table_rows,
 )
 
@@ -96,7 +96,7 @@ def _fill(old: OldService) -> dict[str, Any]:
         for fleet, ids in USERS.items():
             for uid in ids:
                 for _ in range(6):
-                    episode = play(clients[fleet], uid, f"{uid}-e{n}", n)
+                    episode = run_episode(clients[fleet], uid, f"{uid}-e{n}", n)
                     n += 1
                     if n % 4 == 0:
                         assert (
@@ -110,14 +110,14 @@ def _fill(old: OldService) -> dict[str, Any]:
                         )
         admin = clients["admin"]
         assert admin.delete("/v1/users/chen/model", params={"fleet": "north"}).status_code == 204
-        play(clients["north"], "chen", "chen-after", n)
+        run_episode(clients["north"], "chen", "chen-after", n)
         doc = admin.get("/v1/users/lin/model/export", params={"fleet": "north"})
         assert doc.status_code == 200
         assert (
             admin.put("/v1/users/bo/model", params={"fleet": "south"}, json=doc.json()).status_code
             == 200
         )
-        play(clients["south"], "bo", "bo-after-import", 99)
+        run_episode(clients["south"], "bo", "bo-after-import", 99)
         assert (
             clients["south"]
             .put("/v1/users/dts", json={"learner": {"algorithm": "dts"}})
@@ -125,7 +125,7 @@ def _fill(old: OldService) -> dict[str, Any]:
             == 201
         )
         for i in range(4):
-            play(clients["south"], "dts", f"dts-{i}", i)
+            run_episode(clients["south"], "dts", f"dts-{i}", i)
         opened = clients["north"].post(
             "/v1/users/room-12/episodes",
             json={

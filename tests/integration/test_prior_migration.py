@@ -28,11 +28,11 @@ from app.settings import Settings
 from tests.support.live import fresh_database
 from tests.support.release import (
     OldService,
-    play,
     previous_release,
     rebuild,
     release_code,
     revision,
+    run_episode,
     scalars,
     table_rows,
 )
@@ -78,7 +78,7 @@ def _fill(old: OldService) -> dict[str, Any]:
             made = robot.put(f"/v1/users/{uid}", json={"learner": {"algorithm": "dts"}})
             assert made.status_code == 201, made.text
             for _ in range(EPISODES):
-                episode = play(robot, uid, f"{uid}-e{n}", n)
+                episode = run_episode(robot, uid, f"{uid}-e{n}", n)
                 n += 1
                 if n % 4 == 0:
                     assert (
@@ -198,7 +198,7 @@ def test_the_upgrade_keeps_everything_and_newcomers_start_from_the_prior(
                 "kind": "fleet_prior",
                 "contributors": len(USERS),
             }
-            play(admin, "newcomer", "newcomer-1", 1)
+            run_episode(admin, "newcomer", "newcomer-1", 1)
     finally:
         app.state.db.dispose()
 

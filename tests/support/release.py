@@ -1,7 +1,7 @@
 """The previous release, served as it was, for the migration tests: its ``app`` and
 ``migrations`` taken from git (the commit before the one that added a migration), ``attune
 serve`` of that code on a database, and a cooperative person who plays episodes through its
-API."""
+API (``tests/support/episodes.py``'s ``play``)."""
 
 from __future__ import annotations
 
@@ -19,14 +19,16 @@ from typing import Any
 import httpx
 from sqlalchemy import create_engine, text
 
+from tests.support import episodes
 from tests.support.live import free_port
 
 __all__ = [
     "REPO",
     "OldService",
-    "play",
+    "person",
     "previous_release",
     "rebuild",
+    "run_episode",
     "release_code",
     "revision",
     "scalars",
@@ -121,39 +123,42 @@ DETAIL = {"ProvideDrink": "tea", "BriefInformation": "news", "ArrangeSchedule": 
 SITUATIONS = ("arriving", "working", "stretching")
 
 
-def play(api: httpx.Client, user: str, event: str, n: int) -> str:
-    """One episode of ``user`` to its end, as a cooperative person; its id."""
-    hour = (7, 12, 15, 19)[n % 4]
-    started = api.post(
-        f"/v1/users/{user}/episodes",
-        json={
-            "event_id": event,
-            "occurred_at": f"2026-11-{1 + n % 28:02d}T{hour:02d}:10:00+08:00",
-            "situation": SITUATIONS[n % 3],
-            "initiator": "robot",
-            "robot_id": "r1",
-        },
-    )
-    assert started.status_code == 201, started.text
-    episode = started.json()
-    decision = episode["decision"]
-    while decision is not None:
+def person(n: int) -> episodes.Person:
+    """The cooperative person of episode ``n``: asks for a drink when the robot waits (two
+    times in three), wants the news when asked which service, names a service's first detail,
+    and says yes but to one offer in five."""
+
+    def answers(decision: dict[str, Any]) -> dict[str, Any]:
         kind = decision["action"]["kind"]
-        body: dict[str, Any] = {"decision_id": decision["decision_id"]}
         if kind == "pass":
-            body.update(response="human_request", service="ProvideDrink") if n % 3 else body.update(
-                response="none"
+            return (
+                {"response": "human_request", "service": "ProvideDrink"}
+                if n % 3
+                else {"response": "none"}
             )
-        elif kind == "query_type":
-            body.update(response="answered", service="BriefInformation")
-        elif kind == "query_detail":
-            body.update(response="answered", detail=DETAIL[decision["action"]["service"]])
-        else:
-            body["response"] = "rejected" if n % 5 == 4 else "accepted"
-        answered = api.post(f"/v1/episodes/{episode['episode_id']}/outcomes", json=body)
-        assert answered.status_code == 200, answered.text
-        decision = answered.json()["decision"]
-    return str(episode["episode_id"])
+        if kind == "query_type":
+            return {"response": "answered", "service": "BriefInformation"}
+        if kind == "query_detail":
+            return {"response": "answered", "detail": DETAIL[decision["action"]["service"]]}
+        return {"response": "rejected" if n % 5 == 4 else "accepted"}
+
+    return answers
+
+
+def run_episode(api: httpx.Client, user: str, event: str, n: int) -> str:
+    """Episode ``n`` of ``user`` played to its end by ``person(n)`` (its time and situation
+    vary with ``n``); its id."""
+    hour = (7, 12, 15, 19)[n % 4]
+    played = episodes.play(
+        api,
+        user,
+        event,
+        person(n),
+        occurred_at=f"2026-11-{1 + n % 28:02d}T{hour:02d}:10:00+08:00",
+        situation=SITUATIONS[n % 3],
+        robot_id="r1",
+    )
+    return played.episode_id
 
 
 def release_code(commit: str, folder: Path) -> Path:
