@@ -26,11 +26,11 @@ from sqlalchemy import create_engine, inspect
 from app.db import migrate
 from app.main import create_app
 from app.settings import Settings
+from tests.support.commands import rebuild
 from tests.support.live import fresh_database
 from tests.support.release import (
     OldService,
     previous_release,
-    rebuild,
     release_code,
     revision,
     run_episode,
@@ -273,7 +273,7 @@ def test_the_upgrade_keeps_everything_and_corrections_can_be_made(
         names["episodes"]
     ]
     for uid in USERS:
-        summary = rebuild(url, uid)
+        summary = rebuild(url, uid).summary
         assert summary["identical"] is True, (uid, summary)
 
     # Down again: refused while corrections exist, saying so; nothing changed.

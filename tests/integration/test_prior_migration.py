@@ -25,11 +25,11 @@ from sqlalchemy import create_engine, inspect
 from app.db import migrate
 from app.main import create_app
 from app.settings import Settings
+from tests.support.commands import rebuild
 from tests.support.live import fresh_database
 from tests.support.release import (
     OldService,
     previous_release,
-    rebuild,
     release_code,
     revision,
     run_episode,
@@ -203,7 +203,7 @@ def test_the_upgrade_keeps_everything_and_newcomers_start_from_the_prior(
         app.state.db.dispose()
 
     for uid in (*USERS, "newcomer"):
-        summary = rebuild(url, uid)
+        summary = rebuild(url, uid).summary
         assert summary["identical"] is True, (uid, summary)
 
     # Down again: refused while a model grew from a prior, saying so; nothing changed.

@@ -17,7 +17,6 @@ import random
 import threading
 import time
 from collections import Counter, defaultdict
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -26,7 +25,7 @@ from sqlalchemy import create_engine, select
 
 from app.db.models import Decision, Episode, Feedback, LearnerModel, Sample, User
 from app.learning import Mission
-from tests.support import people
+from tests.support import commands, people
 from tests.support.office import MISSION
 
 SLOT_TIMES = ("09:30", "12:15", "15:10", "20:45")
@@ -436,14 +435,15 @@ def check_history(
     database_url: str,
     users: list[str],
     initial_versions: dict[str, int],
-    rebuild: Callable[[str], dict[str, Any]] | None = None,
+    rebuild: bool = False,
     fleet: str = "default",
 ) -> list[str]:
     """Every finding that shows a lost, doubled or inconsistent write; [] when there is none.
 
     ``users`` are of ``fleet``, the fleet of the history's robots; ``api`` is an admin
     client; ``initial_versions`` the model versions before the run;
-    ``rebuild(user_id)`` runs ``models rebuild`` (``helpers.rebuild``) and returns its summary.
+    with ``rebuild``, ``attune models rebuild`` of each user (``tests/support/commands.py``)
+    must reproduce its stored model.
     Writes in ``history.unknown`` (in flight when the service died) may or may not be stored;
     if they are, the same rules hold for them.
     """
@@ -466,8 +466,8 @@ def check_history(
     for user_id in users:
         snap = _snapshot(api, database_url, user_id, fleet)
         findings += _check_user(user_id, snap, by_key, history, initial_versions[user_id])
-        if rebuild is not None:
-            summary = rebuild(user_id)
+        if rebuild:
+            summary = commands.rebuild(database_url, user_id, fleet=fleet).summary
             if summary.get("identical") is not True:
                 findings.append(
                     f"{user_id}: `models rebuild` does not reproduce the stored model: {summary}"

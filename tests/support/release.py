@@ -27,7 +27,6 @@ __all__ = [
     "OldService",
     "person",
     "previous_release",
-    "rebuild",
     "run_episode",
     "release_code",
     "revision",
@@ -232,25 +231,3 @@ def revision(url: str) -> str | None:
         return migrate.current_revision(engine)
     finally:
         engine.dispose()
-
-
-def rebuild(url: str, user_id: str, fleet: str | None = None) -> dict[str, Any]:
-    """``attune models rebuild USER_ID [--fleet FLEET]`` on the database at ``url`` (seed 0):
-    its JSON summary line."""
-    import json
-
-    from typer.testing import CliRunner
-
-    from app import cli
-
-    where = [] if fleet is None else ["--fleet", fleet]
-    result = CliRunner().invoke(
-        cli.app,
-        ["models", "rebuild", user_id, *where],
-        env={"ATTUNE_DATABASE_URL": url, "ATTUNE_SEED": "0"},
-    )
-    assert result.exit_code == 0, result.output
-    summary: dict[str, Any] = json.loads(
-        next(ln for ln in result.output.splitlines() if ln.startswith("{"))
-    )
-    return summary
