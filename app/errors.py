@@ -3,6 +3,9 @@
 The body is always ``{"error": <name>, "detail": <sentence>}`` (plus ``fields`` for validation);
 the HTTP layer adds the request's ``request_id``.
 Nothing here imports FastAPI: services raise these, ``app.api.errors`` turns them into responses.
+What the HTTP layer refuses before any use case runs is answered there, with the same body: a
+body over the size limit (413 ``PayloadTooLarge``, ``app.api.middleware``), an unknown path or
+method.
 """
 
 from __future__ import annotations
@@ -15,7 +18,6 @@ __all__ = [
     "Conflict",
     "Forbidden",
     "NotFound",
-    "PayloadTooLarge",
     "ServiceUnavailable",
     "TooManyRequests",
     "Unauthorized",
@@ -38,12 +40,6 @@ class AppError(Exception):
     def headers(self) -> dict[str, str]:
         """Response headers the error adds (``Retry-After`` for 429 and 503)."""
         return {}
-
-    def body(self) -> dict[str, Any]:
-        out: dict[str, Any] = {"error": self.error, "detail": self.detail}
-        if self.fields is not None:
-            out["fields"] = self.fields
-        return out
 
 
 class BadRequest(AppError):
@@ -69,11 +65,6 @@ class NotFound(AppError):
 class Conflict(AppError):
     status_code = 409
     error = "Conflict"
-
-
-class PayloadTooLarge(AppError):
-    status_code = 413
-    error = "PayloadTooLarge"
 
 
 class UnsupportedMediaType(AppError):

@@ -32,10 +32,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from app.experiments.robustness import LEARNERS, SERVICE_DEFAULT, WINDOWS, window_range  # noqa: E402
-from app.experiments.statistics import mean_ci95  # noqa: E402
-from app.learning import make_learner, office_mission  # noqa: E402
-from app.learning.population import (  # noqa: E402
+from app.experiments.robustness import LEARNERS, SERVICE_DEFAULT, WINDOWS, window_range
+from app.experiments.statistics import mean_ci95
+from app.learning import make_learner, office_mission
+from app.learning.population import (
     DEFAULT_EVENTS,
     FAMILIES,
     change_event,
@@ -43,7 +43,7 @@ from app.learning.population import (  # noqa: E402
     run_learner,
     run_oracle,
 )
-from app.learning.space import space_for  # noqa: E402
+from app.learning.space import space_for
 
 CHANGING = tuple(name for name, family in FAMILIES.items() if family.changes)
 Spec = tuple[str, dict[str, Any]]

@@ -31,20 +31,20 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-import httpx  # noqa: E402
-from rich.console import Console  # noqa: E402
-from rich.progress import track  # noqa: E402
-from rich.table import Table  # noqa: E402
+import httpx
+from rich.console import Console
+from rich.progress import track
+from rich.table import Table
 
-from app.db import migrate  # noqa: E402
-from app.db.session import Database  # noqa: E402
-from app.schemas.episodes import EpisodeIn, OutcomeIn  # noqa: E402
-from app.schemas.users import UserIn  # noqa: E402
-from app.services import episodes, users  # noqa: E402
-from app.services.context import Principal, ServiceContext  # noqa: E402
-from app.settings import Settings  # noqa: E402
-from tests.support.live import LiveService, fresh_database  # noqa: E402
-from tests.support.people import answer  # noqa: E402
+from app.db import migrate
+from app.db.session import Database
+from app.schemas.episodes import EpisodeIn, OutcomeIn
+from app.schemas.users import UserIn
+from app.services import episodes, users
+from app.services.context import Principal, ServiceContext
+from app.settings import Settings
+from tests.support.live import LiveService, fresh_database
+from tests.support.people import answer
 
 CHROMIUM = "/usr/bin/chromium"
 CHROMIUM_ARGS = [

@@ -29,19 +29,19 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from rich.console import Console  # noqa: E402
-from rich.progress import track  # noqa: E402
-from rich.table import Table  # noqa: E402
+from rich.console import Console
+from rich.progress import track
+from rich.table import Table
 
-from app.db import migrate  # noqa: E402
-from app.db.session import Database  # noqa: E402
-from app.learning import office_mission  # noqa: E402
-from app.schemas.episodes import EpisodeIn, OutcomeIn  # noqa: E402
-from app.services import episodes, missions  # noqa: E402
-from app.services.context import Principal, ServiceContext  # noqa: E402
-from app.settings import Settings  # noqa: E402
-from tests.support.live import fresh_database  # noqa: E402
-from tests.support.people import answer  # noqa: E402
+from app.db import migrate
+from app.db.session import Database
+from app.learning import office_mission
+from app.schemas.episodes import EpisodeIn, OutcomeIn
+from app.services import episodes, missions
+from app.services.context import Principal, ServiceContext
+from app.settings import Settings
+from tests.support.live import fresh_database
+from tests.support.people import answer
 
 out = Console(stderr=True)
 WHO = Principal("key_bench", "admin", "default")

@@ -6,6 +6,7 @@ from typing import TYPE_CHECKING
 
 import typer
 
+from ._help import Typer
 from ._lazy import LazyModule, lazy_callable
 from ._setup import (
     StartFailure,
@@ -28,7 +29,7 @@ else:  # imported when a command runs: --help needs neither SQLAlchemy nor Alemb
 
 __all__ = ["db"]
 
-db = typer.Typer(
+db = Typer(
     help="The database: ATTUNE_DATABASE_URL (default sqlite:///./attune.db).", no_args_is_help=True
 )
 

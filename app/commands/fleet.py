@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 import typer
 
 from ._extras import require
+from ._help import Typer
 from ._output import print_json, stderr_console, stdout_console
 
 if TYPE_CHECKING:  # imported by the command when it runs (--help needs none of them)
@@ -20,7 +21,7 @@ if TYPE_CHECKING:  # imported by the command when it runs (--help needs none of 
 
 __all__ = ["fleet"]
 
-fleet = typer.Typer(
+fleet = Typer(
     help="Simulated fleets: robots and people played against a live service.", no_args_is_help=True
 )
 

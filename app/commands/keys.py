@@ -9,11 +9,12 @@ import typer
 
 from app.errors import AppError
 
+from ._help import Typer
 from ._setup import load_settings, open_database, tell
 
 __all__ = ["keys"]
 
-keys = typer.Typer(help="API keys: made here, shown once, stored hashed.", no_args_is_help=True)
+keys = Typer(help="API keys: made here, shown once, stored hashed.", no_args_is_help=True)
 
 JsonOption = Annotated[
     bool, typer.Option("--json", help="Print JSON on stdout instead of a table.")

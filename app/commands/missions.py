@@ -12,11 +12,12 @@ import typer
 
 from app.errors import AppError
 
+from ._help import Typer
 from ._setup import load_settings, open_database, tell
 
 __all__ = ["missions"]
 
-missions = typer.Typer(
+missions = Typer(
     help="Each fleet's mission: what its robots offer, in which situations "
     "and time slots, and its versions.",
     no_args_is_help=True,

@@ -10,11 +10,12 @@ import typer
 
 from app.errors import AppError, NotFound
 
+from ._help import Typer
 from ._setup import load_settings, open_database, tell
 
 __all__ = ["models"]
 
-models = typer.Typer(help="Users' learned models.", no_args_is_help=True)
+models = Typer(help="Users' learned models.", no_args_is_help=True)
 
 UserArg = Annotated[
     str | None, typer.Argument(help="The user (its id in its fleet).", show_default=False)

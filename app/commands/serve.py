@@ -80,7 +80,7 @@ def _metrics_server(sock: socket.socket, token: str | None) -> Any:
     from prometheus_client.multiprocess import MultiProcessCollector
 
     class Handler(http.server.BaseHTTPRequestHandler):
-        def do_GET(self) -> None:  # noqa: N802 (http.server's name)
+        def do_GET(self) -> None:
             if self.path.split("?", 1)[0] != "/metrics":
                 self._answer(404, b'{"error":"NotFound","detail":"Only /metrics is served here."}')
                 return
@@ -115,7 +115,7 @@ def _metrics_server(sock: socket.socket, token: str | None) -> Any:
             self.end_headers()
             self.wfile.write(body)
 
-        def log_message(self, format: str, *args: Any) -> None:  # noqa: A002 (the base's name)
+        def log_message(self, format: str, *args: Any) -> None:
             pass  # scrapes are not requests of the service: no access line
 
     server = http.server.ThreadingHTTPServer(

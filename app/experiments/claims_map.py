@@ -10,13 +10,13 @@ the runs grow with the worlds and the method variants, not with the settings.
 *Confirmation.* A sweep on few seeds picks its best setting partly by chance. The default
 setting and the best ones are run again on held-out seeds (the ones after the sweep's) and
 decided there.
+
+The files, table and figure are made with the report kit (``app.experiments.report``).
 """
 
 from __future__ import annotations
 
-import csv
 import json
-import math
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -37,6 +37,8 @@ from app.learning.claims_map import (
 )
 from app.learning.evaluation import E1E2, E3, Method, Protocol, RunResult
 
+from . import report
+from .report import rounded
 from .runner import Job, run_jobs
 
 if TYPE_CHECKING:
@@ -166,10 +168,6 @@ def confirmed_settings(claim_map: ClaimMap) -> list[Setting]:
 # -- the numbers ------------------------------------------------------------------------------
 
 
-def _share(x: float) -> float | None:
-    return None if not math.isfinite(x) else round(x, 4)
-
-
 def _setting(claim_map: ClaimMap, setting: Setting) -> dict[str, Any]:
     return {
         "label": setting.label(),
@@ -206,8 +204,8 @@ def build_summary(
         "marginals": {
             a.key: {
                 str(v): {
-                    "mean_share": _share(claim_map.marginal(a.key, v)),
-                    "per_claim": [_share(claim_map.marginal(a.key, v, i)) for i in range(n)],
+                    "mean_share": rounded(claim_map.marginal(a.key, v)),
+                    "per_claim": [rounded(claim_map.marginal(a.key, v, i)) for i in range(n)],
                 }
                 for v in grid.values[a.key]
             }
@@ -221,7 +219,7 @@ def build_summary(
             {
                 "key": key,
                 "text": text,
-                "share": _share(claim_map.share(i)),
+                "share": rounded(claim_map.share(i)),
                 "settings_held": sum(v[i] for v in claim_map.verdicts.values()),
             }
         )
@@ -314,20 +312,20 @@ def markdown(summary: Mapping[str, Any]) -> str:
         head.append("default")
     head.append("best")
     head += [f"{_name(summary, c)}, held-out seeds" for c in confirmed]
-    lines += ["| " + " | ".join(head) + " |", "|:---|" + "---:|" * (len(head) - 1)]
+    rows = []
     for i, claim in enumerate(summary["claims"]):
         row = [f"**{claim['key']}**: {claim['text']}", _pct(claim["share"])]
         if default is not None:
             row.append(_mark(default["claims"][i]))
         row.append(_mark(best[0]["claims"][i]))
         row += [_mark(c["claims"][i]) for c in confirmed]
-        lines.append("| " + " | ".join(row) + " |")
+        rows.append(row)
     total = ["**claims that hold**", ""]
     if default is not None:
         total.append(f"**{default['held']}**")
     total.append(f"**{best[0]['held']}**")
     total += [f"**{c['held']}**" for c in confirmed]
-    lines.append("| " + " | ".join(total) + " |")
+    lines.append(report.markdown_table(head, [*rows, total]))
     n = len(summary["claims"])
     lines += [
         "",
@@ -355,31 +353,29 @@ def markdown(summary: Mapping[str, Any]) -> str:
         "Mean share of the claims that hold, per value of each choice (the default's "
         "value in bold):",
         "",
-        "| Choice | value | mean share of claims |",
-        "|:---|:---|---:|",
     ]
+    marginals = []
     for axis in summary["axes"]:
         for j, v in enumerate(axis["values"]):
             text = _value(v)
             shown = f"**{text}**" if v == axis["default"] else text
             share = summary["marginals"][axis["key"]][str(v)]["mean_share"]
-            lines.append(f"| {axis['label'] if j == 0 else ''} | {shown} | {_pct(share)} |")
+            marginals.append([axis["label"] if j == 0 else "", shown, _pct(share)])
+    lines.append(
+        report.markdown_table(["Choice", "value", "mean share of claims"], marginals, left=2)
+    )
     return "\n".join(lines) + "\n"
 
 
 def print_table(summary: Mapping[str, Any], console: Console) -> None:
-    """The claims, their share of settings, the default and the best setting, for the terminal."""
-    from rich import box
-    from rich.table import Table
-
+    """The claims, their share of settings, the default and the best setting, for the terminal
+    (whole, whatever its width)."""
     best = summary["best"]
     default = summary["default"]
     confirmed = _confirmed(summary)
-    table = Table(
-        title=f"The paper's claims over {summary['settings_count']} settings of the "
-        "reconstruction's choices",
-        box=box.SIMPLE_HEAD,
-        title_justify="left",
+    table = report.terminal_table(
+        f"The paper's claims over {summary['settings_count']} settings of the "
+        "reconstruction's choices"
     )
     table.add_column("Claim", no_wrap=True)
     table.add_column("share of settings", justify="right")
@@ -401,14 +397,14 @@ def print_table(summary: Mapping[str, Any], console: Console) -> None:
     total.append(str(best[0]["held"]))
     total += [str(c["held"]) for c in confirmed]
     table.add_row(*total, style="bold")
-    console.print(table, soft_wrap=True, crop=False, overflow="ignore")
-    console.print(
+    lines = [
         f"Best setting ({best[0]['held']} of {len(summary['claims'])}; {len(best)} "
         f"tied): {best[0]['label']}"
-    )
+    ]
     for c in confirmed:
         what = "default" if c["label"] == "default" else f"{_name(summary, c)} ({c['label']})"
-        console.print(f"On held-out seeds, {what}: {c['held']} hold.")
+        lines.append(f"On held-out seeds, {what}: {c['held']} hold.")
+    report.print_whole(console, table, lines)
 
 
 def write_csv(summary: Mapping[str, Any], path: Path) -> int:
@@ -416,28 +412,18 @@ def write_csv(summary: Mapping[str, Any], path: Path) -> int:
     then one 0/1 column per claim. Returns the rows written."""
     keys = [c["key"] for c in summary["claims"]]
     axes = [a["key"] for a in summary["axes"]]
-    with path.open("w", newline="", encoding="utf-8") as handle:
-        writer = csv.writer(handle, lineterminator="\n")
-        writer.writerow([*axes, "label", "held", *keys])
-        for s in summary["settings"]:
-            writer.writerow(
-                [
-                    *(s["values"][a] for a in axes),
-                    s["label"],
-                    s["held"],
-                    *(int(v) for v in s["claims"]),
-                ]
-            )
-    return len(summary["settings"])
+    rows = (
+        [*(s["values"][a] for a in axes), s["label"], s["held"], *(int(v) for v in s["claims"])]
+        for s in summary["settings"]
+    )
+    return report.write_csv(path, [*axes, "label", "held", *keys], rows)
 
 
 def plot_map(summary: Mapping[str, Any], path: Path) -> None:
     """claims-map.png: left, claims × settings (settings sorted by the claims that hold, the
     default marked); right, per claim, the share of settings where it holds per value of each
     choice."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.colors import ListedColormap, Normalize
-    from matplotlib.figure import Figure
 
     claims = [c["key"] for c in summary["claims"]]
     settings = sorted(summary["settings"], key=lambda s: -s["held"])
@@ -454,8 +440,7 @@ def plot_map(summary: Mapping[str, Any], path: Path) -> None:
             for i in range(len(claims))
         ]
     )
-    fig = Figure(figsize=(16, 0.42 * len(claims) + 3.2), dpi=100, layout="constrained")
-    FigureCanvasAgg(fig)
+    fig = report.figure(16, 0.42 * len(claims) + 3.2)
     left, right = fig.subplots(1, 2, gridspec_kw={"width_ratios": [1.0, 1.3]})
     left.imshow(
         grid,
@@ -473,18 +458,7 @@ def plot_map(summary: Mapping[str, Any], path: Path) -> None:
         left.axvline(i, color="#d73027", linewidth=1.5)
     left.set_title("Claims that hold (green) under each setting; red: the default", fontsize=10)
     image = right.imshow(shares, cmap="viridis", norm=Normalize(0.0, 1.0), aspect="auto")
-    for i in range(shares.shape[0]):
-        for j in range(shares.shape[1]):
-            if np.isfinite(shares[i, j]):
-                right.text(
-                    j,
-                    i,
-                    f"{100 * shares[i, j]:.0f}",
-                    ha="center",
-                    va="center",
-                    fontsize=7,
-                    color="white" if shares[i, j] < 0.6 else "black",
-                )
+    report.label_cells(right, shares, lambda v: f"{100 * v:.0f}", fontsize=7)
     right.set_yticks(range(len(claims)), claims, fontsize=8)
     right.set_xticks(
         range(len(columns)),
@@ -508,12 +482,6 @@ def plot_map(summary: Mapping[str, Any], path: Path) -> None:
 
 def write_report(summary: Mapping[str, Any], out: Path) -> list[Path]:
     """Write claims-map.md, claims-map.csv, claims-map.png and summary.json into ``out``."""
-    out.mkdir(parents=True, exist_ok=True)
-    files = [out / n for n in ("claims-map.md", "claims-map.csv", "claims-map.png", "summary.json")]
-    files[0].write_text(markdown(summary), encoding="utf-8")
-    write_csv(summary, files[1])
-    plot_map(summary, files[2])
-    files[3].write_text(
-        json.dumps(summary, indent=2, ensure_ascii=False, allow_nan=False) + "\n", encoding="utf-8"
+    return report.write_report(
+        summary, out, "claims-map", markdown=markdown, table=write_csv, plot=plot_map
     )
-    return files

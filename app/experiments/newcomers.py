@@ -21,15 +21,14 @@ share. Cells are the mean over seeds with a 95 % interval (Student's t).
 their mean and 95 % interval (Student's t, seeds - 1 degrees of freedom); the prior is *below
 fresh beyond the intervals* when the interval's upper bound is below 0 (a paired t-test at 5 %,
 two-sided, finds it lower).
+
+The files, tables and figure are made with the report kit (``app.experiments.report``).
 """
 
 from __future__ import annotations
 
-import csv
-import json
-import math
 import zlib
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -51,9 +50,9 @@ from app.learning.prior import DEFAULT_STRENGTH, MIN_SUPPORT, population_prior
 from app.learning.space import space_for
 from app.learning.types import FloatArray
 
-from .robustness import MIN_ORACLE_REWARD, _p
+from . import report
+from .report import MIN_ORACLE_REWARD, interval_text, percent, rounded, window_heading
 from .runner import _mission
-from .statistics import mean_ci95
 
 if TYPE_CHECKING:
     from rich.console import Console
@@ -237,33 +236,16 @@ def newcomer_rewards(
 # -- the numbers ------------------------------------------------------------------------------
 
 
-def _round(x: float | None, digits: int = 4) -> float | None:
-    return None if x is None or not math.isfinite(x) else round(x, digits)
-
-
 def _shares(
     runs: Sequence[NewcomerRun], arm: str, label: str, start: int, stop: int
 ) -> list[float]:
     """Per seed: the learner's reward over events start:stop of all persons / the oracle's."""
-    out = []
-    for r in runs:
-        oracle = float(r.oracle[:, start:stop].sum())
-        learner = float(getattr(r, arm)[label][:, start:stop].sum())
-        out.append(learner / oracle if oracle >= MIN_ORACLE_REWARD else float("nan"))
-    return out
-
-
-def _cell(values: Sequence[float], events: tuple[int, int]) -> dict[str, Any]:
-    stats = mean_ci95(values)
-    undefined = sum(1 for v in values if not math.isfinite(v))
-    return {
-        "events": [events[0] + 1, events[1]],
-        "mean": None if stats is None else _round(stats[0]),
-        "ci95": None if stats is None else [_round(stats[1]), _round(stats[2])],
-        "seeds": len(values) - undefined,
-        "undefined_seeds": undefined,
-        "per_seed": [_round(v) for v in values],
-    }
+    return [
+        report.share(
+            float(getattr(r, arm)[label][:, start:stop].sum()), float(r.oracle[:, start:stop].sum())
+        )
+        for r in runs
+    ]
 
 
 def _curve(runs: Sequence[NewcomerRun], arm: str, label: str, n_events: int) -> list[float | None]:
@@ -276,7 +258,7 @@ def _curve(runs: Sequence[NewcomerRun], arm: str, label: str, n_events: int) -> 
     for e in range(n_events):
         lo, hi = max(0, e - half), min(n_events, e + half + 1)
         o = float(np.sum(oracle[lo:hi]))
-        out.append(_round(float(np.sum(learner[lo:hi])) / o) if o >= MIN_ORACLE_REWARD else None)
+        out.append(rounded(float(np.sum(learner[lo:hi])) / o) if o >= MIN_ORACLE_REWARD else None)
     return out
 
 
@@ -319,9 +301,7 @@ def build_summary(
         entry: dict[str, Any] = {
             "description": FAMILIES[name].description,
             "seeds": len(mine),
-            "oracle_reward_per_event": _round(
-                float(np.mean([r.oracle.mean() for r in mine])) if mine else float("nan")
-            ),
+            "oracle_reward_per_event": report.oracle_per_event([r.oracle for r in mine]),
             "learners": {},
         }
         for label in learners:
@@ -332,9 +312,9 @@ def build_summary(
                     continue
                 fresh = _shares(mine, "fresh", label, *rng)
                 prior = _shares(mine, "prior", label, *rng)
-                cells["fresh"][w.key] = _cell(fresh, rng)
-                cells["prior"][w.key] = _cell(prior, rng)
-                cells["difference"][w.key] = _cell(
+                cells["fresh"][w.key] = report.interval_cell(fresh, rng)
+                cells["prior"][w.key] = report.interval_cell(prior, rng)
+                cells["difference"][w.key] = report.interval_cell(
                     [p - f for p, f in zip(prior, fresh, strict=True)], rng
                 )
             cells["curves"] = {arm: _curve(mine, arm, label, n_events) for arm in ARMS}
@@ -410,22 +390,9 @@ def check_targets(summary: Mapping[str, Any]) -> list[dict[str, Any]]:
 
 
 def _pct(cell: Mapping[str, Any] | None, *, signed: bool = False) -> str:
-    """``62% [55, 69]`` (``+12 [5, 19]`` for a difference, in points); ``—`` without seeds."""
-    if cell is None:
-        return ""
-    if cell["mean"] is None:
-        return "—"
-    low, high = cell["ci95"]
-    if signed:
-        sign = "+" if _p(cell["mean"]) != "0" and cell["mean"] > 0 else ""
-        return f"{sign}{_p(cell['mean'])} [{_p(low)}, {_p(high)}]"
-    return f"{_p(cell['mean'])}% [{_p(low)}, {_p(high)}]"
-
-
-def _heading(summary: Mapping[str, Any], key: str) -> str:
-    w = summary["windows"][key]
-    events = w["events"]
-    return w["label"] if events is None else f"{w['label']} ({events[0]}–{events[1]})"
+    """``62% [55, 69]`` (``+12 [5, 19]`` for a difference, in points); ``—`` without seeds;
+    blank where the window holds no event."""
+    return "" if cell is None else interval_text(cell, signed=signed)
 
 
 _ROWS = (("fresh", "fresh"), ("prior", "prior"), ("difference", "prior − fresh (points)"))
@@ -466,7 +433,7 @@ def verdict_lines(summary: Mapping[str, Any]) -> list[str]:
         window = summary["windows"][t["window"]]["label"]
         verdict = "met" if t["met"] else "MISSED"
         if t["id"] == "a":
-            share = "—" if t["share"] is None else f"{_p(t['share'])}%"
+            share = "—" if t["share"] is None else f"{percent(t['share'])}%"
             lines.append(
                 f"  ({t['id']}) {t['family']}, {t['learner']}, {window}: prior {share} "
                 f"(target ≥ {100 * FIRST_TARGET:.0f}%): {verdict}"
@@ -488,9 +455,7 @@ def markdown(summary: Mapping[str, Any]) -> str:
     """newcomers.md: one table (three rows per family and learner), the families, the targets."""
     run = summary["run"]
     keys = list(summary["windows"])
-    lines = [
-        "# Newcomers: fresh, and from the fleet's prior",
-        "",
+    intro = (
         f"{run['seeds']} seeds × {run['residents']} residents per family, {run['events']} "
         "events per person. Leave-one-out: each resident is run fresh, then again from the "
         "prior of the other residents' final learners (strength "
@@ -499,55 +464,41 @@ def markdown(summary: Mapping[str, Any]) -> str:
         "mean over seeds [95% CI, Student's t]; the third row is the paired per-seed "
         "difference, in percentage points [95% CI]. A seed whose oracle earned less than "
         f"{MIN_ORACLE_REWARD:g} in a window has no share there. Ran in {run['seconds']:.1f} s "
-        f"on {run['workers']} worker processes.",
-    ]
+        f"on {run['workers']} worker processes."
+    )
     if run.get("cpu_seconds") is not None:
-        lines[-1] = lines[-1][:-1] + f" ({run['cpu_seconds']:.1f} s of CPU time)."
-    mission = run.get("mission") or {}
-    if mission.get("file"):
-        lines[-1] += (
-            f" The people lived in the mission {mission['name']!r} of "
-            f"{mission['file']}, not in the paper's office mission."
-        )
-    lines += [
-        "",
-        "| Family | Learner | Start | " + " | ".join(_heading(summary, k) for k in keys) + " |",
-        "|:---|:---|:---|" + "---:|" * len(keys),
-    ]
+        intro = intro[:-1] + f" ({run['cpu_seconds']:.1f} s of CPU time)."
+    rows = []
     last: tuple[str, str] | None = None
     for name, label, row, cells in _rows(summary):
         fam = f"**{name}**" if last is None or last[0] != name else ""
         learner = label if last != (name, label) else ""
-        lines.append(f"| {fam} | {learner} | {row} | " + " | ".join(cells) + " |")
+        rows.append([fam, learner, row, *cells])
         last = (name, label)
-    lines += ["", "Families (oracle's mean reward per event):", ""]
-    for name, fam in summary["families"].items():
-        reward = fam["oracle_reward_per_event"]
-        lines.append(
-            f"- **{name}** ({'—' if reward is None else f'{reward:.2f}'}): {fam['description']}."
-        )
-    verdict = verdict_lines(summary)
-    lines += ["", "## Targets", "", verdict[0], ""]
-    lines += [f"- {line.strip()}" for line in verdict[1:]]
+    header = ["Family", "Learner", "Start", *(window_heading(summary, k) for k in keys)]
+    lines = [
+        "# Newcomers: fresh, and from the fleet's prior",
+        "",
+        intro + report.mission_sentence(run),
+        "",
+        report.markdown_table(header, rows, left=3),
+        *report.family_lines(summary),
+        *report.verdict_section("Targets", verdict_lines(summary)),
+    ]
     return "\n".join(lines) + "\n"
 
 
 def print_table(summary: Mapping[str, Any], console: Console) -> None:
     """The table and the targets for the terminal (whole, whatever its width)."""
-    from rich import box
-    from rich.table import Table
-
     keys = list(summary["windows"])
-    table = Table(
-        title="Newcomers: share of the oracle's reward, fresh and from the fleet's "
-        "prior (mean [95% CI] over seeds; difference in points, paired by seed)",
-        box=box.SIMPLE_HEAD,
-        title_justify="left",
+    table = report.terminal_table(
+        "Newcomers: share of the oracle's reward, fresh and from the fleet's "
+        "prior (mean [95% CI] over seeds; difference in points, paired by seed)"
     )
     for heading in ("Family", "Learner", "Start"):
         table.add_column(heading, no_wrap=True)
     for k in keys:
-        table.add_column(_heading(summary, k), justify="right", no_wrap=True)
+        table.add_column(window_heading(summary, k), justify="right", no_wrap=True)
     rows = _rows(summary)
     last: tuple[str, str] | None = None
     for i, (name, label, row, cells) in enumerate(rows):
@@ -560,11 +511,7 @@ def print_table(summary: Mapping[str, Any], console: Console) -> None:
             end_section=end,
         )
         last = (name, label)
-    console.print(table, soft_wrap=True, crop=False, overflow="ignore")
-    for line in verdict_lines(summary):
-        console.print(
-            line, soft_wrap=True, crop=False, overflow="ignore", markup=False, highlight=False
-        )
+    report.print_whole(console, table, verdict_lines(summary))
 
 
 CSV_COLUMNS = (
@@ -585,43 +532,35 @@ CSV_COLUMNS = (
 def write_csv(summary: Mapping[str, Any], path: Path) -> int:
     """newcomers.csv: one row per family x learner x start (fresh, prior, difference) x window;
     shares as fractions of the oracle's (the difference too). Returns the rows written."""
-    rows = 0
-    with path.open("w", newline="", encoding="utf-8") as handle:
-        writer = csv.writer(handle, lineterminator="\n")
-        writer.writerow(CSV_COLUMNS)
-        for name, fam in summary["families"].items():
-            for label, cells in fam["learners"].items():
-                for arm, _ in _ROWS:
-                    for key, cell in cells[arm].items():
-                        ci = cell["ci95"] or ("", "")
-                        writer.writerow(
-                            (
-                                name,
-                                label,
-                                arm,
-                                key,
-                                *cell["events"],
-                                cell["seeds"],
-                                cell["undefined_seeds"],
-                                "" if cell["mean"] is None else cell["mean"],
-                                *ci,
-                            )
-                        )
-                        rows += 1
-    return rows
+    return report.write_csv(path, CSV_COLUMNS, _csv_rows(summary))
+
+
+def _csv_rows(summary: Mapping[str, Any]) -> Iterator[tuple[object, ...]]:
+    for name, fam in summary["families"].items():
+        for label, cells in fam["learners"].items():
+            for arm, _ in _ROWS:
+                for key, cell in cells[arm].items():
+                    ci = cell["ci95"] or ("", "")
+                    yield (
+                        name,
+                        label,
+                        arm,
+                        key,
+                        *cell["events"],
+                        cell["seeds"],
+                        cell["undefined_seeds"],
+                        "" if cell["mean"] is None else cell["mean"],
+                        *ci,
+                    )
 
 
 def plot_newcomers(summary: Mapping[str, Any], path: Path) -> None:
     """newcomers.png: one panel per family, the share of the oracle's reward per event
     (smoothed over :data:`SMOOTHING` events, over all seeds and persons) of every learner,
     fresh (dashed) and from the prior (solid); the first 20 events shaded."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
     families = list(summary["families"])
     learners = list(summary["learners"])
-    fig = Figure(figsize=(5.2 * len(families) + 1.0, 4.4), dpi=100, layout="constrained")
-    FigureCanvasAgg(fig)
+    fig = report.figure(5.2 * len(families) + 1.0, 4.4)
     axes = fig.subplots(1, len(families), sharey=True, squeeze=False)[0]
     colors = [f"C{i % 10}" for i in range(len(learners))]
     for ax, name in zip(axes, families, strict=True):
@@ -665,12 +604,6 @@ def plot_newcomers(summary: Mapping[str, Any], path: Path) -> None:
 
 def write_report(summary: Mapping[str, Any], out: Path) -> list[Path]:
     """Write newcomers.md, newcomers.csv, newcomers.png and summary.json into ``out``."""
-    out.mkdir(parents=True, exist_ok=True)
-    files = [out / n for n in ("newcomers.md", "newcomers.csv", "newcomers.png", "summary.json")]
-    files[0].write_text(markdown(summary), encoding="utf-8")
-    write_csv(summary, files[1])
-    plot_newcomers(summary, files[2])
-    files[3].write_text(
-        json.dumps(summary, indent=2, ensure_ascii=False, allow_nan=False) + "\n", encoding="utf-8"
+    return report.write_report(
+        summary, out, "newcomers", markdown=markdown, table=write_csv, plot=plot_newcomers
     )
-    return files

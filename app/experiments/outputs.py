@@ -5,9 +5,7 @@ and ``summary.json``.
 
 from __future__ import annotations
 
-import csv
-import json
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -16,6 +14,7 @@ import numpy as np
 from app.learning.evaluation import E1E2, E3, PA, RunResult
 
 from .plots import plot_cumulative
+from .report import write_csv, write_json
 from .statistics import build_summary, group
 from .text import ablation_markdown, claims_markdown, table2_markdown
 
@@ -46,42 +45,31 @@ def write_rewards_csv(results: Iterable[RunResult], path: Path) -> int:
 
     ``initiated`` and ``success`` are 0/1; ``interaction`` is none, I1, I2 or I3.
     """
-    rows = 0
-    with path.open("w", newline="", encoding="utf-8") as handle:
-        writer = csv.writer(handle, lineterminator="\n")
-        writer.writerow(CSV_COLUMNS)
-        for res in results:
-            users, events = res.reward.shape
-            for user in range(users):
-                reward = res.reward[user].tolist()
-                initiated = res.initiated[user].astype(np.int8).tolist()
-                interaction = [INTERACTION_NAMES[c] for c in res.interaction[user].tolist()]
-                success = res.success[user].astype(np.int8).tolist()
-                queries = res.queries[user].tolist()
-                writer.writerows(
-                    (
-                        res.protocol,
-                        res.method,
-                        res.seed,
-                        user,
-                        e + 1,
-                        f"{reward[e]:.10g}",
-                        initiated[e],
-                        interaction[e],
-                        success[e],
-                        queries[e],
-                    )
-                    for e in range(events)
+    return write_csv(path, CSV_COLUMNS, _reward_rows(results))
+
+
+def _reward_rows(results: Iterable[RunResult]) -> Iterator[tuple[object, ...]]:
+    for res in results:
+        users, events = res.reward.shape
+        for user in range(users):
+            reward = res.reward[user].tolist()
+            initiated = res.initiated[user].astype(np.int8).tolist()
+            interaction = [INTERACTION_NAMES[c] for c in res.interaction[user].tolist()]
+            success = res.success[user].astype(np.int8).tolist()
+            queries = res.queries[user].tolist()
+            for e in range(events):
+                yield (
+                    res.protocol,
+                    res.method,
+                    res.seed,
+                    user,
+                    e + 1,
+                    f"{reward[e]:.10g}",
+                    initiated[e],
+                    interaction[e],
+                    success[e],
+                    queries[e],
                 )
-                rows += events
-    return rows
-
-
-def _write_json(data: Mapping[str, Any], path: Path) -> None:
-    """Write ``data`` as strict, indented UTF-8 JSON."""
-    path.write_text(
-        json.dumps(data, indent=2, ensure_ascii=False, allow_nan=False) + "\n", encoding="utf-8"
-    )
 
 
 def write_paper_report(
@@ -131,7 +119,7 @@ def write_paper_report(
     write_rewards_csv(results, files[2])
     summary = build_summary(results, run_info)
     files[3].write_text(table2_markdown(summary), encoding="utf-8")
-    _write_json(summary, files[4])
+    write_json(summary, files[4])
     files[5].write_text("# " + claims_markdown(summary)[3:], encoding="utf-8")
     return summary, files
 
@@ -149,7 +137,7 @@ def write_ablation_report(
     ]
     summary = build_summary(results, run_info, paper=False)
     files[0].write_text(ablation_markdown(summary), encoding="utf-8")
-    _write_json(summary, files[1])
+    write_json(summary, files[1])
     pa = group(results).get(PA.name)
     if pa:
         plot_cumulative(

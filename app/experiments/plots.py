@@ -13,6 +13,7 @@ import numpy as np
 
 from app.learning.evaluation import RunResult
 
+from .report import figure
 from .statistics import SHADE_LABEL, cumulative_curve, method_order
 
 __all__ = ["plot_cumulative"]
@@ -31,11 +32,7 @@ def plot_cumulative(
 ) -> None:
     """One line per method: mean cumulative reward per event over ``start:stop``, CI shaded;
     saved as a 1000x600 PNG. ``change_after`` draws a line after that (1-based) event."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=(10, 6), dpi=100, layout="constrained")
-    FigureCanvasAgg(fig)
+    fig = figure(10, 6)
     ax = fig.add_subplot()
     events = np.arange(start + 1, stop + 1)
     methods = method_order(results)

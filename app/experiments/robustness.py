@@ -12,14 +12,13 @@ is undefined and left out; the tables say how many seeds each cell stands on.
 
 *Interval.* Mean of the per-seed shares ± Student's t (95%, seeds − 1 degrees of freedom) times
 their standard error.
+
+The files, tables and figure are made with the report kit (``app.experiments.report``).
 """
 
 from __future__ import annotations
 
-import csv
-import json
-import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -29,8 +28,9 @@ import numpy as np
 from app.learning.evaluation import Method
 from app.learning.population import DEFAULT_EVENTS, FAMILIES, FamilyRun, change_event, run_family
 
+from . import report
+from .report import MIN_ORACLE_REWARD, interval_text, percent, rounded, window_heading
 from .runner import _mission
-from .statistics import mean_ci95
 
 if TYPE_CHECKING:
     from rich.console import Console
@@ -66,7 +66,6 @@ __all__ = [
 DEFAULT_SEEDS = 8
 DEFAULT_PERSONS = 3
 TARGET_SECONDS = 120.0  # the default suite must finish within this on 2 cores
-MIN_ORACLE_REWARD = 1.0  # below this, the oracle earned (about) nothing: no share
 
 LEARNERS: Mapping[str, Method] = {
     "rmax": Method("R-MAX", "rmax"),
@@ -179,10 +178,6 @@ def run_robust_task(task: RobustTask) -> FamilyRun:
 # -- the numbers ------------------------------------------------------------------------------
 
 
-def _round(x: float | None, digits: int = 4) -> float | None:
-    return None if x is None or not math.isfinite(x) else round(x, digits)
-
-
 def build_summary(
     runs: Sequence[FamilyRun],
     families: Sequence[str],
@@ -218,9 +213,7 @@ def build_summary(
             "description": family.description,
             "change_at_event": None if change_at is None else change_at + 1,
             "seeds": len(mine),
-            "oracle_reward_per_event": _round(
-                float(np.mean([r.oracle.mean() for r in mine])) if mine else float("nan")
-            ),
+            "oracle_reward_per_event": report.oracle_per_event([r.oracle for r in mine]),
             "learners": {},
         }
         for label in learners:
@@ -246,8 +239,8 @@ def choose_default(summary: Mapping[str, Any]) -> dict[str, Any]:
         ranking.append(
             {
                 "learner": label,
-                "mean_all": _round(float(np.mean(alls))),
-                "worst_all": _round(min(alls)),
+                "mean_all": rounded(float(np.mean(alls))),
+                "worst_all": rounded(min(alls)),
             }
         )
     ranking.sort(key=lambda r: (-round(100 * r["mean_all"]), -r["worst_all"]))
@@ -277,7 +270,9 @@ def check_targets(summary: Mapping[str, Any]) -> list[dict[str, Any]]:
             if reference in fam["learners"]:
                 level = fam["learners"][reference]["before30"]["mean"]
                 if level is not None:
-                    checks.insert(0, ("before30", f"≥ {reference}'s {_p(level)}%", round(level, 2)))
+                    checks.insert(
+                        0, ("before30", f"≥ {reference}'s {percent(level)}%", round(level, 2))
+                    )
         for key, text, bound in checks:
             mean = cells[key]["mean"]
             out.append(
@@ -302,7 +297,7 @@ def verdict_lines(summary: Mapping[str, Any]) -> list[str]:
         lines.append(
             "Ranking (mean over families, all events; worst family): "
             + "; ".join(
-                f"{r['learner']} {_p(r['mean_all'])}% (worst {_p(r['worst_all'])}%)"
+                f"{r['learner']} {percent(r['mean_all'])}% (worst {percent(r['worst_all'])}%)"
                 for r in ranking
             )
             + "."
@@ -322,7 +317,7 @@ def verdict_lines(summary: Mapping[str, Any]) -> list[str]:
             f"{met} of {len(targets)} met."
         )
         for t in targets:
-            share = "—" if t["share"] is None else f"{_p(t['share'])}%"
+            share = "—" if t["share"] is None else f"{percent(t['share'])}%"
             window = summary["windows"][t["window"]]["label"]
             lines.append(
                 f"  {t['family']}, {window}: {share} (target {t['target']}): "
@@ -344,22 +339,13 @@ def _cell(runs: Sequence[FamilyRun], label: str, rng: tuple[int, int] | None) ->
             "per_seed": [],
         }
     start, stop = rng
-    shares = []
-    for r in runs:
-        oracle = float(r.oracle[:, start:stop].sum())
-        learner = float(r.learners[label][:, start:stop].sum())
-        shares.append(learner / oracle if oracle >= MIN_ORACLE_REWARD else float("nan"))
-    stats = mean_ci95(shares)
-    undefined = sum(1 for s in shares if not math.isfinite(s))
-    return {
-        "applicable": True,
-        "events": [start + 1, stop],
-        "mean": None if stats is None else _round(stats[0]),
-        "ci95": None if stats is None else [_round(stats[1]), _round(stats[2])],
-        "seeds": len(shares) - undefined,
-        "undefined_seeds": undefined,
-        "per_seed": [_round(s) for s in shares],
-    }
+    shares = [
+        report.share(
+            float(r.learners[label][:, start:stop].sum()), float(r.oracle[:, start:stop].sum())
+        )
+        for r in runs
+    ]
+    return {"applicable": True, **report.interval_cell(shares, rng)}
 
 
 # -- text -------------------------------------------------------------------------------------
@@ -367,95 +353,58 @@ def _cell(runs: Sequence[FamilyRun], label: str, rng: tuple[int, int] | None) ->
 
 def _pct(cell: Mapping[str, Any]) -> str:
     """``62% [55, 69]``; blank when the window does not apply, ``—`` when no seed defines it."""
-    if not cell["applicable"]:
-        return ""
-    if cell["mean"] is None:
-        return "—"
-    low, high = cell["ci95"]
-    return f"{_p(cell['mean'])}% [{_p(low)}, {_p(high)}]"
-
-
-def _p(share: float) -> str:
-    """A share as a whole percentage (no ``-0``)."""
-    text = f"{100 * share:.0f}"
-    return "0" if text == "-0" else text
-
-
-def _window_heading(summary: Mapping[str, Any], key: str) -> str:
-    w = summary["windows"][key]
-    events = w["events"]
-    where = "" if events is None else f" ({events[0]}–{events[1]})"
-    return f"{w['label']}{where}"
+    return interval_text(cell) if cell["applicable"] else ""
 
 
 def markdown(summary: Mapping[str, Any]) -> str:
     """robustness.md: one table, a row per family and learner, a column per window."""
     run = summary["run"]
     keys = list(summary["windows"])
-    lines = [
-        "# Robustness: reward as a share of the oracle's",
-        "",
+    intro = (
         f"{run['seeds']} seeds × {run['persons']} persons per family, {run['events']} events "
         f"per person; the changing families change at event {run['change_at_event']}. Each "
         "cell: mean share over seeds [95% CI, Student's t]; blank: the family has no change. "
         f"A seed whose oracle earned less than {MIN_ORACLE_REWARD:g} in a window has no share "
         "there (noted below the table). The oracle knows every need: it initiates, infers "
         "and performs when a need exists and the person is available, and passes otherwise. "
-        f"Ran in {run['seconds']:.1f} s on {run['workers']} worker processes.",
-    ]
-    mission = run.get("mission") or {}
-    if mission.get("file"):
-        lines[-1] += (
-            f" The people lived in the mission {mission['name']!r} of {mission['file']}, "
-            "not in the paper's office mission."
-        )
-    lines += [
-        "",
-        "| Family | Learner | " + " | ".join(_window_heading(summary, k) for k in keys) + " |",
-        "|:---|:---|" + "---:|" * len(keys),
-    ]
+        f"Ran in {run['seconds']:.1f} s on {run['workers']} worker processes."
+    )
+    rows = []
     notes = []
     for name, fam in summary["families"].items():
         for i, (label, cells) in enumerate(fam["learners"].items()):
-            first = f"**{name}**" if i == 0 else ""
-            lines.append(
-                f"| {first} | {label} | " + " | ".join(_pct(cells[k]) for k in keys) + " |"
-            )
+            rows.append([f"**{name}**" if i == 0 else "", label, *(_pct(cells[k]) for k in keys)])
             for k in keys:
                 if cells[k]["undefined_seeds"]:
                     notes.append(
                         f"- {name}, {label}, {summary['windows'][k]['label']}: "
                         f"{cells[k]['undefined_seeds']} seed(s) without a share."
                     )
-    lines += ["", "Families (oracle's mean reward per event):", ""]
-    for name, fam in summary["families"].items():
-        reward = fam["oracle_reward_per_event"]
-        lines.append(
-            f"- **{name}** ({'—' if reward is None else f'{reward:.2f}'}): {fam['description']}."
-        )
+    header = ["Family", "Learner", *(window_heading(summary, k) for k in keys)]
+    lines = [
+        "# Robustness: reward as a share of the oracle's",
+        "",
+        intro + report.mission_sentence(run),
+        "",
+        report.markdown_table(header, rows, left=2),
+        *report.family_lines(summary),
+    ]
     if notes:
         lines += ["", "Seeds without a share:", "", *dict.fromkeys(notes)]
-    verdict = verdict_lines(summary)
-    lines += ["", "## The default learner", "", verdict[0], ""]
-    lines += [f"- {line.strip()}" for line in verdict[1:]]
+    lines += report.verdict_section("The default learner", verdict_lines(summary))
     return "\n".join(lines) + "\n"
 
 
 def print_table(summary: Mapping[str, Any], console: Console) -> None:
     """The table for the terminal (whole, whatever its width)."""
-    from rich import box
-    from rich.table import Table
-
     keys = list(summary["windows"])
-    table = Table(
-        title="Robustness: reward as a share of the oracle's (mean [95% CI] over seeds)",
-        box=box.SIMPLE_HEAD,
-        title_justify="left",
+    table = report.terminal_table(
+        "Robustness: reward as a share of the oracle's (mean [95% CI] over seeds)"
     )
     table.add_column("Family", no_wrap=True)
     table.add_column("Learner", no_wrap=True)
     for k in keys:
-        table.add_column(_window_heading(summary, k), justify="right", no_wrap=True)
+        table.add_column(window_heading(summary, k), justify="right", no_wrap=True)
     for name, fam in summary["families"].items():
         for i, (label, cells) in enumerate(fam["learners"].items()):
             table.add_row(
@@ -464,11 +413,7 @@ def print_table(summary: Mapping[str, Any], console: Console) -> None:
                 *(_pct(cells[k]) for k in keys),
                 end_section=i == len(fam["learners"]) - 1,
             )
-    console.print(table, soft_wrap=True, crop=False, overflow="ignore")
-    for line in verdict_lines(summary):
-        console.print(
-            line, soft_wrap=True, crop=False, overflow="ignore", markup=False, highlight=False
-        )
+    report.print_whole(console, table, verdict_lines(summary))
 
 
 CSV_COLUMNS = (
@@ -488,46 +433,37 @@ CSV_COLUMNS = (
 def write_csv(summary: Mapping[str, Any], path: Path) -> int:
     """robustness.csv: one row per family x learner x window; blank cells where the window does
     not apply. Returns the rows written."""
-    rows = 0
-    with path.open("w", newline="", encoding="utf-8") as handle:
-        writer = csv.writer(handle, lineterminator="\n")
-        writer.writerow(CSV_COLUMNS)
-        for name, fam in summary["families"].items():
-            for label, cells in fam["learners"].items():
-                for key, cell in cells.items():
-                    events = cell["events"] or ("", "")
-                    ci = cell["ci95"] or ("", "")
-                    writer.writerow(
-                        (
-                            name,
-                            label,
-                            key,
-                            events[0],
-                            events[1],
-                            cell["seeds"] if cell["applicable"] else "",
-                            cell["undefined_seeds"] if cell["applicable"] else "",
-                            "" if cell["mean"] is None else cell["mean"],
-                            *ci,
-                        )
-                    )
-                    rows += 1
-    return rows
+    return report.write_csv(path, CSV_COLUMNS, _csv_rows(summary))
+
+
+def _csv_rows(summary: Mapping[str, Any]) -> Iterator[tuple[object, ...]]:
+    for name, fam in summary["families"].items():
+        for label, cells in fam["learners"].items():
+            for key, cell in cells.items():
+                events = cell["events"] or ("", "")
+                ci = cell["ci95"] or ("", "")
+                yield (
+                    name,
+                    label,
+                    key,
+                    events[0],
+                    events[1],
+                    cell["seeds"] if cell["applicable"] else "",
+                    cell["undefined_seeds"] if cell["applicable"] else "",
+                    "" if cell["mean"] is None else cell["mean"],
+                    *ci,
+                )
 
 
 def plot_shares(summary: Mapping[str, Any], path: Path) -> None:
     """robustness.png: one heatmap per window, families x learners, mean share in each cell
     (grey: the window does not apply)."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.colors import Normalize
-    from matplotlib.figure import Figure
 
     keys = list(summary["windows"])
     families = list(summary["families"])
     learners = list(summary["learners"])
-    fig = Figure(
-        figsize=(3.2 * len(keys) + 1.5, 0.45 * len(families) + 2.2), dpi=100, layout="constrained"
-    )
-    FigureCanvasAgg(fig)
+    fig = report.figure(3.2 * len(keys) + 1.5, 0.45 * len(families) + 2.2)
     axes = fig.subplots(1, len(keys), sharey=True, squeeze=False)[0]
     norm = Normalize(0.0, 1.0)
     image = None
@@ -540,21 +476,10 @@ def plot_shares(summary: Mapping[str, Any], path: Path) -> None:
                     grid[i, j] = mean
         ax.set_facecolor("0.85")
         image = ax.imshow(np.ma.masked_invalid(grid), cmap="viridis", norm=norm, aspect="auto")
-        for i in range(len(families)):
-            for j in range(len(learners)):
-                if np.isfinite(grid[i, j]):
-                    ax.text(
-                        j,
-                        i,
-                        _p(grid[i, j]),
-                        ha="center",
-                        va="center",
-                        fontsize=8,
-                        color="white" if grid[i, j] < 0.6 else "black",
-                    )
+        report.label_cells(ax, grid, percent, fontsize=8)
         ax.set_xticks(range(len(learners)), learners, rotation=45, ha="right", fontsize=8)
         ax.set_yticks(range(len(families)), families, fontsize=9)
-        ax.set_title(_window_heading(summary, key), fontsize=10)
+        ax.set_title(window_heading(summary, key), fontsize=10)
     if image is not None:
         fig.colorbar(image, ax=list(axes), shrink=0.8, label="share of the oracle's reward")
     run = summary["run"]
@@ -568,12 +493,6 @@ def plot_shares(summary: Mapping[str, Any], path: Path) -> None:
 
 def write_report(summary: Mapping[str, Any], out: Path) -> list[Path]:
     """Write robustness.md, robustness.csv, robustness.png and summary.json into ``out``."""
-    out.mkdir(parents=True, exist_ok=True)
-    files = [out / n for n in ("robustness.md", "robustness.csv", "robustness.png", "summary.json")]
-    files[0].write_text(markdown(summary), encoding="utf-8")
-    write_csv(summary, files[1])
-    plot_shares(summary, files[2])
-    files[3].write_text(
-        json.dumps(summary, indent=2, ensure_ascii=False, allow_nan=False) + "\n", encoding="utf-8"
+    return report.write_report(
+        summary, out, "robustness", markdown=markdown, table=write_csv, plot=plot_shares
     )
-    return files

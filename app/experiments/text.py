@@ -16,6 +16,7 @@ from rich.table import Table
 
 from app.learning.evaluation import E3, PA
 
+from .report import markdown_table
 from .statistics import METRICS, PAPER_TABLE2, SPREAD_LABEL, Metric, Stats
 
 __all__ = [
@@ -89,14 +90,11 @@ Row = tuple[Sequence[str], str, Stats]  # leading cells, method, the stats to re
 def _markdown_table(rows: Sequence[Row], lead: Sequence[str], with_paper: bool) -> str:
     """A markdown table: ``lead`` columns, then the metric (and paper) columns."""
     cols = _columns(with_paper)
-    header = [*lead, *(c.heading for c in cols)]
-    lines = [
-        "| " + " | ".join(header) + " |",
-        "|" + "|".join([":---"] * len(lead) + ["---:"] * len(cols)) + "|",
-    ]
-    for cells, method, stats in rows:
-        lines.append("| " + " | ".join([*cells, *(c.cell(method, stats) for c in cols)]) + " |")
-    return "\n".join(lines)
+    return markdown_table(
+        [*lead, *(c.heading for c in cols)],
+        ([*cells, *(c.cell(method, stats) for c in cols)] for cells, method, stats in rows),
+        left=len(lead),
+    )
 
 
 def _block_rows(summary: Mapping[str, Any], protocol: str) -> list[Row]:

@@ -30,9 +30,8 @@ from app.services import auth
 from app.services.auth import list_keys, revoke_key
 from app.settings import Settings
 from tests.support.contract import assert_error
+from tests.support.episodes import event, start
 from tests.support.fixtures import MakeKey, ManualClock
-
-from .helpers import event, start
 
 # Every route that needs a key: (method, path, body).
 USER_ROUTES = [

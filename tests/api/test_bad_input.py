@@ -13,8 +13,7 @@ from fastapi.testclient import TestClient
 from app.db.session import Database
 from app.services.auth import list_keys, revoke_key
 from tests.support.contract import assert_error
-
-from .helpers import event, start
+from tests.support.episodes import event, start
 
 TEA = {"service": "ProvideDrink", "detail": "tea"}
 LIMIT = 64 * 1024

@@ -12,12 +12,9 @@ its history teaches (visit counts, and ``attune models rebuild``).
 
 from __future__ import annotations
 
-import gc
-import json
 import random
 import threading
 import time
-import warnings
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
@@ -25,13 +22,12 @@ from typing import Any
 import httpx
 from fastapi import FastAPI
 from sqlalchemy import func, select
-from typer.testing import CliRunner
 
-from app import cli
 from app.db.models import Decision, Episode, User
 from app.db.session import Database
 from app.settings import Settings
 from tests.support import people
+from tests.support.commands import rebuild
 from tests.support.fixtures import MakeKey
 from tests.support.live import serving
 from tests.support.office import MISSION
@@ -173,22 +169,6 @@ def run_robot(
     return robot.rec
 
 
-def rebuild(settings: Settings, fleet: str, user_id: str) -> tuple[int, dict[str, Any]]:
-    """``attune models rebuild USER_ID --fleet FLEET``: (exit code, its JSON summary line)."""
-    result = CliRunner().invoke(
-        cli.app,
-        ["models", "rebuild", user_id, "--fleet", fleet],
-        env={"ATTUNE_DATABASE_URL": settings.database_url, "ATTUNE_SEED": "0"},
-    )
-    with warnings.catch_warnings():  # the command leaves its connections to the collector
-        warnings.simplefilter("ignore", ResourceWarning)
-        gc.collect()
-    lines = [ln for ln in result.stdout.splitlines() if ln.startswith("{")]
-    assert lines, (result.exit_code, result.output, result.exception)
-    summary: dict[str, Any] = json.loads(lines[-1])
-    return result.exit_code, summary
-
-
 def test_concurrent_robots_with_retries_and_conflicts(
     app: FastAPI, db: Database, make_key: MakeKey, settings: Settings, engine_name: str
 ) -> None:
@@ -320,7 +300,7 @@ def test_concurrent_robots_with_retries_and_conflicts(
         # nothing: its first decision has no silent steps); replays and conflicts change nothing.
         assert model["version"] == initial[who] + len(answered)
 
-        code, summary = rebuild(settings, fleet, user_id)
+        code, summary = rebuild(settings.database_url, user_id, fleet=fleet)
         assert summary["identical"] is True, summary
         assert code == 0, summary
         assert summary["decisions_redrawn"] == len(decision_ids)

@@ -14,9 +14,8 @@ import pytest
 from fastapi import FastAPI
 from fastapi.testclient import TestClient
 
+from tests.support.episodes import start
 from tests.support.fixtures import MakeKey
-
-from .helpers import start
 
 FLEET = "north"
 SERVICES = (

@@ -19,9 +19,8 @@ from sqlalchemy import update
 from app.db.models import Episode
 from app.db.session import Database
 from tests.support import people
+from tests.support.episodes import report, start
 from tests.support.fixtures import MakeKey
-
-from .helpers import answer, start
 
 FLEET = "north"
 # Words of the engineers' views that must not reach the pages staff use.
@@ -65,7 +64,7 @@ def _play(robot: TestClient) -> None:
         decision = episode["decision"]
         while decision is not None:
             fields = people.answer(decision["action"], need=people.TEA)
-            decision = answer(robot, episode["episode_id"], decision["decision_id"], **fields)[
+            decision = report(robot, episode["episode_id"], decision["decision_id"], **fields)[
                 "decision"
             ]
     start(robot, "lin", "open", situation="working", occurred_at="2026-11-23T09:30:00+08:00")
@@ -370,7 +369,7 @@ def test_a_correction_the_persons_answers_overrode_says_so(console: Console) -> 
         decision = episode["decision"]
         while decision is not None:
             fields = people.answer(decision["action"], need=people.TEA)
-            decision = answer(
+            decision = report(
                 console.robot, episode["episode_id"], decision["decision_id"], **fields
             )["decision"]
     (made,) = console.api.get("/v1/users/lin/corrections").json()["items"]

@@ -13,9 +13,9 @@ import pytest
 from fastapi.testclient import TestClient
 
 from app.settings import Settings
-from tests.api.helpers import answer, start
 from tests.support import people
-from tests.support.release import rebuild
+from tests.support.commands import rebuild
+from tests.support.episodes import play, start
 
 SLOT, SITUATION = "afternoon", "stretching"  # the helpers' event time and situation
 TEA = {"service": "ProvideDrink", "detail": "tea"}
@@ -38,7 +38,7 @@ def make_user(staff: TestClient, user_id: str = "chen") -> None:
     assert staff.put(f"/v1/users/{user_id}", json={}).status_code in (200, 201)
 
 
-def play(
+def meet(
     robot: TestClient,
     user_id: str,
     n: int,
@@ -49,20 +49,19 @@ def play(
     seed: int = 0,
     situation: str = SITUATION,
 ) -> list[list[dict[str, Any]]]:
-    """``n`` robot-initiated episodes of a person who wants ``need``; the decisions of each."""
+    """``n`` robot-initiated episodes of a person who wants ``need`` (and gives no feedback);
+    the decisions of each."""
     rng = random.Random(seed)
-    out = []
-    for i in range(n):
-        body = start(robot, user_id, f"{prefix}-{i}", situation=situation)
-        episode_id, decision = body["episode_id"], body["decision"]
-        steps = []
-        while decision is not None:
-            steps.append(decision)
-            said = people.answer(decision["action"], need=need, picky=picky, rng=rng)
-            said.pop("feedback", None)
-            decision = answer(robot, episode_id, decision["decision_id"], **said)["decision"]
-        out.append(steps)
-    return out
+
+    def person(decision: dict[str, Any]) -> dict[str, Any]:
+        said = people.answer(decision["action"], need=need, picky=picky, rng=rng)
+        said.pop("feedback", None)
+        return said
+
+    return [
+        play(robot, user_id, f"{prefix}-{i}", person, situation=situation).decisions
+        for i in range(n)
+    ]
 
 
 def kinds(steps: list[dict[str, Any]]) -> list[tuple[str, str | None, str | None]]:
@@ -140,7 +139,7 @@ class TestDecisions:
     def test_prefers_performs_without_asking(self, staff: TestClient, robot: TestClient) -> None:
         make_user(staff)
         assert staff.post("/v1/users/chen/corrections", json=correction("tea")).status_code == 201
-        episodes = play(robot, "chen", 30, "p", picky=False)
+        episodes = meet(robot, "chen", 30, "p", picky=False)
         direct = [
             k
             for k in map(kinds, episodes)
@@ -161,7 +160,7 @@ class TestDecisions:
         assert staff.post("/v1/users/chen/corrections", json=body).status_code == 201
         # a person who goes along with anything, and wants a drink: the robot must not offer
         # one (when it waits and the person asks for a drink by name, it serves the request)
-        episodes = play(robot, "chen", 25, "a", picky=False)
+        episodes = meet(robot, "chen", 25, "a", picky=False)
         offered = [k for k in map(kinds, episodes) if k[0][0] == "initiate"]
         assert all(k[1] != "ProvideDrink" for steps in offered for k in steps)
         # and its distributions there give a drink no chance on its own initiative
@@ -179,7 +178,7 @@ class TestDecisions:
         make_user(staff)
         body = correction("no-tea", kind="avoid", service="ProvideDrink", detail="tea")
         assert staff.post("/v1/users/chen/corrections", json=body).status_code == 201
-        episodes = play(robot, "chen", 25, "d", picky=False)
+        episodes = meet(robot, "chen", 25, "d", picky=False)
         assert all(
             k != ("perform", "ProvideDrink", "tea") for steps in episodes for k in kinds(steps)
         )
@@ -222,7 +221,7 @@ class TestDecisions:
         make_user(staff)
         assert staff.post("/v1/users/chen/corrections", json=correction("tea")).status_code == 201
         coffee = ("ProvideDrink", "coffee")
-        play(robot, "chen", 6, "w", need=coffee)  # turns tea down, asks for coffee
+        meet(robot, "chen", 6, "w", need=coffee)  # turns tea down, asks for coffee
         [item] = staff.get("/v1/users/chen/corrections").json()["items"]
         assert item["status"] == "overridden"
         assert item["overridden_at"] is not None
@@ -232,7 +231,7 @@ class TestDecisions:
         assert cell["changed"]["overrides"] == "tea"
         assert cell["changed"]["before"] == TEA
         # the robot no longer brings tea without asking nearly always
-        episodes = play(robot, "chen", 10, "w2", need=coffee, seed=1)
+        episodes = meet(robot, "chen", 10, "w2", need=coffee, seed=1)
         direct_tea = [k for k in map(kinds, episodes) if ("perform", "ProvideDrink", "tea") in k]
         assert len(direct_tea) < 9
 
@@ -242,17 +241,17 @@ class TestHistory:
         self, staff: TestClient, robot: TestClient, settings: Settings
     ) -> None:
         make_user(staff)
-        play(robot, "chen", 3, "h1")
+        meet(robot, "chen", 3, "h1")
         staff.post("/v1/users/chen/corrections", json=correction("tea"))
-        play(robot, "chen", 3, "h2", need=("ProvideDrink", "coffee"))
+        meet(robot, "chen", 3, "h2", need=("ProvideDrink", "coffee"))
         staff.post(
             "/v1/users/chen/corrections",
             json=correction("hush", kind="quiet", service=None, detail=None, time_slot="morning"),
         )
-        play(robot, "chen", 2, "h3")
+        meet(robot, "chen", 2, "h3")
         staff.delete("/v1/users/chen/corrections/hush")
-        play(robot, "chen", 2, "h4")
-        summary = rebuild(settings.database_url, "chen")
+        meet(robot, "chen", 2, "h4")
+        summary = rebuild(settings.database_url, "chen").summary
         assert summary["identical"] is True, summary
 
     def test_export_import_and_reset(
@@ -269,8 +268,8 @@ class TestHistory:
         assert _cell(robot.get("/v1/users/chen/profile").json())["source"] is None
         assert staff.put("/v1/users/chen/model", json=doc).status_code == 200
         assert _statuses(staff) == {"tea": "in_force"}
-        play(robot, "chen", 2, "e")
-        assert rebuild(settings.database_url, "chen")["identical"] is True
+        meet(robot, "chen", 2, "e")
+        assert rebuild(settings.database_url, "chen").summary["identical"] is True
 
     def test_bad_guidance_in_an_import_is_422(self, staff: TestClient) -> None:
         make_user(staff)

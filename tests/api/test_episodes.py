@@ -13,8 +13,7 @@ from fastapi.testclient import TestClient
 
 from tests.support import people
 from tests.support.contract import assert_error
-
-from .helpers import answer, event, start
+from tests.support.episodes import event, report, start
 
 EXPECTS = {
     "initiate": ["accepted", "rejected", "terminated"],
@@ -180,7 +179,7 @@ class TestStartEpisode:
         self, robot: TestClient
     ) -> None:
         first_r = robot.post("/v1/users/lin/episodes", json=event("e1")).json()
-        answer(
+        report(
             robot,
             first_r["episode_id"],
             first_r["decision"]["decision_id"],
@@ -333,7 +332,7 @@ class TestReportOutcome:
         body: dict[str, Any],
     ) -> None:
         ep = first(robot, kind, prefix=prefix, initiator=initiator, request=request_)
-        out = answer(robot, ep["episode_id"], ep["decision"]["decision_id"], **body)
+        out = report(robot, ep["episode_id"], ep["decision"]["decision_id"], **body)
         assert set(out) == {"reward", "episode", "decision"}
         assert set(out["episode"]) == {"episode_id", "status", "state", "total_reward"}
         assert out["episode"]["episode_id"] == ep["episode_id"]
@@ -537,7 +536,7 @@ class TestReportOutcome:
 
     def test_a_closed_episode_is_409(self, robot: TestClient) -> None:
         ep = start(robot, "lin", "e1", initiator="human", request=TEA)
-        out = answer(robot, ep["episode_id"], ep["decision"]["decision_id"], "rejected")
+        out = report(robot, ep["episode_id"], ep["decision"]["decision_id"], "rejected")
         assert out["decision"] is None
         before = snapshot(robot, ep)
         r = outcome(robot, ep["episode_id"], {"decision_id": "dec_later", "response": "accepted"})
@@ -563,7 +562,7 @@ class TestReportOutcome:
 
     def test_admin_may_answer_any_fleet(self, other_robot: TestClient, admin: TestClient) -> None:
         ep = start(other_robot, "far", "e1", initiator="human", request=TEA)
-        out = answer(admin, ep["episode_id"], ep["decision"]["decision_id"], "accepted")
+        out = report(admin, ep["episode_id"], ep["decision"]["decision_id"], "accepted")
         assert out["reward"] == 6.0
 
 
@@ -578,7 +577,7 @@ class TestRewards:
     )
     def test_initiate(self, robot: TestClient, response: str, reward: float) -> None:
         ep = first(robot, "initiate", prefix="i")
-        out = answer(robot, ep["episode_id"], ep["decision"]["decision_id"], response)
+        out = report(robot, ep["episode_id"], ep["decision"]["decision_id"], response)
         assert out["reward"] == reward
         assert out["episode"]["total_reward"] == reward
         if response == "accepted":
@@ -589,7 +588,7 @@ class TestRewards:
 
     def test_pass_none_is_0_and_closes(self, robot: TestClient) -> None:
         ep = first(robot, "pass", prefix="p")
-        out = answer(robot, ep["episode_id"], ep["decision"]["decision_id"], "none")
+        out = report(robot, ep["episode_id"], ep["decision"]["decision_id"], "none")
         assert out["reward"] == 0.0
         assert out["decision"] is None
         assert out["episode"] == {
@@ -601,7 +600,7 @@ class TestRewards:
 
     def test_pass_then_request_responds_first(self, robot: TestClient) -> None:
         ep = first(robot, "pass", prefix="p")
-        out = answer(robot, ep["episode_id"], ep["decision"]["decision_id"], "human_request", **TEA)
+        out = report(robot, ep["episode_id"], ep["decision"]["decision_id"], "human_request", **TEA)
         assert out["reward"] == 0.0
         assert out["decision"]["action"] == {"kind": "perform", **TEA}
         assert out["decision"]["chain"][0]["action"] == {
@@ -609,13 +608,13 @@ class TestRewards:
             "service": "ProvideDrink",
         }
         assert out["episode"]["total_reward"] == 1.0  # the silent respond step
-        done = answer(robot, ep["episode_id"], out["decision"]["decision_id"], "accepted")
+        done = report(robot, ep["episode_id"], out["decision"]["decision_id"], "accepted")
         assert done["episode"]["total_reward"] == 7.0
         assert robot.get(f"/v1/episodes/{ep['episode_id']}").json()["interaction_class"] == "I1"
 
     def test_query_answered_is_minus_half(self, robot: TestClient) -> None:
         ep = first(robot, "query_type", prefix="q", initiator="human")
-        out = answer(
+        out = report(
             robot,
             ep["episode_id"],
             ep["decision"]["decision_id"],
@@ -628,7 +627,7 @@ class TestRewards:
 
     def test_query_terminated_is_minus_two_and_a_half(self, robot: TestClient) -> None:
         ep = first(robot, "query_type", prefix="q", initiator="human")
-        out = answer(robot, ep["episode_id"], ep["decision"]["decision_id"], "terminated")
+        out = report(robot, ep["episode_id"], ep["decision"]["decision_id"], "terminated")
         assert out["reward"] == -2.5
         assert out["decision"] is None
         assert out["episode"]["status"] == "closed"
@@ -641,7 +640,7 @@ class TestRewards:
             initiator="human",
             request={"service": "ProvideDrink"},
         )
-        out = answer(
+        out = report(
             robot, ep["episode_id"], ep["decision"]["decision_id"], "answered", detail="water"
         )
         assert out["reward"] == -0.5
@@ -663,7 +662,7 @@ class TestRewards:
     )
     def test_perform(self, robot: TestClient, response: str, reward: float) -> None:
         ep = start(robot, "lin", "e1", initiator="human", request=TEA)
-        out = answer(robot, ep["episode_id"], ep["decision"]["decision_id"], response)
+        out = report(robot, ep["episode_id"], ep["decision"]["decision_id"], response)
         assert out["reward"] == reward
         assert out["episode"] == {
             "episode_id": ep["episode_id"],
@@ -678,7 +677,7 @@ class TestRewards:
         self, robot: TestClient, feedback: str, reward: float
     ) -> None:
         ep = start(robot, "lin", "e1", initiator="human", request=TEA)
-        out = answer(
+        out = report(
             robot, ep["episode_id"], ep["decision"]["decision_id"], "accepted", feedback=feedback
         )
         assert out["reward"] == reward
@@ -690,14 +689,14 @@ class TestRewards:
     def test_a_whole_robot_initiated_episode(self, robot: TestClient) -> None:
         ep = first(robot, "initiate", prefix="i")
         decision = ep["decision"]
-        out = answer(robot, ep["episode_id"], decision["decision_id"], "accepted")
+        out = report(robot, ep["episode_id"], decision["decision_id"], "accepted")
         expected = 1.0
         steps = 1
         while out["decision"] is not None:
             decision = out["decision"]
             check_decision(decision)
             body = positive(decision)
-            out = answer(
+            out = report(
                 robot,
                 ep["episode_id"],
                 decision["decision_id"],
@@ -717,7 +716,7 @@ class TestRewards:
 class TestFeedback:
     def _closed(self, robot: TestClient) -> dict[str, Any]:
         ep = start(robot, "lin", "e1", initiator="human", request=TEA)
-        answer(robot, ep["episode_id"], ep["decision"]["decision_id"], "accepted")
+        report(robot, ep["episode_id"], ep["decision"]["decision_id"], "accepted")
         return ep
 
     @pytest.mark.parametrize(("word", "reward"), [("positive", 1.0), ("negative", -2.0)])
@@ -780,7 +779,7 @@ class TestFeedback:
 
     def test_during_an_open_episode(self, robot: TestClient) -> None:
         ep = first(robot, "initiate", prefix="i")
-        answer(robot, ep["episode_id"], ep["decision"]["decision_id"], "accepted")
+        report(robot, ep["episode_id"], ep["decision"]["decision_id"], "accepted")
         v = version(robot, ep["user_id"])
         r = robot.post(
             f"/v1/episodes/{ep['episode_id']}/feedback",
@@ -892,7 +891,7 @@ class TestGetEpisode:
 
     def test_answered_decisions_carry_response_reward_and_time(self, robot: TestClient) -> None:
         ep = first(robot, "initiate", prefix="i")
-        out = answer(robot, ep["episode_id"], ep["decision"]["decision_id"], "accepted")
+        out = report(robot, ep["episode_id"], ep["decision"]["decision_id"], "accepted")
         trace = robot.get(f"/v1/episodes/{ep['episode_id']}").json()
         assert len(trace["decisions"]) == 2
         d0, d1 = trace["decisions"]
@@ -916,12 +915,12 @@ class TestGetEpisode:
     )
     def test_interaction_class(self, robot: TestClient, kind: str, response: str, cls: str) -> None:
         ep = first(robot, kind, prefix=kind[0])
-        answer(robot, ep["episode_id"], ep["decision"]["decision_id"], response)
+        report(robot, ep["episode_id"], ep["decision"]["decision_id"], response)
         assert robot.get(f"/v1/episodes/{ep['episode_id']}").json()["interaction_class"] == cls
 
     def test_human_initiated_is_i1_and_lists_the_request(self, robot: TestClient) -> None:
         ep = start(robot, "lin", "e1", initiator="human", request=TEA)
-        answer(robot, ep["episode_id"], ep["decision"]["decision_id"], "accepted")
+        report(robot, ep["episode_id"], ep["decision"]["decision_id"], "accepted")
         trace = robot.get(f"/v1/episodes/{ep['episode_id']}").json()
         assert trace["initiator"] == "human"
         assert trace["interaction_class"] == "I1"

@@ -42,9 +42,8 @@ from fastapi.testclient import TestClient
 from app.console.auth import COOKIE, csrf_token
 from app.learning import office_mission
 from tests.support.contract import assert_error
+from tests.support.episodes import event
 from tests.support.fixtures import MakeKey, WorkerDatabases
-
-from .helpers import event
 
 A, B = "fleet-a", "fleet-b"
 PRINCIPALS = ("none", "revoked", "robot_a", "robot_b", "staff_a", "staff_b", "admin")

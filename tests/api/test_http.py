@@ -13,9 +13,8 @@ from fastapi import FastAPI
 from fastapi.testclient import TestClient
 
 from tests.support.contract import assert_error
+from tests.support.episodes import event, start
 from tests.support.fixtures import MakeKey
-
-from .helpers import event, start
 
 TEA = {"service": "ProvideDrink", "detail": "tea"}
 # Headers that differ between two answers to the same request, whatever the method.

@@ -13,9 +13,8 @@ from app.db.models import Episode
 from app.db.session import Database
 from app.settings import Settings
 from tests.support import people
+from tests.support.episodes import report, start
 from tests.support.rows import user_pk
-
-from .helpers import answer, start
 
 
 def _play(robot: TestClient, user: str, n: int, prefix: str) -> None:
@@ -23,7 +22,7 @@ def _play(robot: TestClient, user: str, n: int, prefix: str) -> None:
         ep = start(robot, user, f"{prefix}{i}")
         decision = ep["decision"]
         while decision is not None:  # a person who wants nothing
-            decision = answer(
+            decision = report(
                 robot,
                 ep["episode_id"],
                 decision["decision_id"],

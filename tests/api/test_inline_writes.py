@@ -19,10 +19,9 @@ from sqlalchemy import func, select
 
 from app.db.models import Decision
 from app.db.session import Database
+from tests.support.episodes import event
 from tests.support.fixtures import MakeKey
 from tests.support.live import serving
-
-from .helpers import event
 
 
 @contextmanager

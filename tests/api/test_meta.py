@@ -22,8 +22,7 @@ from app.main import create_app
 from app.settings import Settings
 from tests.support import people
 from tests.support.contract import assert_error
-
-from .helpers import answer, start
+from tests.support.episodes import report, start
 
 TOKEN = "metrics-token-of-the-tests-0123456789"
 
@@ -134,7 +133,7 @@ class TestMetrics:
             initiator="human",
             request={"service": "ProvideDrink", "detail": "tea"},
         )
-        answer(robot, ep["episode_id"], ep["decision"]["decision_id"], "accepted")
+        report(robot, ep["episode_id"], ep["decision"]["decision_id"], "accepted")
         robot.get("/v1/users/nobody")
         r = client.get("/metrics")
         assert r.status_code == 200
@@ -185,7 +184,7 @@ def _play(robot: TestClient, user: str, event_id: str, need: people.Need | None)
     ep = start(robot, user, event_id)
     decision = ep["decision"]
     for _ in range(20):
-        out = answer(
+        out = report(
             robot,
             ep["episode_id"],
             decision["decision_id"],
@@ -340,7 +339,7 @@ class TestRoundTrips:
             if request == "start":
                 ep = start(robot, "lin", "e1")
             else:
-                answer(robot, ep["episode_id"], ep["decision"]["decision_id"], "rejected")
+                report(robot, ep["episode_id"], ep["decision"]["decision_id"], "rejected")
             counted = (
                 _sample(app, "attune_db_round_trips_total", {"route": route}) or 0.0
             ) - before

@@ -31,8 +31,9 @@ from app.learning.learners import TabularLearner
 from app.learning.simulation import UserProfile, event_stream, random_profile
 from app.services import audit as audit_service
 from app.services.models import rebuild_model
+from tests.support.episodes import play
 from tests.support.office import MISSION as OFFICE
-from tests.support.people import Need, answer
+from tests.support.people import Need, person
 
 pytestmark = [pytest.mark.slow]
 
@@ -130,7 +131,7 @@ def occurred_at(mission: Mission, slot: str, day: int) -> str:
     return local.strftime("%Y-%m-%dT%H:%M:%S") + "+00:00"
 
 
-def play(
+def episode_in(
     client: TestClient,
     user_id: str,
     event_id: str,
@@ -143,37 +144,22 @@ def play(
     """One robot-initiated episode in ``context``; the person with ``need`` answers as
     ``tests/support/people.py`` does. The (action, response) of every decision."""
     slot, situation = mission.context_names(context)
-    r = client.post(
-        f"/v1/users/{user_id}/episodes",
-        json={
-            "event_id": event_id,
-            "occurred_at": occurred_at(mission, slot, day),
-            "situation": situation,
-            "initiator": "robot",
-            "request": None,
-            "robot_id": "r1",
-        },
-    )
-    assert r.status_code == 201, r.text
-    ep = r.json()
-    decision, steps = ep["decision"], []
-    while decision is not None:
-        fields = answer(
-            decision["action"],
+    played = play(
+        client,
+        user_id,
+        event_id,
+        person(
             need=need,
             rng=rng,
             yes=0.95,
             asks=0.5,
             busy=situation in mission.unavailable_situations,
-        )
-        r = client.post(
-            f"/v1/episodes/{ep['episode_id']}/outcomes",
-            json={"decision_id": decision["decision_id"], **fields},
-        )
-        assert r.status_code == 200, r.text
-        steps.append((decision["action"], fields["response"]))
-        decision = r.json()["decision"]
-    return steps
+        ),
+        situation=situation,
+        occurred_at=occurred_at(mission, slot, day),
+        robot_id="r1",
+    )
+    return [(step.decision["action"], step.said["response"]) for step in played.steps]
 
 
 def named(mission: Mission, profile: UserProfile, context: int) -> Need | None:
@@ -190,7 +176,7 @@ def train(client: TestClient, user_id: str, n: int, seed: int) -> UserProfile:
     contexts = event_stream([profile], [0], OFFICE, n, gen)
     rng = random.Random(seed)
     for e, c in enumerate(contexts):
-        play(
+        episode_in(
             client,
             user_id,
             f"{user_id}-e{e:02d}",
@@ -367,7 +353,7 @@ def test_a_mission_change_keeps_what_it_did_not_reach(
     rng = random.Random(7)
     served_at = None
     for e in range(15):
-        steps = play(
+        steps = episode_in(
             robot, uid, f"{uid}-cocoa{e:02d}", NEW, where, ("ProvideDrink", "cocoa"), 50 + e, rng
         )
         if ({"kind": "perform", "service": "ProvideDrink", "detail": "cocoa"}, "accepted") in steps:

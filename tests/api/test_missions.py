@@ -18,9 +18,8 @@ from app.services import audit as audit_service
 from app.services.missions import LIMITS
 from app.services.models import rebuild_model
 from tests.support.contract import assert_error
-from tests.support.people import Need, answer
-
-from .helpers import EVENT_TIME, start
+from tests.support.episodes import play, start
+from tests.support.people import Need, person
 
 OFFICE = office_mission()
 Edit = Callable[[dict[str, Any]], None]
@@ -146,43 +145,6 @@ def detail_names(view: dict[str, Any]) -> set[str]:
     }
 
 
-def play(
-    client: TestClient,
-    user_id: str,
-    event_id: str,
-    need: Need | None,
-    *,
-    situation: str = "stretching",
-    occurred_at: str = EVENT_TIME,
-    rng: random.Random | None = None,
-    asks: bool = False,
-) -> dict[str, Any]:
-    """One episode, the person answering as ``tests/support/people.py`` does; robot-initiated,
-    or (``asks``) the person asks for the need's service without naming the detail. The last
-    outcome's answer."""
-    request = {"service": need[0]} if asks and need is not None else None
-    ep = start(
-        client,
-        user_id,
-        event_id,
-        situation=situation,
-        occurred_at=occurred_at,
-        initiator="human" if request else "robot",
-        request=request,
-    )
-    decision, out = ep["decision"], ep
-    while decision is not None:
-        fields = answer(decision["action"], need=need, rng=rng)
-        r = client.post(
-            f"/v1/episodes/{ep['episode_id']}/outcomes",
-            json={"decision_id": decision["decision_id"], **fields},
-        )
-        assert r.status_code == 200, r.text
-        out = r.json()
-        decision = out["decision"]
-    return out
-
-
 def served(
     client: TestClient, user_id: str, event_id: str, service: str, detail: str
 ) -> dict[str, Any]:
@@ -210,7 +172,7 @@ def train(
     prefix: str = "t",
 ) -> None:
     for i in range(n):
-        play(client, user_id, f"{user_id}-{prefix}{i}", need)
+        play(client, user_id, f"{user_id}-{prefix}{i}", person(need=need))
 
 
 # -- reading the mission -----------------------------------------------------------------------
@@ -617,7 +579,14 @@ class TestChangeMission:
     def test_renames_carry_statistics(self, staff: TestClient, robot: TestClient) -> None:
         change(staff, office(tea_is_cha), "v1")
         for i in range(8):
-            play(robot, "lin", f"e{i}", ("ProvideDrink", "cha"), asks=True)
+            play(  # she asks for a drink, without naming it
+                robot,
+                "lin",
+                f"e{i}",
+                person(need=("ProvideDrink", "cha")),
+                initiator="human",
+                request={"service": "ProvideDrink"},
+            )
         before = model(robot, "lin")
         infer_cha = [
             b
@@ -693,7 +662,7 @@ class TestChangeMission:
         open_one = start(robot, "bo", "bo-open")
         change(staff, office(add_cocoa), "c1")
         for i in range(4):
-            play(robot, "lin", f"lin-mid{i}", ("ProvideDrink", "cocoa"), rng=rng)
+            play(robot, "lin", f"lin-mid{i}", person(need=("ProvideDrink", "cocoa"), rng=rng))
         robot.post(
             f"/v1/episodes/{first['episode_id']}/feedback",
             json={"feedback_id": "f1", "feedback": "positive"},
@@ -709,7 +678,7 @@ class TestChangeMission:
             json={"feedback_id": "f2", "feedback": "negative"},
         )
         for uid in ("lin", "bo"):
-            play(robot, uid, f"{uid}-late", ("ProvideDrink", "cha"))
+            play(robot, uid, f"{uid}-late", person(need=("ProvideDrink", "cha")))
         assert open_one["mission_version"] == 1
         ctx = app.state.ctx
         for uid in ("lin", "bo"):

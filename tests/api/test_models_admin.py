@@ -9,8 +9,7 @@ import pytest
 from fastapi.testclient import TestClient
 
 from tests.support.contract import assert_error
-
-from .helpers import answer, start
+from tests.support.episodes import report, start
 
 TEA = {"service": "ProvideDrink", "detail": "tea"}
 ACTION_KEYS = {"action", "q", "visits", "kept_visits", "since_last", "measure", "p"}
@@ -41,7 +40,7 @@ def served(
 ) -> dict[str, Any]:
     """A closed human-initiated episode (tea performed, then ``response``)."""
     ep = start(client, user_id, event_id, initiator="human", request=TEA)
-    return answer(client, ep["episode_id"], ep["decision"]["decision_id"], response)
+    return report(client, ep["episode_id"], ep["decision"]["decision_id"], response)
 
 
 def finish(client: TestClient, ep: dict[str, Any]) -> tuple[float, int, bool, str]:
@@ -64,7 +63,7 @@ def finish(client: TestClient, ep: dict[str, Any]) -> tuple[float, int, bool, st
             response, extra = "answered", {"detail": "tea"}
         else:
             response = "accepted"
-        out = answer(client, ep["episode_id"], decision["decision_id"], response, **extra)
+        out = report(client, ep["episode_id"], decision["decision_id"], response, **extra)
         total = out["episode"]["total_reward"]
         decision = out["decision"]
     return total, queries, ep["state"] == "OBSERVE" and first_kind == "initiate", first_kind
@@ -157,7 +156,7 @@ class TestGetModel:
         while decision is not None:
             kind = decision["action"]["kind"]
             extra = {"detail": "tea"} if kind == "query_detail" else {}
-            out = answer(
+            out = report(
                 robot,
                 ep["episode_id"],
                 decision["decision_id"],

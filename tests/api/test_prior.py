@@ -17,10 +17,10 @@ from fastapi import FastAPI
 from fastapi.testclient import TestClient
 
 from app.settings import Settings
+from tests.support.commands import rebuild
 from tests.support.contract import assert_error
 from tests.support.fixtures import MakeKey
 from tests.support.people import TEA, answer
-from tests.support.release import rebuild
 
 SLOT, SITUATION = "afternoon", "stretching"
 AFTERNOON = "2026-11-22T15:10:00+08:00"
@@ -102,7 +102,7 @@ class TestNewcomers:
         for n in range(4):
             serve(staff, "dora", f"dora-{n}")
         assert started_from(staff, "dora")["kind"] == "fleet_prior"
-        summary = rebuild(settings.database_url, "dora")
+        summary = rebuild(settings.database_url, "dora").summary
         assert summary["identical"] is True, summary
 
     def test_a_first_episode_makes_the_user_from_the_prior(self, robot: TestClient) -> None:

@@ -10,8 +10,8 @@ from typing import Any
 
 from fastapi.testclient import TestClient
 
-from tests.api.helpers import start
-from tests.api.test_corrections import SITUATION, SLOT, TEA, _cell, make_user, play
+from tests.api.test_corrections import SITUATION, SLOT, TEA, _cell, make_user, meet
+from tests.support.episodes import start
 
 
 def test_a_routine_becomes_confident(staff: TestClient, robot: TestClient) -> None:
@@ -32,7 +32,7 @@ def test_a_routine_becomes_confident(staff: TestClient, robot: TestClient) -> No
     assert "may want tea" in one["summary"]
     assert "tentative" in one["summary"]
 
-    play(robot, "chen", 14, "more", seed=3)
+    meet(robot, "chen", 14, "more", seed=3)
     cell = _cell(robot.get("/v1/users/chen/profile").json())
     assert cell["wants"] == TEA
     assert cell["certainty"] == "confident"
@@ -54,7 +54,7 @@ def test_a_routine_becomes_confident(staff: TestClient, robot: TestClient) -> No
 
 def test_counts_times_and_the_model_agree(staff: TestClient, robot: TestClient) -> None:
     make_user(staff)
-    play(robot, "chen", 3, "done")
+    meet(robot, "chen", 3, "done")
     start(robot, "chen", "open-one")  # left open
     profile = robot.get("/v1/users/chen/profile").json()
     cell = _cell(profile)
@@ -87,8 +87,8 @@ def test_counts_times_and_the_model_agree(staff: TestClient, robot: TestClient) 
 
 def test_a_change_of_mind_is_reported(staff: TestClient, robot: TestClient) -> None:
     make_user(staff)
-    play(robot, "chen", 8, "tea")
-    play(robot, "chen", 2, "coffee", need=("ProvideDrink", "coffee"), seed=5)
+    meet(robot, "chen", 8, "tea")
+    meet(robot, "chen", 2, "coffee", need=("ProvideDrink", "coffee"), seed=5)
     cell = _cell(robot.get("/v1/users/chen/profile").json())
     assert cell["wants"] == {"service": "ProvideDrink", "detail": "coffee"}
     assert cell["certainty"] == "tentative"
@@ -101,11 +101,11 @@ def test_a_change_of_mind_is_reported(staff: TestClient, robot: TestClient) -> N
 
 def test_a_change_of_mind_is_reported_while_recent(staff: TestClient, robot: TestClient) -> None:
     make_user(staff)
-    play(robot, "chen", 8, "tea")
-    play(robot, "chen", 2, "coffee", need=("ProvideDrink", "coffee"), seed=5)
+    meet(robot, "chen", 8, "tea")
+    meet(robot, "chen", 2, "coffee", need=("ProvideDrink", "coffee"), seed=5)
     assert _cell(robot.get("/v1/users/chen/profile").json())["changed"] is not None
     # once the episode it began with is no longer among the latest 8 there, it is old news
-    play(robot, "chen", 8, "more-coffee", need=("ProvideDrink", "coffee"), seed=6)
+    meet(robot, "chen", 8, "more-coffee", need=("ProvideDrink", "coffee"), seed=6)
     cell = _cell(robot.get("/v1/users/chen/profile").json())
     assert cell["wants"] == {"service": "ProvideDrink", "detail": "coffee"}
     assert cell["changed"] is None

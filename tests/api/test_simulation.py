@@ -9,11 +9,8 @@ checks that the service's stats, traces and model agree with that record, and th
 from __future__ import annotations
 
 import datetime as dt
-import gc
 import itertools
-import json
 import time
-import warnings
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -21,9 +18,7 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 from sqlalchemy import select
-from typer.testing import CliRunner
 
-from app import cli
 from app.db.models import Decision, Episode
 from app.db.session import Database
 from app.fleet.simulate import state_before
@@ -39,6 +34,7 @@ from app.learning.simulation import (
     respond,
 )
 from app.settings import Settings
+from tests.support.commands import rebuild
 from tests.support.rows import user_pk
 
 MISSION = office_mission()
@@ -338,26 +334,8 @@ def stored_steps(db: Database, user_id: str) -> tuple[int, int, int]:
         )
 
 
-def rebuild(settings: Settings, user_id: str) -> tuple[int, dict[str, Any]]:
-    """``attune models rebuild USER_ID``: (exit code, its JSON summary line)."""
-    result = CliRunner().invoke(
-        cli.app,
-        ["models", "rebuild", user_id],
-        env={"ATTUNE_DATABASE_URL": settings.database_url, "ATTUNE_SEED": "0"},
-    )
-    # The command leaves its engine's connections to the garbage collector (a process that ends
-    # closes them); collect them here, quietly, rather than in whichever test runs next.
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", ResourceWarning)
-        gc.collect()
-    lines = [ln for ln in result.stdout.splitlines() if ln.startswith("{")]
-    assert lines, (result.exit_code, result.output, result.exception)
-    summary: dict[str, Any] = json.loads(lines[-1])
-    return result.exit_code, summary
-
-
 def check_rebuild(settings: Settings, user_id: str, decisions: int) -> None:
-    code, summary = rebuild(settings, user_id)
+    code, summary = rebuild(settings.database_url, user_id)
     assert summary["identical"] is True, summary
     assert code == 0, summary
     assert summary["mismatched_decisions"] == []
@@ -552,5 +530,5 @@ def test_feedback_on_an_episode_before_a_reset_leaves_the_fresh_model_alone(
         "the fresh model took feedback on an episode it never saw"
     )
     assert after["contexts"] == model["contexts"]
-    code, summary = rebuild(settings, uid)
+    code, summary = rebuild(settings.database_url, uid)
     assert code == 0, summary

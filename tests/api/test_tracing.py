@@ -23,9 +23,8 @@ from app.main import create_app
 from app.services.auth import create_key
 from app.settings import Settings
 from tests.support.contract import assert_error
+from tests.support.episodes import event
 from tests.support.live import serving
-
-from .helpers import event
 
 # Request ids and log lines: the same on both engines.
 pytestmark = pytest.mark.one_engine

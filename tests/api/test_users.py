@@ -9,8 +9,7 @@ from fastapi.testclient import TestClient
 
 from app.learning import DtsAdaptParams
 from tests.support.contract import assert_error
-
-from .helpers import answer, start
+from tests.support.episodes import report, start
 
 
 class TestPutUser:
@@ -165,7 +164,7 @@ class TestPutUser:
 
     def test_reset_model_true_allows_the_change_and_keeps_history(self, robot: TestClient) -> None:
         ep = start(robot, "lin", "e1")
-        answer(
+        report(
             robot,
             ep["episode_id"],
             ep["decision"]["decision_id"],

@@ -25,7 +25,7 @@ from app.services.auth import create_key, revoke_key
 from app.settings import Settings
 from tests.support.live import LiveService, fresh_database
 
-from .people import Person, play
+from .people import Person, meet
 
 REPO = Path(__file__).resolve().parents[2]
 OUTPUT = Path(os.environ.get("ATTUNE_TEST_OUTPUT") or REPO / "test-output") / "browser"
@@ -105,16 +105,16 @@ def _seed(client: httpx.Client) -> None:
         assert r.status_code in (200, 201), r.text
 
     put("lin", display_name="Mrs. Lin", learner={"algorithm": "hri"})  # the views of HRI
-    play(client, "lin", Person(LIN_NEEDS), 60, prefix="lin")
+    meet(client, "lin", Person(LIN_NEEDS), 60, prefix="lin")
     put("chen", display_name="Mr. Chen", learner={"algorithm": "dts"})
-    play(
+    meet(
         client, "chen", Person({("noon", "working"): ("ProvideDrink", "coffee")}), 30, prefix="chen"
     )
     for viewport in VIEWPORTS:
         put(f"reset-{viewport}", display_name="Reset me")
-        play(client, f"reset-{viewport}", Person(LIN_NEEDS), 12, prefix="r")
+        meet(client, f"reset-{viewport}", Person(LIN_NEEDS), 12, prefix="r")
         put(f"gone-{viewport}", display_name="Delete me")
-        play(client, f"gone-{viewport}", Person(LIN_NEEDS), 3, prefix="g")
+        meet(client, f"gone-{viewport}", Person(LIN_NEEDS), 3, prefix="g")
     learners = ("hri", "rmax", "qlearning", "dts")
     for i in range(30):
         put(f"pager-{i:02d}", learner={"algorithm": learners[i % 4]})

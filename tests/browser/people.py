@@ -10,7 +10,8 @@ from typing import Any
 
 import httpx
 
-from tests.support import people
+from tests.support import episodes, people
+from tests.support.episodes import play
 
 HOURS = {"morning": 9, "noon": 12, "afternoon": 15, "evening": 19}  # local hours inside each slot
 SITUATIONS = ("arriving", "working", "stretching", "busy")
@@ -35,9 +36,9 @@ class Person:
             return self.rnd.choice(sorted(self.needs))
         return self.rnd.choice(sorted(HOURS)), self.rnd.choice(SITUATIONS)
 
-    def respond(self, context: tuple[str, str], action: dict[str, Any]) -> dict[str, Any]:
-        return people.answer(
-            action,
+    def at(self, context: tuple[str, str]) -> episodes.Person:
+        """The person in ``context`` (time slot, situation), as ``play`` takes one."""
+        return people.person(
             need=self.needs.get(context),
             busy=context[1] == "busy",
             rng=self.rnd,
@@ -47,36 +48,26 @@ class Person:
         )
 
 
-def play(client: httpx.Client, user_id: str, person: Person, episodes: int, *, prefix: str) -> None:
-    """Run ``episodes`` events of ``person`` through the API, each until it closes."""
+def meet(client: httpx.Client, user_id: str, person: Person, episodes: int, *, prefix: str) -> None:
+    """``episodes`` events of ``person`` through the API, each until it closes; now and then the
+    person addresses the robot first, and now and then frowns after."""
     for n in range(episodes):
         slot, situation = person.event()
         need = person.needs.get((slot, situation))
         human = need is not None and situation != "busy" and person.rnd.random() < 0.15
-        body: dict[str, Any] = {
-            "event_id": f"{prefix}-{n}",
-            "situation": situation,
-            "robot_id": "robot7",
-            "occurred_at": f"2026-11-{1 + n // 24:02d}T{HOURS[slot]:02d}:{n % 60:02d}:00+08:00",
-            "initiator": "human" if human else "robot",
-        }
-        if human and need is not None:
-            body["request"] = {"service": need[0], "detail": need[1]}
-        r = client.post(f"/v1/users/{user_id}/episodes", json=body)
-        assert r.status_code == 201, r.text
-        episode = r.json()
-        decision = episode["decision"]
-        while decision is not None:
-            answer = person.respond((slot, situation), decision["action"])
-            r = client.post(
-                f"/v1/episodes/{episode['episode_id']}/outcomes",
-                json={"decision_id": decision["decision_id"], **answer},
-            )
-            assert r.status_code == 200, r.text
-            decision = r.json()["decision"]
+        played = play(
+            client,
+            user_id,
+            f"{prefix}-{n}",
+            person.at((slot, situation)),
+            situation=situation,
+            occurred_at=f"2026-11-{1 + n // 24:02d}T{HOURS[slot]:02d}:{n % 60:02d}:00+08:00",
+            initiator="human" if human else "robot",
+            request={"service": need[0], "detail": need[1]} if human and need is not None else None,
+        )
         if person.rnd.random() < 0.1:
             r = client.post(
-                f"/v1/episodes/{episode['episode_id']}/feedback",
+                f"/v1/episodes/{played.episode_id}/feedback",
                 json={"feedback_id": f"{prefix}-fb-{n}", "feedback": "negative"},
             )
             assert r.status_code == 200, r.text

@@ -11,7 +11,7 @@ from playwright.sync_api import Page, expect
 from app.services.auth import create_key
 
 from .conftest import Shot, Site, sign_in
-from .people import Person, play
+from .people import Person, meet
 
 pytestmark = [pytest.mark.browser, pytest.mark.xdist_group("browser")]
 
@@ -49,7 +49,7 @@ def _fleet(site: Site, fleet: str) -> tuple[str, str]:
         base_url=site.url, timeout=30, headers={"Authorization": f"Bearer {robot}"}
     ) as api:
         assert api.put("/v1/users/ada", json={"display_name": "Ada"}).status_code == 201
-        play(api, "ada", Person({("morning", "working"): ("ProvideDrink", "tea")}), 6, prefix="ada")
+        meet(api, "ada", Person({("morning", "working"): ("ProvideDrink", "tea")}), 6, prefix="ada")
         r = api.post(
             "/v1/users/ada/episodes",
             json={

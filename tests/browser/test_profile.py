@@ -13,7 +13,7 @@ import pytest
 from playwright.sync_api import Page, expect
 
 from .conftest import LIN_NEEDS, Shot, Site
-from .people import HOURS, Person, play
+from .people import HOURS, Person, meet
 from .test_mission import _check_basics
 
 pytestmark = [pytest.mark.browser, pytest.mark.xdist_group("browser")]
@@ -35,7 +35,7 @@ def _person(site: Site, user_id: str) -> None:
             return
         r = robot.put(f"/v1/users/{user_id}", json={"display_name": "Mrs. Wu"})
         assert r.status_code == 201, r.text
-        play(robot, user_id, Person(dict(LIN_NEEDS)), 40, prefix=user_id)
+        meet(robot, user_id, Person(dict(LIN_NEEDS)), 40, prefix=user_id)
 
 
 def _words(wanted: dict[str, Any]) -> str:

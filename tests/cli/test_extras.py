@@ -15,11 +15,19 @@ import typer
 from typer.testing import CliRunner
 
 from app.cli import app
-from app.commands._extras import require
+from app.commands._extras import install_command, missing_extra_message, require
 
-FLEET = "attune fleet needs the 'fleet' extra: pip install 'attune[fleet]'\n"
-PLOT = "attune fleet simulate --plot needs the 'fleet' extra: pip install 'attune[fleet]'\n"
-EXPERIMENTS = "attune experiment needs the 'experiments' extra: pip install 'attune[experiments]'\n"
+# The install from the clone's folder: "attune" on PyPI is another project, and the client is on
+# no package index, so pip must be given its folder (README, "With pip").
+CLONE = "in the folder of the Attune clone, run"
+FLEET = f"attune fleet needs the 'fleet' extra: {CLONE} pip install ./clients/python '.[fleet]'\n"
+PLOT = (
+    "attune fleet simulate --plot needs the 'fleet' extra: "
+    f"{CLONE} pip install ./clients/python '.[fleet]'\n"
+)
+EXPERIMENTS = (
+    f"attune experiment needs the 'experiments' extra: {CLONE} pip install '.[experiments]'\n"
+)
 NOBODY = "http://127.0.0.1:9"  # nothing listens there: the command must stop before connecting
 
 
@@ -30,6 +38,20 @@ def without(monkeypatch: pytest.MonkeyPatch, *modules: str) -> None:
 
 def test_require_passes_when_the_module_imports() -> None:
     require("json", "fleet", "attune fleet")
+
+
+def test_the_install_commands_are_the_readmes() -> None:
+    """Each extra's command is the one the README's "With pip" section gives."""
+    readme = (Path(__file__).resolve().parents[2] / "README.md").read_text(encoding="utf-8")
+    with_pip = readme.split("### With pip", 1)[1].split("\n## ", 1)[0]
+    assert install_command("fleet") == "pip install ./clients/python '.[fleet]'"
+    assert install_command("dev") == "pip install ./clients/python '.[dev]'"
+    assert install_command("experiments") == "pip install '.[experiments]'"
+    for extra in ("fleet", "experiments"):
+        assert f"`{extra}`" in with_pip
+    for extra in ("fleet", "experiments"):
+        assert f"`{install_command(extra)}`" in with_pip, extra
+    assert "attune[" not in missing_extra_message("fleet", "attune fleet")
 
 
 def test_require_names_the_extra_and_exits_2(

@@ -1,23 +1,12 @@
-"""What a simulated person answers, shared by the client's tests against the real service."""
+"""Event times of the client's tests against the real service."""
 
 from __future__ import annotations
 
 import datetime as dt
-import random
-from typing import Any
 
-from attune_client import Decision
+from tests.support.episodes import EVENT_TIME
 
-from tests.support import people
-
-EVENT_TIME = "2026-11-22T15:10:00+08:00"  # afternoon, local time
-
-
-def answer(decision: Decision, n: int = 0) -> dict[str, Any]:
-    """Keyword arguments of ``report_outcome`` for a cooperative person; ``n`` varies the
-    answers a little (a person who says no, stays silent, or asks for something themselves),
-    always the same for the same ``n``."""
-    return people.answer(decision.action, picky=False, rng=random.Random(n), yes=0.8, asks=0.7)
+__all__ = ["EVENT_TIME", "occurred"]
 
 
 def occurred(n: int) -> str:

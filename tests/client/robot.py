@@ -42,7 +42,9 @@ from attune_client import (
 )
 from attune_client._retry import Backoff
 
-from tests.client.helpers import answer  # the repository's root is on the path (editable install)
+from tests.support.people import (
+    cooperative,  # the repository's root is on the path (editable install)
+)
 
 USERS = ("ana", "ben", "cy")
 SMILES = 2  # feedback a person gives while the robot waits for an outcome to be delivered
@@ -219,7 +221,7 @@ class Robot:
                     user,
                     episode_id=person["episode_id"],
                     decision_id=decision.decision_id,
-                    **answer(decision, person["event"] + person["step"]),
+                    **cooperative(decision.action, person["event"] + person["step"]),
                 )
             elif person["waiting"] is not None:
                 if person["smiles"] < SMILES:

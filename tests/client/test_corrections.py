@@ -5,6 +5,8 @@ raises for what the service refuses. Async and sync clients."""
 
 from __future__ import annotations
 
+from typing import Any
+
 import attune_client as a
 import httpx
 import pytest
@@ -169,7 +171,7 @@ async def test_the_person_overrides_a_preference(
         decision = started.decision
         while decision is not None:
             kind = decision.action.kind
-            said: dict[str, str] = {"response": "rejected"}
+            said: dict[str, Any] = {"response": "rejected"}
             if kind == "pass":
                 said = {"response": "none"}
             elif kind == "query_type":

@@ -13,9 +13,10 @@ import pytest
 from fastapi import FastAPI
 
 from tests.support.fixtures import MakeKey
+from tests.support.people import cooperative
 
 from .conftest import BASE_URL, PortalTransport, SwitchTransport, fast
-from .helpers import EVENT_TIME, answer, occurred
+from .helpers import EVENT_TIME, occurred
 
 pytestmark = pytest.mark.anyio
 
@@ -38,7 +39,7 @@ async def play(
     decision = started.decision
     while decision is not None:
         result = await client.report_outcome(
-            started.episode_id, decision_id=decision.decision_id, **answer(decision, n)
+            started.episode_id, decision_id=decision.decision_id, **cooperative(decision.action, n)
         )
         assert isinstance(result, a.OutcomeResult)
         results.append(result)
@@ -122,7 +123,7 @@ class TestContract:
         assert again.replayed
         assert again.model_dump(exclude={"replayed"}) == first.model_dump(exclude={"replayed"})
         assert first.decision is not None
-        outcome = answer(first.decision)
+        outcome = cooperative(first.decision.action)
         one = await robot.report_outcome(
             first.episode_id, decision_id=first.decision.decision_id, **outcome
         )
@@ -258,7 +259,9 @@ class TestErrors:
             "lin", event_id="e2", occurred_at=EVENT_TIME, situation="stretching"
         )
         assert started.decision is not None
-        wrong = "answered" if started.decision.action.kind in ("initiate", "pass") else "none"
+        wrong: a.OutcomeResponse = (
+            "answered" if started.decision.action.kind in ("initiate", "pass") else "none"
+        )
         with pytest.raises(a.UnprocessableEntityError) as caught:
             await robot.report_outcome(
                 started.episode_id, decision_id=started.decision.decision_id, response=wrong
@@ -294,7 +297,7 @@ class TestOutbox:
                 await client.report_outcome(
                     second.episode_id,
                     decision_id=second.decision.decision_id,
-                    **answer(second.decision),
+                    **cooperative(second.decision.action),
                 ),
                 await client.send_feedback(
                     closed.episode_id, feedback_id="fb-3", feedback="negative"
@@ -307,7 +310,7 @@ class TestOutbox:
                 await client.report_outcome(
                     first.episode_id,
                     decision_id=first.decision.decision_id,
-                    **answer(first.decision),
+                    **cooperative(first.decision.action),
                 ),
             ]
             assert [m.position for m in made if isinstance(m, a.Queued)] == [1, 2, 3, 4]
@@ -353,7 +356,9 @@ class TestSyncClient:
         n = 0
         while decision is not None:
             result = sync_robot.report_outcome(
-                started.episode_id, decision_id=decision.decision_id, **answer(decision, n)
+                started.episode_id,
+                decision_id=decision.decision_id,
+                **cooperative(decision.action, n),
             )
             assert isinstance(result, a.OutcomeResult)
             decision = result.decision
@@ -380,7 +385,7 @@ class TestSyncClient:
             queued = robot.report_outcome(
                 started.episode_id,
                 decision_id=started.decision.decision_id,
-                **answer(started.decision),
+                **cooperative(started.decision.action),
             )
             assert isinstance(queued, a.Queued)
         portal.down = False

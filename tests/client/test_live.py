@@ -19,8 +19,9 @@ from app.db.session import Database
 from app.services.auth import create_key
 from app.settings import Settings
 from tests.support.live import LiveService, fresh_database
+from tests.support.people import cooperative
 
-from .helpers import EVENT_TIME, answer
+from .helpers import EVENT_TIME
 
 pytestmark = pytest.mark.live
 
@@ -76,7 +77,7 @@ def test_the_contract_over_http(live: LiveService) -> None:
         ).replayed
         decision, n = started.decision, 0
         while decision is not None:
-            kwargs = answer(decision, n)
+            kwargs = cooperative(decision.action, n)
             result = robot.report_outcome(
                 started.episode_id, decision_id=decision.decision_id, **kwargs
             )

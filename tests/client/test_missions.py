@@ -15,9 +15,10 @@ from fastapi import FastAPI
 
 from app.learning import load_mission
 from tests.support.fixtures import MakeKey
+from tests.support.people import cooperative
 
 from .conftest import BASE_URL, PortalTransport, SwitchTransport, fast
-from .helpers import EVENT_TIME, answer
+from .helpers import EVENT_TIME
 
 pytestmark = pytest.mark.anyio
 
@@ -116,7 +117,9 @@ async def test_an_interrupted_outcome_raises_at_once(
     assert changed.episodes_interrupted == 1
     with pytest.raises(a.EpisodeInterruptedError) as caught:
         await robot.report_outcome(
-            started.episode_id, decision_id=started.decision.decision_id, **answer(started.decision)
+            started.episode_id,
+            decision_id=started.decision.decision_id,
+            **cooperative(started.decision.action),
         )
     assert caught.value.status_code == 409
     trace = await robot.get_episode(started.episode_id)
@@ -137,7 +140,9 @@ async def test_an_interrupted_outcome_leaves_the_outbox(
         assert started.decision is not None
         switch.down = True
         queued = await robot.report_outcome(
-            started.episode_id, decision_id=started.decision.decision_id, **answer(started.decision)
+            started.episode_id,
+            decision_id=started.decision.decision_id,
+            **cooperative(started.decision.action),
         )
         assert isinstance(queued, a.Queued)
         async with await staff_client(app, make_key) as staff:

@@ -23,8 +23,8 @@ from fastapi import FastAPI
 from fastapi.testclient import TestClient
 from prometheus_client.parser import text_string_to_metric_families
 
-from tests.api.helpers import event
 from tests.support import people
+from tests.support.episodes import event
 from tests.support.fixtures import MakeKey
 from tests.support.live import LiveService, free_port, fresh_database, make_keys
 

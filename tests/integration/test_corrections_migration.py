@@ -17,7 +17,6 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-import httpx
 import pytest
 from alembic import command
 from fastapi.testclient import TestClient
@@ -26,17 +25,20 @@ from sqlalchemy import create_engine, inspect
 from app.db import migrate
 from app.main import create_app
 from app.settings import Settings
-from tests.support.live import fresh_database
+from tests.support import release
+from tests.support.commands import rebuild
 from tests.support.release import (
+    Filled,
     OldService,
     comparable_model,
-    play,
     previous_release,
-    rebuild,
     release_code,
     revision,
+    run_episode,
     scalars,
+    table_names,
     table_rows,
+    without,
 )
 
 pytestmark = [pytest.mark.slow]
@@ -52,7 +54,7 @@ NEW_COLUMNS = (
 )
 USERS = ("lin", "chen", "room-12")
 OPEN_USER = "room-12"
-SLOT, SITUATION = "afternoon", "stretching"  # play(): n % 4 == 2 is 15:10, n % 3 == 2
+SLOT, SITUATION = "afternoon", "stretching"  # run_episode(): n % 4 == 2 is 15:10, n % 3 == 2
 
 
 @pytest.fixture(scope="module")
@@ -67,52 +69,12 @@ def old_code(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 def _fill(old: OldService) -> dict[str, Any]:
     """What a deployment holds, made through the previous release's API."""
-    keys = {
-        name: old.attune("keys", "create", "--role", role).split()[-1]
-        for name, role in (("robot", "robot"), ("admin", "admin"))
-    }
-    robot = httpx.Client(
-        base_url=old.base, timeout=30, headers={"Authorization": f"Bearer {keys['robot']}"}
-    )
-    try:
+    with release.clients(old, {"robot": ("robot", None), "admin": ("admin", None)}) as (keys, api):
         n = 0
         for uid in USERS:
-            for _ in range(6):
-                episode = play(robot, uid, f"{uid}-e{n}", n)
-                n += 1
-                if n % 4 == 0:
-                    assert (
-                        robot.post(
-                            f"/v1/episodes/{episode}/feedback",
-                            json={"feedback_id": f"fb-{n}", "feedback": "positive"},
-                        ).status_code
-                        == 200
-                    )
-        opened = robot.post(
-            f"/v1/users/{OPEN_USER}/episodes",
-            json={
-                "event_id": "left-open",
-                "occurred_at": "2026-11-20T15:10:00+08:00",
-                "situation": SITUATION,
-                "initiator": "robot",
-            },
-        )
-        assert opened.status_code == 201, opened.text
-    finally:
-        robot.close()
-    return {"keys": keys, "open": opened.json(), "episodes": n + 1}
-
-
-def _tables(url: str) -> list[str]:
-    engine = create_engine(url)
-    try:
-        return sorted(
-            t
-            for t in inspect(engine).get_table_names()
-            if t not in ("alembic_version", "corrections")
-        )
-    finally:
-        engine.dispose()
+            n = release.history(api["robot"], uid, 6, n)
+        opened = release.leave_open(api["robot"], OPEN_USER, SITUATION)
+    return {"keys": keys, "open": opened, "episodes": n + 1}
 
 
 def _rows(url: str, tables: list[str]) -> dict[str, list[tuple[Any, ...]]]:
@@ -127,13 +89,11 @@ def _api_view(api: Any) -> dict[str, Any]:
     for uid in USERS:
         episodes = api.get(f"/v1/users/{uid}/episodes", params={"limit": 500}).json()
         traces = [api.get(f"/v1/episodes/{ep['episode_id']}").json() for ep in episodes["items"]]
-        user = api.get(f"/v1/users/{uid}").json()
-        user.pop("fleet_prior", None)
-        model = comparable_model(api.get(f"/v1/users/{uid}/model").json())
-        model.pop("started_from", None)
         view[uid] = {
-            "user": user,
-            "model": model,
+            "user": without(api.get(f"/v1/users/{uid}").json(), "fleet_prior"),
+            "model": comparable_model(
+                without(api.get(f"/v1/users/{uid}/model").json(), "started_from")
+            ),
             "stats": api.get(f"/v1/users/{uid}/stats").json(),
             "episodes": episodes["items"],
             "traces": traces,
@@ -142,26 +102,13 @@ def _api_view(api: Any) -> dict[str, Any]:
 
 
 @pytest.fixture(params=["sqlite", "postgresql"])
-def filled(
-    request: pytest.FixtureRequest, old_code: Path, tmp_path: Path
-) -> Iterator[tuple[str, dict[str, Any], dict[str, Any], list[str], dict[str, Any]]]:
-    """A database at the previous release's head, filled through its API: (url, names, what
-    its API showed, its tables, their rows)."""
-    with fresh_database(request.param, tmp_path) as url:
-        url = Settings(database_url=url, _env_file=None).database_url  # type: ignore[call-arg]
-        old = OldService(old_code, url, tmp_path / "old.log")
-        with old:
-            names = _fill(old)
-            with httpx.Client(
-                base_url=old.base,
-                timeout=30,
-                headers={"Authorization": f"Bearer {names['keys']['admin']}"},
-            ) as admin:
-                before = _api_view(admin)
-        assert revision(url) == BEFORE
-        tables = _tables(url)
-        assert "corrections" not in tables
-        yield url, names, before, tables, _rows(url, tables)
+def filled(request: pytest.FixtureRequest, old_code: Path, tmp_path: Path) -> Iterator[Filled]:
+    """A database at the previous release's head, filled through its API."""
+    with release.filled(
+        request.param, old_code, tmp_path, fill=_fill, view=_api_view, rows=_rows, at=BEFORE
+    ) as database:
+        assert "corrections" not in database.tables
+        yield database
 
 
 def _cell(profile: dict[str, Any]) -> dict[str, Any]:
@@ -173,7 +120,7 @@ def _cell(profile: dict[str, Any]) -> dict[str, Any]:
 
 
 def test_the_upgrade_keeps_everything_and_corrections_can_be_made(
-    filled: tuple[str, dict[str, Any], dict[str, Any], list[str], dict[str, Any]],
+    filled: Filled,
 ) -> None:
     url, names, before, tables, rows_before = filled
     migrate.upgrade(url)
@@ -262,7 +209,7 @@ def test_the_upgrade_keeps_everything_and_corrections_can_be_made(
                 r = robot.post(f"/v1/episodes/{opened['episode_id']}/outcomes", json=body)
                 assert r.status_code == 200, r.text
                 decision = r.json()["decision"]
-            play(robot, OPEN_USER, "after-upgrade", 2)
+            run_episode(robot, OPEN_USER, "after-upgrade", 2)
             profile = admin.get(f"/v1/users/{OPEN_USER}/profile").json()
             assert profile["episodes"] == 8
             assert profile["open_episodes"] == 0
@@ -274,7 +221,7 @@ def test_the_upgrade_keeps_everything_and_corrections_can_be_made(
         names["episodes"]
     ]
     for uid in USERS:
-        summary = rebuild(url, uid)
+        summary = rebuild(url, uid).summary
         assert summary["identical"] is True, (uid, summary)
 
     # Down again: refused while corrections exist, saying so; nothing changed.
@@ -286,14 +233,13 @@ def test_the_upgrade_keeps_everything_and_corrections_can_be_made(
 
 
 def test_the_downgrade_gives_back_the_previous_schema(
-    filled: tuple[str, dict[str, Any], dict[str, Any], list[str], dict[str, Any]],
+    filled: Filled,
 ) -> None:
     url, _, _, tables, rows_before = filled
     migrate.upgrade(url)
     command.downgrade(migrate.alembic_config(url), BEFORE)
     assert revision(url) == BEFORE
-    assert _tables(url) == tables
-    assert "corrections" not in _tables_with_new(url)
+    assert table_names(url) == tables
     assert _rows(url, tables) == rows_before
     engine = create_engine(url)
     try:
@@ -303,11 +249,3 @@ def test_the_downgrade_gives_back_the_previous_schema(
     migrate.upgrade(url)
     assert revision(url) == migrate.head_revision()
     assert _rows(url, tables) == rows_before
-
-
-def _tables_with_new(url: str) -> list[str]:
-    engine = create_engine(url)
-    try:
-        return sorted(inspect(engine).get_table_names())
-    finally:
-        engine.dispose()

@@ -16,7 +16,6 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-import httpx
 import pytest
 from alembic import command
 from fastapi.testclient import TestClient
@@ -27,13 +26,14 @@ from app.main import create_app
 from app.services.context import ServiceContext
 from app.services.models import rebuild_model
 from app.settings import Settings
-from tests.support.live import fresh_database
+from tests.support import release
 from tests.support.release import (
+    Filled,
     OldService,
     comparable_model,
-    play,
     previous_release,
     release_code,
+    run_episode,
     table_rows,
 )
 
@@ -42,6 +42,7 @@ pytestmark = [pytest.mark.slow]
 MIGRATION = "migrations/versions/2026-11-30-1200_fleets_are_tenants.py"
 BEFORE = "5b7e1c2d9a40"  # the revision the previous release ends at
 USER_TABLES = ("learner_models", "episodes", "samples")
+USERS = {"north": ["lin", "chen", "room-12"], "south": ["ana", "bo"], "default": ["dts-user"]}
 
 
 @pytest.fixture(scope="module")
@@ -54,62 +55,36 @@ def old_code(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def _fill(old: OldService) -> dict[str, Any]:
     """What a deployment holds, made through the previous release's API; the names used."""
     keys = {
-        name: old.attune("keys", "create", "--role", role, "--fleet", fleet).split()[-1]
-        for name, role, fleet in (
-            ("robot_a", "robot", "north"),
-            ("robot_b", "robot", "south"),
-            ("admin", "admin", "default"),
-        )
+        "robot_a": ("robot", "north"),
+        "robot_b": ("robot", "south"),
+        "admin": ("admin", "default"),
     }
-    clients = {
-        name: httpx.Client(
-            base_url=old.base, timeout=30, headers={"Authorization": f"Bearer {key}"}
-        )
-        for name, key in keys.items()
-    }
-    users = {"north": ["lin", "chen", "room-12"], "south": ["ana", "bo"]}
-    try:
+    with release.clients(old, keys) as (secrets, clients):
         n = 0
-        for fleet, ids in users.items():
+        for fleet in ("north", "south"):
             api = clients["robot_a" if fleet == "north" else "robot_b"]
-            for uid in ids:
-                assert (
-                    api.put(f"/v1/users/{uid}", json={"display_name": uid.title()}).status_code
-                    == 201
-                )
-                for _ in range(9):
-                    episode = play(api, uid, f"{uid}-e{n}", n)
-                    n += 1
-                    if n % 4 == 0:  # explicit feedback after the episode
-                        assert (
-                            api.post(
-                                f"/v1/episodes/{episode}/feedback",
-                                json={"feedback_id": f"fb-{n}", "feedback": "positive"},
-                            ).status_code
-                            == 200
-                        )
+            for uid in USERS[fleet]:
+                made = api.put(f"/v1/users/{uid}", json={"display_name": uid.title()})
+                assert made.status_code == 201, made.text
+                n = release.history(api, uid, 9, n)
         admin = clients["admin"]
         assert admin.delete("/v1/users/chen/model").status_code == 204  # a reset mid-history
         for i in range(3):
-            play(clients["robot_a"], "chen", f"chen-after-{i}", n + i)
+            run_episode(clients["robot_a"], "chen", f"chen-after-{i}", n + i)
         doc = admin.get("/v1/users/lin/model/export")
         assert doc.status_code == 200
         assert admin.put("/v1/users/bo/model", json=doc.json()).status_code == 200  # imported
-        play(clients["robot_b"], "bo", "bo-after-import", 99)
+        run_episode(clients["robot_b"], "bo", "bo-after-import", 99)
         assert (
             admin.put("/v1/users/dts-user", json={"learner": {"algorithm": "dts"}}).status_code
             == 201
         )
         for i in range(4):
-            play(admin, "dts-user", f"dts-{i}", i)
+            run_episode(admin, "dts-user", f"dts-{i}", i)
         old.attune(
             "keys", "revoke", old.attune("keys", "list", "--json").split('"id": "')[1].split('"')[0]
         )
-    finally:
-        for c in clients.values():
-            c.close()
-    users["default"] = ["dts-user"]
-    return {"keys": keys, "users": users}
+    return {"keys": secrets, "users": USERS}
 
 
 def _api_view(api: Any, users: dict[str, list[str]], *, fleet_param: bool) -> dict[str, Any]:
@@ -186,36 +161,25 @@ def _rows(url: str, user_key: str) -> dict[str, list[tuple[Any, ...]]]:
 
 
 @pytest.fixture(params=["sqlite", "postgresql"])
-def filled(
-    request: pytest.FixtureRequest, old_code: Path, tmp_path: Path
-) -> Iterator[tuple[str, dict[str, Any], dict[str, Any], dict[str, Any]]]:
-    """A database at the previous release's head, filled through its API: (url, names, what
-    its API showed, its rows)."""
-    with fresh_database(request.param, tmp_path) as url:
-        url = Settings(database_url=url, _env_file=None).database_url  # type: ignore[call-arg]
-        old = OldService(old_code, url, tmp_path / "old.log")
-        with old:
-            names = _fill(old)
-            admin = httpx.Client(
-                base_url=old.base,
-                timeout=30,
-                headers={"Authorization": f"Bearer {names['keys']['admin']}"},
-            )
-            with admin:
-                before = _api_view(admin, names["users"], fleet_param=False)
-        engine = create_engine(url)
-        try:
-            assert migrate.current_revision(engine) == BEFORE
-        finally:
-            engine.dispose()
-        rows = _rows(url, "user_id")
-        yield url, names, before, rows
+def filled(request: pytest.FixtureRequest, old_code: Path, tmp_path: Path) -> Iterator[Filled]:
+    """A database at the previous release's head, filled through its API (its users' rows by
+    their ``user_id``, the key of the previous schema)."""
+    with release.filled(
+        request.param,
+        old_code,
+        tmp_path,
+        fill=_fill,
+        view=lambda admin: _api_view(admin, USERS, fleet_param=False),
+        rows=lambda url, _: _rows(url, "user_id"),
+        at=BEFORE,
+    ) as database:
+        yield database
 
 
 def test_the_upgrade_keeps_every_row_figure_and_decision(
-    filled: tuple[str, dict[str, Any], dict[str, Any], dict[str, Any]],
+    filled: Filled,
 ) -> None:
-    url, names, before, rows_before = filled
+    url, names, before, _, rows_before = filled
     migrate.upgrade(url)
     assert _rows(url, "id") == rows_before
 

@@ -18,7 +18,6 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-import httpx
 import pytest
 from alembic import command
 from fastapi.testclient import TestClient
@@ -31,13 +30,14 @@ from app.services import audit
 from app.services.context import ServiceContext
 from app.services.models import rebuild_model
 from app.settings import Settings
-from tests.support.live import fresh_database
+from tests.support import release
 from tests.support.release import (
+    Filled,
     OldService,
     comparable_model,
-    play,
     previous_release,
     release_code,
+    run_episode,
     table_rows,
 )
 
@@ -79,46 +79,25 @@ def old_code(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def _fill(old: OldService) -> dict[str, Any]:
     """What a deployment holds, made through the previous release's API."""
     keys = {
-        name: old.attune("keys", "create", "--role", role, "--fleet", fleet).split()[-1]
-        for name, role, fleet in (
-            ("north", "robot", "north"),
-            ("south", "robot", "south"),
-            ("admin", "admin", "default"),
-        )
+        "north": ("robot", "north"),
+        "south": ("robot", "south"),
+        "admin": ("admin", "default"),
     }
-    clients = {
-        name: httpx.Client(
-            base_url=old.base, timeout=30, headers={"Authorization": f"Bearer {key}"}
-        )
-        for name, key in keys.items()
-    }
-    try:
+    with release.clients(old, keys) as (secrets, clients):
         n = 0
         for fleet, ids in USERS.items():
             for uid in ids:
-                for _ in range(6):
-                    episode = play(clients[fleet], uid, f"{uid}-e{n}", n)
-                    n += 1
-                    if n % 4 == 0:
-                        assert (
-                            clients[fleet]
-                            .post(
-                                f"/v1/episodes/{episode}/feedback",
-                                json={"feedback_id": f"fb-{n}", "feedback": "positive"},
-                            )
-                            .status_code
-                            == 200
-                        )
+                n = release.history(clients[fleet], uid, 6, n)
         admin = clients["admin"]
         assert admin.delete("/v1/users/chen/model", params={"fleet": "north"}).status_code == 204
-        play(clients["north"], "chen", "chen-after", n)
+        run_episode(clients["north"], "chen", "chen-after", n)
         doc = admin.get("/v1/users/lin/model/export", params={"fleet": "north"})
         assert doc.status_code == 200
         assert (
             admin.put("/v1/users/bo/model", params={"fleet": "south"}, json=doc.json()).status_code
             == 200
         )
-        play(clients["south"], "bo", "bo-after-import", 99)
+        run_episode(clients["south"], "bo", "bo-after-import", 99)
         assert (
             clients["south"]
             .put("/v1/users/dts", json={"learner": {"algorithm": "dts"}})
@@ -126,21 +105,9 @@ def _fill(old: OldService) -> dict[str, Any]:
             == 201
         )
         for i in range(4):
-            play(clients["south"], "dts", f"dts-{i}", i)
-        opened = clients["north"].post(
-            "/v1/users/room-12/episodes",
-            json={
-                "event_id": "left-open",
-                "occurred_at": "2026-11-20T15:10:00+08:00",
-                "situation": "stretching",
-                "initiator": "robot",
-            },
-        )
-        assert opened.status_code == 201, opened.text
-    finally:
-        for c in clients.values():
-            c.close()
-    return {"keys": keys, "open": opened.json()}
+            run_episode(clients["south"], "dts", f"dts-{i}", i)
+        opened = release.leave_open(clients["north"], "room-12")
+    return {"keys": secrets, "open": opened}
 
 
 def _rows(url: str) -> dict[str, list[tuple[Any, ...]]]:
@@ -176,28 +143,18 @@ def _api_view(api: Any) -> dict[str, Any]:
 
 
 @pytest.fixture(params=["sqlite", "postgresql"])
-def filled(
-    request: pytest.FixtureRequest, old_code: Path, tmp_path: Path
-) -> Iterator[tuple[str, dict[str, Any], dict[str, Any], dict[str, Any]]]:
-    """A database at the previous release's head, filled through its API: (url, names, what
-    its API showed, its rows)."""
-    with fresh_database(request.param, tmp_path) as url:
-        url = Settings(database_url=url, _env_file=None).database_url  # type: ignore[call-arg]
-        old = OldService(old_code, url, tmp_path / "old.log")
-        with old:
-            names = _fill(old)
-            with httpx.Client(
-                base_url=old.base,
-                timeout=30,
-                headers={"Authorization": f"Bearer {names['keys']['admin']}"},
-            ) as admin:
-                before = _api_view(admin)
-        engine = create_engine(url)
-        try:
-            assert migrate.current_revision(engine) == BEFORE
-        finally:
-            engine.dispose()
-        yield url, names, before, _rows(url)
+def filled(request: pytest.FixtureRequest, old_code: Path, tmp_path: Path) -> Iterator[Filled]:
+    """A database at the previous release's head, filled through its API."""
+    with release.filled(
+        request.param,
+        old_code,
+        tmp_path,
+        fill=_fill,
+        view=_api_view,
+        rows=lambda url, _: _rows(url),
+        at=BEFORE,
+    ) as database:
+        yield database
 
 
 def _rebuild_all(app: Any, settings: Settings) -> None:
@@ -211,11 +168,11 @@ def _rebuild_all(app: Any, settings: Settings) -> None:
 
 
 def test_the_upgrade_keeps_everything_and_the_service_goes_on(
-    filled: tuple[str, dict[str, Any], dict[str, Any], dict[str, Any]],
+    filled: Filled,
     tmp_path: Path,
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
-    url, names, before, rows_before = filled
+    url, names, before, _, rows_before = filled
 
     # Told another mission than the one the models were learned for: refused, nothing changed.
     other = office_mission().to_dict()
@@ -308,9 +265,9 @@ def test_the_upgrade_keeps_everything_and_the_service_goes_on(
 
 
 def test_the_downgrade_gives_back_the_previous_schema(
-    filled: tuple[str, dict[str, Any], dict[str, Any], dict[str, Any]],
+    filled: Filled,
 ) -> None:
-    url, _, _, rows_before = filled
+    url, _, _, _, rows_before = filled
     migrate.upgrade(url)
     command.downgrade(migrate.alembic_config(url), BEFORE)
     assert _rows(url) == rows_before

@@ -16,7 +16,6 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-import httpx
 import pytest
 from alembic import command
 from fastapi.testclient import TestClient
@@ -25,17 +24,20 @@ from sqlalchemy import create_engine, inspect
 from app.db import migrate
 from app.main import create_app
 from app.settings import Settings
-from tests.support.live import fresh_database
+from tests.support import release
+from tests.support.commands import rebuild
 from tests.support.release import (
+    Filled,
     OldService,
     comparable_model,
-    play,
     previous_release,
-    rebuild,
     release_code,
     revision,
+    run_episode,
     scalars,
+    table_names,
     table_rows,
+    without,
 )
 
 pytestmark = [pytest.mark.slow]
@@ -62,67 +64,25 @@ def old_code(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 def _fill(old: OldService) -> dict[str, Any]:
     """What a deployment holds, made through the previous release's API."""
-    keys = {
-        name: old.attune("keys", "create", "--role", role).split()[-1]
-        for name, role in (("robot", "robot"), ("admin", "admin"))
-    }
-    robot = httpx.Client(
-        base_url=old.base, timeout=30, headers={"Authorization": f"Bearer {keys['robot']}"}
-    )
-    admin = httpx.Client(
-        base_url=old.base, timeout=30, headers={"Authorization": f"Bearer {keys['admin']}"}
-    )
-    try:
+    with release.clients(old, {"robot": ("robot", None), "admin": ("admin", None)}) as (keys, api):
+        robot, admin = api["robot"], api["admin"]
         n = 0
         for uid in USERS:
             # DTS: the previous release's default, HRI, is a learner whose newcomers start fresh
             made = robot.put(f"/v1/users/{uid}", json={"learner": {"algorithm": "dts"}})
             assert made.status_code == 201, made.text
-            for _ in range(EPISODES):
-                episode = play(robot, uid, f"{uid}-e{n}", n)
-                n += 1
-                if n % 4 == 0:
-                    assert (
-                        robot.post(
-                            f"/v1/episodes/{episode}/feedback",
-                            json={"feedback_id": f"fb-{n}", "feedback": "positive"},
-                        ).status_code
-                        == 200
-                    )
+            n = release.history(robot, uid, EPISODES, n)
         exported = admin.get("/v1/users/lin/model/export")
         assert exported.status_code == 200, exported.text
         imported = admin.put(f"/v1/users/{IMPORTED}/model", json=exported.json())
         assert imported.status_code == 200, imported.text
-        opened = robot.post(
-            f"/v1/users/{OPEN_USER}/episodes",
-            json={
-                "event_id": "left-open",
-                "occurred_at": "2026-11-20T15:10:00+08:00",
-                "situation": "stretching",
-                "initiator": "robot",
-            },
-        )
-        assert opened.status_code == 201, opened.text
-    finally:
-        robot.close()
-        admin.close()
+        release.leave_open(robot, OPEN_USER)
     return {"keys": keys, "episodes": n + 1}
 
 
-def _tables(url: str) -> list[str]:
-    engine = create_engine(url)
-    try:
-        return sorted(
-            t
-            for t in inspect(engine).get_table_names()
-            if t not in ("alembic_version", "fleet_settings")
-        )
-    finally:
-        engine.dispose()
-
-
-def _without(doc: dict[str, Any], *names: str) -> dict[str, Any]:
-    return {k: v for k, v in doc.items() if k not in names}
+def _rows(url: str, tables: list[str]) -> dict[str, list[tuple[Any, ...]]]:
+    """Every row of the tables the previous release had, without the new columns."""
+    return table_rows(url, tables, leave_out=NEW_COLUMNS)
 
 
 def _api_view(api: Any) -> dict[str, Any]:
@@ -131,9 +91,9 @@ def _api_view(api: Any) -> dict[str, Any]:
     for uid in USERS:
         episodes = api.get(f"/v1/users/{uid}/episodes", params={"limit": 500}).json()
         view[uid] = {
-            "user": _without(api.get(f"/v1/users/{uid}").json(), "fleet_prior"),
+            "user": without(api.get(f"/v1/users/{uid}").json(), "fleet_prior"),
             "model": comparable_model(
-                _without(api.get(f"/v1/users/{uid}/model").json(), "started_from")
+                without(api.get(f"/v1/users/{uid}/model").json(), "started_from")
             ),
             "stats": api.get(f"/v1/users/{uid}/stats").json(),
             "episodes": episodes["items"],
@@ -142,29 +102,16 @@ def _api_view(api: Any) -> dict[str, Any]:
 
 
 @pytest.fixture(params=["sqlite", "postgresql"])
-def filled(
-    request: pytest.FixtureRequest, old_code: Path, tmp_path: Path
-) -> Iterator[tuple[str, dict[str, Any], dict[str, Any], list[str], dict[str, Any]]]:
-    """A database at the previous release's head, filled through its API: (url, names, what
-    its API showed, its tables, their rows)."""
-    with fresh_database(request.param, tmp_path) as url:
-        url = Settings(database_url=url, _env_file=None).database_url  # type: ignore[call-arg]
-        old = OldService(old_code, url, tmp_path / "old.log")
-        with old:
-            names = _fill(old)
-            with httpx.Client(
-                base_url=old.base,
-                timeout=30,
-                headers={"Authorization": f"Bearer {names['keys']['admin']}"},
-            ) as admin:
-                before = _api_view(admin)
-        assert revision(url) == BEFORE
-        tables = _tables(url)
-        yield url, names, before, tables, table_rows(url, tables, leave_out=NEW_COLUMNS)
+def filled(request: pytest.FixtureRequest, old_code: Path, tmp_path: Path) -> Iterator[Filled]:
+    """A database at the previous release's head, filled through its API."""
+    with release.filled(
+        request.param, old_code, tmp_path, fill=_fill, view=_api_view, rows=_rows, at=BEFORE
+    ) as database:
+        yield database
 
 
 def test_the_upgrade_keeps_everything_and_newcomers_start_from_the_prior(
-    filled: tuple[str, dict[str, Any], dict[str, Any], list[str], dict[str, Any]],
+    filled: Filled,
 ) -> None:
     url, names, before, tables, rows_before = filled
     migrate.upgrade(url)
@@ -201,12 +148,12 @@ def test_the_upgrade_keeps_everything_and_newcomers_start_from_the_prior(
                 "kind": "fleet_prior",
                 "contributors": len(USERS),
             }
-            play(admin, "newcomer", "newcomer-1", 1)
+            run_episode(admin, "newcomer", "newcomer-1", 1)
     finally:
         app.state.db.dispose()
 
     for uid in (*USERS, "newcomer"):
-        summary = rebuild(url, uid)
+        summary = rebuild(url, uid).summary
         assert summary["identical"] is True, (uid, summary)
 
     # Down again: refused while a model grew from a prior, saying so; nothing changed.
@@ -216,13 +163,13 @@ def test_the_upgrade_keeps_everything_and_newcomers_start_from_the_prior(
 
 
 def test_the_downgrade_gives_back_the_previous_schema(
-    filled: tuple[str, dict[str, Any], dict[str, Any], list[str], dict[str, Any]],
+    filled: Filled,
 ) -> None:
     url, _, _, tables, rows_before = filled
     migrate.upgrade(url)
     command.downgrade(migrate.alembic_config(url), BEFORE)
     assert revision(url) == BEFORE
-    assert _tables(url) == tables
+    assert table_names(url) == tables
     engine = create_engine(url)
     try:
         assert "fleet_settings" not in inspect(engine).get_table_names()

@@ -17,7 +17,6 @@ import random
 import threading
 import time
 from collections import Counter, defaultdict
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -26,7 +25,7 @@ from sqlalchemy import create_engine, select
 
 from app.db.models import Decision, Episode, Feedback, LearnerModel, Sample, User
 from app.learning import Mission
-from tests.support import people
+from tests.support import commands, people
 from tests.support.office import MISSION
 
 SLOT_TIMES = ("09:30", "12:15", "15:10", "20:45")
@@ -192,23 +191,6 @@ class Robot:
         return out
 
     # -- the robot's behaviour ----------------------------------------------------------------
-    def answer(self, decision: dict[str, Any]) -> dict[str, Any]:
-        """A cooperative person: yes four times in five, asks for a drink half the time the
-        robot waits (naming tea half of those), smiles at one service in ten."""
-        return {
-            "decision_id": decision["decision_id"],
-            **people.answer(
-                decision["action"],
-                picky=False,
-                rng=self.rng,
-                yes=0.8,
-                asks=0.5,
-                precise=0.5,
-                smiles=0.1,
-                mission=self.w.mission,
-            ),
-        }
-
     def episode(self, k: int) -> bool:
         """One event and its negotiation to the end; False when the run must stop."""
         w = self.w
@@ -234,7 +216,19 @@ class Robot:
         for _ in range(8):  # an episode has at most four visible steps
             if decision is None:
                 break
-            sent = self.answer(decision)
+            # A cooperative person: yes four times in five, asks for a drink half the time the
+            # robot waits (naming tea half of those), smiles at one service in ten.
+            said = people.answer(
+                decision["action"],
+                picky=False,
+                rng=self.rng,
+                yes=0.8,
+                asks=0.5,
+                precise=0.5,
+                smiles=0.1,
+                mission=w.mission,
+            )
+            sent = {"decision_id": decision["decision_id"], **said}
             conflicting = {
                 "decision_id": sent["decision_id"],
                 "response": OTHER_RESPONSE[sent["response"]],
@@ -441,14 +435,15 @@ def check_history(
     database_url: str,
     users: list[str],
     initial_versions: dict[str, int],
-    rebuild: Callable[[str], dict[str, Any]] | None = None,
+    rebuild: bool = False,
     fleet: str = "default",
 ) -> list[str]:
     """Every finding that shows a lost, doubled or inconsistent write; [] when there is none.
 
     ``users`` are of ``fleet``, the fleet of the history's robots; ``api`` is an admin
     client; ``initial_versions`` the model versions before the run;
-    ``rebuild(user_id)`` runs ``models rebuild`` (``helpers.rebuild``) and returns its summary.
+    with ``rebuild``, ``attune models rebuild`` of each user (``tests/support/commands.py``)
+    must reproduce its stored model.
     Writes in ``history.unknown`` (in flight when the service died) may or may not be stored;
     if they are, the same rules hold for them.
     """
@@ -471,8 +466,8 @@ def check_history(
     for user_id in users:
         snap = _snapshot(api, database_url, user_id, fleet)
         findings += _check_user(user_id, snap, by_key, history, initial_versions[user_id])
-        if rebuild is not None:
-            summary = rebuild(user_id)
+        if rebuild:
+            summary = commands.rebuild(database_url, user_id, fleet=fleet).summary
             if summary.get("identical") is not True:
                 findings.append(
                     f"{user_id}: `models rebuild` does not reproduce the stored model: {summary}"

@@ -15,7 +15,7 @@ import pytest
 
 from tests.support.live import LiveService, fresh_database, make_keys
 
-from .helpers import create_users, rebuild
+from .helpers import create_users
 from .history import History, Workload, check_history
 
 pytestmark = [pytest.mark.stress, pytest.mark.xdist_group("stress")]
@@ -83,7 +83,7 @@ def test_sigkill_mid_load_loses_nothing_acknowledged(engine: str, workers: int) 
                         w.all_users,
                         initial[fleet],
                         fleet=fleet,
-                        rebuild=rebuild(url, fleet=fleet),
+                        rebuild=True,
                     )
                 ]
                 for w in workloads.values():
@@ -100,7 +100,7 @@ def test_sigkill_mid_load_loses_nothing_acknowledged(engine: str, workers: int) 
                         w.all_users,
                         initial[fleet],
                         fleet=fleet,
-                        rebuild=rebuild(url, fleet=fleet),
+                        rebuild=True,
                     )
                 ]
         finally:

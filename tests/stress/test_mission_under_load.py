@@ -16,7 +16,7 @@ import pytest
 from app.learning import Mission, office_mission
 from tests.support.live import LiveService, fresh_database, make_keys
 
-from .helpers import create_users, rebuild
+from .helpers import create_users
 from .history import Workload, check_history
 
 pytestmark = [pytest.mark.stress, pytest.mark.xdist_group("stress")]
@@ -138,7 +138,7 @@ def test_a_mission_change_under_load_loses_nothing(engine: str, workers: int) ->
                         url,
                         w.all_users,
                         initial[fleet],
-                        rebuild=rebuild(url, fleet=fleet),
+                        rebuild=True,
                         fleet=fleet,
                     )
                 ]

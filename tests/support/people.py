@@ -15,12 +15,17 @@ first detail.
 ``yes`` is the chance of accepting what the person would accept, ``precise`` the chance that
 a request names the detail too, ``smiles`` the chance of positive feedback on the right service.
 A chance of 0 or 1 draws nothing from ``rng`` (answers without chances need no generator).
+
+``person(...)`` is such a person as ``tests/support/episodes.py``'s ``play`` takes one: a
+decision in, its answer out. ``cooperative(action, n)`` is the person of the client's tests:
+one who goes along with the robot, whose answers vary with ``n`` and are always the same for
+the same ``n``.
 """
 
 from __future__ import annotations
 
 import random
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any
 
 from app.learning import Mission
@@ -89,3 +94,20 @@ def answer(
     if right and chance(smiles):
         out["feedback"] = "positive"
     return out
+
+
+def cooperative(action: Any, n: int = 0) -> dict[str, Any]:
+    """What a cooperative person answers (``picky=False``): yes four times in five, a request
+    for tea seven times in ten when the robot waits; ``n`` varies the answers a little (a
+    person who says no, stays silent, or asks for something), the same for the same ``n``."""
+    return answer(action, picky=False, rng=random.Random(n), yes=0.8, asks=0.7)
+
+
+def person(**settings: Any) -> Callable[[dict[str, Any]], dict[str, Any]]:
+    """The person ``answer(action, **settings)`` describes, as ``play`` takes one: a decision
+    (the API's JSON) in, the outcome's fields out."""
+
+    def answers(decision: dict[str, Any]) -> dict[str, Any]:
+        return answer(decision["action"], **settings)
+
+    return answers

@@ -1,7 +1,19 @@
-"""The previous release, served as it was, for the migration tests: its ``app`` and
-``migrations`` taken from git (the commit before the one that added a migration), ``attune
-serve`` of that code on a database, and a cooperative person who plays episodes through its
-API."""
+"""The harness of the migration tests: the previous release, served as it was, fills a database
+through its API; this code upgrades it, and the test compares.
+
+- ``release_code(previous_release(MIGRATION, ...), folder)``: the previous release's ``app`` and
+  ``migrations`` taken from git (the commit before the one that added a migration, or the
+  change's first files).
+- ``filled(engine, code, folder, fill=..., view=..., rows=..., at=BEFORE)``: a fresh database
+  of ``engine``, ``attune serve`` of that code on it (:class:`OldService`), ``fill(old)`` to
+  make what a deployment holds through its API, then what its API shows (``view``, with the
+  admin key ``fill`` made) and the rows of its tables (``rows``), once its schema is checked to
+  be at ``at``: a :class:`Filled`, for the test to upgrade and compare.
+- For ``fill``: :func:`clients` (keys made with the old command line, and a client for each),
+  :func:`history` (episodes played by a cooperative person, :func:`run_episode`, with feedback
+  after every fourth), :func:`leave_open` (an episode left open).
+- For the comparisons: :func:`table_rows`, :func:`scalars`, :func:`revision`, :func:`without`.
+"""
 
 from __future__ import annotations
 
@@ -13,26 +25,35 @@ import subprocess
 import sys
 import tarfile
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator, Mapping
+from contextlib import ExitStack, contextmanager
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import httpx
 from sqlalchemy import create_engine, text
 
-from tests.support.live import free_port
+from tests.support import episodes
+from tests.support.live import free_port, fresh_database
 
 __all__ = [
     "REPO",
+    "Filled",
     "OldService",
+    "clients",
     "comparable_model",
-    "play",
+    "filled",
+    "history",
+    "leave_open",
+    "person",
     "previous_release",
-    "rebuild",
+    "run_episode",
     "release_code",
     "revision",
     "scalars",
     "table_rows",
+    "table_names",
+    "without",
 ]
 
 REPO = Path(__file__).resolve().parents[2]
@@ -123,39 +144,139 @@ DETAIL = {"ProvideDrink": "tea", "BriefInformation": "news", "ArrangeSchedule": 
 SITUATIONS = ("arriving", "working", "stretching")
 
 
-def play(api: httpx.Client, user: str, event: str, n: int) -> str:
-    """One episode of ``user`` to its end, as a cooperative person; its id."""
+def person(n: int) -> episodes.Person:
+    """The cooperative person of episode ``n``: asks for a drink when the robot waits (two
+    times in three), wants the news when asked which service, names a service's first detail,
+    and says yes but to one offer in five."""
+
+    def answers(decision: dict[str, Any]) -> dict[str, Any]:
+        kind = decision["action"]["kind"]
+        if kind == "pass":
+            return (
+                {"response": "human_request", "service": "ProvideDrink"}
+                if n % 3
+                else {"response": "none"}
+            )
+        if kind == "query_type":
+            return {"response": "answered", "service": "BriefInformation"}
+        if kind == "query_detail":
+            return {"response": "answered", "detail": DETAIL[decision["action"]["service"]]}
+        return {"response": "rejected" if n % 5 == 4 else "accepted"}
+
+    return answers
+
+
+def run_episode(api: httpx.Client, user: str, event: str, n: int) -> str:
+    """Episode ``n`` of ``user`` played to its end by ``person(n)`` (its time and situation
+    vary with ``n``); its id."""
     hour = (7, 12, 15, 19)[n % 4]
-    started = api.post(
+    played = episodes.play(
+        api,
+        user,
+        event,
+        person(n),
+        occurred_at=f"2026-11-{1 + n % 28:02d}T{hour:02d}:10:00+08:00",
+        situation=SITUATIONS[n % 3],
+        robot_id="r1",
+    )
+    return played.episode_id
+
+
+def history(api: httpx.Client, user: str, count: int, n: int) -> int:
+    """``count`` episodes of ``user``, numbered from ``n`` (:func:`run_episode`; event ids
+    ``USER-eN``), and positive feedback after every fourth episode of the fill; the next number."""
+    for _ in range(count):
+        episode_id = run_episode(api, user, f"{user}-e{n}", n)
+        n += 1
+        if n % 4 == 0:
+            r = api.post(
+                f"/v1/episodes/{episode_id}/feedback",
+                json={"feedback_id": f"fb-{n}", "feedback": "positive"},
+            )
+            assert r.status_code == 200, r.text
+    return n
+
+
+def leave_open(api: httpx.Client, user: str, situation: str = "stretching") -> dict[str, Any]:
+    """An episode of ``user`` that nobody answers (event ``left-open``): the previous release's
+    answer to it (its id and first decision), for the test to finish after the upgrade."""
+    r = api.post(
         f"/v1/users/{user}/episodes",
         json={
-            "event_id": event,
-            "occurred_at": f"2026-11-{1 + n % 28:02d}T{hour:02d}:10:00+08:00",
-            "situation": SITUATIONS[n % 3],
+            "event_id": "left-open",
+            "occurred_at": "2026-11-20T15:10:00+08:00",
+            "situation": situation,
             "initiator": "robot",
-            "robot_id": "r1",
         },
     )
-    assert started.status_code == 201, started.text
-    episode = started.json()
-    decision = episode["decision"]
-    while decision is not None:
-        kind = decision["action"]["kind"]
-        body: dict[str, Any] = {"decision_id": decision["decision_id"]}
-        if kind == "pass":
-            body.update(response="human_request", service="ProvideDrink") if n % 3 else body.update(
-                response="none"
+    assert r.status_code == 201, r.text
+    opened: dict[str, Any] = r.json()
+    return opened
+
+
+@contextmanager
+def clients(
+    old: OldService, keys: Mapping[str, tuple[str, str | None]]
+) -> Iterator[tuple[dict[str, str], dict[str, httpx.Client]]]:
+    """For each name of ``keys``, a key of (role, fleet or None: the default) made with the old
+    command line, and a client of the old service with it: (the secrets, the clients), the
+    clients closed at the end."""
+    secrets = {}
+    for name, (role, fleet) in keys.items():
+        where = [] if fleet is None else ["--fleet", fleet]
+        secrets[name] = old.attune("keys", "create", "--role", role, *where).split()[-1]
+    with ExitStack() as stack:
+        made = {
+            name: stack.enter_context(
+                httpx.Client(
+                    base_url=old.base, timeout=30, headers={"Authorization": f"Bearer {secret}"}
+                )
             )
-        elif kind == "query_type":
-            body.update(response="answered", service="BriefInformation")
-        elif kind == "query_detail":
-            body.update(response="answered", detail=DETAIL[decision["action"]["service"]])
-        else:
-            body["response"] = "rejected" if n % 5 == 4 else "accepted"
-        answered = api.post(f"/v1/episodes/{episode['episode_id']}/outcomes", json=body)
-        assert answered.status_code == 200, answered.text
-        decision = answered.json()["decision"]
-    return str(episode["episode_id"])
+            for name, secret in secrets.items()
+        }
+        yield secrets, made
+
+
+class Filled(NamedTuple):
+    """A database at the previous release's head, filled through its API: its URL, what
+    ``fill`` returned (``keys`` among it), what the API showed (``before``), the tables the
+    previous release had and their rows."""
+
+    url: str
+    names: dict[str, Any]
+    before: dict[str, Any]
+    tables: list[str]
+    rows: dict[str, list[tuple[Any, ...]]]
+
+
+@contextmanager
+def filled(
+    engine: str,
+    code: Path,
+    folder: Path,
+    *,
+    fill: Callable[[OldService], dict[str, Any]],
+    view: Callable[[httpx.Client], dict[str, Any]],
+    rows: Callable[[str, list[str]], dict[str, list[tuple[Any, ...]]]],
+    at: str,
+) -> Iterator[Filled]:
+    """A fresh database of ``engine`` (``sqlite``, ``postgresql``) filled by the previous
+    release in ``code`` (see the module); dropped at the end."""
+    from app.settings import Settings
+
+    with fresh_database(engine, folder) as url:
+        url = Settings(database_url=url, _env_file=None).database_url  # type: ignore[call-arg]
+        with OldService(code, url, folder / "old.log") as old:
+            names = fill(old)
+            with httpx.Client(
+                base_url=old.base,
+                timeout=30,
+                headers={"Authorization": f"Bearer {names['keys']['admin']}"},
+            ) as admin:
+                before = view(admin)
+        assert revision(url) == at
+        tables = table_names(url)
+        yield Filled(url, names, before, tables, rows(url, tables))
 
 
 def release_code(commit: str, folder: Path) -> Path:
@@ -220,6 +341,23 @@ def scalars(url: str, sql: str) -> list[Any]:
         engine.dispose()
 
 
+def table_names(url: str) -> list[str]:
+    """The tables of the database at ``url`` (its schema's), sorted, without Alembic's own."""
+    from sqlalchemy import inspect
+
+    engine = create_engine(url)
+    try:
+        return sorted(t for t in inspect(engine).get_table_names() if t != "alembic_version")
+    finally:
+        engine.dispose()
+
+
+def without(doc: dict[str, Any], *names: str) -> dict[str, Any]:
+    """``doc`` without the fields ``names`` (a later release's, for comparing with the API of
+    the previous one)."""
+    return {k: v for k, v in doc.items() if k not in names}
+
+
 def revision(url: str) -> str | None:
     """The database's Alembic revision."""
     from app.db import migrate
@@ -229,28 +367,6 @@ def revision(url: str) -> str | None:
         return migrate.current_revision(engine)
     finally:
         engine.dispose()
-
-
-def rebuild(url: str, user_id: str, fleet: str | None = None) -> dict[str, Any]:
-    """``attune models rebuild USER_ID [--fleet FLEET]`` on the database at ``url`` (seed 0):
-    its JSON summary line."""
-    import json
-
-    from typer.testing import CliRunner
-
-    from app import cli
-
-    where = [] if fleet is None else ["--fleet", fleet]
-    result = CliRunner().invoke(
-        cli.app,
-        ["models", "rebuild", user_id, *where],
-        env={"ATTUNE_DATABASE_URL": url, "ATTUNE_SEED": "0"},
-    )
-    assert result.exit_code == 0, result.output
-    summary: dict[str, Any] = json.loads(
-        next(ln for ln in result.output.splitlines() if ln.startswith("{"))
-    )
-    return summary
 
 
 def comparable_model(

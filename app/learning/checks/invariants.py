@@ -66,7 +66,7 @@ class CallChecks:
         version = learner.version
         try:
             learner.update(batch)
-        except Exception as exc:  # noqa: BLE001 - any exception on a valid report is the finding
+        except Exception as exc:  # any exception on a valid report is the finding
             self.fail(
                 f"update #{self.calls + 1} of a valid report raised {type(exc).__name__}: {exc}"
             )
@@ -82,7 +82,7 @@ class CallChecks:
         """``select_action`` on a valid observation, checked."""
         try:
             d = learner.select_action(obs, rng)
-        except Exception as exc:  # noqa: BLE001 - any exception is the finding
+        except Exception as exc:  # any exception is the finding
             self.fail(f"{self.at(obs)}: select_action raised {type(exc).__name__}: {exc}")
         self.check_decision(d, obs)
         return d
@@ -90,7 +90,7 @@ class CallChecks:
     def export(self, learner: Learner) -> dict[str, Any]:
         try:
             return learner.to_state()
-        except Exception as exc:  # noqa: BLE001 - any exception is the finding
+        except Exception as exc:  # any exception is the finding
             self.fail(f"to_state raised {type(exc).__name__}: {exc}")
 
     def explain(self, learner: Learner, context: int, episode: int) -> None:
@@ -100,7 +100,7 @@ class CallChecks:
         where = f"explain(context {context}, episode {episode})"
         try:
             view = learner.explain(context, episode)
-        except Exception as exc:  # noqa: BLE001 - any exception is the finding
+        except Exception as exc:  # any exception is the finding
             self.fail(f"{where} raised {type(exc).__name__}: {exc}")
         if not isinstance(view, ContextView):
             self.fail(f"{where} returned {type(view).__name__}, not a ContextView.")
@@ -149,7 +149,7 @@ class CallChecks:
         text = self.check_export(doc)
         try:
             clone: Learner = learner_from_state(json.loads(text), self.mission)
-        except Exception as exc:  # noqa: BLE001 - any exception is the finding
+        except Exception as exc:  # any exception is the finding
             self.fail(f"importing the learner's own export raised {type(exc).__name__}: {exc}")
         if clone.version != learner.version:
             self.fail(
@@ -173,7 +173,7 @@ class CallChecks:
             call(*args)
         except ValueError:
             return
-        except Exception as exc:  # noqa: BLE001 - any other exception is the finding
+        except Exception as exc:  # any other exception is the finding
             self.fail(f"{what} raised {type(exc).__name__}, not ValueError: {exc}")
         self.fail(f"{what} was accepted; it must raise ValueError.")
 

@@ -144,7 +144,7 @@ class _Suite:
                             f"{f.name}={bad!r} ({why}) was refused, but the message does not "
                             f"name the parameter: {exc}"
                         )
-                except Exception as exc:  # noqa: BLE001 - any other exception is the finding
+                except Exception as exc:  # any other exception is the finding
                     self.check.fail(
                         f"{f.name}={bad!r} ({why}) raised {type(exc).__name__} instead of "
                         f"ValueError: {exc}"
@@ -156,7 +156,7 @@ class _Suite:
         except ValueError as exc:
             if "no_such_parameter" not in str(exc):
                 self.check.fail(f"an unknown parameter was refused without naming it: {exc}")
-        except Exception as exc:  # noqa: BLE001 - any other exception is the finding
+        except Exception as exc:  # any other exception is the finding
             self.check.fail(
                 f"an unknown parameter raised {type(exc).__name__}, not ValueError: {exc}"
             )

@@ -32,16 +32,19 @@ from ._models import (
     EpisodePage,
     EpisodeStarted,
     EpisodeTrace,
+    Feedback,
     FeedbackResult,
     FleetMission,
     FleetPrior,
     FlushReport,
+    Initiator,
     LearnerSpec,
     Mission,
     MissionChanged,
     MissionRenames,
     MissionVersionList,
     ModelView,
+    OutcomeResponse,
     OutcomeResult,
     PendingReport,
     Profile,
@@ -293,7 +296,7 @@ class Api:
         event_id: str,
         occurred_at: dt.datetime | str,
         situation: str,
-        initiator: str,
+        initiator: Initiator,
         request: ServiceRequest | Mapping[str, Any] | None,
         robot_id: str | None,
     ) -> Op[EpisodeStarted]:
@@ -325,10 +328,10 @@ class Api:
         episode_id: str,
         *,
         decision_id: str,
-        response: str,
+        response: OutcomeResponse,
         service: str | None,
         detail: str | None,
-        feedback: str | None,
+        feedback: Feedback | None,
     ) -> ReportOp[OutcomeResult]:
         body: dict[str, Any] = {"decision_id": decision_id, "response": response}
         for name, value in (("service", service), ("detail", detail), ("feedback", feedback)):
@@ -338,7 +341,7 @@ class Api:
 
     @staticmethod
     def send_feedback(
-        episode_id: str, *, feedback_id: str, feedback: str
+        episode_id: str, *, feedback_id: str, feedback: Feedback
     ) -> ReportOp[FeedbackResult]:
         body = {"feedback_id": feedback_id, "feedback": feedback}
         return ReportOp("feedback", episode_id, feedback_id, _json(body), _written(FeedbackResult))
@@ -398,7 +401,7 @@ class Api:
         correction_id: str,
         time_slot: str,
         situation: str,
-        kind: CorrectionKind | str,
+        kind: CorrectionKind,
         service: str | None,
         detail: str | None,
         note: str | None,

@@ -36,16 +36,19 @@ from ._models import (
     EpisodeStarted,
     EpisodeSummary,
     EpisodeTrace,
+    Feedback,
     FeedbackResult,
     FleetMission,
     FleetPrior,
     FlushReport,
+    Initiator,
     LearnerSpec,
     Mission,
     MissionChanged,
     MissionRenames,
     MissionVersionList,
     ModelView,
+    OutcomeResponse,
     OutcomeResult,
     PendingReport,
     Profile,
@@ -421,7 +424,7 @@ class Client(BaseClient):
         event_id: str,
         occurred_at: dt.datetime | str,
         situation: str,
-        initiator: str = "robot",
+        initiator: Initiator = "robot",
         request: ServiceRequest | Mapping[str, Any] | None = None,
         robot_id: str | None = None,
     ) -> EpisodeStarted:
@@ -466,10 +469,10 @@ class Client(BaseClient):
         episode_id: str,
         *,
         decision_id: str,
-        response: str,
+        response: OutcomeResponse,
         service: str | None = None,
         detail: str | None = None,
-        feedback: str | None = None,
+        feedback: Feedback | None = None,
     ) -> OutcomeResult | Queued:
         """``POST /v1/episodes/{episode_id}/outcomes``: what the person did after the robot's
         action; returns its reward and the next decision (None when the episode ended).
@@ -505,7 +508,7 @@ class Client(BaseClient):
         )
 
     def send_feedback(
-        self, episode_id: str, *, feedback_id: str, feedback: str
+        self, episode_id: str, *, feedback_id: str, feedback: Feedback
     ) -> FeedbackResult | Queued:
         """``POST /v1/episodes/{episode_id}/feedback``: explicit feedback (``"positive"`` or
         ``"negative"``) on an episode, during or after it; idempotent on ``feedback_id``.
@@ -618,7 +621,7 @@ class Client(BaseClient):
         correction_id: str,
         time_slot: str,
         situation: str,
-        kind: CorrectionKind | str,
+        kind: CorrectionKind,
         service: str | None = None,
         detail: str | None = None,
         note: str | None = None,
@@ -936,7 +939,7 @@ class AsyncClient(BaseClient):
         event_id: str,
         occurred_at: dt.datetime | str,
         situation: str,
-        initiator: str = "robot",
+        initiator: Initiator = "robot",
         request: ServiceRequest | Mapping[str, Any] | None = None,
         robot_id: str | None = None,
     ) -> EpisodeStarted:
@@ -958,10 +961,10 @@ class AsyncClient(BaseClient):
         episode_id: str,
         *,
         decision_id: str,
-        response: str,
+        response: OutcomeResponse,
         service: str | None = None,
         detail: str | None = None,
-        feedback: str | None = None,
+        feedback: Feedback | None = None,
     ) -> OutcomeResult | Queued:
         """``POST /v1/episodes/{episode_id}/outcomes``; see ``Client.report_outcome``."""
         return await self._report(
@@ -976,7 +979,7 @@ class AsyncClient(BaseClient):
         )
 
     async def send_feedback(
-        self, episode_id: str, *, feedback_id: str, feedback: str
+        self, episode_id: str, *, feedback_id: str, feedback: Feedback
     ) -> FeedbackResult | Queued:
         """``POST /v1/episodes/{episode_id}/feedback``; see ``Client.send_feedback``."""
         return await self._report(
@@ -1045,7 +1048,7 @@ class AsyncClient(BaseClient):
         correction_id: str,
         time_slot: str,
         situation: str,
-        kind: CorrectionKind | str,
+        kind: CorrectionKind,
         service: str | None = None,
         detail: str | None = None,
         note: str | None = None,

@@ -2,19 +2,36 @@
 
 Every model accepts fields it does not know (the contract lets the service add fields, and an
 older client must keep working): they are kept, readable as attributes and in
-``model_extra``. Strings whose set the contract fixes (an episode's ``status``, say) are
-``Literal``; names that depend on the mission (actions, states, services) are plain ``str``.
+``model_extra``.
+
+Strings whose values the contract fixes are ``Literal`` types, so that a type checker catches
+a misspelt one (``report_outcome(..., response="acepted")`` fails ``mypy --strict``): the kinds
+of action (:data:`ActionKind`), the responses (:data:`OutcomeResponse`), feedback
+(:data:`Feedback`), the initiator (:data:`Initiator`), the negotiation's states
+(:data:`NegotiationState`), an episode's status, a correction's kind. They are ``Literal``
+rather than enums because the JSON holds strings: a value compares equal to the text the
+service sends and to the text a robot's code writes, and nothing is converted on the way.
+
+What each mission defines is plain ``str``: situations, time slots, services and details are
+the names of the fleet's mission (``GET /v1/mission``), which staff may change at any time, so
+no type can list them.
+
+A kind of action, a response or a state that a newer service adds within v1 (changes there only
+add) still parses: those fields are typed with their ``Literal`` for the type checker but
+accept any string at run time, as they always did. ``status`` and the other enumerations the
+client checked before are checked as before.
 """
 
 from __future__ import annotations
 
 import datetime as dt
-from typing import Any, Literal
+from typing import Annotated, Any, Literal, NotRequired, TypedDict
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, PlainValidator
 
 __all__ = [
     "Action",
+    "ActionKind",
     "ActionBelief",
     "ActionProbability",
     "Context",
@@ -28,10 +45,12 @@ __all__ = [
     "EpisodeState",
     "EpisodeSummary",
     "EpisodeTrace",
+    "Feedback",
     "FeedbackResult",
     "FleetMission",
     "FleetPrior",
     "FlushReport",
+    "Initiator",
     "LearnerSpec",
     "Mission",
     "MissionChanged",
@@ -40,6 +59,9 @@ __all__ = [
     "MissionVersion",
     "MissionVersionList",
     "ModelView",
+    "NegotiationState",
+    "Outcome",
+    "OutcomeResponse",
     "OutcomeResult",
     "PendingReport",
     "Profile",
@@ -71,6 +93,58 @@ answers contradict it twice in a row), ``avoid`` (a service, or a service and de
 never chooses there), ``quiet`` (the robot never initiates there)."""
 CorrectionStatus = Literal["in_force", "overridden", "lifted", "idle"]
 Certainty = Literal["unknown", "tentative", "confident"]
+ActionKind = Literal[
+    "initiate",
+    "pass",
+    "query_type",
+    "query_detail",
+    "perform",
+    "respond",
+    "infer_type",
+    "infer_detail",
+]
+"""What the robot must do: ``initiate`` (approach and offer help), ``pass`` (stay passive),
+``query_type`` (ask which service), ``query_detail`` (ask which detail of ``service``),
+``perform`` (``service`` / ``detail``); and the silent steps the service takes itself, which
+appear in a decision's ``chain`` only: ``respond`` (to a request), ``infer_type``,
+``infer_detail``."""
+OutcomeResponse = Literal["accepted", "rejected", "terminated", "human_request", "none", "answered"]
+"""What the person did (one of the decision's ``expects``): ``accepted`` or ``rejected`` (an
+offer or a service), ``terminated`` (ended the dialog), ``human_request`` (asked, while the
+robot stayed passive), ``none`` (nothing happened), ``answered`` (a question)."""
+Feedback = Literal["positive", "negative"]
+"""Explicit feedback: a smile, a touch (``positive``), or the opposite."""
+Initiator = Literal["robot", "human"]
+"""Who began an episode: the robot noticed the person, or the person addressed the robot."""
+NegotiationState = Literal["OBSERVE", "REQUEST", "ENGAGED", "TYPE_KNOWN", "DETAIL_KNOWN", "END"]
+"""The negotiation's states (docs/method.md §2 of the Attune repository); the service and detail
+they concern, where they have one, are fields of their own."""
+
+
+class Outcome(TypedDict):
+    """What the person did, as ``report_outcome(episode_id, decision_id=..., **outcome)``
+    takes it: ``response`` always, ``service`` and ``detail`` where the response names them,
+    ``feedback`` when the person gave some with it. For a robot's code that works out the
+    reaction in one place and reports it in another, typed as the call's arguments are."""
+
+    response: OutcomeResponse
+    service: NotRequired[str]
+    detail: NotRequired[str]
+    feedback: NotRequired[Feedback]
+
+
+def _text(value: Any) -> str:
+    """Any string: what these fields held before they were typed (see the module)."""
+    if not isinstance(value, str):
+        raise ValueError(f"expected a string, got {type(value).__name__}")
+    return value
+
+
+# Typed with the contract's values for the type checker; any string at run time (the module).
+_ActionKind = Annotated[ActionKind, PlainValidator(_text)]
+_OutcomeResponse = Annotated[OutcomeResponse, PlainValidator(_text)]
+_Feedback = Annotated[Feedback, PlainValidator(_text)]
+_State = Annotated[NegotiationState, PlainValidator(_text)]
 
 
 class _Model(BaseModel):
@@ -79,11 +153,11 @@ class _Model(BaseModel):
 
 # -- actions and decisions ---------------------------------------------------------------------
 class Action(_Model):
-    """An action of the negotiation: ``kind`` (``initiate``, ``pass``, ``query_type``,
-    ``query_detail``, ``perform``, or a silent one in ``chain``), with ``service`` and
-    ``detail`` where it has them."""
+    """An action of the negotiation: ``kind`` (:data:`ActionKind`: ``initiate``, ``pass``,
+    ``query_type``, ``query_detail``, ``perform``, or a silent one in ``chain``), with
+    ``service`` and ``detail`` (names of the mission) where it has them."""
 
-    kind: str
+    kind: _ActionKind
     service: str | None = None
     detail: str | None = None
 
@@ -112,7 +186,7 @@ class Decision(_Model):
 
     decision_id: str
     action: Action
-    expects: list[str]
+    expects: list[_OutcomeResponse]
     probabilities: list[ActionProbability]
     chain: list[ActionProbability] = Field(default_factory=list)
 
@@ -129,7 +203,7 @@ class EpisodeStarted(_Model):
     user_id: str
     status: EpisodeStatus
     context: Context
-    state: str
+    state: _State
     total_reward: float
     decision: Decision | None
     mission_version: int | None = None
@@ -141,7 +215,7 @@ class EpisodeState(_Model):
 
     episode_id: str
     status: EpisodeStatus
-    state: str
+    state: _State
     total_reward: float
 
 
@@ -203,14 +277,14 @@ class TraceDecision(_Model):
     """One decision of an episode's trace, with the response it got (None while open)."""
 
     decision_id: str
-    state: str
+    state: _State
     action: Action
     probabilities: list[ActionProbability]
     chain: list[ActionProbability] = Field(default_factory=list)
-    response: str | None = None
+    response: _OutcomeResponse | None = None
     service: str | None = None
     detail: str | None = None
-    feedback: str | None = None
+    feedback: _Feedback | None = None
     reward: float | None = None
     decided_at: dt.datetime
     answered_at: dt.datetime | None = None
@@ -220,7 +294,7 @@ class TraceFeedback(_Model):
     """One piece of feedback of an episode's trace."""
 
     feedback_id: str
-    feedback: str
+    feedback: _Feedback
     reward: float
     received_at: dt.datetime
 
@@ -234,10 +308,10 @@ class EpisodeSummary(_Model):
     robot_id: str | None = None
     status: EpisodeStatus
     context: Context
-    initiator: Literal["robot", "human"]
+    initiator: Initiator
     interaction_class: Literal["I1", "I2", "I3", "none"]
     total_reward: float
-    state: str | None = None
+    state: _State | None = None
     occurred_at: dt.datetime | None = None
     index: int | None = None
     mission_version: int | None = None
@@ -274,7 +348,7 @@ class ActionBelief(_Model):
 class StateBelief(_Model):
     """The actions of one state (a state of a service or detail names them)."""
 
-    state: str
+    state: _State
     service: str | None = None
     detail: str | None = None
     actions: list[ActionBelief]
