@@ -26,7 +26,7 @@ router = APIRouter(prefix="/v1/users", tags=["users"], route_class=Transactional
     responses={
         200: {"links": USER_LINKS},
         201: {"model": UserOut, "description": "Created.", "links": USER_LINKS},
-        **responses(404, 409, 415),
+        **responses(403, 404, 409, 415),
     },
 )
 def put_user(
@@ -45,7 +45,8 @@ def put_user(
     fleet: Fleet = None,
 ) -> JSONResponse:
     """Create or update a user of your fleet (idempotent): 201 when created, 200 when
-    updated."""
+    updated. A robot key may create a user with any field; changing an existing user's fields,
+    and reset_model, are for the fleet's staff and admins (403)."""
     out, created = service.put_user(
         session, ctx, principal, user_id, body or UserIn(), reset_model=reset_model, fleet=fleet
     )
