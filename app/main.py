@@ -5,6 +5,7 @@ from __future__ import annotations
 import logging
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
+from importlib.metadata import PackageNotFoundError, version
 
 from anyio import to_thread
 from fastapi import FastAPI
@@ -27,7 +28,7 @@ from app.db.session import Database
 from app.services.context import ServiceContext
 from app.settings import Settings, get_settings
 
-__all__ = ["app", "create_app"]
+__all__ = ["app", "create_app", "package_version"]
 
 DESCRIPTION = """
 Attune learns what each person a robot fleet serves wants, and when, from their feedback, and
@@ -55,6 +56,16 @@ its range.
 """
 
 
+def package_version() -> str:
+    """The installed ``attune`` distribution's version, as ``attune --version`` prints it
+    (``unknown`` when the code runs from a folder that was never installed): the OpenAPI
+    schema's ``info.version``."""
+    try:
+        return version("attune")
+    except PackageNotFoundError:
+        return "unknown"
+
+
 def _operation_id(route: APIRoute) -> str:
     """Stable client method names: the route function's name (``start_episode``)."""
     return route.name
@@ -79,7 +90,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     app = FastAPI(
         title="Attune",
-        version="1.0.0",
+        version=package_version(),
         description=DESCRIPTION,
         lifespan=lifespan,
         generate_unique_id_function=_operation_id,

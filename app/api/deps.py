@@ -14,8 +14,10 @@ from __future__ import annotations
 import asyncio
 import functools
 import inspect
-from collections.abc import Callable, Coroutine
+import json
+from collections.abc import Callable, Coroutine, Iterator
 from typing import Annotated, Any
+from urllib.parse import parse_qsl
 
 import orjson
 from anyio import to_thread
@@ -26,7 +28,7 @@ from sqlalchemy.orm import Session
 
 from app import logs
 from app.db.session import Database, LockBusy
-from app.errors import TooManyRequests, UnsupportedMediaType
+from app.errors import TooManyRequests, UnsupportedMediaType, ValidationFailed
 from app.services.auth import authenticate, bearer_digest
 from app.services.context import KeyCache, Principal, ServiceContext
 
@@ -38,6 +40,7 @@ __all__ = [
     "TransactionalRoute",
     "inline",
     "principal_of",
+    "refuse_nul",
     "writes",
 ]
 
@@ -66,13 +69,80 @@ def writes(endpoint: Callable[..., Any]) -> Callable[..., Any]:
     return endpoint
 
 
+NUL = "\x00"
+NUL_MESSAGE = "Text must not contain the NUL character (U+0000)"
+
+
+def _nul_locations(value: Any, loc: list[str]) -> Iterator[list[str]]:
+    """Where in a decoded JSON value a string (or an object's key) holds U+0000."""
+    if isinstance(value, str):
+        if NUL in value:
+            yield loc
+    elif isinstance(value, dict):
+        for key, item in value.items():
+            if NUL in key:
+                yield [*loc, key]
+            yield from _nul_locations(item, [*loc, key])
+    elif isinstance(value, list):
+        for i, item in enumerate(value):
+            yield from _nul_locations(item, [*loc, str(i)])
+
+
+def _is_form(content_type: str | None) -> bool:
+    kind = (content_type or "").split(";", 1)[0].strip().lower()
+    return kind == "application/x-www-form-urlencoded"
+
+
+async def refuse_nul(request: Request) -> None:
+    """422 naming every path parameter, query parameter and body field (of a JSON body, or of a
+    console form) whose text holds the NUL character U+0000. PostgreSQL cannot store it in a
+    text and SQLite would: one rule at the edge, run by every route's transaction wrapper
+    once the request's shape was validated and before any SQL of the endpoint, answers the
+    same on both engines. A JSON body can hold it only as the escape ``\\u0000``, a form
+    only as ``%00``: a body without those bytes is not parsed again."""
+    found = [
+        ["path", name]
+        for name, value in request.path_params.items()
+        if isinstance(value, str) and NUL in value
+    ]
+    if b"%00" in request.scope.get("query_string", b""):
+        found += [
+            ["query", name]
+            for name, value in request.query_params.multi_items()
+            if NUL in name or NUL in value
+        ]
+    if request.method not in ("GET", "HEAD"):
+        raw = await request.body()  # already read: the route's handler read it before
+        content_type = request.headers.get("content-type")
+        if b"\\u0000" in raw and is_json(content_type):
+            try:
+                doc = json.loads(raw)
+            except ValueError:  # not JSON: the route's own handling refused it already
+                doc = None
+            found += list(_nul_locations(doc, ["body"]))
+        elif b"%00" in raw and _is_form(content_type):
+            try:
+                pairs = parse_qsl(raw.decode("utf-8"), keep_blank_values=True)
+            except (UnicodeDecodeError, ValueError):
+                pairs = []
+            found += [["form", name] for name, value in pairs if NUL in name or NUL in value]
+    if found:
+        where = ".".join(found[0])
+        raise ValidationFailed(
+            f"{where}: {NUL_MESSAGE}.",
+            fields=[{"loc": loc, "msg": NUL_MESSAGE, "type": "string_nul"} for loc in found],
+        )
+
+
 def _in_transaction(
     endpoint: Callable[..., Any], *, write: bool, inline: bool
 ) -> Callable[..., Any]:
     """``endpoint`` with its ``session`` and ``ctx`` parameters filled in by the route: the
     request's session, whose transaction is the endpoint's whole call (committed at the end,
     rolled back if it raises; the after-commit callbacks run once it committed), and the
-    service context. FastAPI sees the endpoint's other parameters, plus the request."""
+    service context. FastAPI sees the endpoint's other parameters, plus the request. Before the
+    endpoint runs, the request's texts are checked for NUL characters (:func:`refuse_nul`):
+    after the key and the request's shape, before any SQL of the endpoint."""
     if inspect.iscoroutinefunction(endpoint):
         return endpoint
     signature = inspect.signature(endpoint)
@@ -98,6 +168,7 @@ def _in_transaction(
     @functools.wraps(endpoint)
     async def run_here_or_in_thread(**kwargs: Any) -> Any:
         call, request = arguments(kwargs)
+        await refuse_nul(request)
         db: Database = request.app.state.db
         group = db.join_group(asyncio.get_running_loop())
         if group is None:
@@ -128,11 +199,15 @@ def _in_transaction(
         with db.transaction(write=write) as session:
             return endpoint(**call, session=session)
 
+    @functools.wraps(endpoint)
+    async def checked_then_in_thread(**kwargs: Any) -> Any:
+        await refuse_nul(kwargs["request"])
+        return await run_in_threadpool(run, **kwargs)
+
     run.__signature__ = signature.replace(parameters=params)  # type: ignore[attr-defined]
-    if not (write and inline):
-        return run
-    run_here_or_in_thread.__signature__ = run.__signature__  # type: ignore[attr-defined]
-    return run_here_or_in_thread
+    wrapper = run_here_or_in_thread if write and inline else checked_then_in_thread
+    wrapper.__signature__ = run.__signature__  # type: ignore[attr-defined]
+    return wrapper
 
 
 def is_json(content_type: str | None) -> bool:

@@ -14,7 +14,7 @@ from app.schemas.users import UserIn, UserList, UserOut
 from app.services import users as service
 from app.services.context import ServiceContext
 
-from ._common import Fleet, Limit, UserCursor, UserId, no_content
+from ._common import Fleet, IdRule, Limit, QueryBool, UserCursor, UserId, no_content
 
 router = APIRouter(prefix="/v1/users", tags=["users"], route_class=TransactionalRoute)
 
@@ -36,10 +36,10 @@ def put_user(
     principal: CurrentPrincipal,
     body: UserIn | None = None,
     reset_model: Annotated[
-        bool,
+        QueryBool,
         Query(
-            description="Allow changing the learner of a user with "
-            "history (forgets what was learned)."
+            description="Allow changing the learner of a user with history (forgets what was "
+            "learned): true or false, spelled so (staff and admins)."
         ),
     ] = False,
     fleet: Fleet = None,
@@ -74,6 +74,7 @@ def list_users(
             description="Only this fleet's users (admin keys; other keys list their own fleet, "
             "and naming another is 404).",
         ),
+        IdRule,
     ] = None,
 ) -> UserList:
     """Users of your fleet by user id (admins: of every fleet, by fleet then user id), a page at
