@@ -17,6 +17,12 @@ route's ``{episode_id}`` is an episode of A's ``lin``.
   cell checks the status and the contract's error body (or the console's error page), and that
   the fleet the caller did not address is unchanged; a write that succeeded changed the
   addressed fleet's ``lin``.
+- ``FIELDS``: one row per field-level right of ``PUT /v1/users/{user_id}`` (each field of
+  ``UserIn`` and each query parameter but ``fleet``): the status of each caller changing it on
+  ``lin`` and setting it on a user the request creates. A field without a row, or without its
+  right in the service's table (``USER_FIELD_RIGHTS``), fails
+  ``test_every_field_has_a_decided_right``, and so does a row whose statuses are not the
+  table's.
 - ``PROBES``: another fleet's user or episode is answered exactly as an id that never existed:
   same status, same body once the two ids are swapped for one placeholder.
 - Then: each fleet acts on its own ``lin``; the admin's ``?fleet=``; the console's sign-in; the
