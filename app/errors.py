@@ -38,7 +38,8 @@ class AppError(Exception):
         self.fields = fields
 
     def headers(self) -> dict[str, str]:
-        """Response headers the error adds (``Retry-After`` for 429 and 503)."""
+        """Response headers the error adds (``WWW-Authenticate`` for 401, ``Retry-After`` for
+        429 and 503)."""
         return {}
 
 
@@ -48,8 +49,14 @@ class BadRequest(AppError):
 
 
 class Unauthorized(AppError):
+    """No key, or an unknown or revoked one; the answer says how to send a key
+    (``WWW-Authenticate: Bearer``, RFC 6750)."""
+
     status_code = 401
     error = "Unauthorized"
+
+    def headers(self) -> dict[str, str]:
+        return {"WWW-Authenticate": "Bearer"}
 
 
 class Forbidden(AppError):

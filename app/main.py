@@ -7,6 +7,7 @@ import contextlib
 import logging
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
+from importlib.metadata import PackageNotFoundError, version
 from typing import Any
 
 from anyio import to_thread
@@ -31,7 +32,7 @@ from app.db.session import Database
 from app.services.context import ServiceContext
 from app.settings import Settings, get_settings, mask_url
 
-__all__ = ["app", "create_app"]
+__all__ = ["app", "create_app", "package_version"]
 
 DESCRIPTION = """
 Attune learns what each person a robot fleet serves wants, and when, from their feedback, and
@@ -58,6 +59,16 @@ body), and a 405 lists the path's methods in its `Allow` header. Integer query p
 bounded (`limit` 1 to 500, `last` 1 to 1000000); outside the range, 422 names the parameter and
 its range.
 """
+
+
+def package_version() -> str:
+    """The installed ``attune`` distribution's version, as ``attune --version`` prints it
+    (``unknown`` when the code runs from a folder that was never installed): the OpenAPI
+    schema's ``info.version``."""
+    try:
+        return version("attune")
+    except PackageNotFoundError:
+        return "unknown"
 
 
 def _operation_id(route: APIRoute) -> str:
@@ -90,7 +101,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     app = FastAPI(
         title="Attune",
-        version="1.0.0",
+        version=package_version(),
         description=DESCRIPTION,
         lifespan=lifespan,
         generate_unique_id_function=_operation_id,

@@ -14,8 +14,10 @@ from __future__ import annotations
 import asyncio
 import functools
 import inspect
-from collections.abc import Callable, Coroutine
+import json
+from collections.abc import Callable, Coroutine, Iterator
 from typing import Annotated, Any
+from urllib.parse import parse_qsl
 
 import orjson
 from anyio import to_thread
@@ -26,7 +28,7 @@ from sqlalchemy.orm import Session
 
 from app import logs
 from app.db.session import Database, LockBusy
-from app.errors import TooManyRequests, UnsupportedMediaType
+from app.errors import TooManyRequests, UnsupportedMediaType, ValidationFailed
 from app.services.auth import authenticate, bearer_digest
 from app.services.context import KeyCache, Principal, ServiceContext
 
@@ -37,7 +39,9 @@ __all__ = [
     "RequestSession",
     "TransactionalRoute",
     "inline",
+    "nul_fields",
     "principal_of",
+    "refuse_nul",
     "writes",
 ]
 
@@ -66,13 +70,88 @@ def writes(endpoint: Callable[..., Any]) -> Callable[..., Any]:
     return endpoint
 
 
+NUL = "\x00"
+NUL_MESSAGE = "Text must not contain the NUL character (U+0000)"
+_NUL_KEY = "attune.nul_fields"  # in the request's ASGI scope: where the route found NULs
+
+
+def _nul_locations(value: Any, loc: list[str]) -> Iterator[list[str]]:
+    """Where in a decoded JSON value a string (or an object's key) holds U+0000."""
+    if isinstance(value, str):
+        if NUL in value:
+            yield loc
+    elif isinstance(value, dict):
+        for key, item in value.items():
+            if NUL in key:
+                yield [*loc, key]
+            yield from _nul_locations(item, [*loc, key])
+    elif isinstance(value, list):
+        for i, item in enumerate(value):
+            yield from _nul_locations(item, [*loc, str(i)])
+
+
+def _is_form(content_type: str | None) -> bool:
+    kind = (content_type or "").split(";", 1)[0].strip().lower()
+    return kind == "application/x-www-form-urlencoded"
+
+
+async def nul_fields(request: Request) -> list[list[str]]:
+    """Where the request's texts hold the NUL character U+0000: every path parameter, query
+    parameter and body field (of a JSON body at any depth, keys too, or of a console form),
+    as the ``loc`` of a 422. A JSON body can hold it only as the escape ``\\u0000``, a form
+    only as ``%00``: a body without those bytes is not parsed again (every robot request
+    passes here; the common case costs a few lookups and byte searches)."""
+    scope = request.scope
+    found: list[list[str]] = []
+    for name, value in scope.get("path_params", {}).items():
+        if isinstance(value, str) and NUL in value:
+            found.append(["path", name])
+    if b"%00" in scope.get("query_string", b""):
+        found += [
+            ["query", name]
+            for name, value in request.query_params.multi_items()
+            if NUL in name or NUL in value
+        ]
+    if scope["method"] not in ("GET", "HEAD"):
+        raw = await request.body()  # the route reads it anyway; Starlette keeps it
+        if b"\\u0000" in raw and is_json(request.headers.get("content-type")):
+            try:
+                doc = json.loads(raw)
+            except ValueError:  # not JSON: the route's own handling refuses it
+                doc = None
+            found += list(_nul_locations(doc, ["body"]))
+        elif b"%00" in raw and _is_form(request.headers.get("content-type")):
+            try:
+                pairs = parse_qsl(raw.decode("utf-8"), keep_blank_values=True)
+            except (UnicodeDecodeError, ValueError):
+                pairs = []
+            found += [["form", name] for name, value in pairs if NUL in name or NUL in value]
+    return found
+
+
+def refuse_nul(request: Request) -> None:
+    """422 naming every place of the request whose text holds U+0000 (found by
+    :func:`nul_fields` when the route received the request). PostgreSQL cannot store it in a
+    text and SQLite would: one rule at the edge, applied by every route's transaction wrapper
+    after the key and the request's shape were checked and before the endpoint's first SQL
+    statement, answers the same on both engines."""
+    found: list[list[str]] | None = request.scope.get(_NUL_KEY)
+    if found:
+        raise ValidationFailed(
+            f"{'.'.join(found[0])}: {NUL_MESSAGE}.",
+            fields=[{"loc": loc, "msg": NUL_MESSAGE, "type": "string_nul"} for loc in found],
+        )
+
+
 def _in_transaction(
     endpoint: Callable[..., Any], *, write: bool, inline: bool
 ) -> Callable[..., Any]:
     """``endpoint`` with its ``session`` and ``ctx`` parameters filled in by the route: the
     request's session, whose transaction is the endpoint's whole call (committed at the end,
     rolled back if it raises; the after-commit callbacks run once it committed), and the
-    service context. FastAPI sees the endpoint's other parameters, plus the request."""
+    service context. FastAPI sees the endpoint's other parameters, plus the request. The
+    endpoint's call starts by refusing NUL characters in the request's texts
+    (:func:`refuse_nul`): after the key and the request's shape, before any SQL of it."""
     if inspect.iscoroutinefunction(endpoint):
         return endpoint
     signature = inspect.signature(endpoint)
@@ -98,6 +177,7 @@ def _in_transaction(
     @functools.wraps(endpoint)
     async def run_here_or_in_thread(**kwargs: Any) -> Any:
         call, request = arguments(kwargs)
+        refuse_nul(request)
         db: Database = request.app.state.db
         group = db.join_group(asyncio.get_running_loop())
         if group is None:
@@ -122,6 +202,7 @@ def _in_transaction(
     @functools.wraps(endpoint)
     def run(**kwargs: Any) -> Any:
         call, request = arguments(kwargs)
+        refuse_nul(request)
         if "session" not in injected:
             return endpoint(**call)
         db: Database = request.app.state.db
@@ -153,7 +234,9 @@ class TransactionalRoute(APIRoute):
 
     A route that takes a JSON body refuses a non-empty body sent as anything but JSON (another
     Content-Type, or none) with 415, before reading it as JSON; an empty body is left to the
-    route (422 where the body is required, the defaults where it is optional).
+    route (422 where the body is required, the defaults where it is optional). Every route
+    looks for NUL characters in the request's texts as it receives it (:func:`nul_fields`),
+    and the endpoint refuses them (:func:`refuse_nul`).
     """
 
     def __init__(self, path: str, endpoint: Callable[..., Any], **kwargs: Any) -> None:
@@ -163,6 +246,17 @@ class TransactionalRoute(APIRoute):
         super().__init__(path, _in_transaction(endpoint, write=write, inline=inline), **kwargs)
 
     def get_route_handler(self) -> Callable[[Request], Coroutine[Any, Any, Response]]:
+        handler = self._json_handler()
+
+        async def looked_at(request: Request) -> Response:
+            # Where its texts hold NUL characters; refused once the key and the request's
+            # shape are checked, just before the endpoint (refuse_nul).
+            request.scope[_NUL_KEY] = await nul_fields(request)
+            return await handler(request)
+
+        return looked_at
+
+    def _json_handler(self) -> Callable[[Request], Coroutine[Any, Any, Response]]:
         handler = super().get_route_handler()
         body = self.body_field
         if body is None or isinstance(body.field_info, params.Form):

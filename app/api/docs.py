@@ -3,8 +3,9 @@ service itself from ``/static/docs/`` (``app/api/static/docs``, vendored with th
 the pages work where there is no internet, as robots' and care homes' networks often are.
 
 Both pages carry a Content-Security-Policy that lets them load nothing from elsewhere, so a
-browser that can reach the internet sends it nothing either (Redoc's sidebar would fetch its
-maker's logo from a CDN; blocked, it is left out).
+browser that can reach the internet sends it nothing either. Neither page asks for anything
+from elsewhere in the first place: the vendored Redoc bundle has its sidebar's logo, which it
+would fetch from its maker's CDN, left out (``static/docs/redoc/README.md``).
 """
 
 from __future__ import annotations

@@ -50,11 +50,18 @@ _RETRY_AFTER = {
         "schema": {"type": "string", "pattern": "^[0-9]+$"},
     }
 }
+_WWW_AUTHENTICATE = {
+    "WWW-Authenticate": {
+        "description": "How to send a key: Bearer (an Authorization: Bearer <key> header).",
+        "schema": {"type": "string", "enum": ["Bearer"]},
+    }
+}
+_HEADERS = {401: _WWW_AUTHENTICATE, 429: _RETRY_AFTER, 503: _RETRY_AFTER}
 ERROR_RESPONSES: dict[int | str, dict[str, Any]] = {
     code: {
         "model": ErrorOut,
         "description": text,
-        **({"headers": _RETRY_AFTER} if code in (429, 503) else {}),
+        **({"headers": _HEADERS[code]} if code in _HEADERS else {}),
     }
     for code, text in _DESCRIPTIONS.items()
 }
@@ -224,14 +231,12 @@ def install_error_handlers(app: FastAPI) -> None:
 
     @app.exception_handler(DataError)
     async def data_error(_: Request, exc: DataError) -> JSONResponse:
-        # A value the database cannot hold (PostgreSQL: a NUL character in a text) is the
-        # client's to fix, not a server failure.
+        # A value the database cannot hold is the client's to fix, not a server failure. (A NUL
+        # character, which PostgreSQL cannot store in a text, is refused before any SQL, on
+        # both engines: app.api.deps.refuse_nul.)
         log.info("data error: %s", exc.orig)
         return _render(
-            ValidationFailed(
-                "A value in the request cannot be stored (a NUL "
-                "character, say); remove it and retry."
-            )
+            ValidationFailed("A value in the request cannot be stored; change it and retry.")
         )
 
     @app.exception_handler(OperationalError)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import datetime as dt
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, StrictBool
 
 from .common import ClientId
 
@@ -79,7 +79,9 @@ class FleetList(BaseModel):
 class FleetPriorIn(BaseModel):
     model_config = ConfigDict(extra="forbid", json_schema_extra={"examples": [{"enabled": False}]})
 
-    enabled: bool = Field(description="Whether the fleet's newcomers start from its prior.")
+    enabled: StrictBool = Field(
+        description="Whether the fleet's newcomers start from its prior (a JSON boolean)."
+    )
 
 
 class FleetPriorOut(BaseModel):

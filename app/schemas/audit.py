@@ -26,11 +26,15 @@ class AuditEntryOut(BaseModel):
     actor: AuditActor
     action: str = Field(
         examples=["user.delete"],
-        description="user.delete, model.reset, "
-        "model.export, model.import, model.rebuild (attune models rebuild "
-        "--save), key.create or key.revoke.",
+        description="user.delete, user.learner (a change of learner, which replaces the "
+        "model), user.prior (the user's fleet_prior changed), model.reset, model.export, "
+        "model.import, model.rebuild (attune models rebuild --save), key.create, key.revoke, "
+        "mission.set, correction.add, correction.lift or fleet.prior.",
     )
-    target: str = Field(description="The user id (user.*, model.*) or key id (key.*).")
+    target: str = Field(
+        description="The user id (user.*, model.*, correction.*), key id (key.*) or fleet "
+        "(mission.set, fleet.prior)."
+    )
     fleet: str | None = Field(description="The target's fleet.")
     detail: dict[str, Any] | None = Field(
         description="Facts of the action (the model version "

@@ -2,16 +2,19 @@ from __future__ import annotations
 
 from typing import Annotated, Any
 
-from pydantic import BaseModel, ConfigDict, Field, StringConstraints
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, StringConstraints
+from pydantic_core import PydanticCustomError
 
 __all__ = [
     "CLIENT_ID_PATTERN",
+    "DOT_SEGMENTS",
     "MAX_POSITION",
     "ActionOut",
     "ClientId",
     "ErrorOut",
     "Page",
     "ProbabilityOut",
+    "not_a_dot_segment",
     "position_of",
 ]
 
@@ -29,7 +32,27 @@ def position_of(cursor: str) -> int | None:
     return value if value <= MAX_POSITION else None
 
 
-ClientId = Annotated[str, StringConstraints(pattern=CLIENT_ID_PATTERN)]
+DOT_SEGMENTS = (".", "..")
+
+
+def not_a_dot_segment(value: str) -> str:
+    """Refuse ``.`` and ``..`` as a client-chosen id: the pattern allows their characters, but
+    in a URL path they mean the path itself and its parent, so a user (a fleet, a correction)
+    of that id could never be opened by its URL."""
+    if value in DOT_SEGMENTS:
+        raise PydanticCustomError(
+            "client_id_dot_segment",
+            "'{value}' is not an id: in a URL path '.' and '..' mean this path and the one "
+            "above it, so what it names could not be opened",
+            {"value": value},
+        )
+    return value
+
+
+ClientId = Annotated[
+    str, StringConstraints(pattern=CLIENT_ID_PATTERN), AfterValidator(not_a_dot_segment)
+]
+"""A client-chosen id: ``CLIENT_ID_PATTERN``, and neither ``.`` nor ``..``."""
 
 
 class ErrorOut(BaseModel):

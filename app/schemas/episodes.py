@@ -1,9 +1,11 @@
 from __future__ import annotations
 
 import datetime as dt
+import re
 from typing import Literal
 
 from pydantic import AwareDatetime, BaseModel, ConfigDict, Field, field_validator
+from pydantic_core import PydanticCustomError
 
 from .common import ActionOut, ClientId, Page, ProbabilityOut
 
@@ -24,6 +26,19 @@ __all__ = [
     "RequestIn",
     "TraceDecision",
 ]
+
+# The start of an RFC 3339 date-time: a date, "T" (or a space, as RFC 3339 allows), hours and
+# minutes; pydantic checks the rest (seconds, fraction, and that there is an offset).
+_DATE_TIME = re.compile(r"[0-9]{4}-[0-9]{2}-[0-9]{2}[Tt ][0-9]{2}:[0-9]{2}")
+
+
+def _number_like(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
 
 Response = Literal["accepted", "rejected", "terminated", "human_request", "none", "answered"]
 FeedbackWord = Literal["positive", "negative"]
@@ -67,9 +82,22 @@ class EpisodeIn(BaseModel):
     @field_validator("occurred_at", mode="before")
     @classmethod
     def _rfc3339_text(cls, value: object) -> object:
-        # pydantic would take a number as Unix seconds; the contract is RFC 3339 with an offset
-        if isinstance(value, int | float):
-            raise ValueError("occurred_at must be an RFC 3339 time with an offset, as text")
+        # pydantic would take a number, or a text of digits ("1700000000"), as Unix seconds;
+        # the contract is an RFC 3339 date-time with an offset, as text
+        if isinstance(value, bool | int | float) or (
+            isinstance(value, str) and _number_like(value)
+        ):
+            raise PydanticCustomError(
+                "datetime_not_a_number",
+                "occurred_at must be an RFC 3339 date-time with an offset, as text "
+                "(2026-11-22T15:10:00+08:00), not a number of seconds",
+            )
+        if isinstance(value, str) and not _DATE_TIME.match(value):
+            raise PydanticCustomError(
+                "datetime_format",
+                "occurred_at must be an RFC 3339 date-time with an offset "
+                "(2026-11-22T15:10:00+08:00)",
+            )
         return value
 
     @field_validator("occurred_at")

@@ -3,7 +3,7 @@ from __future__ import annotations
 import datetime as dt
 from typing import Any
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, StrictBool
 
 from .common import Page
 
@@ -40,11 +40,12 @@ class UserIn(BaseModel):
 
     display_name: str | None = Field(default=None, max_length=200)
     learner: LearnerSpec | None = None
-    fleet_prior: bool | None = Field(
+    fleet_prior: StrictBool | None = Field(
         default=None,
         description="Whether the person takes part in the fleet's prior: a new "
         "user starts from it, and the user's model adds to it. false: neither. Omitted: true "
-        "for a new user, unchanged for an existing one.",
+        "for a new user, unchanged for an existing one. A JSON boolean: true or false, not a "
+        "string or a number.",
     )
 
 

@@ -24,6 +24,8 @@ __all__ = ["ACTIONS", "CLI", "list_audit", "record"]
 
 ACTIONS = (
     "user.delete",
+    "user.learner",
+    "user.prior",
     "model.reset",
     "model.export",
     "model.import",

@@ -13,6 +13,7 @@ from app.db.repositories import keys as repo
 from app.db.repositories.keys import KeyRow
 from app.db.types import utcnow
 from app.errors import Forbidden, NotFound, Unauthorized, ValidationFailed
+from app.schemas.common import DOT_SEGMENTS
 
 from . import audit
 from .context import KeyCache, Principal, after_commit
@@ -56,8 +57,11 @@ def create_key(
     require_admin(actor)
     if role not in ROLES:
         raise ValidationFailed(f"role must be one of {', '.join(ROLES)}; got {role!r}.")
-    if not _FLEET.match(fleet):
-        raise ValidationFailed("fleet must match ^[A-Za-z0-9._:-]{1,128}$.")
+    if not _FLEET.match(fleet) or fleet in DOT_SEGMENTS:
+        raise ValidationFailed(
+            "fleet must match ^[A-Za-z0-9._:-]{1,128}$ and be neither '.' nor '..' (in a URL "
+            "path they mean this path and the one above it)."
+        )
     secret = SECRET_PREFIX + secrets.token_urlsafe(32)
     key = KeyRow(
         id="key_" + secrets.token_hex(8),

@@ -40,7 +40,6 @@ __all__ = [
     "rule_of",
     "rules_for",
     "rules_resolver",
-    "settle_rows",
 ]
 
 
@@ -243,17 +242,6 @@ def lift_correction(
         detail={"correction_id": correction_id, "version": model.version},
     )
     return _out(session, user, row, learner.guidance, learner)
-
-
-def settle_rows(session: Session, principal: Principal, user: UserRow, guidance: Guidance) -> None:
-    """After the model was replaced (a reset, an import): the stored corrections are lifted
-    when the new model does not hold them, and in force again when it does."""
-    now = utcnow()
-    for row in repo.for_user(session, user.id):
-        held = guidance.get(row.correction_id) is not None
-        if row.id is None or held == (row.lifted_at is None):
-            continue
-        repo.lift(session, row.id, at=None if held else now, by=None if held else principal.key_id)
 
 
 def _context_or_zero(learner: TabularLearner[Any], row: CorrectionRow) -> int:

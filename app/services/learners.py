@@ -4,8 +4,8 @@
 the stored snapshot with the journal's later samples replayed onto it. ``save_learner`` teaches
 it one write's samples (the transitions of an outcome, or one feedback), records them in the
 journal, moves the model's version on by one and, every ``snapshot_every`` versions, stores the
-learner's state, or replaces the model (a reset, a new learner, an import). The cache gets
-the learner back only once the transaction commits.
+learner's state. ``replace_model`` replaces the model (a reset, a new learner, an import) and
+records who did it. The cache gets the learner back only once the transaction commits.
 """
 
 from __future__ import annotations
@@ -16,15 +16,18 @@ from typing import Any, Literal
 
 from sqlalchemy.orm import Session
 
+from app.db.repositories import corrections as corrections_repo
 from app.db.repositories import models as repo
 from app.db.repositories.models import ModelRow, SampleRow
+from app.db.repositories.users import UserRow
 from app.db.types import utcnow
 from app.errors import ValidationFailed
 from app.learning import Mission, Polarity, Transition, learner_from_state, make_learner
 from app.learning.guidance import Rule
 from app.learning.learners import TabularLearner
 
-from .context import ServiceContext, after_commit
+from . import audit
+from .context import Principal, ServiceContext, after_commit
 
 __all__ = [
     "Mover",
@@ -32,6 +35,7 @@ __all__ = [
     "StartOver",
     "fresh_learner",
     "load_learner",
+    "replace_model",
     "replay",
     "save_learner",
     "save_move",
@@ -219,8 +223,6 @@ def save_learner(
     samples: Sequence[SampleRow] = (),
     *,
     snapshot: bool = False,
-    start_over: StartOver | None = None,
-    episode_offset: int | None = None,
     rules: Rules | None = None,
 ) -> None:
     """Store a write's change of the user's model: one version on.
@@ -232,31 +234,10 @@ def save_learner(
     A staff correction (one "correction" or "lift" sample, taught with ``rules``) is always
     stored with a snapshot, so loading a model never replays one.
 
-    With ``start_over``, the model is replaced by ``learner`` (a reset or a new learner:
-    ``"fresh"``; an imported document: ``"imported"``, which becomes the base a rebuild starts
-    from); the history stays. ``episode_offset`` moves the learner's episode clock.
-
-    With neither, nothing is stored; the learner just goes back to the cache.
+    With neither, nothing is stored; the learner just goes back to the cache. A model replaced
+    as a whole goes through :func:`replace_model`.
     """
-    if start_over is not None:
-        ctx.cache.drop(user_pk)
-        model.version += 1
-        model.base_version = model.state_version = model.version
-        if episode_offset is not None:
-            model.episode_offset = episode_offset
-        state = learner.to_state()
-        repo.replace(
-            session,
-            user_pk,
-            version=model.version,
-            state=state,
-            base_state=state if start_over == "imported" else None,
-            episode_offset=model.episode_offset,
-            mission_version=model.mission_version,
-            updated_at=utcnow(),
-        )
-        model.base_mission_version = model.mission_version
-    elif samples or snapshot:
+    if samples or snapshot:
         if samples:
             _teach(learner, samples, rules)
             snapshot = snapshot or samples[0].kind in ("correction", "lift")
@@ -276,3 +257,67 @@ def save_learner(
         repo.add_samples(session, list(samples))
     version = model.version
     after_commit(session, lambda: ctx.cache.put(user_pk, version, learner))
+
+
+def replace_model(
+    session: Session,
+    ctx: ServiceContext,
+    actor: Principal,
+    user: UserRow,
+    model: ModelRow,
+    learner: TabularLearner[Any],
+    *,
+    start_over: StartOver,
+    action: str,
+    detail: dict[str, Any],
+    episode_offset: int | None = None,
+) -> int:
+    """Replace the user's model by ``learner``, one version on; the history stays. A reset or
+    a new learner starts over ``"fresh"``; an imported document (or a reset that keeps the
+    corrections) is ``"imported"``: it becomes the base a rebuild starts from.
+    ``episode_offset`` moves the learner's episode clock.
+
+    Who did it, and when, is recorded with the change, whatever the route (the API, the
+    console, the command line): the user's stored corrections that the new model does not
+    hold are lifted by ``actor`` now (``lifted_at``, ``lifted_by``), those it holds are in
+    force again, and the audit log gets ``action`` with ``detail`` and
+    ``corrections_lifted``. Returns how many corrections it lifted.
+    """
+    ctx.cache.drop(user.id)
+    model.version += 1
+    model.base_version = model.state_version = model.version
+    if episode_offset is not None:
+        model.episode_offset = episode_offset
+    state = learner.to_state()
+    now = utcnow()
+    repo.replace(
+        session,
+        user.id,
+        version=model.version,
+        state=state,
+        base_state=state if start_over == "imported" else None,
+        episode_offset=model.episode_offset,
+        mission_version=model.mission_version,
+        updated_at=now,
+    )
+    model.base_mission_version = model.mission_version
+    lifted = 0
+    for row in corrections_repo.for_user(session, user.id):
+        held = learner.guidance.get(row.correction_id) is not None
+        if row.id is None or held == (row.lifted_at is None):
+            continue
+        lifted += not held
+        corrections_repo.lift(
+            session, row.id, at=None if held else now, by=None if held else actor.key_id
+        )
+    audit.record(
+        session,
+        actor,
+        action,
+        target=user.user_id,
+        fleet=user.fleet,
+        detail={**detail, "version": model.version, "corrections_lifted": lifted},
+    )
+    version = model.version
+    after_commit(session, lambda: ctx.cache.put(user.id, version, learner))
+    return lifted

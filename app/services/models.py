@@ -35,7 +35,7 @@ from . import audit, corrections, missions
 from .auth import require_manager
 from .context import Principal, ServiceContext, rng_for
 from .episodes import action_out
-from .learners import fresh_learner, load_learner, replay, save_learner
+from .learners import fresh_learner, load_learner, replace_model, replay, save_learner
 from .prior import started_from
 from .users import visible_user
 
@@ -181,15 +181,16 @@ def reset_model(
         fresh.guidance = old.guidance.copy()
         kept = len(fresh.guidance)
     # A fresh learner that keeps corrections is the base a rebuild starts from, as an import is
-    save_learner(session, ctx, user.id, model, fresh, start_over="imported" if kept else "fresh")
-    corrections.settle_rows(session, principal, user, fresh.guidance)
-    audit.record(
+    replace_model(
         session,
+        ctx,
         principal,
-        "model.reset",
-        target=user_id,
-        fleet=user.fleet,
-        detail={"version": model.version, "corrections_kept": kept},
+        user,
+        model,
+        fresh,
+        start_over="imported" if kept else "fresh",
+        action="model.reset",
+        detail={"corrections_kept": kept},
     )
 
 
@@ -232,23 +233,17 @@ def import_model(
     learner = _imported(session, ctx, user.fleet, model.mission_version, doc)
     user.algorithm, user.params = learner.algorithm, learner.params.to_dict()
     users_repo.save_profile(session, user)
-    save_learner(
+    replace_model(
         session,
         ctx,
-        user.id,
+        principal,
+        user,
         model,
         learner,
         start_over="imported",
+        action="model.import",
+        detail={"algorithm": learner.algorithm},
         episode_offset=max(model.episode_offset, learner.episodes - user.episode_count),
-    )
-    corrections.settle_rows(session, principal, user, learner.guidance)
-    audit.record(
-        session,
-        principal,
-        "model.import",
-        target=user_id,
-        fleet=user.fleet,
-        detail={"algorithm": learner.algorithm, "version": model.version},
     )
     return model_view(
         session, ctx, principal, user_id, time_slot=None, situation=None, fleet=user.fleet

@@ -10,6 +10,8 @@ from __future__ import annotations
 import base64
 import binascii
 import re
+from dataclasses import dataclass
+from typing import Any
 
 from sqlalchemy.orm import Session
 
@@ -17,18 +19,21 @@ from app.db.repositories import models as models_repo
 from app.db.repositories import users as repo
 from app.db.repositories.users import UserRow
 from app.db.types import utcnow
-from app.errors import Conflict, NotFound, ValidationFailed
+from app.errors import Conflict, Forbidden, NotFound, ValidationFailed
+from app.learning.learners import TabularLearner
 from app.schemas.common import CLIENT_ID_PATTERN
 from app.schemas.users import LearnerSpec, UserIn, UserList, UserOut
 
 from . import audit
-from .auth import require_manager
+from .auth import ROLES, require_manager
 from .context import Principal, ServiceContext
-from .learners import fresh_learner, save_learner
+from .learners import fresh_learner, replace_model
 from .missions import current_version
 from .prior import starting_learner
 
 __all__ = [
+    "USER_FIELD_RIGHTS",
+    "FieldRight",
     "create_user",
     "delete_user",
     "fleet_of",
@@ -119,6 +124,55 @@ def create_user(
     )
 
 
+@dataclass(frozen=True, slots=True)
+class FieldRight:
+    """The roles that may set a field of ``PUT /v1/users/{user_id}``: on the user the request
+    creates (``creates``), and on a user that exists already (``changes``: to another value
+    than the stored one; sending the stored value changes nothing and is anyone's)."""
+
+    creates: frozenset[str]
+    changes: frozenset[str]
+
+
+EVERYONE = frozenset(ROLES)
+MANAGERS = frozenset(("staff", "admin"))
+# Who may set what on PUT /v1/users/{user_id}: every field of ``UserIn`` and every query
+# parameter but ``fleet`` (which only says whose user is meant). What staff set, a robot key
+# cannot undo: a robot may create a person with any of the body's fields (there is nothing yet
+# to undo), and changes none of them afterwards; ``reset_model`` is staff's and admins' only.
+# docs/api.md ("Who may set what") shows this table, and tests/api/test_fleet_matrix.py has a
+# row per entry (it fails for a field without one). A field missing here is for staff and
+# admins only.
+USER_FIELD_RIGHTS: dict[str, FieldRight] = {
+    "display_name": FieldRight(creates=EVERYONE, changes=MANAGERS),
+    "learner": FieldRight(creates=EVERYONE, changes=MANAGERS),
+    "fleet_prior": FieldRight(creates=EVERYONE, changes=MANAGERS),
+    "reset_model": FieldRight(creates=MANAGERS, changes=MANAGERS),
+}
+_UNDECIDED = FieldRight(creates=MANAGERS, changes=MANAGERS)
+
+
+def _check_rights(principal: Principal, names: list[str], *, creating: bool) -> None:
+    """403 naming the fields ``principal`` may not set (on a new user with ``creating``)."""
+    refused = []
+    for name in names:
+        right = USER_FIELD_RIGHTS.get(name, _UNDECIDED)
+        if principal.role not in (right.creates if creating else right.changes):
+            refused.append(name)
+    if refused:
+        what = " and ".join(", ".join(refused).rsplit(", ", 1))
+        raise Forbidden(
+            f"A {principal.role} key may not {'set' if creating else 'change'} {what} of a "
+            "user; that is for the fleet's staff or an admin."
+        )
+
+
+def _given(body: UserIn, reset_model: bool) -> list[str]:
+    """The fields the request sets: the body's fields it gives, and ``reset_model`` if true."""
+    names = [name for name in type(body).model_fields if getattr(body, name) is not None]
+    return [*names, "reset_model"] if reset_model else names
+
+
 def put_user(
     session: Session,
     ctx: ServiceContext,
@@ -130,10 +184,13 @@ def put_user(
     fleet: str | None = None,
 ) -> tuple[UserOut, bool]:
     """Create or update a user of the caller's fleet (an admin's: of ``fleet``); (user,
-    created)."""
+    created). Who may set which field is ``USER_FIELD_RIGHTS`` (403 otherwise); a change of
+    learner or of ``fleet_prior`` is audited (``user.learner``, ``user.prior``)."""
     in_fleet = fleet_of(principal, fleet, user_id)
+    given = _given(body, reset_model)
     created = False
     if repo.lock(session, in_fleet, user_id) is None:
+        _check_rights(principal, given, creating=True)
         created = create_user(
             session,
             ctx,
@@ -146,27 +203,65 @@ def put_user(
     user = visible_user(session, principal, user_id, fleet=in_fleet, lock=True)
     if created:
         return user_out(user), True
+    model = models_repo.head(session, user.id)
+    assert model is not None  # every user is created with its model
+    learner: TabularLearner[Any] | None = None
+    learner_error: ValidationFailed | None = None
+    if body.learner is not None:
+        try:
+            learner = fresh_learner(
+                body.learner.algorithm,
+                body.learner.params,
+                ctx.missions.get(session, user.fleet, model.mission_version).mission,
+            )
+        except ValidationFailed as exc:  # not the stored learner: refused or 422, below
+            learner_error = exc
+    same = {
+        "display_name": body.display_name == user.display_name,
+        "fleet_prior": body.fleet_prior == user.fleet_prior,
+        "learner": learner is not None
+        and body.learner is not None
+        and (body.learner.algorithm, learner.params.to_dict())
+        == (user.algorithm, dict(user.params)),
+    }
+    _check_rights(principal, [n for n in given if not same.get(n, False)], creating=False)
+    if learner_error is not None:
+        raise learner_error
     if body.display_name is not None:
         user.display_name = body.display_name
-    if body.fleet_prior is not None:
+    if body.fleet_prior is not None and body.fleet_prior != user.fleet_prior:
         user.fleet_prior = body.fleet_prior
-    if body.learner is not None:
-        model = models_repo.head(session, user.id)
-        assert model is not None  # every user is created with its model
-        learner = fresh_learner(
-            body.learner.algorithm,
-            body.learner.params,
-            ctx.missions.get(session, user.fleet, model.mission_version).mission,
+        audit.record(
+            session,
+            principal,
+            "user.prior",
+            target=user_id,
+            fleet=user.fleet,
+            detail={"fleet_prior": user.fleet_prior},
         )
-        params = learner.params.to_dict()
-        if (body.learner.algorithm, params) != (user.algorithm, dict(user.params)):
-            if user.episode_count > 0 and not reset_model:
-                raise Conflict(
-                    f"User {user_id!r} has {user.episode_count} episodes; changing the learner "
-                    "forgets what was learned. Repeat with ?reset_model=true to do so."
-                )
-            user.algorithm, user.params = body.learner.algorithm, params
-            save_learner(session, ctx, user.id, model, learner, start_over="fresh")
+    if learner is not None and body.learner is not None and not same["learner"]:
+        if user.episode_count > 0 and not reset_model:
+            raise Conflict(
+                f"User {user_id!r} has {user.episode_count} episodes; changing the learner "
+                "forgets what was learned. Repeat with ?reset_model=true to do so."
+            )
+        before = user.algorithm
+        user.algorithm, user.params = body.learner.algorithm, learner.params.to_dict()
+        replace_model(
+            session,
+            ctx,
+            principal,
+            user,
+            model,
+            learner,
+            start_over="fresh",
+            action="user.learner",
+            detail={
+                "algorithm": user.algorithm,
+                "was": before,
+                "episodes": user.episode_count,
+            },
+        )
     repo.save_profile(session, user)
     return user_out(user), False
 

@@ -103,7 +103,9 @@ class TestNoKey:
     def test_every_route_needs_a_key(
         self, client: TestClient, lin: dict[str, str], method: str, path: str, body: Any
     ) -> None:
-        assert_error(_call(client, method, path, body, lin), 401, "Unauthorized")
+        r = _call(client, method, path, body, lin)
+        assert_error(r, 401, "Unauthorized")
+        assert r.headers["WWW-Authenticate"] == "Bearer"  # how to send one (RFC 6750)
 
     @pytest.mark.parametrize(
         "header",
@@ -121,7 +123,16 @@ class TestNoKey:
         self, app: FastAPI, lin: dict[str, str], header: str
     ) -> None:
         with TestClient(app, headers={"Authorization": header}, raise_server_exceptions=False) as c:
-            assert_error(c.get("/v1/users/lin"), 401, "Unauthorized")
+            r = c.get("/v1/users/lin")
+            assert_error(r, 401, "Unauthorized")
+            assert r.headers["WWW-Authenticate"] == "Bearer"
+
+    def test_the_schema_declares_the_challenge(self, app: FastAPI) -> None:
+        for path, item in app.openapi()["paths"].items():
+            for method, op in item.items():
+                if "401" in op["responses"]:
+                    header = op["responses"]["401"]["headers"]["WWW-Authenticate"]
+                    assert header["schema"]["enum"] == ["Bearer"], (method, path)
 
     def test_probes_need_no_key(self, client: TestClient) -> None:
         for path in ("/healthz", "/readyz", "/metrics"):
@@ -147,7 +158,9 @@ class TestRevokedKey:
                 revoke_key(session, key.id)
             key_clock.advance(app.state.settings.key_cache_seconds)
             for method, path, body in ALL_ROUTES:
-                assert_error(_call(c, method, path, body, lin), 401, "Unauthorized")
+                r = _call(c, method, path, body, lin)
+                assert_error(r, 401, "Unauthorized")
+                assert r.headers["WWW-Authenticate"] == "Bearer"
 
 
 class TestKeyCache:

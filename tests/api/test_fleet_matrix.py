@@ -17,6 +17,12 @@ route's ``{episode_id}`` is an episode of A's ``lin``.
   cell checks the status and the contract's error body (or the console's error page), and that
   the fleet the caller did not address is unchanged; a write that succeeded changed the
   addressed fleet's ``lin``.
+- ``FIELDS``: one row per field-level right of ``PUT /v1/users/{user_id}`` (each field of
+  ``UserIn`` and each query parameter but ``fleet``): the status of each caller changing it on
+  ``lin`` and setting it on a user the request creates. A field without a row, or without its
+  right in the service's table (``USER_FIELD_RIGHTS``), fails
+  ``test_every_field_has_a_decided_right``, and so does a row whose statuses are not the
+  table's.
 - ``PROBES``: another fleet's user or episode is answered exactly as an id that never existed:
   same status, same body once the two ids are swapped for one placeholder.
 - Then: each fleet acts on its own ``lin``; the admin's ``?fleet=``; the console's sign-in; the
@@ -41,6 +47,8 @@ from fastapi.testclient import TestClient
 
 from app.console.auth import COOKIE, csrf_token
 from app.learning import office_mission
+from app.schemas.users import UserIn
+from app.services.users import USER_FIELD_RIGHTS
 from tests.support.contract import assert_error
 from tests.support.episodes import event
 from tests.support.fixtures import MakeKey, WorkerDatabases
@@ -136,13 +144,8 @@ MATRIX: list[Row] = [
     Row("GET", "/v1/mission", (401, 401, 200, 200, 200, 200, 200)),
     Row("GET", "/v1/users{q}", (401, 401, 200, 200, 200, 200, 200)),
     Row("GET", U + "{q}", (401, 401, 200, 200, 200, 200, 200)),
-    Row(
-        "PUT",
-        U + "{q}",
-        (401, 401, 200, 200, 200, 200, 200),
-        json={"display_name": "Renamed"},
-        writes=True,
-    ),
+    # Setting nothing: every key of the fleet. Each field is a right of its own (FIELDS).
+    Row("PUT", U + "{q}", (401, 401, 200, 200, 200, 200, 200), json={}),
     Row("DELETE", U + "{q}", (401, 401, 403, 403, 204, 204, 204), writes=True),
     Row(
         "POST",
@@ -613,6 +616,166 @@ def _check_cell(world: World, row: Row, who: str, status: int) -> None:
             assert after[fleet] == before[fleet], f"{fleet} changed by {row.method} {path}"
 
 
+# -- who may set what on PUT /v1/users/{user_id} -----------------------------------------------
+@dataclass(frozen=True)
+class Field:
+    """One field-level right of ``PUT /v1/users/{user_id}`` (a field of ``UserIn``, or a query
+    parameter of the route): the request that changes it on the addressed fleet's ``lin``
+    (``change``, with the query ``change_query``) and the status for each caller, and the
+    request that sets it on a user the request creates (``create``, ``create_query``)."""
+
+    name: str
+    change: dict[str, Any]
+    changes: Expect
+    create: dict[str, Any]
+    creates: Expect
+    change_query: str = ""
+    create_query: str = ""
+    writes: bool = True  # a change that succeeds changes lin
+
+
+NEWCOMER = "newcomer"  # the user the create cells make
+FIELDS: list[Field] = [
+    #                                                   none  rev   rA   rB   sA   sB  adm
+    Field(
+        "display_name",
+        {"display_name": "Renamed"},
+        (401, 401, 403, 403, 200, 200, 200),
+        {"display_name": "Newcomer"},
+        (401, 401, 201, 201, 201, 201, 201),
+    ),
+    Field(
+        "learner",
+        {"learner": {"algorithm": "qlearning"}},
+        (401, 401, 403, 403, 200, 200, 200),
+        {"learner": {"algorithm": "qlearning"}},
+        (401, 401, 201, 201, 201, 201, 201),
+        change_query="reset_model=true",  # lin has history
+    ),
+    Field(
+        "fleet_prior",
+        {"fleet_prior": False},
+        (401, 401, 403, 403, 200, 200, 200),
+        {"fleet_prior": False},
+        (401, 401, 201, 201, 201, 201, 201),
+    ),
+    Field(
+        "reset_model",
+        {},
+        (401, 401, 403, 403, 200, 200, 200),
+        {},
+        (401, 401, 403, 403, 201, 201, 201),
+        change_query="reset_model=true",
+        create_query="reset_model=true",
+        writes=False,  # alone, it allows a change of learner and changes nothing
+    ),
+]
+
+
+def _put_user_route(app: FastAPI) -> Any:
+    [route] = [
+        r
+        for r in iter_route_contexts(app.routes)
+        if r.path == "/v1/users/{user_id}" and "PUT" in (r.methods or ())
+    ]
+    return route
+
+
+@pytest.mark.one_engine
+def test_every_field_has_a_decided_right(app: FastAPI) -> None:
+    """Every field of ``UserIn`` and every query parameter of the PUT (but ``fleet``, which
+    says whose user is meant) has its right in the service's table and its row here, and the
+    row's statuses are what the table decides: a field added without a decided right fails."""
+    route = _put_user_route(app)
+    query = {q.alias for q in route.dependant.query_params} - {"fleet"}
+    assert route.body_field is not None
+    assert UserIn in getattr(route.body_field.field_info.annotation, "__args__", ()), (
+        "the PUT's body is no longer UserIn"
+    )
+    decided = set(UserIn.model_fields) | query
+    rows = [f.name for f in FIELDS]
+    assert len(rows) == len(set(rows)), "a field has two rows"
+    assert sorted(decided - set(USER_FIELD_RIGHTS)) == [], "fields without a right in the service"
+    assert sorted(decided - set(rows)) == [], "fields without a row in FIELDS"
+    assert sorted(set(rows) - decided) == [], "rows of FIELDS without a field"
+    assert sorted(set(USER_FIELD_RIGHTS) - decided) == [], "rights of fields that do not exist"
+    for f in FIELDS:
+        right = USER_FIELD_RIGHTS[f.name]
+        for who, change, create in zip(PRINCIPALS, f.changes, f.creates, strict=True):
+            if who not in HOME:
+                assert change == create == 401, (f.name, who)
+                continue
+            role = KEYS[who][0]
+            assert (change == 403) == (role not in right.changes), (f.name, who, "change")
+            assert (create == 403) == (role not in right.creates), (f.name, who, "create")
+
+
+def _field_cells(*, keyed: bool) -> Iterator[Any]:
+    """The cells of the callers with a key of the fleets (``keyed``: decided by what is
+    stored, so on both engines), or of no key and a revoked one (refused before any SQL)."""
+    for f in FIELDS:
+        for kind, expect in (("change", f.changes), ("create", f.creates)):
+            for who, status in zip(PRINCIPALS, expect, strict=True):
+                if (who in HOME) == keyed:
+                    yield pytest.param(f, kind, who, status, id=f"{f.name} {kind} {who}")
+
+
+def _with_query(path: str, query: str) -> str:
+    if not query:
+        return path
+    return path + ("&" if "?" in path else "?") + query
+
+
+@pytest.mark.one_engine
+@pytest.mark.parametrize(("field", "kind", "who", "status"), list(_field_cells(keyed=False)))
+def test_who_may_set_what_needs_a_key(
+    world: World, field: Field, kind: str, who: str, status: int
+) -> None:
+    _check_field(world, field, kind, who, status)
+
+
+@pytest.mark.parametrize(("field", "kind", "who", "status"), list(_field_cells(keyed=True)))
+def test_who_may_set_what(world: World, field: Field, kind: str, who: str, status: int) -> None:
+    """A right of its own per field: a refusal is 403 naming the field, and changes nothing;
+    a change changes the addressed fleet's lin only; a create makes the user with the field
+    set."""
+    _check_field(world, field, kind, who, status)
+
+
+def _check_field(world: World, field: Field, kind: str, who: str, status: int) -> None:
+    before = world.snapshot()
+    user, body, query = (
+        ("lin", field.change, field.change_query)
+        if kind == "change"
+        else (NEWCOMER, field.create, field.create_query)
+    )
+    path = _with_query(world.fill(f"/v1/users/{user}{{q}}", who), query)
+    r = send(world, "PUT", path, who, json=body)
+    assert r.status_code == status, f"PUT {path} {body} as {who}: {r.status_code} {r.text}"
+    if status >= 400:
+        err = assert_error(r, status)
+        if status == 403:
+            assert field.name in err["detail"], err
+    after = world.snapshot()
+    addressed = HOME.get(who)
+    for fleet in (A, B):
+        if kind == "change" and field.writes and status < 400 and fleet == addressed:
+            assert after[fleet] != before[fleet], f"{fleet} unchanged by PUT {path} {body}"
+        else:
+            assert after[fleet] == before[fleet], f"{fleet} changed by PUT {path} {body}"
+    if kind == "create" and addressed is not None:
+        made = send(world, "GET", f"/v1/users/{NEWCOMER}?fleet={addressed}", "admin")
+        if status == 201:
+            shown = _ok(made, 200)
+            for key, value in body.items():
+                if key == "learner":
+                    assert shown["learner"]["algorithm"] == value["algorithm"]
+                else:
+                    assert shown[key] == value, (key, shown)
+        else:
+            assert_error(made, 404, "NotFound")
+
+
 # -- another fleet's user or episode: exactly an id that never existed ----------------------------
 @dataclass(frozen=True)
 class Probe:
@@ -823,10 +986,11 @@ def test_a_reset_stays_in_its_fleet(world: World, who: str, q: str, fleet: str) 
 def test_each_fleet_writes_its_own_lin(world: World, who: str) -> None:
     fleet = HOME[who]
     other = B if fleet == A else A
+    staff = "staff_a" if fleet == A else "staff_b"
     before = world.snapshot()
     mine = _ok(send(world, "GET", "/v1/users/lin", who), 200)
     assert (mine["fleet"], mine["display_name"]) == (fleet, f"Lin of {fleet}")
-    renamed = _ok(send(world, "PUT", "/v1/users/lin", who, json={"display_name": who}), 200)
+    renamed = _ok(send(world, "PUT", "/v1/users/lin", staff, json={"display_name": who}), 200)
     assert (renamed["fleet"], renamed["display_name"]) == (fleet, who)
     _ok(send(world, "POST", "/v1/users/lin/episodes", who, json=event(f"{who}-1")), 201)
     episodes = _ok(send(world, "GET", "/v1/users/lin/episodes", who), 200)["items"]

@@ -46,9 +46,9 @@ class TestPutUser:
         assert r.json()["learner"]["algorithm"] == "dts-adapt"
         assert r.json()["display_name"] is None
 
-    def test_update_is_200(self, robot: TestClient) -> None:
+    def test_update_is_200(self, robot: TestClient, staff: TestClient) -> None:
         assert robot.put("/v1/users/lin", json={"display_name": "A"}).status_code == 201
-        r = robot.put("/v1/users/lin", json={"display_name": "B"})
+        r = staff.put("/v1/users/lin", json={"display_name": "B"})
         assert r.status_code == 200, r.text
         assert r.json()["display_name"] == "B"
         assert robot.get("/v1/users/lin").json()["display_name"] == "B"
@@ -119,11 +119,13 @@ class TestPutUser:
         body = assert_error(r, 422, "ValidationError")
         assert "tau" in body["detail"]
 
-    def test_bad_params_on_update_change_nothing(self, robot: TestClient) -> None:
+    def test_bad_params_on_update_change_nothing(
+        self, robot: TestClient, staff: TestClient
+    ) -> None:
         robot.put("/v1/users/lin", json={"display_name": "A"})
         before = robot.get("/v1/users/lin").json()
         model = robot.get("/v1/users/lin/model").json()
-        r = robot.put(
+        r = staff.put(
             "/v1/users/lin",
             json={"display_name": "B", "learner": {"algorithm": "hri", "params": {"tau": -3}}},
         )
@@ -131,25 +133,31 @@ class TestPutUser:
         assert robot.get("/v1/users/lin").json() == before
         assert robot.get("/v1/users/lin/model").json() == model
 
-    def test_changing_learner_without_history_is_allowed(self, robot: TestClient) -> None:
+    def test_changing_learner_without_history_is_allowed(
+        self, robot: TestClient, staff: TestClient
+    ) -> None:
         robot.put("/v1/users/lin")
-        r = robot.put("/v1/users/lin", json={"learner": {"algorithm": "qlearning"}})
+        r = staff.put("/v1/users/lin", json={"learner": {"algorithm": "qlearning"}})
         assert r.status_code == 200, r.text
         assert r.json()["learner"]["algorithm"] == "qlearning"
 
-    def test_changing_learner_with_history_is_409(self, robot: TestClient) -> None:
+    def test_changing_learner_with_history_is_409(
+        self, robot: TestClient, staff: TestClient
+    ) -> None:
         start(robot, "lin", "e1")
         before = robot.get("/v1/users/lin").json()
         model = robot.get("/v1/users/lin/model").json()
-        r = robot.put("/v1/users/lin", json={"display_name": "X", "learner": {"algorithm": "rmax"}})
+        r = staff.put("/v1/users/lin", json={"display_name": "X", "learner": {"algorithm": "rmax"}})
         assert_error(r, 409, "Conflict")
         assert "reset_model" in r.json()["detail"]
         assert robot.get("/v1/users/lin").json() == before
         assert robot.get("/v1/users/lin/model").json() == model
 
-    def test_changing_params_with_history_is_409(self, robot: TestClient) -> None:
+    def test_changing_params_with_history_is_409(
+        self, robot: TestClient, staff: TestClient
+    ) -> None:
         start(robot, "lin", "e1")
-        r = robot.put(
+        r = staff.put(
             "/v1/users/lin", json={"learner": {"algorithm": "hri", "params": {"tau": 0.005}}}
         )
         assert_error(r, 409, "Conflict")
@@ -162,7 +170,9 @@ class TestPutUser:
         )
         assert r.status_code == 200, r.text
 
-    def test_reset_model_true_allows_the_change_and_keeps_history(self, robot: TestClient) -> None:
+    def test_reset_model_true_allows_the_change_and_keeps_history(
+        self, robot: TestClient, staff: TestClient
+    ) -> None:
         ep = start(robot, "lin", "e1")
         report(
             robot,
@@ -171,7 +181,7 @@ class TestPutUser:
             "rejected" if ep["decision"]["action"]["kind"] == "initiate" else "none",
         )
         version = robot.get("/v1/users/lin/model").json()["version"]
-        r = robot.put("/v1/users/lin?reset_model=true", json={"learner": {"algorithm": "rmax"}})
+        r = staff.put("/v1/users/lin?reset_model=true", json={"learner": {"algorithm": "rmax"}})
         assert r.status_code == 200, r.text
         assert r.json()["learner"]["algorithm"] == "rmax"
         assert r.json()["episodes"] == 1
@@ -190,7 +200,7 @@ class TestPutUser:
         assert robot.get("/v1/users/lin").status_code == 404
 
     def test_another_fleet_makes_its_own_user_of_the_same_id(
-        self, robot: TestClient, other_robot: TestClient
+        self, robot: TestClient, other_robot: TestClient, other_staff: TestClient
     ) -> None:
         robot.put("/v1/users/lin", json={"display_name": "A"})
         before = robot.get("/v1/users/lin").json()
@@ -198,7 +208,7 @@ class TestPutUser:
         assert r.status_code == 201, r.text
         assert (r.json()["fleet"], r.json()["display_name"]) == ("other", "B")
         assert robot.get("/v1/users/lin").json() == before
-        assert other_robot.put("/v1/users/lin", json={"display_name": "B2"}).status_code == 200
+        assert other_staff.put("/v1/users/lin", json={"display_name": "B2"}).status_code == 200
         assert robot.get("/v1/users/lin").json() == before
 
 

@@ -58,7 +58,7 @@ class TestContract:
         assert created.learner.params["tau"] == 0.02
         assert created.episodes == 0
         assert created.created_at.tzinfo is not None
-        updated = await robot.put_user("lin", display_name="Lin")
+        updated = await admin.put_user("lin", display_name="Lin")
         assert updated.display_name == "Lin"
         assert (await robot.get_user("lin")).display_name == "Lin"
         for name in ("mo", "ana", "zed"):
@@ -252,7 +252,7 @@ class TestErrors:
             )
         assert bad_id.value.fields
         with pytest.raises(a.UnprocessableEntityError):
-            await robot.put_user("lin", learner={"algorithm": "no-such-learner"})
+            await admin.put_user("lin", learner={"algorithm": "no-such-learner"})
         with pytest.raises(a.UnprocessableEntityError):
             await admin.import_model("lin", {"format": "something else"})
         started = await robot.start_episode(

@@ -33,9 +33,11 @@ async def test_switch_the_fleets_prior_and_keep_a_person_out(
             await robot.set_fleet_prior("default", enabled=True)
         with pytest.raises(a.PermissionDeniedError):
             await staff.fleet_prior("other")
-    user = await robot.put_user("lin", fleet_prior=False)
-    assert user.fleet_prior is False
-    assert (await robot.put_user("lin", display_name="Mrs. Lin")).fleet_prior is False
-    assert (await robot.put_user("lin", fleet_prior=True)).fleet_prior is True
+        user = await robot.put_user("lin", fleet_prior=False)
+        assert user.fleet_prior is False
+        assert (await staff.put_user("lin", display_name="Mrs. Lin")).fleet_prior is False
+        assert (await staff.put_user("lin", fleet_prior=True)).fleet_prior is True
+        with pytest.raises(a.PermissionDeniedError):  # what staff set, a robot cannot undo
+            await robot.put_user("lin", fleet_prior=False)
     model = await robot.get_model("lin")
     assert model.started_from == a.StartedFrom(kind="fresh", contributors=None)

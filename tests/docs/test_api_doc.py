@@ -85,3 +85,25 @@ def test_a_heading_documented_twice_is_reported() -> None:
     schema: dict[str, Any] = {"paths": {"/healthz": {"get": {}}}}
     report = check_api_doc("### `GET /healthz`\n\n### `GET /healthz` again\n", schema)
     assert report.duplicated == [("GET", "/healthz")]
+
+
+def _rights_table(doc: str) -> dict[str, tuple[set[str], set[str]]]:
+    """The table under "Who may set what": field -> (roles on a new user, on one that exists)."""
+    section = doc.split("#### Who may set what", 1)[1].split("\n#", 1)[0]
+    rows: dict[str, tuple[set[str], set[str]]] = {}
+    for line in section.splitlines():
+        cells = [c.strip() for c in line.strip().strip("|").split("|")]
+        if len(cells) == 3 and cells[0].startswith("`"):
+            name = cells[0].split("`")[1]
+            rows[name] = (set(cells[1].split(", ")), set(cells[2].split(", ")))
+    return rows
+
+
+def test_who_may_set_what_is_the_services_table() -> None:
+    """api.md's table of field-level rights on PUT /v1/users/{user_id} is the service's."""
+    from app.services.users import USER_FIELD_RIGHTS
+
+    documented = _rights_table(API_DOC.read_text(encoding="utf-8"))
+    assert documented == {
+        name: (set(right.creates), set(right.changes)) for name, right in USER_FIELD_RIGHTS.items()
+    }

@@ -4,12 +4,37 @@ from typing import Annotated
 
 import orjson
 from fastapi import Path, Query, Response
+from pydantic import AfterValidator, BeforeValidator
+from pydantic_core import PydanticCustomError
 
-from app.schemas.common import CLIENT_ID_PATTERN
+from app.schemas.common import CLIENT_ID_PATTERN, not_a_dot_segment
 from app.services.episodes import Written
 
+
+def _true_or_false(value: object) -> object:
+    """A query boolean as the contract spells it: ``true`` or ``false`` (FastAPI alone would
+    also take 1, yes, on, True... and their opposites)."""
+    if isinstance(value, bool):  # the default
+        return value
+    if value == "true":
+        return True
+    if value == "false":
+        return False
+    raise PydanticCustomError("bool_parsing", "Input should be true or false")
+
+
+QueryBool = Annotated[bool, BeforeValidator(_true_or_false)]
+"""A boolean query parameter: exactly ``true`` or ``false``, else 422 naming it."""
+
+IdRule = AfterValidator(not_a_dot_segment)  # neither "." nor "..", whatever the pattern allows
 UserId = Annotated[
-    str, Path(pattern=CLIENT_ID_PATTERN, description="Client-chosen user id.", examples=["lin"])
+    str,
+    Path(
+        pattern=CLIENT_ID_PATTERN,
+        description="Client-chosen user id (neither '.' nor '..').",
+        examples=["lin"],
+    ),
+    IdRule,
 ]
 EpisodeId = Annotated[
     str,
@@ -52,6 +77,7 @@ Fleet = Annotated[
         "staff keys work in their own fleet: another fleet is answered as a user that does not "
         "exist.",
     ),
+    IdRule,
 ]
 MissionFleet = Annotated[
     str | None,
@@ -61,9 +87,12 @@ MissionFleet = Annotated[
         description="Whose mission, for admin keys (default: the key's own fleet). Other keys may "
         "name only their own fleet (403 otherwise).",
     ),
+    IdRule,
 ]
 FleetName = Annotated[
-    str, Path(pattern=CLIENT_ID_PATTERN, examples=["care-home-north"], description="The fleet.")
+    str,
+    Path(pattern=CLIENT_ID_PATTERN, examples=["care-home-north"], description="The fleet."),
+    IdRule,
 ]
 REPLAY_HEADER = {
     "Idempotent-Replay": {

@@ -14,12 +14,12 @@ from app.services import corrections
 from app.services import profile as service
 from app.services.context import ServiceContext
 
-from ._common import REPLAY_HEADER, Fleet, UserId, no_content
+from ._common import REPLAY_HEADER, Fleet, IdRule, UserId, no_content
 
 router = APIRouter(prefix="/v1/users/{user_id}", tags=["profile"], route_class=TransactionalRoute)
 
 CorrectionId = Annotated[
-    str, Path(pattern=CLIENT_ID_PATTERN, description="The correction_id it was made with.")
+    str, Path(pattern=CLIENT_ID_PATTERN, description="The correction_id it was made with."), IdRule
 ]
 
 

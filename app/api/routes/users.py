@@ -14,7 +14,7 @@ from app.schemas.users import UserIn, UserList, UserOut
 from app.services import users as service
 from app.services.context import ServiceContext
 
-from ._common import Fleet, Limit, UserCursor, UserId, no_content
+from ._common import Fleet, IdRule, Limit, QueryBool, UserCursor, UserId, no_content
 
 router = APIRouter(prefix="/v1/users", tags=["users"], route_class=TransactionalRoute)
 
@@ -26,7 +26,7 @@ router = APIRouter(prefix="/v1/users", tags=["users"], route_class=Transactional
     responses={
         200: {"links": USER_LINKS},
         201: {"model": UserOut, "description": "Created.", "links": USER_LINKS},
-        **responses(404, 409, 415),
+        **responses(403, 404, 409, 415),
     },
 )
 def put_user(
@@ -36,16 +36,17 @@ def put_user(
     principal: CurrentPrincipal,
     body: UserIn | None = None,
     reset_model: Annotated[
-        bool,
+        QueryBool,
         Query(
-            description="Allow changing the learner of a user with "
-            "history (forgets what was learned)."
+            description="Allow changing the learner of a user with history (forgets what was "
+            "learned): true or false, spelled so (staff and admins)."
         ),
     ] = False,
     fleet: Fleet = None,
 ) -> JSONResponse:
     """Create or update a user of your fleet (idempotent): 201 when created, 200 when
-    updated."""
+    updated. A robot key may create a user with any field; changing an existing user's fields,
+    and reset_model, are for the fleet's staff and admins (403)."""
     out, created = service.put_user(
         session, ctx, principal, user_id, body or UserIn(), reset_model=reset_model, fleet=fleet
     )
@@ -73,6 +74,7 @@ def list_users(
             description="Only this fleet's users (admin keys; other keys list their own fleet, "
             "and naming another is 404).",
         ),
+        IdRule,
     ] = None,
 ) -> UserList:
     """Users of your fleet by user id (admins: of every fleet, by fleet then user id), a page at
