@@ -93,7 +93,7 @@ def _metrics_server(sock: socket.socket, token: str | None) -> Any:
                     401,
                     b'{"error":"Unauthorized","detail":"/metrics needs the metrics token: '
                     b'Authorization: Bearer <ATTUNE_METRICS_TOKEN>."}',
-                    {"WWW-Authenticate": 'Bearer realm="metrics"'},
+                    {"WWW-Authenticate": "Bearer"},
                 )
                 return
             registry = CollectorRegistry()

@@ -10,7 +10,7 @@ from prometheus_client import CONTENT_TYPE_LATEST
 from sqlalchemy.orm import Session
 
 from app.api.deps import CurrentPrincipal, TransactionalRoute
-from app.api.errors import responses
+from app.api.errors import ERROR_RESPONSES, responses
 from app.api.lifecycle import Drain
 from app.api.metrics import Metrics
 from app.api.middleware import error_body
@@ -98,6 +98,7 @@ def readyz(request: Request) -> JSONResponse:
         401: {
             "model": ErrorOut,
             "description": "ATTUNE_METRICS_TOKEN is set and the request did not send it.",
+            "headers": ERROR_RESPONSES[401]["headers"],
         },
         404: {
             "model": ErrorOut,
@@ -127,7 +128,7 @@ def metrics(
 
 class MetricsUnauthorized(Unauthorized):
     def headers(self) -> dict[str, str]:
-        return {"WWW-Authenticate": 'Bearer realm="metrics"'}
+        return {"WWW-Authenticate": "Bearer"}
 
 
 def metrics_token_matches(settings: Settings, authorization: str | None) -> bool:
