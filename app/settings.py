@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import functools
 from pathlib import Path
+from typing import Literal
 
 from pydantic import Field, SecretStr, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
@@ -68,6 +69,15 @@ class Settings(BaseSettings):
         default="sqlite:///./attune.db",
         description="SQLAlchemy URL: sqlite:///PATH (embedded default) or "
         "postgresql+psycopg://USER@HOST:PORT/DB (production).",
+    )
+    database_pooler: Literal["none", "transaction"] = Field(
+        default="none",
+        description="PostgreSQL: what stands between the service and the database. transaction: "
+        "a pooler in transaction pooling (PgBouncer's pool_mode=transaction), which may hand "
+        "each transaction to another server connection, so the service prepares no statements "
+        "on the server (psycopg's prepare_threshold=None) and keeps nothing on a connection "
+        "between transactions. none: the service talks to PostgreSQL itself (or through a "
+        "pooler in session pooling).",
     )
     seed: int = Field(
         default=0,

@@ -9,7 +9,7 @@ from typing import Any
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
-from sqlalchemy.exc import DataError, IntegrityError, OperationalError
+from sqlalchemy.exc import DataError, DBAPIError, IntegrityError, InterfaceError, OperationalError
 from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.routing import Match, Mount
 
@@ -243,6 +243,15 @@ def install_error_handlers(app: FastAPI) -> None:
     async def operational_error(_: Request, exc: OperationalError) -> JSONResponse:
         log.warning("database error: %s", exc.orig)
         return _render(ServiceUnavailable("The database is busy or unreachable; retry."))
+
+    @app.exception_handler(DBAPIError)
+    async def lost_connection(_: Request, exc: DBAPIError) -> JSONResponse:
+        # A connection that broke under the request (a restart, a failover, a connection ended
+        # by the server or a pooler): the pool has dropped it, and a retry gets a new one.
+        if not (exc.connection_invalidated or isinstance(exc, InterfaceError)):
+            raise exc
+        log.warning("database connection lost: %s", exc.orig)
+        return _render(ServiceUnavailable("The database connection was lost; retry."))
 
     # No handler for Exception: RequestContextMiddleware logs an unhandled error once, with
     # its traceback and request id, and answers the contract's 500.

@@ -8,13 +8,45 @@ request asks (``connect``), for the metrics (``attune_db_pool_waits_total``).
 from __future__ import annotations
 
 import logging
+import sys
 import threading
 import time
 from typing import Any
 
+from sqlalchemy import Connection
 from sqlalchemy.pool import QueuePool
 
-__all__ = ["MeteredQueuePool"]
+__all__ = ["MeteredQueuePool", "invalidate_all", "is_lost_connection"]
+
+# SQLSTATEs that say the server ended the session: an administrator or a failover ended it
+# (pg_terminate_backend, a fast shutdown: 57P01), the server crashed or is starting (57P02,
+# 57P03), and class 08, connection exceptions (a pooler in between says "server conn crashed?"
+# with 08P01 when the server connection behind a client's transaction broke).
+_ENDED = frozenset({"57P01", "57P02", "57P03"})
+
+
+def is_lost_connection(exc: BaseException) -> bool:
+    """Whether a driver (psycopg) error means the connection is gone, and the pool must drop
+    it, beyond what SQLAlchemy's dialect recognizes by its messages: every operational or
+    interface error raised by the client itself (no SQLSTATE: "server closed the connection
+    unexpectedly", "consuming input failed", "the connection is closed"), the server's ending
+    of the session, and connection exceptions. A statement the server refused (a lock not
+    available, a constraint, a cancelled query) carries a SQLSTATE of another class: not lost.
+    """
+    psycopg = sys.modules.get("psycopg")  # not loaded: not its error (SQLite never loads it)
+    if psycopg is None or not isinstance(exc, psycopg.OperationalError | psycopg.InterfaceError):
+        return False
+    sqlstate = getattr(exc, "sqlstate", None)
+    return sqlstate is None or sqlstate in _ENDED or sqlstate.startswith("08")
+
+
+def invalidate_all(connection: Connection, exc: BaseException) -> None:
+    """Drop ``connection``, lost with ``exc``, and every connection its pool opened before it
+    (they are closed as they come back, or replaced when next checked out): what SQLAlchemy
+    does on a disconnect, for the statements run on the driver's cursor. A restart or failover
+    breaks them all at once, so each would otherwise fail one more request."""
+    connection.engine.pool._invalidate(connection.connection, exc)
+    connection.invalidate(exc)
 
 
 class MeteredQueuePool(QueuePool):

@@ -25,14 +25,14 @@ from typing import Any
 
 import orjson
 from sqlalchemy import Engine, create_engine, event
-from sqlalchemy.engine import Connection, make_url
+from sqlalchemy.engine import Connection, ExceptionContext, make_url
 from sqlalchemy.exc import OperationalError
 from sqlalchemy.orm import Session
 
 from app.errors import ServiceUnavailable
 from app.settings import Settings
 
-from .pool import MeteredQueuePool
+from .pool import MeteredQueuePool, is_lost_connection
 from .types import json_dumps
 
 __all__ = ["NOWAIT", "Database", "LockBusy", "WriteGroup"]
@@ -100,12 +100,19 @@ class Database:
             if make_url(self.url).database not in (None, "", ":memory:"):
                 pool = {"poolclass": MeteredQueuePool}  # SQLAlchemy's sizes for a file (5 + 10)
         else:
+            # Behind a transaction pooler each transaction may run on another server
+            # connection: a statement psycopg prepared on one (after prepare_threshold uses) is
+            # unknown to the next ("prepared statement "_pg3_0" does not exist"), so none is.
+            if settings.database_pooler == "transaction":
+                kwargs["connect_args"] = {"prepare_threshold": None}
             kwargs["pool_size"] = settings.db_pool_size
             kwargs["max_overflow"] = settings.db_pool_size
             pool = {"poolclass": MeteredQueuePool}
         self.engine: Engine = create_engine(self.url, **kwargs, **pool)
         if self.is_sqlite:
             _configure_sqlite(self.engine, settings.sqlite_busy_timeout_s)
+        else:
+            event.listen(self.engine, "handle_error", _mark_lost_connection)
         self._write_engine = self.engine.execution_options(**{_WRITE: True})
         # Single-statement reads (the caller's key): no BEGIN/COMMIT around them.
         self._autocommit_engine = self.engine.execution_options(isolation_level="AUTOCOMMIT")
@@ -126,6 +133,7 @@ class Database:
                 max_overflow=0,
                 **{k: v for k, v in kwargs.items() if k not in ("pool_size", "max_overflow")},
             )
+            event.listen(inline, "handle_error", _mark_lost_connection)
             self._inline_engine = inline.execution_options(**{_WRITE: True})
 
     @property
@@ -259,6 +267,16 @@ class Database:
         self.engine.dispose()
         if self._inline_engine is not None:
             self._inline_engine.dispose()
+
+
+def _mark_lost_connection(ctx: ExceptionContext) -> None:
+    """A driver error that means the connection is gone (``is_lost_connection``: the server
+    closed it, ended the session, or a pooler in between lost it) is a disconnect, whatever its
+    message: the pool drops the connection and every one opened before it, so the request that
+    met it is the only one to fail (503, which clients retry), not every later one that would
+    be handed a dead connection from the pool."""
+    if not ctx.is_disconnect and is_lost_connection(ctx.original_exception):
+        ctx.is_disconnect = True
 
 
 def _configure_sqlite(engine: Engine, busy_timeout_s: float) -> None:

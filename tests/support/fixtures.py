@@ -36,16 +36,25 @@ from app.services.auth import create_key
 from app.settings import Settings
 
 from .live import database_name, postgres_database
+from .pgbouncer import Bouncer, running_pgbouncer
 
-ENGINES = ("sqlite", "postgresql")
+ENGINES = ("sqlite", "postgresql", "pgbouncer")
+"""SQLite; PostgreSQL; and PostgreSQL through PgBouncer in transaction pooling (the database
+made and migrated on the server directly, the service's URL through PgBouncer, with
+``ATTUNE_DATABASE_POOLER=transaction``)."""
+TESTS = Path(__file__).parent.parent
+POOLED_FOLDERS = (TESTS / "api", TESTS / "stress")
+"""The folders whose tests also run through PgBouncer by default (the rest, on two engines)."""
 
 
-def engines() -> tuple[str, ...]:
-    """The engines the database tests run on: both, or those ``ATTUNE_TEST_ENGINES`` names
+def engines(path: Path | None = None) -> tuple[str, ...]:
+    """The engines the database tests of the file at ``path`` run on: SQLite and PostgreSQL,
+    and PgBouncer too for those of ``POOLED_FOLDERS``; or those ``ATTUNE_TEST_ENGINES`` names
     (comma-separated; ``./scripts/test --fast`` sets ``sqlite``)."""
     chosen = os.environ.get("ATTUNE_TEST_ENGINES", "").strip()
     if not chosen:
-        return ENGINES
+        pooled = path is not None and any(path.is_relative_to(f) for f in POOLED_FOLDERS)
+        return ENGINES if pooled else ENGINES[:2]
     names = tuple(dict.fromkeys(e.strip() for e in chosen.split(",") if e.strip()))
     unknown = [e for e in names if e not in ENGINES]
     if unknown or not names:
@@ -56,13 +65,16 @@ def engines() -> tuple[str, ...]:
 
 
 def pytest_generate_tests(metafunc: pytest.Metafunc) -> None:
-    """The engine rule: both engines (or those ``ATTUNE_TEST_ENGINES`` names), or SQLite alone
-    for ``one_engine`` tests."""
+    """The engine rule: both engines, and PgBouncer in ``POOLED_FOLDERS`` (or those
+    ``ATTUNE_TEST_ENGINES`` names), or SQLite alone for ``one_engine`` tests."""
     if "database_url" not in metafunc.fixturenames:
         return
     one = metafunc.definition.get_closest_marker("one_engine") is not None
     metafunc.parametrize(
-        "database_url", ENGINES[:1] if one else engines(), indirect=True, scope="session"
+        "database_url",
+        ENGINES[:1] if one else engines(metafunc.definition.path),
+        indirect=True,
+        scope="session",
     )
 
 
@@ -151,33 +163,46 @@ class EmptyTables:
 
 class WorkerDatabases:
     """This worker's test databases, one per engine, each made (and migrated) the first time a
-    test asks for it and kept until the end of the run, however the tests of the two engines
-    come in turn: a SQLite file in the worker's temporary folder, and a PostgreSQL database
-    named after the worker."""
+    test asks for it and kept until the end of the run, however the tests of the engines come
+    in turn: a SQLite file in the worker's temporary folder, a PostgreSQL database named after
+    the worker, and for ``pgbouncer`` another one, made and migrated directly on the server and
+    reached through this worker's PgBouncer (started the first time it is needed)."""
 
     def __init__(self, worker_id: str, tmp_path_factory: pytest.TempPathFactory) -> None:
         self._worker, self._tmp = worker_id, tmp_path_factory
         self._stack = ExitStack()
         self._urls: dict[str, str] = {}
         self._empty: dict[str, EmptyTables] = {}
+        self._bouncer: Bouncer | None = None
+        self.pooled: set[str] = set()  # the URLs that go through PgBouncer
+
+    def bouncer(self) -> Bouncer:
+        """This worker's PgBouncer, started on first use and stopped at the end of the run."""
+        if self._bouncer is None:
+            self._bouncer = self._stack.enter_context(running_pgbouncer())
+        return self._bouncer
 
     def url(self, engine: str) -> str:
         if engine not in self._urls:
             if engine == "sqlite":
                 url = f"sqlite:///{self._tmp.mktemp(f'sqlite-{self._worker}') / 'attune.db'}"
+                direct = url
             else:
-                server_url = self._stack.enter_context(
-                    postgres_database(database_name("test", self._worker))
-                )
-                url = Settings(
-                    database_url=server_url,  # type: ignore[call-arg]
-                    _env_file=None,
-                ).database_url
-            emptier = self._empty[url] = EmptyTables(url)
+                name = database_name("test", self._worker)
+                server_url = self._stack.enter_context(postgres_database(name))
+                direct = url = _normal(server_url)
+                if engine == "pgbouncer":
+                    url = _normal(self.bouncer().url(name))
+                    self.pooled.add(url)
+            emptier = self._empty[url] = EmptyTables(direct)
             self._stack.callback(emptier.close)
             emptier()
             self._urls[engine] = url
         return self._urls[engine]
+
+    def pooler(self, url: str) -> str:
+        """The ``ATTUNE_DATABASE_POOLER`` of the service on ``url``."""
+        return "transaction" if url in self.pooled else "none"
 
     def empty(self, url: str) -> None:
         self._empty[url]()
@@ -188,6 +213,11 @@ class WorkerDatabases:
 
     def close(self) -> None:
         self._stack.close()
+
+
+def _normal(url: str) -> str:
+    """``url`` as the service's settings write it (``postgresql+psycopg://``)."""
+    return Settings(database_url=url, _env_file=None).database_url  # type: ignore[call-arg]
 
 
 @pytest.fixture(scope="session")
@@ -206,12 +236,18 @@ def database_url(request: pytest.FixtureRequest, worker_databases: WorkerDatabas
 
 
 @pytest.fixture
-def settings(database_url: str) -> Settings:
-    return Settings(database_url=database_url, seed=0, _env_file=None)  # type: ignore[call-arg]
+def settings(database_url: str, worker_databases: WorkerDatabases) -> Settings:
+    return Settings(
+        database_url=database_url,
+        database_pooler=worker_databases.pooler(database_url),
+        seed=0,
+        _env_file=None,
+    )  # type: ignore[call-arg]
 
 
 @pytest.fixture
 def engine_name(database_url: str) -> str:
+    """``sqlite`` or ``postgresql`` (also through PgBouncer: the same database behind it)."""
     return "sqlite" if database_url.startswith("sqlite") else "postgresql"
 
 

@@ -19,6 +19,8 @@ from sqlalchemy.exc import DBAPIError
 from sqlalchemy.orm import Session
 from sqlalchemy.sql import ClauseElement
 
+from app.db.pool import invalidate_all, is_lost_connection
+
 __all__ = ["Prepared", "batch", "columns", "conn", "names", "record", "table", "values"]
 
 T = TypeVar("T")
@@ -39,9 +41,11 @@ def batch(session: Session) -> Iterator[None]:
         with driver.pipeline():
             yield
     except dialect.loaded_dbapi.Error as exc:  # raised when the pipeline syncs
-        lost = dialect.is_disconnect(exc, connection.connection.dbapi_connection, None)
+        lost = is_lost_connection(exc) or dialect.is_disconnect(
+            exc, connection.connection.dbapi_connection, None
+        )
         if lost:
-            connection.invalidate(exc)
+            invalidate_all(connection, exc)
         raise DBAPIError.instance(
             None,
             None,
@@ -217,9 +221,11 @@ class Prepared:
                 return [] if raw is None else [compiled.row(processors, raw)]
             return [compiled.row(processors, raw) for raw in cursor.fetchall()]
         except dialect.loaded_dbapi.Error as exc:
-            lost = dialect.is_disconnect(exc, connection.connection.dbapi_connection, cursor)
+            lost = is_lost_connection(exc) or dialect.is_disconnect(
+                exc, connection.connection.dbapi_connection, cursor
+            )
             if lost:
-                connection.invalidate(exc)
+                invalidate_all(connection, exc)
             raise DBAPIError.instance(
                 compiled.sql,
                 params,
