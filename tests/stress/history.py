@@ -65,6 +65,7 @@ class History:
     sent: set[str] = field(default_factory=set)  # every client id ever sent
     # Outcomes refused because a change of the fleet's mission interrupted their episode.
     interrupted: set[str] = field(default_factory=set)
+    retried: Counter[int] = field(default_factory=Counter)  # 429 and 503 answers, by status
     lock: threading.Lock = field(default_factory=threading.Lock)
 
     def ack(self, ack: Ack) -> None:
@@ -126,6 +127,8 @@ class Robot:
                     time.sleep(0.02)
                 continue
             if r.status_code in (429, 503):
+                with w.history.lock:
+                    w.history.retried[r.status_code] += 1
                 time.sleep(min(2.0, float(r.headers.get("Retry-After", "1"))) / 10)
                 continue
             if r.status_code >= 500:

@@ -174,7 +174,7 @@ class WorkerDatabases:
         self._urls: dict[str, str] = {}
         self._empty: dict[str, EmptyTables] = {}
         self._bouncer: Bouncer | None = None
-        self.pooled: set[str] = set()  # the URLs that go through PgBouncer
+        self.pooled: dict[str, str] = {}  # a URL through PgBouncer -> the same database direct
 
     def bouncer(self) -> Bouncer:
         """This worker's PgBouncer, started on first use and stopped at the end of the run."""
@@ -193,7 +193,7 @@ class WorkerDatabases:
                 direct = url = _normal(server_url)
                 if engine == "pgbouncer":
                     url = _normal(self.bouncer().url(name))
-                    self.pooled.add(url)
+                    self.pooled[url] = direct
             emptier = self._empty[url] = EmptyTables(direct)
             self._stack.callback(emptier.close)
             emptier()
@@ -203,6 +203,11 @@ class WorkerDatabases:
     def pooler(self, url: str) -> str:
         """The ``ATTUNE_DATABASE_POOLER`` of the service on ``url``."""
         return "transaction" if url in self.pooled else "none"
+
+    def direct(self, url: str) -> str:
+        """``url``, or the same database on the server directly when ``url`` goes through
+        PgBouncer (for what is not the service: a test's own engine, keys made in bulk)."""
+        return self.pooled.get(url, url)
 
     def empty(self, url: str) -> None:
         self._empty[url]()
