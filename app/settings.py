@@ -9,7 +9,10 @@ from typing import Literal
 from pydantic import Field, SecretStr, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
-__all__ = ["Settings", "get_settings", "mask_url", "shown"]
+__all__ = ["Pooler", "Settings", "get_settings", "mask_url", "shown"]
+
+Pooler = Literal["none", "transaction"]
+"""What stands between the service and PostgreSQL (``ATTUNE_DATABASE_POOLER``)."""
 
 SECRET_SETTINGS = frozenset({"metrics_token"})
 """Settings whose values are never printed, whole or in part."""
@@ -70,7 +73,7 @@ class Settings(BaseSettings):
         description="SQLAlchemy URL: sqlite:///PATH (embedded default) or "
         "postgresql+psycopg://USER@HOST:PORT/DB (production).",
     )
-    database_pooler: Literal["none", "transaction"] = Field(
+    database_pooler: Pooler = Field(
         default="none",
         description="PostgreSQL: what stands between the service and the database. transaction: "
         "a pooler in transaction pooling (PgBouncer's pool_mode=transaction), which may hand "

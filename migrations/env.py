@@ -35,7 +35,12 @@ def run_migrations_offline() -> None:
 def run_migrations_online() -> None:
     connectable = config.attributes.get("connection")
     if connectable is None:
-        engine = create_engine(_url(), poolclass=pool.NullPool)
+        url = _url()
+        # No server-side prepared statements: nothing a migration runs is repeated enough to
+        # gain from one, and behind a transaction pooler (PgBouncer) the next transaction may
+        # run on a server connection that does not have it, or has another of the same name.
+        extra = {"connect_args": {"prepare_threshold": None}} if url.startswith("postgres") else {}
+        engine = create_engine(url, poolclass=pool.NullPool, **extra)
         with engine.connect() as connection:
             _run(connection)
         engine.dispose()

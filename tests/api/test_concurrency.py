@@ -300,7 +300,9 @@ def test_concurrent_robots_with_retries_and_conflicts(
         # nothing: its first decision has no silent steps); replays and conflicts change nothing.
         assert model["version"] == initial[who] + len(answered)
 
-        code, summary = rebuild(settings.database_url, user_id, fleet=fleet)
+        code, summary = rebuild(
+            settings.database_url, user_id, fleet=fleet, pooler=settings.database_pooler
+        )
         assert summary["identical"] is True, summary
         assert code == 0, summary
         assert summary["decisions_redrawn"] == len(decision_ids)

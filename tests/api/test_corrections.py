@@ -251,7 +251,7 @@ class TestHistory:
         meet(robot, "chen", 2, "h3")
         staff.delete("/v1/users/chen/corrections/hush")
         meet(robot, "chen", 2, "h4")
-        summary = rebuild(settings.database_url, "chen").summary
+        summary = rebuild(settings.database_url, "chen", pooler=settings.database_pooler).summary
         assert summary["identical"] is True, summary
 
     def test_export_import_and_reset(
@@ -269,7 +269,12 @@ class TestHistory:
         assert staff.put("/v1/users/chen/model", json=doc).status_code == 200
         assert _statuses(staff) == {"tea": "in_force"}
         meet(robot, "chen", 2, "e")
-        assert rebuild(settings.database_url, "chen").summary["identical"] is True
+        assert (
+            rebuild(settings.database_url, "chen", pooler=settings.database_pooler).summary[
+                "identical"
+            ]
+            is True
+        )
 
     def test_bad_guidance_in_an_import_is_422(self, staff: TestClient) -> None:
         make_user(staff)

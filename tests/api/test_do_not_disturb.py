@@ -144,12 +144,12 @@ def test_a_mission_change_applies_at_once_and_is_undone_by_the_next(
     for e in range(12):
         kinds = _episode(robot, uid, f"{uid}-b{e}", accept=True, ask=e % 2 == 0)
         assert "initiate" not in kinds
-    summary = rebuild(settings.database_url, uid).summary
+    summary = rebuild(settings.database_url, uid, pooler=settings.database_pooler).summary
     assert summary["identical"] is True, summary
 
     _mission(staff, "open-again", {**OPEN, "name": "care-home-open-2"})
     assert _p_initiate(robot, uid) > 0.0  # learning decides again
-    summary = rebuild(settings.database_url, uid).summary
+    summary = rebuild(settings.database_url, uid, pooler=settings.database_pooler).summary
     assert summary["identical"] is True, summary
 
 

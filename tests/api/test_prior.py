@@ -19,7 +19,7 @@ from fastapi.testclient import TestClient
 from app.settings import Settings
 from tests.support.commands import rebuild
 from tests.support.contract import assert_error
-from tests.support.fixtures import MakeKey
+from tests.support.fixtures import MakeKey, WorkerDatabases
 from tests.support.people import TEA, answer
 
 SLOT, SITUATION = "afternoon", "stretching"
@@ -28,9 +28,10 @@ EPISODES = 6  # per resident: prior_min_episodes below
 
 
 @pytest.fixture
-def settings(database_url: str) -> Settings:
+def settings(database_url: str, worker_databases: WorkerDatabases) -> Settings:
     return Settings(
         database_url=database_url,
+        database_pooler=worker_databases.pooler(database_url),
         seed=0,
         prior_min_contributors=3,  # type: ignore[call-arg]
         prior_min_episodes=EPISODES,
@@ -102,7 +103,7 @@ class TestNewcomers:
         for n in range(4):
             serve(staff, "dora", f"dora-{n}")
         assert started_from(staff, "dora")["kind"] == "fleet_prior"
-        summary = rebuild(settings.database_url, "dora").summary
+        summary = rebuild(settings.database_url, "dora", pooler=settings.database_pooler).summary
         assert summary["identical"] is True, summary
 
     def test_a_first_episode_makes_the_user_from_the_prior(self, robot: TestClient) -> None:

@@ -335,7 +335,7 @@ def stored_steps(db: Database, user_id: str) -> tuple[int, int, int]:
 
 
 def check_rebuild(settings: Settings, user_id: str, decisions: int) -> None:
-    code, summary = rebuild(settings.database_url, user_id)
+    code, summary = rebuild(settings.database_url, user_id, pooler=settings.database_pooler)
     assert summary["identical"] is True, summary
     assert code == 0, summary
     assert summary["mismatched_decisions"] == []
@@ -530,5 +530,5 @@ def test_feedback_on_an_episode_before_a_reset_leaves_the_fresh_model_alone(
         "the fresh model took feedback on an episode it never saw"
     )
     assert after["contexts"] == model["contexts"]
-    code, summary = rebuild(settings.database_url, uid)
+    code, summary = rebuild(settings.database_url, uid, pooler=settings.database_pooler)
     assert code == 0, summary

@@ -15,9 +15,10 @@ from typing import Any
 import httpx
 import pytest
 
+from tests.support.fixtures import WorkerDatabases
 from tests.support.live import LiveService, fresh_database, make_keys
 
-from .helpers import create_users
+from .helpers import CASES, create_users, service_env
 from .history import Workload, check_history
 
 pytestmark = [pytest.mark.stress, pytest.mark.xdist_group("stress")]
@@ -33,9 +34,16 @@ SLOTS = ["morning", "noon", "afternoon", "evening"]
 SITUATIONS = ["arriving", "working", "stretching", "busy"]
 
 
-@pytest.mark.parametrize(("engine", "workers"), [("sqlite", 1), ("postgresql", 2)])
-def test_corrections_under_load_lose_nothing(engine: str, workers: int) -> None:
-    with fresh_database(engine) as url, LiveService(url, workers=workers) as service:
+@pytest.mark.parametrize(("engine", "workers"), CASES)
+def test_corrections_under_load_lose_nothing(
+    engine: str, workers: int, worker_databases: WorkerDatabases
+) -> None:
+    with (
+        fresh_database(engine) as url,
+        LiveService(
+            url, workers=workers, env=service_env(engine, url, worker_databases)
+        ) as service,
+    ):
         admin_key = make_keys(url, 1, role="admin")[0]
         staff_key = make_keys(url, 1, role="staff")[0]
         with httpx.Client(

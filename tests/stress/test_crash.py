@@ -13,9 +13,10 @@ import time
 import httpx
 import pytest
 
+from tests.support.fixtures import WorkerDatabases
 from tests.support.live import LiveService, fresh_database, make_keys
 
-from .helpers import create_users
+from .helpers import CASES, create_users, service_env
 from .history import History, Workload, check_history
 
 pytestmark = [pytest.mark.stress, pytest.mark.xdist_group("stress")]
@@ -35,11 +36,13 @@ def _copy(history: History) -> History:
         )
 
 
-@pytest.mark.parametrize(("engine", "workers"), [("sqlite", 1), ("postgresql", 2)])
-def test_sigkill_mid_load_loses_nothing_acknowledged(engine: str, workers: int) -> None:
+@pytest.mark.parametrize(("engine", "workers"), CASES)
+def test_sigkill_mid_load_loses_nothing_acknowledged(
+    engine: str, workers: int, worker_databases: WorkerDatabases
+) -> None:
     per_fleet = CLIENTS // len(FLEETS)
     with fresh_database(engine) as url:
-        service = LiveService(url, workers=workers)
+        service = LiveService(url, workers=workers, env=service_env(engine, url, worker_databases))
         service.start()
         try:
             admin_key = make_keys(url, 1, role="admin")[0]

@@ -15,9 +15,10 @@ from app.db import migrate
 from app.main import create_app
 from app.services.learners import save_learner
 from app.settings import Settings
+from tests.support.fixtures import WorkerDatabases
 from tests.support.live import LiveService, fresh_database, make_keys, serving
 
-from .helpers import create_users
+from .helpers import CASES, create_users, service_env
 from .history import Workload, check_history
 
 pytestmark = [pytest.mark.stress, pytest.mark.xdist_group("stress")]
@@ -25,9 +26,16 @@ pytestmark = [pytest.mark.stress, pytest.mark.xdist_group("stress")]
 CLIENTS = 32
 
 
-@pytest.mark.parametrize(("engine", "workers"), [("sqlite", 1), ("postgresql", 2)])
-def test_no_acknowledged_write_lost_or_doubled(engine: str, workers: int) -> None:
-    with fresh_database(engine) as url, LiveService(url, workers=workers) as service:
+@pytest.mark.parametrize(("engine", "workers"), CASES)
+def test_no_acknowledged_write_lost_or_doubled(
+    engine: str, workers: int, worker_databases: WorkerDatabases
+) -> None:
+    with (
+        fresh_database(engine) as url,
+        LiveService(
+            url, workers=workers, env=service_env(engine, url, worker_databases)
+        ) as service,
+    ):
         keys = make_keys(url, CLIENTS)
         admin_key = make_keys(url, 1, role="admin")[0]
         with httpx.Client(

@@ -14,9 +14,10 @@ import httpx
 import pytest
 
 from app.learning import Mission, office_mission
+from tests.support.fixtures import WorkerDatabases
 from tests.support.live import LiveService, fresh_database, make_keys
 
-from .helpers import create_users
+from .helpers import CASES, create_users, service_env
 from .history import Workload, check_history
 
 pytestmark = [pytest.mark.stress, pytest.mark.xdist_group("stress")]
@@ -46,9 +47,16 @@ def office_with_cocoa() -> Mission:
     return Mission.from_dict(_office_with(detail="cocoa"))
 
 
-@pytest.mark.parametrize(("engine", "workers"), [("sqlite", 1), ("postgresql", 2)])
-def test_a_mission_change_under_load_loses_nothing(engine: str, workers: int) -> None:
-    with fresh_database(engine) as url, LiveService(url, workers=workers) as service:
+@pytest.mark.parametrize(("engine", "workers"), CASES)
+def test_a_mission_change_under_load_loses_nothing(
+    engine: str, workers: int, worker_databases: WorkerDatabases
+) -> None:
+    with (
+        fresh_database(engine) as url,
+        LiveService(
+            url, workers=workers, env=service_env(engine, url, worker_databases)
+        ) as service,
+    ):
         admin_key = make_keys(url, 1, role="admin")[0]
         staff_key = make_keys(url, 1, role="staff")[0]
         with httpx.Client(

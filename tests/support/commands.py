@@ -26,9 +26,17 @@ class Rebuilt(NamedTuple):
     summary: dict[str, Any]
 
 
-def rebuild(database_url: str, user_id: str, *, fleet: str | None = None, seed: int = 0) -> Rebuilt:
+def rebuild(
+    database_url: str,
+    user_id: str,
+    *,
+    fleet: str | None = None,
+    seed: int = 0,
+    pooler: str = "none",
+) -> Rebuilt:
     """``attune models rebuild USER_ID [--fleet FLEET]`` on the database at ``database_url``,
-    with the deployment seed ``seed`` (the service's: the tests' services run with 0)."""
+    with the deployment seed ``seed`` (the service's: the tests' services run with 0) and
+    ``ATTUNE_DATABASE_POOLER=pooler`` (``transaction`` through PgBouncer)."""
     from typer.testing import CliRunner
 
     from app import cli
@@ -37,7 +45,11 @@ def rebuild(database_url: str, user_id: str, *, fleet: str | None = None, seed: 
     result = CliRunner().invoke(
         cli.app,
         ["models", "rebuild", user_id, *where],
-        env={"ATTUNE_DATABASE_URL": database_url, "ATTUNE_SEED": str(seed)},
+        env={
+            "ATTUNE_DATABASE_URL": database_url,
+            "ATTUNE_SEED": str(seed),
+            "ATTUNE_DATABASE_POOLER": pooler,
+        },
     )
     # The command leaves its engine's connections to the garbage collector (a process that ends
     # closes them); collect them here, quietly, rather than in whichever test runs next.

@@ -33,7 +33,7 @@ from app.db.base import Base
 from app.db.session import Database
 from app.main import create_app
 from app.services.auth import create_key
-from app.settings import Settings
+from app.settings import Pooler, Settings
 
 from .live import database_name, postgres_database
 from .pgbouncer import Bouncer, running_pgbouncer
@@ -200,7 +200,7 @@ class WorkerDatabases:
             self._urls[engine] = url
         return self._urls[engine]
 
-    def pooler(self, url: str) -> str:
+    def pooler(self, url: str) -> Pooler:
         """The ``ATTUNE_DATABASE_POOLER`` of the service on ``url``."""
         return "transaction" if url in self.pooled else "none"
 

@@ -109,7 +109,8 @@ def postgres_database(name: str) -> Iterator[str]:
 
 @contextmanager
 def fresh_database(engine: str, folder: Path | None = None) -> Iterator[str]:
-    """A URL of an empty database of ``engine`` (``sqlite`` or ``postgresql``), removed after."""
+    """A URL of an empty database of ``engine`` (``sqlite``, or ``postgresql``: also for
+    ``pgbouncer``, whose service reaches it through PgBouncer), removed after."""
     if engine == "sqlite":
         with tempfile.TemporaryDirectory(dir=folder) as tmp:
             yield f"sqlite:///{Path(tmp) / 'attune.db'}"
