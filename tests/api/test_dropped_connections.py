@@ -5,7 +5,8 @@ directly on PostgreSQL and through PgBouncer in transaction pooling. Every answe
 503 (which the robots retry), and afterwards the stored history holds each acknowledged write
 exactly once (``tests/stress/history.py``'s check). Then a database restart's worth (every
 connection ended at once, the service idle) costs at most one retried request: the first
-request that meets a dead connection has the pool drop them all."""
+request that meets a dead connection has the pool drop them all. And each kind of lost
+connection answers 503 with Retry-After, while a statement refused on a live one stays a 500."""
 
 from __future__ import annotations
 
@@ -15,12 +16,17 @@ from pathlib import Path
 import httpx
 import psycopg
 import pytest
+from fastapi import FastAPI
+from fastapi.testclient import TestClient
+from psycopg import errors
 from sqlalchemy.engine import make_url
+from sqlalchemy.exc import InterfaceError, OperationalError, ProgrammingError
 
 from app.main import create_app
 from app.settings import Settings
 from tests.stress.helpers import create_users
 from tests.stress.history import Workload, check_history
+from tests.support.contract import assert_error
 from tests.support.fixtures import WorkerDatabases, engines
 from tests.support.live import make_keys, postgres_url, serving
 
@@ -135,3 +141,41 @@ def test_dropped_connections_cost_retries_not_writes(
     assert restarted > 0
     assert set(statuses) <= {200, 503}, statuses
     assert statuses.count(503) <= 1, statuses
+
+
+@pytest.mark.one_engine
+@pytest.mark.parametrize(
+    ("error", "status", "name"),
+    [
+        # the driver's "the connection is closed": a connection lost before SQL was sent
+        (
+            InterfaceError("SELECT 1", None, psycopg.InterfaceError("the connection is closed")),
+            503,
+            "ServiceUnavailable",
+        ),
+        # any driver error on a connection the pool dropped as lost
+        (
+            ProgrammingError("SELECT 1", None, psycopg.Error("lost"), connection_invalidated=True),
+            503,
+            "ServiceUnavailable",
+        ),
+        (
+            OperationalError("SELECT 1", None, errors.AdminShutdown("terminating")),
+            503,
+            "ServiceUnavailable",
+        ),
+        # a statement the database refused on a live connection is a server failure
+        (ProgrammingError("SELECT 1", None, psycopg.Error("syntax")), 500, "InternalError"),
+    ],
+)
+def test_a_lost_connection_answers_503_with_retry_after(
+    app: FastAPI, client: TestClient, error: Exception, status: int, name: str
+) -> None:
+    @app.get("/lost")
+    def lost() -> None:
+        raise error
+
+    r = client.get("/lost")
+    assert_error(r, status, name)
+    if status == 503:
+        assert r.headers["retry-after"] == "1"
