@@ -229,6 +229,7 @@ def logout(request: Request, form: FormDep) -> Response:
 def users_page(
     request: Request,
     session: RequestSession,
+    ctx: ServiceContext,
     admin: AdminDep,
     q: Annotated[str | None, Query(max_length=200)] = None,
     page: Annotated[int, Query(ge=1, le=1_000_000)] = 1,
@@ -240,7 +241,17 @@ def users_page(
         session, admin.principal, text=q, page=page, per_page=per_page
     )
     shown = deleted if deleted and _USER_ID.match(deleted) else None  # only ids: no free text
-    return _page(request, "users.html", admin, found=found, q=q or "", deleted=shown, nav="users")
+    zones = console_service.time_zones(session, ctx, {row.user.fleet for row in found.items})
+    return _page(
+        request,
+        "users.html",
+        admin,
+        found=found,
+        q=q or "",
+        deleted=shown,
+        nav="users",
+        zones=zones,
+    )
 
 
 def _counts(session: RequestSession, user: UserOut) -> dict[str, int]:
@@ -307,6 +318,8 @@ def _profile_page(
         error=error,
         correction_id=secrets.token_hex(16),
         mission_version=console_service.mission_version(session, user),
+        zone=mission.time_zone,
+        key_names=console_service.key_names(session, [c.author for c in profile.corrections]),
     )
 
 
@@ -549,6 +562,9 @@ def why_page(
         session, ctx, principal, user_id, time_slot=time_slot, situation=situation, fleet=user.fleet
     )
     context = model.contexts[0]
+    corrections = corrections_service.list_corrections(
+        session, ctx, principal, user_id, fleet=user.fleet
+    ).items
     trace = console_service.latest_trace_in_context(
         session, ctx, principal, user_id, time_slot=time_slot, situation=situation, fleet=user.fleet
     )
@@ -565,9 +581,13 @@ def why_page(
         mission=mission,
         v_max=mission.v_max,
         counts=_counts(session, user),
-        trace_offset=None
-        if trace is None
-        else console_service.episode_offsets(session, [trace.episode_id]).get(trace.episode_id),
+        zone=mission.time_zone,
+        drivers=views.drivers(
+            model.started_from,
+            [c for c in corrections if (c.time_slot, c.situation) == (time_slot, situation)],
+            views.episodes_in(context),
+        ),
+        key_names=console_service.key_names(session, [c.author for c in corrections]),
     )
 
 
@@ -603,7 +623,7 @@ def episodes_page(
     newer = None
     if newest is not None and newest < user.episodes:
         newer = newest + per_page + 1 if newest + per_page < user.episodes else 0
-    offsets = console_service.episode_offsets(session, [e.episode_id for e in page.items])
+    mission = console_service.user_mission(session, ctx, user)
     return _page(
         request,
         "episodes.html",
@@ -613,7 +633,8 @@ def episodes_page(
         page=page,
         per_page=per_page,
         newer=newer,
-        offsets=offsets,
+        mission=mission,
+        zone=mission.time_zone,
         older=int(page.next_cursor) if page.next_cursor else None,
         counts=_counts(session, user),
     )
@@ -637,8 +658,16 @@ def trace_fragment(
     trace = episodes_service.get_trace(session, ctx, admin.principal, episode_id)
     if trace.user_id != user_id or trace.fleet != user.fleet:
         raise PageError(404, "Not found", f"Episode {episode_id!r} is not {user_id!r}'s.")
-    offset = console_service.episode_offsets(session, [trace.episode_id]).get(trace.episode_id)
-    return _page(request, "_trace.html", admin, trace=trace, offset=offset)
+    mission = console_service.user_mission(session, ctx, user)
+    return _page(
+        request,
+        "_trace.html",
+        admin,
+        trace=trace,
+        user=user,
+        mission=mission,
+        zone=mission.time_zone,
+    )
 
 
 # Named as the API's export route on purpose: an export leaves an audit entry, and the session
