@@ -265,6 +265,10 @@ def _counts(session: RequestSession, user: UserOut) -> dict[str, int]:
 _SLOT_NAME = Annotated[str | None, Query(max_length=64)]
 _CORRECTION_KINDS = ("prefers", "avoid", "quiet")
 _CORRECTION_FIELDS = ("kind", "service", "detail", "note")
+_NO_KIND = (
+    "Choose what to correct: what the person prefers, what the robot "
+    "should not offer, or that the robot should stay quiet here."
+)
 
 
 def _profile_page(
@@ -367,15 +371,17 @@ def add_correction(
     mistake comes back on the form, in words, with what was typed."""
     _check_user_id(user_id)
     check_post(request, admin, form)
-    user = users_service.get_user(session, admin.principal, user_id, fleet=fleet)
+    principal = admin.principal
     time_slot, situation = form.get("time_slot", ""), form.get("situation", "")
     typed = {k: form.get(k, "") for k in _CORRECTION_FIELDS}
     kind = typed["kind"]
     service = typed["service"].strip() or None
     detail = typed["detail"].strip() or None
-    note = typed["note"].strip() or None
+    if kind == "quiet":  # the form keeps its lists filled in; quiet takes neither
+        service = detail = None
 
     def again(status: int, message: str) -> HTMLResponse:
+        user = users_service.get_user(session, principal, user_id, fleet=fleet)
         return _profile_page(
             request,
             session,
@@ -390,41 +396,7 @@ def add_correction(
         )
 
     if kind not in _CORRECTION_KINDS:
-        return again(
-            422,
-            "Choose what to correct: what the person prefers, what the robot "
-            "should not offer, or that the robot should stay quiet here.",
-        )
-    if kind == "quiet":
-        service = detail = None
-    elif service is None:
-        return again(
-            422,
-            "Choose what the person prefers."
-            if kind == "prefers"
-            else "Choose what the robot should not offer.",
-        )
-    else:
-        offers = {
-            s.name: s.details for s in console_service.user_mission(session, ctx, user).services
-        }
-        if service not in offers:
-            return again(
-                422,
-                f"The robots of fleet {user.fleet} do not offer "
-                f"“{views.name_words(service)}” any more: choose another service.",
-            )
-        choices = views.or_list([views.name_words(d) for d in offers[service]])
-        if detail is not None and detail not in offers[service]:
-            return again(
-                422,
-                f"“{views.name_words(detail)}” is not a choice of "
-                f"{views.name_words(service)}: choose {choices}.",
-            )
-        if kind == "prefers" and detail is None:
-            return again(
-                422, f"Choose which {views.name_words(service)} the person prefers: {choices}."
-            )
+        return again(422, _NO_KIND)
     try:
         body = CorrectionIn(
             correction_id=form.get("correction_id", ""),
@@ -433,22 +405,23 @@ def add_correction(
             kind=kind,  # type: ignore[arg-type]
             service=service,
             detail=detail,
-            note=note,
+            note=typed["note"].strip() or None,
         )
     except ValidationError as exc:
         return again(422, _correction_error(exc))
     try:
-        corrections_service.add_correction(
-            session, ctx, admin.principal, user_id, body, fleet=user.fleet
-        )
-    except ValidationFailed as exc:
-        return again(422, f"The correction was not saved: {exc.detail}")
+        corrections_service.add_correction(session, ctx, principal, user_id, body, fleet=fleet)
+    except corrections_service.CorrectionRefused as exc:
+        held = users_service.get_user(session, principal, user_id, fleet=fleet)
+        mission = console_service.user_mission(session, ctx, held)
+        return again(422, views.refusal_words(exc.reasons, mission, held.fleet))
     except Conflict:
         return again(
             409,
             "This form was already used for another correction. Check the "
             "corrections below, then try again.",
         )
+    user = views.UserAt(user_id, users_service.fleet_of(principal, fleet, user_id))
     return _redirect(
         views.user_url(user, time_slot=time_slot, situation=situation, done="corrected")
         + "#evidence"

@@ -15,9 +15,11 @@ import re
 import zoneinfo
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import NamedTuple
 from urllib.parse import quote, urlencode
 
 from app.learning import Mission
+from app.learning.guidance import Reason, ReasonCode
 from app.schemas.common import ActionOut
 from app.schemas.models import ActionBelief, ContextModel, ModelOut, StartedFrom, StateModel
 from app.schemas.profile import CorrectionOut, ProfileContext, ProfileOut, RobotWill, Wanted
@@ -69,7 +71,14 @@ DASH = "—"  # a value the learner has no notion of (or no data yet)
 
 
 # -- number formats (the browser tests parse these back) --------------------------------------
-def user_url(user: UserOut, tail: str = "", **params: object) -> str:
+class UserAt(NamedTuple):
+    """A user by id and fleet: what a console address needs."""
+
+    user_id: str
+    fleet: str
+
+
+def user_url(user: UserOut | UserAt, tail: str = "", **params: object) -> str:
     """A console address of a user's page (its fleet named, so that an admin's links work for
     every fleet): ``user_url(user, "/why", time_slot="noon")``."""
     query = urlencode({"fleet": user.fleet, **{k: v for k, v in params.items() if v is not None}})
@@ -696,3 +705,29 @@ _P_WORDS = {
 def p_words(algorithm: str) -> str:
     """How the learner in use turns its numbers into P, for the engineers' legend."""
     return _P_WORDS.get(algorithm, "")
+
+
+def refusal_words(reasons: Sequence[Reason], mission: Mission, fleet: str) -> str:
+    """The learning core's reasons for refusing a correction, as the form says them."""
+    reason = reasons[0]
+    code, kind = reason.code, reason.kind.value
+    if code is ReasonCode.NEEDS_SERVICE:
+        if kind == "prefers":
+            return "Choose what the person prefers."
+        return "Choose what the robot should not offer."
+    if code is ReasonCode.UNKNOWN_SERVICE:
+        return (
+            f"The robots of fleet {fleet} do not offer “{label(mission, reason.got)}” any more: "
+            "choose another service."
+        )
+    choices = or_list([label(mission, d) for d in reason.allowed])
+    service = label(mission, reason.service)
+    if code is ReasonCode.NEEDS_DETAIL:
+        return f"Choose which {service} the person prefers: {choices}."
+    if code is ReasonCode.UNKNOWN_DETAIL:
+        return f"“{label(mission, reason.got)}” is not a choice of {service}: choose {choices}."
+    if code in (ReasonCode.UNKNOWN_TIME_SLOT, ReasonCode.UNKNOWN_SITUATION):
+        return "This box is not part of the fleet's mission any more: choose another box."
+    if code is ReasonCode.BAD_ID:
+        return "The form is incomplete (its number is missing): reload the page and try again."
+    return "The robot should stay quiet here: leave the service and the choice empty."
