@@ -723,7 +723,7 @@ def refusal_words(reasons: Sequence[Reason], mission: Mission, fleet: str) -> st
     choices = or_list([label(mission, d) for d in reason.allowed])
     service = label(mission, reason.service)
     if code is ReasonCode.NEEDS_DETAIL:
-        return f"Choose which {service} the person prefers: {choices}."
+        return f"Choose the person's choice of {service}: {choices}."
     if code is ReasonCode.UNKNOWN_DETAIL:
         return f"“{label(mission, reason.got)}” is not a choice of {service}: choose {choices}."
     if code in (ReasonCode.UNKNOWN_TIME_SLOT, ReasonCode.UNKNOWN_SITUATION):
@@ -731,3 +731,8 @@ def refusal_words(reasons: Sequence[Reason], mission: Mission, fleet: str) -> st
     if code is ReasonCode.BAD_ID:
         return "The form is incomplete (its number is missing): reload the page and try again."
     return "The robot should stay quiet here: leave the service and the choice empty."
+
+
+def cap(text: str) -> str:
+    """The first letter upper case, the rest as written: "lunchtime" -> "Lunchtime"."""
+    return text[:1].upper() + text[1:]

@@ -374,7 +374,7 @@ def test_staff_pages_hold_no_engineers_words(console: Console) -> None:
         ({"kind": "prefers", "service": ""}, "Choose what the person prefers."),
         (
             {"kind": "prefers", "service": "ProvideDrink", "detail": ""},
-            "Choose which Provide drink the person prefers: tea, coffee or water.",
+            "Choose the person's choice of Provide drink: tea, coffee or water.",
         ),
         (
             {"kind": "avoid", "service": "ProvideDrink", "detail": "news"},
