@@ -275,8 +275,7 @@ def test_times_are_in_the_fleets_time_zone() -> None:
 
 def test_a_decision_in_words() -> None:
     from app.console.views import person_step_words, robot_step_words
-    from app.schemas.common import ActionOut
-    from app.schemas.episodes import ProbabilityOut
+    from app.schemas.common import ActionOut, ProbabilityOut
 
     m = _labelled()
 
