@@ -306,11 +306,11 @@ class TestEpisodes:
         shot(page, "episodes-words")
         # Every trace opened: no engineers' term on the page staff read.
         for other in page.locator("details.episode").all()[1:]:
-            other.locator("summary").click()
+            other.locator("summary.ep-row").click()
             expect(other.locator(".trace-body")).to_have_count(1)
         _no_engineers_terms(page.locator("main").inner_text(), "episodes, every trace open")
         for other in page.locator("details.episode").all()[1:]:
-            other.locator("summary").click()  # closed again, for the engineers' screenshot
+            other.locator("summary.ep-row").click()  # closed again, for the screenshot
         body.locator("details.engineers summary").click()
         decisions = body.locator("tr.decision")
         expect(decisions).to_have_count(len(trace["decisions"]))
