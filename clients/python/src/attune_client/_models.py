@@ -554,6 +554,10 @@ class Mission(_Model):
         doc = self.model_dump(mode="json", exclude=set(_PLACE_FIELDS))
         if doc.get("gamma") is None:
             doc.pop("gamma", None)
+        if not doc.get("labels"):  # the display fields at their defaults are left out
+            doc.pop("labels", None)
+        if doc.get("time_zone") == "UTC":
+            doc.pop("time_zone", None)
         return doc
 
 
