@@ -237,6 +237,8 @@ class Mission:
         if set(self.unavailable_situations) == set(self.situations):
             raise MissionError("unavailable_situations: at least one situation must allow service.")
         self._check_labels()
+        # By name: one mission whatever order its document listed them in.
+        object.__setattr__(self, "labels", tuple(sorted(self.labels)))
         _check_time_zone(self.time_zone)
 
     def _check_labels(self) -> None:

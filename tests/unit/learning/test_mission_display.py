@@ -92,3 +92,10 @@ class TestTimeZone:
     def test_anything_else_is_refused(self, zone: object) -> None:
         with pytest.raises(MissionError, match="time_zone: .* is not an IANA time zone name"):
             Mission.from_dict(_doc(time_zone=zone))
+
+
+def test_the_order_of_the_labels_does_not_matter() -> None:
+    one = Mission.from_dict(_doc(labels={"tea": "a cup of tea", "busy": "in a meeting"}))
+    other = Mission.from_dict(_doc(labels={"busy": "in a meeting", "tea": "a cup of tea"}))
+    assert one == other
+    assert Mission.from_dict(json.loads(json.dumps(one.to_dict(), sort_keys=True))) == one
