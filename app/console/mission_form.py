@@ -137,7 +137,24 @@ class MissionForm:
     def documents(self, current: Mission) -> tuple[dict[str, Any], dict[str, dict[str, str]]]:
         """(mission document, renames document), or :class:`FormError` for a field that cannot
         be read. ``current``: the mission in force, for the names renames refer to."""
-        return self._mission(), self._renames(current)
+        doc = self._mission()
+        # The form does not edit the display settings: they are carried over, the labels of
+        # the names that stay (a renamed name keeps its label under its new name).
+        renames = self._renames(current)
+        moved = {old: new for kind in renames.values() for old, new in kind.items()}
+        names = {s["name"] for s in doc["time_slots"]} | set(doc["situations"])
+        for service in doc["services"]:
+            names |= {service["name"], *service["details"]}
+        labels = {}
+        for name, text in current.labels:
+            target = moved.get(name, name)
+            if target in names:
+                labels[target] = text
+        if labels:
+            doc["labels"] = labels
+        if current.time_zone != "UTC":
+            doc["time_zone"] = current.time_zone
+        return doc, renames
 
     def _mission(self) -> dict[str, Any]:
         services = []

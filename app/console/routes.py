@@ -229,6 +229,7 @@ def logout(request: Request, form: FormDep) -> Response:
 def users_page(
     request: Request,
     session: RequestSession,
+    ctx: ServiceContext,
     admin: AdminDep,
     q: Annotated[str | None, Query(max_length=200)] = None,
     page: Annotated[int, Query(ge=1, le=1_000_000)] = 1,
@@ -240,7 +241,17 @@ def users_page(
         session, admin.principal, text=q, page=page, per_page=per_page
     )
     shown = deleted if deleted and _USER_ID.match(deleted) else None  # only ids: no free text
-    return _page(request, "users.html", admin, found=found, q=q or "", deleted=shown, nav="users")
+    zones = console_service.time_zones(session, ctx, {row.user.fleet for row in found.items})
+    return _page(
+        request,
+        "users.html",
+        admin,
+        found=found,
+        q=q or "",
+        deleted=shown,
+        nav="users",
+        zones=zones,
+    )
 
 
 def _counts(session: RequestSession, user: UserOut) -> dict[str, int]:
@@ -254,6 +265,10 @@ def _counts(session: RequestSession, user: UserOut) -> dict[str, int]:
 _SLOT_NAME = Annotated[str | None, Query(max_length=64)]
 _CORRECTION_KINDS = ("prefers", "avoid", "quiet")
 _CORRECTION_FIELDS = ("kind", "service", "detail", "note")
+_NO_KIND = (
+    "Choose what to correct: what the person prefers, what the robot "
+    "should not offer, or that the robot should stay quiet here."
+)
 
 
 def _profile_page(
@@ -307,6 +322,8 @@ def _profile_page(
         error=error,
         correction_id=secrets.token_hex(16),
         mission_version=console_service.mission_version(session, user),
+        zone=mission.time_zone,
+        key_names=console_service.key_names(session, [c.author for c in profile.corrections]),
     )
 
 
@@ -354,15 +371,17 @@ def add_correction(
     mistake comes back on the form, in words, with what was typed."""
     _check_user_id(user_id)
     check_post(request, admin, form)
-    user = users_service.get_user(session, admin.principal, user_id, fleet=fleet)
+    principal = admin.principal
     time_slot, situation = form.get("time_slot", ""), form.get("situation", "")
     typed = {k: form.get(k, "") for k in _CORRECTION_FIELDS}
     kind = typed["kind"]
     service = typed["service"].strip() or None
     detail = typed["detail"].strip() or None
-    note = typed["note"].strip() or None
+    if kind == "quiet":  # the form keeps its lists filled in; quiet takes neither
+        service = detail = None
 
     def again(status: int, message: str) -> HTMLResponse:
+        user = users_service.get_user(session, principal, user_id, fleet=fleet)
         return _profile_page(
             request,
             session,
@@ -377,41 +396,7 @@ def add_correction(
         )
 
     if kind not in _CORRECTION_KINDS:
-        return again(
-            422,
-            "Choose what to correct: what the person prefers, what the robot "
-            "should not offer, or that the robot should stay quiet here.",
-        )
-    if kind == "quiet":
-        service = detail = None
-    elif service is None:
-        return again(
-            422,
-            "Choose what the person prefers."
-            if kind == "prefers"
-            else "Choose what the robot should not offer.",
-        )
-    else:
-        offers = {
-            s.name: s.details for s in console_service.user_mission(session, ctx, user).services
-        }
-        if service not in offers:
-            return again(
-                422,
-                f"The robots of fleet {user.fleet} do not offer "
-                f"“{views.name_words(service)}” any more: choose another service.",
-            )
-        choices = views.or_list([views.name_words(d) for d in offers[service]])
-        if detail is not None and detail not in offers[service]:
-            return again(
-                422,
-                f"“{views.name_words(detail)}” is not a choice of "
-                f"{views.name_words(service)}: choose {choices}.",
-            )
-        if kind == "prefers" and detail is None:
-            return again(
-                422, f"Choose which {views.name_words(service)} the person prefers: {choices}."
-            )
+        return again(422, _NO_KIND)
     try:
         body = CorrectionIn(
             correction_id=form.get("correction_id", ""),
@@ -420,22 +405,23 @@ def add_correction(
             kind=kind,  # type: ignore[arg-type]
             service=service,
             detail=detail,
-            note=note,
+            note=typed["note"].strip() or None,
         )
     except ValidationError as exc:
         return again(422, _correction_error(exc))
     try:
-        corrections_service.add_correction(
-            session, ctx, admin.principal, user_id, body, fleet=user.fleet
-        )
-    except ValidationFailed as exc:
-        return again(422, f"The correction was not saved: {exc.detail}")
+        corrections_service.add_correction(session, ctx, principal, user_id, body, fleet=fleet)
+    except corrections_service.CorrectionRefused as exc:
+        held = users_service.get_user(session, principal, user_id, fleet=fleet)
+        mission = console_service.user_mission(session, ctx, held)
+        return again(422, views.refusal_words(exc.reasons, mission, held.fleet))
     except Conflict:
         return again(
             409,
             "This form was already used for another correction. Check the "
             "corrections below, then try again.",
         )
+    user = views.UserAt(user_id, users_service.fleet_of(principal, fleet, user_id))
     return _redirect(
         views.user_url(user, time_slot=time_slot, situation=situation, done="corrected")
         + "#evidence"
@@ -549,6 +535,9 @@ def why_page(
         session, ctx, principal, user_id, time_slot=time_slot, situation=situation, fleet=user.fleet
     )
     context = model.contexts[0]
+    corrections = corrections_service.list_corrections(
+        session, ctx, principal, user_id, fleet=user.fleet
+    ).items
     trace = console_service.latest_trace_in_context(
         session, ctx, principal, user_id, time_slot=time_slot, situation=situation, fleet=user.fleet
     )
@@ -565,9 +554,13 @@ def why_page(
         mission=mission,
         v_max=mission.v_max,
         counts=_counts(session, user),
-        trace_offset=None
-        if trace is None
-        else console_service.episode_offsets(session, [trace.episode_id]).get(trace.episode_id),
+        zone=mission.time_zone,
+        drivers=views.drivers(
+            model.started_from,
+            [c for c in corrections if (c.time_slot, c.situation) == (time_slot, situation)],
+            views.episodes_in(context),
+        ),
+        key_names=console_service.key_names(session, [c.author for c in corrections]),
     )
 
 
@@ -603,7 +596,7 @@ def episodes_page(
     newer = None
     if newest is not None and newest < user.episodes:
         newer = newest + per_page + 1 if newest + per_page < user.episodes else 0
-    offsets = console_service.episode_offsets(session, [e.episode_id for e in page.items])
+    mission = console_service.user_mission(session, ctx, user)
     return _page(
         request,
         "episodes.html",
@@ -613,7 +606,8 @@ def episodes_page(
         page=page,
         per_page=per_page,
         newer=newer,
-        offsets=offsets,
+        mission=mission,
+        zone=mission.time_zone,
         older=int(page.next_cursor) if page.next_cursor else None,
         counts=_counts(session, user),
     )
@@ -637,8 +631,16 @@ def trace_fragment(
     trace = episodes_service.get_trace(session, ctx, admin.principal, episode_id)
     if trace.user_id != user_id or trace.fleet != user.fleet:
         raise PageError(404, "Not found", f"Episode {episode_id!r} is not {user_id!r}'s.")
-    offset = console_service.episode_offsets(session, [trace.episode_id]).get(trace.episode_id)
-    return _page(request, "_trace.html", admin, trace=trace, offset=offset)
+    mission = console_service.user_mission(session, ctx, user)
+    return _page(
+        request,
+        "_trace.html",
+        admin,
+        trace=trace,
+        user=user,
+        mission=mission,
+        zone=mission.time_zone,
+    )
 
 
 # Named as the API's export route on purpose: an export leaves an audit entry, and the session

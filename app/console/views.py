@@ -12,13 +12,16 @@ from __future__ import annotations
 import datetime as dt
 import math
 import re
+import zoneinfo
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import NamedTuple
 from urllib.parse import quote, urlencode
 
 from app.learning import Mission
+from app.learning.guidance import Reason, ReasonCode
 from app.schemas.common import ActionOut
-from app.schemas.models import ActionBelief, ContextModel, ModelOut, StateModel
+from app.schemas.models import ActionBelief, ContextModel, ModelOut, StartedFrom, StateModel
 from app.schemas.profile import CorrectionOut, ProfileContext, ProfileOut, RobotWill, Wanted
 from app.schemas.users import UserOut
 
@@ -68,7 +71,14 @@ DASH = "—"  # a value the learner has no notion of (or no data yet)
 
 
 # -- number formats (the browser tests parse these back) --------------------------------------
-def user_url(user: UserOut, tail: str = "", **params: object) -> str:
+class UserAt(NamedTuple):
+    """A user by id and fleet: what a console address needs."""
+
+    user_id: str
+    fleet: str
+
+
+def user_url(user: UserOut | UserAt, tail: str = "", **params: object) -> str:
     """A console address of a user's page (its fleet named, so that an admin's links work for
     every fleet): ``user_url(user, "/why", time_slot="noon")``."""
     query = urlencode({"fleet": user.fleet, **{k: v for k, v in params.items() if v is not None}})
@@ -437,13 +447,18 @@ def response_words(response: str | None) -> str:
     return _RESPONSE.get(response, response)
 
 
-def correction_words(c: CorrectionOut) -> str:
+def correction_words(c: CorrectionOut, mission: Mission | None = None) -> str:
     """What a correction says: "Prefers Provide drink (tea)", "Avoid Brief information",
-    "Quiet: the robot does not offer help"."""
+    "Quiet: the robot does not offer help" (with the mission's labels when given)."""
+    what = (
+        wanted_words(None, service=c.service, detail=c.detail)
+        if mission is None
+        else wanted_label(mission, c.service, c.detail)
+    )
     if c.kind == "prefers":
-        return f"Prefers {wanted_words(None, service=c.service, detail=c.detail)}"
+        return f"Prefers {what}"
     if c.kind == "avoid":
-        return f"Do not offer {wanted_words(None, service=c.service, detail=c.detail)}"
+        return f"Do not offer {what}"
     return "Quiet: the robot does not offer help"
 
 
@@ -502,3 +517,222 @@ def profile_grid(profile: ProfileOut, mission: Mission) -> list[ProfileRow]:
         )
         for slot in mission.time_slots
     ]
+
+
+# -- labels: the mission's words for its names ------------------------------------------------
+def label(mission: Mission, name: str | None) -> str:
+    """The words staff read for a mission name: the mission's label, or a readable form of
+    the id ("ProvideDrink" -> "Provide drink")."""
+    return mission.label(name)
+
+
+def wanted_label(mission: Mission, service: str | None, detail: str | None) -> str:
+    """ "a drink (tea)": the service's label, and the choice's in brackets."""
+    if not service:
+        return "Nothing in particular"
+    return label(mission, service) + (f" ({label(mission, detail)})" if detail else "")
+
+
+# -- times in the fleet's time zone -----------------------------------------------------------
+def zone_name(mission: Mission) -> str:
+    """The fleet's time zone as the pages name it: "Europe/London", "UTC"."""
+    return mission.time_zone
+
+
+def fmt_zone(at: dt.datetime | None, zone: str) -> str:
+    """A moment in the fleet's time zone, without the zone's name (each page says it once):
+    "2026-11-03 09:12"."""
+    if at is None:
+        return DASH
+    if at.tzinfo is None:
+        at = at.replace(tzinfo=dt.UTC)
+    return f"{at.astimezone(zoneinfo.ZoneInfo(zone)):%Y-%m-%d %H:%M}"
+
+
+def zone_note(zone: str) -> str:
+    """What a page says once about its times."""
+    return f"Times are in the fleet's time zone, {zone}."
+
+
+# -- an episode, step by step, in words -------------------------------------------------------
+def _act_words(mission: Mission, kind: str, service: str | None, detail: str | None) -> str:
+    what = label(mission, service)
+    if kind == "initiate":
+        return "offered help"
+    if kind == "pass":
+        return "waited, without offering anything"
+    if kind == "respond":
+        return f"took up the request for {what}"
+    if kind == "query_type":
+        return "asked what was wanted"
+    if kind == "infer_type":
+        return f"guessed {what} was wanted"
+    if kind == "query_detail":
+        return f"asked which {what}" if what else "asked which one"
+    if kind == "infer_detail":
+        return f"guessed {label(mission, detail)}"
+    if kind == "perform":
+        return f"brought {label(mission, detail)} ({what})" if detail else f"brought {what}"
+    return "did something this console cannot name"
+
+
+def robot_step_words(mission: Mission, decision: object) -> str:
+    """What the robot did at one decision, the silent steps first, in words: "guessed reading
+    aloud was wanted, asked which one"."""
+    chain = getattr(decision, "chain", [])
+    action = getattr(decision, "action")  # noqa: B009 - decisions of two schemas
+    steps = [_act_words(mission, s.action.kind, s.action.service, s.action.detail) for s in chain]
+    if action.kind == "query_detail" and chain and chain[-1].action.kind == "infer_type":
+        steps.append("asked which one")
+    else:
+        steps.append(_act_words(mission, action.kind, action.service, action.detail))
+    text = ", ".join(steps)
+    return text[:1].upper() + text[1:]
+
+
+def person_step_words(
+    mission: Mission, who: str, response: str | None, service: str | None, detail: str | None
+) -> str:
+    """What the person did in answer, in words: "Mrs. Lin accepted", "answered: a phone
+    call"."""
+    thing = label(mission, detail) if detail else label(mission, service)
+    if response is None:
+        return f"Waiting for {who}'s answer"
+    if response == "accepted":
+        return f"{who} accepted"
+    if response == "rejected":
+        return f"{who} turned it down"
+    if response == "answered":
+        return f"{who} answered: {thing}" if thing else f"{who} answered"
+    if response == "human_request":
+        return f"{who} asked for {thing}" if thing else f"{who} asked for help"
+    if response == "none":
+        return f"{who} did not react"
+    if response == "terminated":
+        return f"{who} ended the conversation"
+    return f"{who}: {response}"
+
+
+def feedback_words(feedback: str) -> str:
+    return {"positive": "pleased", "negative": "displeased"}.get(feedback, feedback)
+
+
+def outcome_words(total_reward: float) -> str:
+    """How the episode went, for staff: the sign of its reward."""
+    if total_reward > 0:
+        return "went well"
+    if total_reward < 0:
+        return "went badly"
+    return "neither well nor badly"
+
+
+# -- what drives a decision, and the learner in use, in words ---------------------------------
+_LEARNERS = {
+    "hri": (
+        "It learns from each answer of the person how welcome each action is, and sets aside "
+        "old answers that contradict the latest one, so a changed wish is followed at once. "
+        "Actions that did well but were not tried for a while get another chance now and then."
+    ),
+    "dts": (
+        "It keeps, for each action, a running estimate of how often the person welcomes it, in "
+        "which older answers count less and less, and draws its choice from those estimates: "
+        "the more sure it is that an action is welcome, the more often it takes it."
+    ),
+    "dts-adapt": (
+        "It keeps, for each action, a running estimate of how often the person welcomes it, "
+        "draws its choice from those estimates, and lets old answers count less as soon as the "
+        "person's reactions start to differ from what it expected, so a changed wish is "
+        "followed quickly."
+    ),
+    "rmax": (
+        "It assumes untried actions are excellent until it has tried each a few times, then "
+        "plans with what it learned of the person."
+    ),
+    "qlearning": (
+        "It learns directly how much each action pays off from the person's answers, and now "
+        "and then tries another action to keep learning."
+    ),
+}
+
+
+def learner_words(algorithm: str) -> str:
+    """How the learner in use chooses, in words staff can read."""
+    return _LEARNERS.get(algorithm, "It learns from the person's answers.")
+
+
+@dataclass(frozen=True, slots=True)
+class Drivers:
+    """What drives the robot's decision in one context, for the "why" page's words."""
+
+    corrections: tuple[CorrectionOut, ...]  # the staff corrections of the context, not lifted
+    prior: int | None  # the fleet's prior: how many people it averaged (None: not from it)
+    episodes: int  # the person's episodes in this context
+
+
+def episodes_in(context: ContextModel) -> int:
+    """Episodes begun in a context: the visits of its root's actions."""
+    observe = _state(context, "OBSERVE")
+    return sum(a.visits for a in observe.actions) if observe else 0
+
+
+def drivers(started: StartedFrom, corrections: Sequence[CorrectionOut], episodes: int) -> Drivers:
+    return Drivers(
+        tuple(c for c in corrections if c.status != "lifted"),
+        started.contributors if started.kind == "fleet_prior" else None,
+        episodes,
+    )
+
+
+def key_label(key_id: str, names: dict[str, str]) -> str:
+    """A key as staff know it: its name ("night-shift"), or "a key" with its id's start."""
+    name = names.get(key_id)
+    return name if name else f"key {key_id[:12]}"
+
+
+_P_WORDS = {
+    "hri": "HRI draws from exp(Pref/τ), with Pref = Q/Vmax + M (eqs. 5–6).",
+    "dts": "DTS draws models of the person from its discounted counts (λ) and solves each; P is "
+    "the share of the drawn models in which this action is the best (docs/method.md §8). Q, M "
+    "and t do not enter it.",
+    "dts-adapt": "dts-adapt, like DTS, draws models of the person from its discounted counts "
+    "(λ) and solves each; P is the share of the drawn models in which this action is the best "
+    "(docs/method.md §8). Q, M and t do not enter it.",
+    "rmax": "R-max takes the action of the highest optimistic Q, ties shared equally.",
+    "qlearning": "Q-learning explores around its Q values (ε-greedy or Boltzmann).",
+}
+
+
+def p_words(algorithm: str) -> str:
+    """How the learner in use turns its numbers into P, for the engineers' legend."""
+    return _P_WORDS.get(algorithm, "")
+
+
+def refusal_words(reasons: Sequence[Reason], mission: Mission, fleet: str) -> str:
+    """The learning core's reasons for refusing a correction, as the form says them."""
+    reason = reasons[0]
+    code, kind = reason.code, reason.kind.value
+    if code is ReasonCode.NEEDS_SERVICE:
+        if kind == "prefers":
+            return "Choose what the person prefers."
+        return "Choose what the robot should not offer."
+    if code is ReasonCode.UNKNOWN_SERVICE:
+        return (
+            f"The robots of fleet {fleet} do not offer “{label(mission, reason.got)}” any more: "
+            "choose another service."
+        )
+    choices = or_list([label(mission, d) for d in reason.allowed])
+    service = label(mission, reason.service)
+    if code is ReasonCode.NEEDS_DETAIL:
+        return f"Choose the person's choice of {service}: {choices}."
+    if code is ReasonCode.UNKNOWN_DETAIL:
+        return f"“{label(mission, reason.got)}” is not a choice of {service}: choose {choices}."
+    if code in (ReasonCode.UNKNOWN_TIME_SLOT, ReasonCode.UNKNOWN_SITUATION):
+        return "This box is not part of the fleet's mission any more: choose another box."
+    if code is ReasonCode.BAD_ID:
+        return "The form is incomplete (its number is missing): reload the page and try again."
+    return "The robot should stay quiet here: leave the service and the choice empty."
+
+
+def cap(text: str) -> str:
+    """The first letter upper case, the rest as written: "lunchtime" -> "Lunchtime"."""
+    return text[:1].upper() + text[1:]

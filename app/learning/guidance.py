@@ -42,7 +42,10 @@ __all__ = [
     "CONTRADICTIONS",
     "PREFER_SLACK",
     "Guidance",
+    "Reason",
+    "ReasonCode",
     "Rule",
+    "RuleError",
     "RuleKind",
     "Verdict",
     "guidance_from_state",
@@ -70,6 +73,59 @@ class Verdict(StrEnum):
     NEUTRAL = "neutral"
 
 
+class ReasonCode(StrEnum):
+    """Why a correction does not fit a mission."""
+
+    BAD_ID = "bad_id"
+    UNKNOWN_TIME_SLOT = "unknown_time_slot"
+    UNKNOWN_SITUATION = "unknown_situation"
+    QUIET_TAKES_NOTHING = "quiet_takes_nothing"
+    NEEDS_SERVICE = "needs_service"
+    UNKNOWN_SERVICE = "unknown_service"
+    NEEDS_DETAIL = "needs_detail"
+    UNKNOWN_DETAIL = "unknown_detail"
+
+
+@dataclass(frozen=True, slots=True)
+class Reason:
+    """One reason a rule does not fit a mission, with what the caller needs to say it in its
+    own words: the ``field`` at fault, the value it ``got``, the values ``allowed`` there, and
+    for a detail the ``service`` it belongs to. :meth:`sentence` is the API's wording."""
+
+    code: ReasonCode
+    field: str
+    kind: RuleKind
+    got: str | None = None
+    allowed: tuple[str, ...] = ()
+    service: str | None = None
+
+    def sentence(self) -> str:
+        c, allowed = self.code, ", ".join(self.allowed)
+        if c is ReasonCode.BAD_ID:
+            return "the correction id must match ^[A-Za-z0-9._:-]{1,128}$."
+        if c is ReasonCode.UNKNOWN_TIME_SLOT:
+            return f"unknown time slot {self.got!r}; allowed: {list(self.allowed)}"
+        if c is ReasonCode.UNKNOWN_SITUATION:
+            return f"unknown situation {self.got!r}; allowed: {list(self.allowed)}"
+        if c is ReasonCode.QUIET_TAKES_NOTHING:
+            return "quiet takes no service or detail: the robot does not initiate at all there."
+        if c is ReasonCode.NEEDS_SERVICE:
+            return f"{self.kind.value} needs a service: one of {allowed}."
+        if c is ReasonCode.UNKNOWN_SERVICE:
+            return f"service must be one of {allowed}; got {self.got!r}."
+        if c is ReasonCode.NEEDS_DETAIL:
+            return f"prefers needs a detail of {self.service}: one of {allowed}."
+        return f"detail of {self.service} must be one of {allowed}; got {self.got!r}."
+
+
+class RuleError(ValueError):
+    """A rule that does not fit the mission; ``reasons`` say why (the first is the message)."""
+
+    def __init__(self, reasons: tuple[Reason, ...]) -> None:
+        super().__init__(reasons[0].sentence())
+        self.reasons = reasons
+
+
 @dataclass(slots=True)
 class Rule:
     """One correction in force. ``since`` is the learner's episode count when it was made;
@@ -89,37 +145,72 @@ class Rule:
     contradicted: int = 0
     streak: int = 0
     overridden_at: int | None = None
+    # The fingerprint of the mission the rule was last found to fit: a rule checked once is
+    # not checked again against the same mission (not part of the state document).
+    fits: str | None = field(default=None, compare=False, repr=False)
 
     @property
     def in_force(self) -> bool:
         return self.overridden_at is None
 
-    def check(self, mission: Mission) -> None:
-        """``ValueError`` naming what the mission does not have, or what the kind needs."""
+    def reasons(self, mission: Mission) -> tuple[Reason, ...]:
+        """Why the rule does not fit ``mission`` (empty: it fits): the correction's one
+        validation, which the API and the console turn into their own words."""
+        if self.fits == mission.fingerprint:
+            return ()
+        kind, out = self.kind, []
         if not _RULE_ID.match(self.id):
-            raise ValueError("the correction id must match ^[A-Za-z0-9._:-]{1,128}$.")
-        mission.context_index(self.time_slot, self.situation)  # raises naming the values
-        names = [s.name for s in mission.services]
-        if self.kind is RuleKind.QUIET:
-            if self.service is not None or self.detail is not None:
-                raise ValueError(
-                    "quiet takes no service or detail: the robot does not initiate at all there."
+            out.append(Reason(ReasonCode.BAD_ID, "correction_id", kind, self.id))
+        slots = tuple(t.name for t in mission.time_slots)
+        if self.time_slot not in slots:
+            out.append(
+                Reason(ReasonCode.UNKNOWN_TIME_SLOT, "time_slot", kind, self.time_slot, slots)
+            )
+        elif self.situation not in mission.situations:
+            out.append(
+                Reason(
+                    ReasonCode.UNKNOWN_SITUATION,
+                    "situation",
+                    kind,
+                    self.situation,
+                    mission.situations,
                 )
-            return
-        if self.service is None:
-            raise ValueError(f"{self.kind.value} needs a service: one of {', '.join(names)}.")
-        if self.service not in names:
-            raise ValueError(f"service must be one of {', '.join(names)}; got {self.service!r}.")
-        details = mission.service(self.service).details
-        if self.detail is None and self.kind is RuleKind.PREFERS:
-            raise ValueError(
-                f"prefers needs a detail of {self.service}: one of {', '.join(details)}."
             )
-        if self.detail is not None and self.detail not in details:
-            raise ValueError(
-                f"detail of {self.service} must be one of {', '.join(details)}; "
-                f"got {self.detail!r}."
-            )
+        names = tuple(s.name for s in mission.services)
+        if kind is RuleKind.QUIET:
+            if self.service is not None or self.detail is not None:
+                out.append(Reason(ReasonCode.QUIET_TAKES_NOTHING, "service", kind, self.service))
+        elif self.service is None:
+            out.append(Reason(ReasonCode.NEEDS_SERVICE, "service", kind, None, names))
+        elif self.service not in names:
+            out.append(Reason(ReasonCode.UNKNOWN_SERVICE, "service", kind, self.service, names))
+        else:
+            details = mission.service(self.service).details
+            if self.detail is None and kind is RuleKind.PREFERS:
+                out.append(
+                    Reason(ReasonCode.NEEDS_DETAIL, "detail", kind, None, details, self.service)
+                )
+            elif self.detail is not None and self.detail not in details:
+                out.append(
+                    Reason(
+                        ReasonCode.UNKNOWN_DETAIL,
+                        "detail",
+                        kind,
+                        self.detail,
+                        details,
+                        self.service,
+                    )
+                )
+        if not out:
+            self.fits = mission.fingerprint
+        return tuple(out)
+
+    def check(self, mission: Mission) -> None:
+        """:class:`RuleError` (a ``ValueError``) with the reasons the rule does not fit the
+        mission: what the mission does not have, or what the kind needs."""
+        reasons = self.reasons(mission)
+        if reasons:
+            raise RuleError(reasons)
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -264,6 +355,7 @@ class Guidance:
                 replace(
                     r,
                     meta=dict(r.meta),
+                    fits=None,
                     time_slot=renames.time_slots.get(r.time_slot, r.time_slot),
                     situation=renames.situations.get(r.situation, r.situation),
                     service=None

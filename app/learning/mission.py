@@ -12,6 +12,7 @@ import functools
 import hashlib
 import json
 import re
+import zoneinfo
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from datetime import time
@@ -26,11 +27,38 @@ __all__ = [
     "TimeSlot",
     "load_mission",
     "office_mission",
+    "readable",
 ]
 
 _NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_.-]{0,63}$")
 _CLOCK = re.compile(r"^([01]\d|2[0-3]):([0-5]\d)$")
 _MINUTES_PER_DAY = 24 * 60
+_LABEL_MAX = 64
+_CAMEL = re.compile(r"(?<=[a-z0-9])(?=[A-Z])")
+_DISPLAY_FIELDS = ("labels", "time_zone")
+"""Fields of the mission document that are display only: outside the fingerprint."""
+
+
+def readable(name: str) -> str:
+    """The default label of a mission name, a readable form of the id: ``ProvideDrink`` ->
+    "Provide drink", ``phone_call`` -> "phone call", ``TV`` -> "TV"."""
+    words = _CAMEL.sub(" ", name).replace("_", " ").split()
+    if not words:
+        return name
+    first, rest = words[0], [w if w.isupper() else w.lower() for w in words[1:]]
+    return " ".join([first, *rest])
+
+
+def _check_time_zone(value: object) -> str:
+    if not isinstance(value, str) or not value or len(value) > 64:
+        raise MissionError(f"time_zone: {value!r} is not an IANA time zone name (Europe/Paris).")
+    try:
+        zoneinfo.ZoneInfo(value)
+    except (zoneinfo.ZoneInfoNotFoundError, ValueError):
+        raise MissionError(
+            f"time_zone: {value!r} is not an IANA time zone name (such as Europe/Paris or UTC)."
+        ) from None
+    return value
 
 
 class MissionError(ValueError):
@@ -142,6 +170,11 @@ class Mission:
 
     ``unavailable_situations`` are situations in which a person never wants to be interrupted
     (the office mission's ``busy``); the simulated users of the experiments respect them.
+
+    ``labels`` (name -> words, for any time slot, situation, service or detail) and
+    ``time_zone`` (an IANA name, the fleet's clock for people's pages) are display only: they
+    are outside the fingerprint, so a mission that changes only them is the same mission for
+    learning. A name without a label reads as :func:`readable` makes it.
     """
 
     name: str
@@ -151,9 +184,13 @@ class Mission:
     rewards: Rewards = field(default_factory=Rewards)
     gamma: float = 0.9
     unavailable_situations: tuple[str, ...] = ()
+    labels: tuple[tuple[str, str], ...] = ()
+    time_zone: str = "UTC"
 
     def __post_init__(self) -> None:
-        for name in ("time_slots", "situations", "services", "unavailable_situations"):
+        if isinstance(self.labels, Mapping):
+            object.__setattr__(self, "labels", tuple(self.labels.items()))
+        for name in ("time_slots", "situations", "services", "unavailable_situations", "labels"):
             value = getattr(self, name)
             if not isinstance(value, tuple | list):
                 raise MissionError(f"{name}: expected a list, got {type(value).__name__}.")
@@ -199,6 +236,35 @@ class Mission:
                 )
         if set(self.unavailable_situations) == set(self.situations):
             raise MissionError("unavailable_situations: at least one situation must allow service.")
+        self._check_labels()
+        # By name: one mission whatever order its document listed them in.
+        object.__setattr__(self, "labels", tuple(sorted(self.labels)))
+        _check_time_zone(self.time_zone)
+
+    def _check_labels(self) -> None:
+        names = {s.name for s in self.time_slots} | set(self.situations)
+        for service in self.services:
+            names |= {service.name, *service.details}
+        seen: set[str] = set()
+        for pair in self.labels:
+            if not isinstance(pair, tuple) or len(pair) != 2:
+                raise MissionError("labels: expected an object of name -> label.")
+            name, label = pair
+            where = f"labels.{name}"
+            if name not in names:
+                raise MissionError(
+                    f"{where}: {name!r} is not a time slot, situation, service or detail of the "
+                    "mission."
+                )
+            if name in seen:
+                raise MissionError(f"{where}: labelled twice.")
+            seen.add(name)
+            if not isinstance(label, str) or not label.strip() or len(label) > _LABEL_MAX:
+                raise MissionError(
+                    f"{where}: a label is text of 1 to {_LABEL_MAX} characters, got {label!r}."
+                )
+            if any(ord(ch) < 32 or ch == "\x7f" for ch in label):
+                raise MissionError(f"{where}: a label must not hold control characters.")
 
     def _check_day_cover(self) -> None:
         owner: list[str | None] = [None] * _MINUTES_PER_DAY
@@ -250,6 +316,12 @@ class Mission:
                 return slot.name
         raise AssertionError("time slots cover the day")  # guaranteed by _check_day_cover
 
+    def label(self, name: str | None) -> str:
+        """The words staff read for a mission name: its label, or a readable form of it."""
+        if not name:
+            return ""
+        return dict(self.labels).get(name) or readable(name)
+
     def service(self, name: str) -> Service:
         for service in self.services:
             if service.name == name:
@@ -274,11 +346,25 @@ class Mission:
                 "query": self.rewards.query,
             },
             "gamma": self.gamma,
+            **({"labels": dict(self.labels)} if self.labels else {}),
+            **({"time_zone": self.time_zone} if self.time_zone != "UTC" else {}),
         }
+
+    def shape(self) -> dict[str, Any]:
+        """The document without its display fields (labels, time zone): what learning sees."""
+        doc = self.to_dict()
+        for name in _DISPLAY_FIELDS:
+            doc.pop(name, None)
+        return doc
+
+    def same_display(self, other: Mission) -> bool:
+        """Whether ``other`` has the same labels and time zone."""
+        return dict(self.labels) == dict(other.labels) and self.time_zone == other.time_zone
 
     @property
     def fingerprint(self) -> str:
-        """A digest of everything that shapes a learner's tables, to match exported states."""
+        """A digest of everything that shapes a learner's tables, to match exported states
+        (the labels and time zone are left out: they are display only)."""
         return _fingerprint(self)
 
     @classmethod
@@ -301,6 +387,7 @@ class Mission:
             "services",
             "rewards",
             "gamma",
+            *_DISPLAY_FIELDS,
         }
         unknown = sorted(set(data) - allowed)
         if unknown:
@@ -342,6 +429,9 @@ class Mission:
                     "positive, query."
                 )
             rewards = Rewards(**obj)
+        labels = data.get("labels", {})
+        if not isinstance(labels, dict):
+            raise MissionError(f"labels: expected an object, got {type(labels).__name__}.")
         return cls(
             name=_check_name(data["name"], "name"),
             time_slots=tuple(slots),
@@ -352,6 +442,8 @@ class Mission:
             unavailable_situations=tuple(
                 _as_list(data.get("unavailable_situations", []), "unavailable_situations")
             ),
+            labels=tuple(labels.items()),
+            time_zone=data.get("time_zone", "UTC"),
         )
 
 
@@ -402,5 +494,5 @@ def office_mission() -> Mission:
 @functools.lru_cache(maxsize=16)
 def _fingerprint(mission: Mission) -> str:
     # Every saved learner state carries it, so it is computed once per mission.
-    canonical = json.dumps(mission.to_dict(), sort_keys=True, separators=(",", ":"))
+    canonical = json.dumps(mission.shape(), sort_keys=True, separators=(",", ":"))
     return "sha256:" + hashlib.sha256(canonical.encode()).hexdigest()[:32]

@@ -95,6 +95,18 @@ class MissionOut(BaseModel):
     rewards: dict[str, float]
     unavailable_situations: list[str] = []
     gamma: float
+    labels: dict[str, str] = Field(
+        default={},
+        description="Display only (outside the fingerprint): the words staff read for a time "
+        "slot, situation, service or detail, by its name, as "
+        '{"phone_call": "a phone call"}; a name without one reads as a readable form of '
+        'it ("ProvideDrink": "Provide drink").',
+    )
+    time_zone: str = Field(
+        default="UTC",
+        description="Display only (outside the fingerprint): the fleet's IANA time zone, in "
+        "which the console shows every time.",
+    )
 
 
 class FleetMissionOut(MissionOut):

@@ -9,11 +9,14 @@ from __future__ import annotations
 
 import datetime as dt
 import math
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 
 from sqlalchemy.orm import Session
 
 from app.db.repositories import console as repo
+from app.db.repositories import keys as keys_repo
+from app.db.repositories import missions as missions_repo
 from app.db.repositories import models as models_repo
 from app.db.repositories import users as users_repo
 from app.db.repositories.users import UserRow
@@ -32,9 +35,11 @@ __all__ = [
     "UserPage",
     "episode_offsets",
     "find_users",
+    "key_names",
     "latest_trace_in_context",
     "mission_version",
     "open_episodes",
+    "time_zones",
     "user_mission",
 ]
 
@@ -135,7 +140,7 @@ def user_mission(session: Session, ctx: ServiceContext, user: UserOut | UserRow)
     """The mission version a user's model is laid out for (the fleet's in force)."""
     model = models_repo.head(session, _pk(session, user))
     assert model is not None  # every user is created with its model
-    return ctx.missions.get(session, user.fleet, model.mission_version).mission
+    return ctx.missions.display(session, user.fleet, model.mission_version)
 
 
 def latest_trace_in_context(
@@ -156,3 +161,22 @@ def latest_trace_in_context(
         raise ValidationFailed(str(exc)) from None
     episode_id = repo.latest_episode_in_context(session, user.id, time_slot, situation)
     return None if episode_id is None else get_trace(session, ctx, principal, episode_id)
+
+
+def key_names(session: Session, key_ids: Sequence[str]) -> dict[str, str]:
+    """The names of the keys given by id (a key without a name, or gone, is left out)."""
+    out = {}
+    for key_id in dict.fromkeys(key_ids):
+        key = keys_repo.get(session, key_id)
+        if key is not None and key.name:
+            out[key_id] = key.name
+    return out
+
+
+def time_zones(session: Session, ctx: ServiceContext, fleets: Iterable[str]) -> dict[str, str]:
+    """Each fleet's time zone (its mission in force's ``time_zone``)."""
+    out = {}
+    for fleet in fleets:
+        version = missions_repo.latest_version(session, fleet) or 1
+        out[fleet] = ctx.missions.display(session, fleet, version).time_zone
+    return out

@@ -22,7 +22,7 @@ from app.db.repositories.models import ModelRow, SampleRow
 from app.db.repositories.users import UserRow
 from app.db.types import utcnow
 from app.errors import Conflict, NotFound, ValidationFailed
-from app.learning.guidance import Guidance, Rule, RuleKind
+from app.learning.guidance import Guidance, Reason, Rule, RuleKind
 from app.learning.learners import TabularLearner
 from app.schemas.profile import CorrectionIn, CorrectionList, CorrectionOut
 
@@ -33,6 +33,7 @@ from .learners import Rules, load_learner, save_learner
 from .users import visible_user
 
 __all__ = [
+    "CorrectionRefused",
     "add_correction",
     "correction_views",
     "lift_correction",
@@ -41,6 +42,15 @@ __all__ = [
     "rules_for",
     "rules_resolver",
 ]
+
+
+class CorrectionRefused(ValidationFailed):
+    """A correction that does not fit the user's mission (422): ``reasons``, the learning
+    core's, for the caller's own words; the detail is the first reason's sentence."""
+
+    def __init__(self, reasons: tuple[Reason, ...]) -> None:
+        super().__init__(reasons[0].sentence())
+        self.reasons = reasons
 
 
 def _head(session: Session, user: UserRow) -> ModelRow:
@@ -102,11 +112,15 @@ def add_correction(
     body: CorrectionIn,
     *,
     fleet: str | None = None,
+    user: UserRow | None = None,
 ) -> tuple[CorrectionOut, bool]:
     """Put a correction in force (staff of the fleet, admin); idempotent on
-    ``correction_id``: (the correction, True) when made, (it, False) for a repeat."""
+    ``correction_id``: (the correction, True) when made, (it, False) for a repeat. The one
+    check of what it names is the learning core's rule (:class:`CorrectionRefused` with its
+    reasons). ``user``: the row, locked, when the caller already holds it."""
     require_manager(principal)
-    user = visible_user(session, principal, user_id, fleet=fleet, lock=True)
+    if user is None:
+        user = visible_user(session, principal, user_id, fleet=fleet, lock=True)
     digest = body_hash(body)
     earlier = repo.by_id(session, user.id, body.correction_id)
     if earlier is not None:
@@ -138,11 +152,11 @@ def add_correction(
         request_hash=digest,
         response={},
     )
-    try:
-        rule_of(row, learner.episodes).check(learner.mission)
-    except ValueError as exc:
+    rule = rule_of(row, learner.episodes)
+    reasons = rule.reasons(learner.mission)
+    if reasons:
         ctx.cache.drop(user.id)
-        raise ValidationFailed(str(exc)) from None
+        raise CorrectionRefused(reasons)
     made = CorrectionOut(
         correction_id=row.correction_id,
         kind=body.kind,
@@ -172,9 +186,7 @@ def add_correction(
         0,
         model.mission_version,
     )
-    save_learner(
-        session, ctx, user.id, model, learner, [sample], rules=rules_for(row, learner.episodes)
-    )
+    save_learner(session, ctx, user.id, model, learner, [sample], rules=lambda _sample: rule)
     audit.record(
         session,
         principal,
@@ -341,9 +353,7 @@ def _status(
 ) -> tuple[Any, dt.datetime | None]:
     if rule is None:
         return "lifted", None
-    try:
-        rule.check(learner.mission)
-    except ValueError:
+    if rule.reasons(learner.mission):  # checked once per mission: the rule keeps the answer
         return "idle", None
     if rule.overridden_at is None:
         return "in_force", None

@@ -1,5 +1,5 @@
-"""The versions of the fleets' missions a worker has read (immutable once stored, so cached
-for good), beside the deployment's default mission."""
+"""The versions of the fleets' missions a worker has read (what learning reads of them is
+immutable once stored, so cached for good), beside the deployment's default mission."""
 
 from __future__ import annotations
 
@@ -49,6 +49,15 @@ class MissionBook:
         with self._lock:
             self._items[(fleet, version)] = stored
         return stored
+
+    def display(self, session: Session, fleet: str, version: int) -> Mission:
+        """The version's mission with its display fields (labels, time zone) as stored now:
+        read anew each time, since a change of only those updates the version in place (the
+        cached entries serve learning, which does not read them)."""
+        row = repo.get(session, fleet, version)
+        if row is None:
+            return self.get(session, fleet, version).mission
+        return Mission.from_dict(row.document, source=f"mission {row.fleet} v{row.version}")
 
 
 def _stored(row: MissionRow) -> Stored:

@@ -200,12 +200,12 @@ def fleet_mission(
         raise Forbidden("Only admin keys may name a fleet.")
     name = fleet or principal.fleet
     version = current_version(session, ctx, name)
-    stored = mission_of(session, ctx, name, version)
+    mission = ctx.missions.display(session, name, version)
     return {
-        **stored.mission.to_dict(),
+        **mission.to_dict(),
         "fleet": name,
         "version": version,
-        "fingerprint": stored.mission.fingerprint,
+        "fingerprint": mission.fingerprint,
     }
 
 
@@ -290,6 +290,18 @@ def set_mission(
     except ValueError as exc:
         raise ValidationFailed(str(exc)) from None
     if mission.fingerprint == old.mission.fingerprint and not renames:
+        if not mission.same_display(ctx.missions.display(session, fleet, current)):
+            # Labels and time zone are display only: the version in force takes them, no
+            # model moves and no conversation is interrupted.
+            repo.set_document(session, fleet, current, mission.to_dict())
+            audit.record(
+                session,
+                principal,
+                "mission.set",
+                target=fleet,
+                fleet=fleet,
+                detail={"version": current, "display_only": True},
+            )
         return {
             "fleet": fleet,
             "version": current,

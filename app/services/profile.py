@@ -18,7 +18,7 @@ from sqlalchemy.orm import Session
 from app.db.repositories import episodes as episodes_repo
 from app.db.repositories import models as models_repo
 from app.db.repositories.episodes import HistoryAnswer, HistoryEpisode, local_time
-from app.learning import ActionKind, NegotiationSpace
+from app.learning import ActionKind, Mission, NegotiationSpace
 from app.learning.beliefs import Answer, Belief, EpisodeEvidence, Item, belief, episode_evidence
 from app.learning.guidance import Rule, RuleKind
 from app.learning.learners import TabularLearner
@@ -57,6 +57,7 @@ def profile_view(
         raise RuntimeError(f"user {user.fleet}/{user.user_id} has no model row")
     learner = load_learner(session, ctx, user.fleet, user.id, model, for_write=False)
     mission = learner.mission
+    display = ctx.missions.display(session, user.fleet, model.mission_version)
     episodes, answers = episodes_repo.history(session, user.id)
     by_seq: dict[int, list[HistoryAnswer]] = defaultdict(list)
     for a in answers:
@@ -103,6 +104,7 @@ def profile_view(
                 rules,
                 when_of,
                 user.display_name or user.user_id,
+                display,
             )
         )
     last = episodes[-1] if episodes else None
@@ -130,6 +132,7 @@ def _context(
     rules: list[Rule],
     when_of: dict[int, dt.datetime],
     name: str | None,
+    display: Mission,
 ) -> ProfileContext:
     seq_time = {ep.seq: local_time(ep.occurred_at, ep.utc_offset) for ep in eps}
     wants, certainty, source = found.wants, found.certainty, "person" if found.wants else None
@@ -172,7 +175,7 @@ def _context(
         support=found.support if source == "person" else 0,
         recent=found.recent,
     )
-    summary = _summary(name, slot, situation, wants, certainty, source, will, ev, change)
+    summary = _summary(display, name, slot, situation, wants, certainty, source, will, ev, change)
     return ProfileContext(
         time_slot=slot,
         situation=situation,
@@ -247,6 +250,7 @@ def _robot_will(
 
 
 _AT = {"noon": "At noon", "midday": "At midday", "night": "At night", "midnight": "At midnight"}
+_IN_THE = {"morning", "afternoon", "evening"}
 _SITUATION_WORDS = {
     "arriving": "on arrival",
     "working": "while working",
@@ -264,11 +268,41 @@ def words(name: str | None) -> str:
     return spaced.lower()
 
 
-def _thing(item: Item | Wanted) -> str:
-    return words(item.detail) if item.detail else words(item.service)
+def _labelled(mission: Mission, name: str) -> str | None:
+    return dict(mission.labels).get(name)
+
+
+def _word(mission: Mission, name: str | None) -> str:
+    """A name as the sentence says it: its label, else the name in words."""
+    if not name:
+        return ""
+    return _labelled(mission, name) or words(name)
+
+
+def _thing(mission: Mission, item: Item | Wanted) -> str:
+    return _word(mission, item.detail) if item.detail else _word(mission, item.service)
+
+
+def _when(mission: Mission, slot: str) -> str:
+    label = _labelled(mission, slot)
+    if label is not None:
+        return label[:1].upper() + label[1:]
+    if slot in _AT:
+        return _AT[slot]
+    if slot in _IN_THE:
+        return f"In the {slot}"
+    return mission.label(slot)
+
+
+def _where(mission: Mission, situation: str) -> str:
+    label = _labelled(mission, situation)
+    if label is not None:
+        return label
+    return _SITUATION_WORDS.get(situation) or words(situation)
 
 
 def _summary(
+    mission: Mission,
     name: str | None,
     slot: str,
     situation: str,
@@ -279,16 +313,18 @@ def _summary(
     ev: EvidenceOut,
     change: ChangeOut | None,
 ) -> str:
+    """The context's sentence, from the mission's labels (the office mission's names read as
+    before: "In the afternoon, while stretching, ...")."""
     who = name or "this person"
-    when = _AT.get(slot, f"In the {words(slot)}")
-    where = f"{when}, {_SITUATION_WORDS.get(situation, 'when ' + words(situation))}"
+    where = f"{_when(mission, slot)}, {_where(mission, situation)}"
     if will.action == "offer":
         if will.service is None:
             does = "the robot offers help and asks what is wanted"
         elif will.asks_first:
-            does = f"the robot offers {words(will.service)} and asks which first"
+            does = f"the robot offers {_word(mission, will.service)} and asks which first"
         else:
-            does = f"the robot offers {_thing(Item(will.service, will.detail))} without asking"
+            thing = _thing(mission, Item(will.service, will.detail))
+            does = f"the robot offers {thing} without asking"
     elif will.action == "stay_away":
         does = "the robot does not approach on its own"
     else:
@@ -296,12 +332,14 @@ def _summary(
     if wants is None:
         said = f"{where}, there is not enough to say yet what {who} wants"
         if change is not None and change.before is not None:
-            said = f"{where}, {who} no longer seems to want {_thing(change.before)}"
+            said = f"{where}, {who} no longer seems to want {_thing(mission, change.before)}"
         return f"{said}; {does}."
     if source == "staff":
-        return f"{where}, staff say {who} wants {_thing(wants)}; {does} (staff correction)."
+        return (
+            f"{where}, staff say {who} wants {_thing(mission, wants)}; {does} (staff correction)."
+        )
     usual = "usually wants" if certainty == "confident" else "may want"
     basis = f"{certainty}: {ev.support} of the last {ev.recent} answers agree"
     if change is not None and change.before is not None:
-        basis += f"; changed from {_thing(change.before)}"
-    return f"{where}, {who} {usual} {_thing(wants)}; {does} ({basis})."
+        basis += f"; changed from {_thing(mission, change.before)}"
+    return f"{where}, {who} {usual} {_thing(mission, wants)}; {does} ({basis})."

@@ -23,8 +23,22 @@ from tests.support.episodes import report, start
 from tests.support.fixtures import MakeKey
 
 FLEET = "north"
-# Words of the engineers' views that must not reach the pages staff use.
-ENGINEERS_WORDS = ("τ", "ΔQ", "n′", "I1", "I2", "I3", "model version")
+ZONE = "Asia/Shanghai"  # the fleet's time zone: UTC+8, as the robot's offsets
+# Words of the engineers' views that must not reach the pages staff use (any case), and the
+# learner's names of states and actions (as written).
+ENGINEERS_WORDS = ("τ", "ΔQ", "n′", "I1", "I2", "I3", "model version", "P(", "λ")
+ENGINEERS_NAMES = (
+    "OBSERVE",
+    "ENGAGED",
+    "REQUEST",
+    "TYPE_KNOWN",
+    "DETAIL_KNOWN",
+    "infer_type",
+    "infer_detail",
+    "query_type",
+    "query_detail",
+    "initiate",
+)
 
 
 class Console:
@@ -78,6 +92,13 @@ def console(app: FastAPI, make_key: MakeKey) -> Iterator[Console]:
     client = TestClient(app, raise_server_exceptions=False, follow_redirects=False)
     client.cookies.set("attune_console", staff, path="/admin")
     with robot, api, client:
+        office = api.get("/v1/mission").json()
+        doc = {k: v for k, v in office.items() if k not in ("fleet", "version", "fingerprint")}
+        zoned = api.put(
+            f"/v1/admin/fleets/{FLEET}/mission",
+            json={"change_id": "zone", "mission": {**doc, "time_zone": ZONE}},
+        )
+        assert zoned.status_code == 200, zoned.text
         made = robot.put(
             "/v1/users/lin", json={"display_name": "Mrs. Lin", "learner": {"algorithm": "hri"}}
         )
@@ -147,7 +168,9 @@ def test_a_box_shows_its_evidence_in_local_time(console: Console) -> None:
     facts = dict(re.findall(r'<dd data-fact="(\w+)">(.*?)</dd>', evidence, flags=re.S))
     assert facts["accepted"].startswith(f"{context['evidence']['accepted']} ")
     assert facts["refused"].startswith(f"{context['evidence']['refused']} ")
-    assert facts["last_seen"] == "2026-11-22 15:10 (UTC+8)"
+    assert re.sub(r"<[^>]+>", "", facts["last_seen"]) == (
+        f"2026-11-22 15:10 (robot's time of the event, {ZONE})"
+    )
     e = context["evidence"]
     assert facts["agree"] == (
         f"{e['support']} of the last {e['recent']} answer{'' if e['recent'] == 1 else 's'} agree"
@@ -217,7 +240,7 @@ def test_corrections_through_the_form(console: Console) -> None:
     )
     assert len(rows) == 3
     words = [
-        re.search(r'<td class="what">(.*?)</td>', r[2]).group(1)  # type: ignore[union-attr]
+        re.search(r'<td class="what"><span class="words">(.*?)</span>', r[2]).group(1)  # type: ignore[union-attr]
         for r in rows
     ]
     assert sorted(words) == sorted(
@@ -256,17 +279,19 @@ def page_key_ids(console: Console) -> list[str]:
     return [found.group(1).strip()]
 
 
-def test_episode_times_are_local_and_say_utc_when_unknown(console: Console, db: Database) -> None:
+def test_episode_times_are_in_the_fleets_time_zone(console: Console, db: Database) -> None:
     with db.transaction() as session:  # an episode stored before offsets were kept
         session.execute(update(Episode).where(Episode.event_id == "e0").values(utc_offset=None))
     page = console.page("/admin/users/lin/episodes").text
-    when = [html.unescape(w) for w in re.findall(r'<span class="when"[^>]*>(.*?)</span>', page)]
-    assert when == [
-        "2026-11-23 09:30 (UTC+8)",
-        "2026-11-22 15:10 (UTC+8)",
-        "2026-11-21 15:10 (UTC+8)",
-        "2026-11-20 07:10 UTC",
+    when = re.findall(r'<span class="when"><time datetime="[^"]+">(.*?)</time>', page)
+    assert when == [  # the robot's time of each event, offset or not, in the fleet's zone
+        "2026-11-23 09:30",
+        "2026-11-22 15:10",
+        "2026-11-21 15:10",
+        "2026-11-20 15:10",
     ]
+    assert f"Times are in the fleet&#39;s time zone, {ZONE}." in page
+    assert "Robot's time of the event" in page
     contexts = re.findall(r'<span class="context">(.*?)</span>', page)
     assert contexts == ["morning, working"] + ["afternoon, stretching"] * 3
     assert "in progress" in page
@@ -275,6 +300,18 @@ def test_episode_times_are_local_and_say_utc_when_unknown(console: Console, db: 
         .strip()
         .endswith("4 episodes (1 open)")
     )
+
+
+def _staff_text(page: str) -> str:
+    """What staff read on a page: everything but the engineers' parts, which stay folded
+    under "Details for engineers"."""
+    text = _text(re.sub(r'<details class="engineers".*?</details>', " ", page, flags=re.S))
+    return re.sub(r"\s+", " ", text)
+
+
+def _engineers_terms(text: str) -> list[str]:
+    found = [w for w in ENGINEERS_WORDS if w.lower() in text.lower()]
+    return found + [w for w in ENGINEERS_NAMES if re.search(rf"\b{w}\b", text)]
 
 
 def test_staff_pages_hold_no_engineers_words(console: Console) -> None:
@@ -287,28 +324,48 @@ def test_staff_pages_hold_no_engineers_words(console: Console) -> None:
     )
     assert console.post("/admin/users/lin/corrections", form).status_code == 303
     episodes = console.page("/admin/users/lin/episodes").text
-    first = re.search(r'data-trace-url="([^"]+)"', episodes)
-    assert first
+    traces = [html.unescape(u) for u in re.findall(r'data-trace-url="([^"]+)"', episodes)]
+    assert len(traces) == 4  # every trace, the open one too
+    where = "time_slot=afternoon&situation=stretching"
     pages = {
-        "profile": console.page("/admin/users/lin").text,
-        "evidence": console.page("/admin/users/lin?time_slot=afternoon&situation=stretching").text,
         "users": console.page("/admin/users").text,
+        "mission": console.page("/admin/mission").text,
+        "profile": console.page("/admin/users/lin").text,
+        "evidence": console.page(f"/admin/users/lin?{where}").text,
+        "evidence, no episode": console.page(
+            "/admin/users/lin?time_slot=night&situation=busy"
+        ).text,
         "episodes": episodes,
-        "trace": console.page(html.unescape(first.group(1))).text,
+        "why": console.page(f"/admin/users/lin/why?{where}").text,
+        "why, no episode": console.page("/admin/users/lin/why?time_slot=noon&situation=busy").text,
+        "reset": console.page("/admin/users/lin/reset").text,
+        "delete": console.page("/admin/users/lin/delete").text,
+        **{f"trace {i}": console.page(url).text for i, url in enumerate(traces)},
     }
     for name, page in pages.items():
-        text = _text(page)
-        found = [w for w in ENGINEERS_WORDS if w.lower() in text.lower()]
-        assert found == [], (name, found)
-    # They are all still there, on the engineers' tab.
+        assert _engineers_terms(_staff_text(page)) == [], name
+    # The why page says what drives the decision, in words: the correction first.
+    why = _staff_text(pages["why"])
+    assert "A staff correction decides first: Prefers Provide drink (tea)" in why
+    assert "Mrs. Lin's own answers in 3 episodes here" in why
+    assert "draws its choice from those estimates" not in why  # hri here, not DTS
+    assert "sets aside old answers that contradict the latest one" in why
+    # A trace, step by step, in words.
+    trace = _staff_text(pages["trace 1"])
+    assert "The robot " in trace
+    assert "Mrs. Lin accepted" in trace or "Mrs. Lin answered" in trace
+    # The engineers' terms are all still there: on the engineers' tab, and folded under
+    # "Details for engineers" on the why page and in each trace.
     details = console.page("/admin/users/lin/details").text
     assert 'id="tab-details" aria-current="page"' in details
     assert 'id="heatmap"' in details
     assert 'id="model-version"' in details
     assert "hri τ=0.01" in details
-    why = console.page("/admin/users/lin/why?time_slot=afternoon&situation=stretching").text
-    assert "n′" in why
-    assert "ΔQ" in why
+    engineers = pages["why"].split('<details class="engineers"')[1]
+    assert "n′" in engineers
+    assert "ΔQ" in engineers
+    assert "exp(Pref/τ)" in engineers
+    assert "OBSERVE" in pages["trace 1"].split('<details class="engineers"')[1]
 
 
 @pytest.mark.parametrize(
@@ -317,7 +374,7 @@ def test_staff_pages_hold_no_engineers_words(console: Console) -> None:
         ({"kind": "prefers", "service": ""}, "Choose what the person prefers."),
         (
             {"kind": "prefers", "service": "ProvideDrink", "detail": ""},
-            "Choose which Provide drink the person prefers: tea, coffee or water.",
+            "Choose the person's choice of Provide drink: tea, coffee or water.",
         ),
         (
             {"kind": "avoid", "service": "ProvideDrink", "detail": "news"},
@@ -398,3 +455,18 @@ def test_a_new_person_and_an_unknown_box(console: Console) -> None:
     assert facts["agree"] == "no answer yet"
     assert console.page("/admin/users/new/details").status_code == 200
     assert console.page("/admin/users/new/episodes").status_code == 200
+
+
+def test_why_explains_the_learner_in_use(console: Console) -> None:
+    made = console.robot.put("/v1/users/kim", json={"display_name": "Mr. Kim"})
+    assert made.status_code == 201, made.text
+    assert made.json()["learner"]["algorithm"] == "dts-adapt"  # the service's default
+    page = console.page("/admin/users/kim/why?time_slot=morning&situation=arriving").text
+    words = _staff_text(page)
+    assert "draws its choice from those estimates" in words
+    assert "sets aside old answers" not in words  # that is HRI
+    assert "has not met the robot here yet" in words
+    legend = html.unescape(page.split('id="p-explained"')[1].split("</dd>")[0])
+    assert "share of the drawn models in which this action is the best" in legend
+    assert "Pref" not in legend
+    assert "τ" not in legend

@@ -176,6 +176,11 @@ def train(
 
 
 # -- reading the mission -----------------------------------------------------------------------
+def with_display(doc: dict[str, Any]) -> dict[str, Any]:
+    """A mission document as the API answers it: with its display fields, default or set."""
+    return {"labels": {}, "time_zone": "UTC", **doc}
+
+
 class TestReadMission:
     def test_a_fleet_without_one_has_the_default_as_version_1(
         self, robot: TestClient, admin: TestClient
@@ -184,7 +189,7 @@ class TestReadMission:
         assert got.pop("fleet") == "default"
         assert got.pop("version") == 1
         assert got.pop("fingerprint") == OFFICE.fingerprint
-        assert got == OFFICE.to_dict()
+        assert got == with_display(OFFICE.to_dict())
         listed = versions(admin)
         assert listed["fleet"] == "default"
         assert listed["current_version"] == 1
@@ -206,7 +211,7 @@ class TestReadMission:
             OFFICE.fingerprint,
             False,
         )
-        assert only["mission"] == OFFICE.to_dict()
+        assert only["mission"] == with_display(OFFICE.to_dict())
 
     def test_version_1_is_stored_with_the_first_user(
         self, robot: TestClient, admin: TestClient
@@ -271,7 +276,7 @@ class TestChangeMission:
         assert "ProvideDrink/cocoa" in out["diff"]["details"]["added"]
         new, default = versions(staff)["items"]
         assert (new["version"], new["stored"], new["change_id"]) == (2, True, "first")
-        assert new["mission"] == doc
+        assert new["mission"] == with_display(doc)
         assert (default["version"], default["stored"], default["change_id"]) == (1, True, None)
         assert default["fingerprint"] == OFFICE.fingerprint
         assert robot.put("/v1/users/lin").status_code == 201
@@ -317,7 +322,7 @@ class TestChangeMission:
             True,
             fingerprint(doc),
         )
-        assert newest["mission"] == doc
+        assert newest["mission"] == with_display(doc)
         assert isinstance(newest["set_by"], str)
         assert newest["set_by"]
         now = mission(robot)

@@ -54,8 +54,12 @@ DOCS_SHOTS = {
     ("desktop", "profile-evidence"): "console-evidence.png",
     ("desktop", "profile-corrections"): "console-corrections.png",
     ("desktop", "details-lin"): "console-details.png",
-    ("desktop", "why"): "console-why.png",
-    ("desktop", "episodes"): "console-episodes.png",
+    ("desktop", "why-words"): "console-why.png",
+    ("desktop", "why"): "console-why-engineers.png",
+    ("desktop", "episodes-words"): "console-episodes.png",
+    ("tablet", "episodes-words"): "console-episodes-tablet.png",
+    ("tablet", "why-words"): "console-why-tablet.png",
+    ("tablet", "profile-corrections"): "console-corrections-tablet.png",
     ("desktop", "confirm-reset"): "console-confirm-reset.png",
     ("tablet", "profile"): "console-user-tablet.png",
     ("tablet", "profile-evidence"): "console-evidence-tablet.png",
@@ -99,6 +103,21 @@ class Site:
             revoke_key(session, key_id)
 
 
+ZONE = "Asia/Shanghai"  # the fleet's time zone: UTC+8, as the offsets the robot sends
+
+
+def _zone(api: httpx.Client) -> None:
+    """The fleet's mission in force, with its time zone set (a display setting only)."""
+    doc = api.get("/v1/mission").json()
+    for name in ("fleet", "version", "fingerprint"):
+        doc.pop(name)
+    r = api.put(
+        "/v1/admin/fleets/default/mission",
+        json={"change_id": "zone", "mission": {**doc, "time_zone": ZONE}},
+    )
+    assert r.status_code == 200, r.text
+
+
 def _seed(client: httpx.Client) -> None:
     def put(user_id: str, **body: Any) -> None:
         r = client.put(f"/v1/users/{user_id}", json=body)
@@ -128,6 +147,10 @@ def site(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Site]:
         with database.transaction() as session:
             _, admin_key = create_key(session, role="admin", name="console-tests")
             _, robot_key = create_key(session, role="robot", name="robot7")
+        with httpx.Client(
+            base_url=service.url, timeout=30, headers={"Authorization": f"Bearer {admin_key}"}
+        ) as api:
+            _zone(api)
         with httpx.Client(
             base_url=service.url, timeout=30, headers={"Authorization": f"Bearer {robot_key}"}
         ) as robot:

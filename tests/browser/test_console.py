@@ -11,7 +11,7 @@ import httpx
 import pytest
 from playwright.sync_api import Page, expect
 
-from .conftest import VIEWPORTS, Shot, Site, sign_in
+from .conftest import VIEWPORTS, ZONE, Shot, Site, sign_in
 from .people import (
     action_label,
     count,
@@ -24,6 +24,28 @@ from .people import (
 )
 
 pytestmark = [pytest.mark.browser, pytest.mark.xdist_group("browser")]
+
+
+# The engineers' terms: on the Details tab and under "Details for engineers" only.
+ENGINEERS_WORDS = ("τ", "ΔQ", "n′", "I1", "I2", "I3", "model version", "P(", "λ")
+ENGINEERS_NAMES = (
+    "OBSERVE",
+    "ENGAGED",
+    "REQUEST",
+    "TYPE_KNOWN",
+    "DETAIL_KNOWN",
+    "infer_type",
+    "infer_detail",
+    "query_type",
+    "query_detail",
+    "initiate",
+)
+
+
+def _no_engineers_terms(text: str, where: str) -> None:
+    found = [w for w in ENGINEERS_WORDS if w.lower() in text.lower()]
+    found += [w for w in ENGINEERS_NAMES if re.search(rf"\b{w}\b", text)]
+    assert found == [], (where, found)
 
 
 def _text(page: Page, selector: str) -> str:
@@ -123,10 +145,9 @@ class TestUsers:
         assert _text(page, "#users .episodes") == str(user["episodes"]) == "60"
         assert _text(page, "#users .success") == pct(recent["success_rate"])
         assert _text(page, "#users .learner") == "hri"
-        # Last activity in Mrs. Lin's local time (the robot sends +08:00).
-        assert re.fullmatch(
-            r"\d{4}-\d\d-\d\d \d\d:\d\d \(UTC\+8\)", _text(page, "#users .activity")
-        )
+        # Last activity: when the service received it, in the fleet's time zone, said.
+        assert re.fullmatch(rf"\d{{4}}-\d\d-\d\d \d\d:\d\d {ZONE}", _text(page, "#users .activity"))
+        expect(page.locator("#users thead")).to_contain_text("received")
         shot(page, "users-search")
 
 
@@ -211,6 +232,19 @@ class TestUserModel:
         page.wait_for_url("**situation=stretching**")
         model = site.get("/v1/users/lin/model", time_slot="afternoon", situation="stretching")
         (context,) = model["contexts"]
+        # For staff, in words: what drives the decision and how this learner chooses; the
+        # numbers stay folded under "Details for engineers" until opened.
+        episodes = sum(a["visits"] for a in context["states"][0]["actions"])
+        expect(page.locator("#drivers .answers")).to_contain_text(
+            f"Mrs. Lin's own answers in {episodes} episodes here"
+        )
+        expect(page.locator("#learner-words")).to_contain_text("sets aside old answers")
+        _no_engineers_terms(page.locator("main").inner_text(), "why")
+        expect(page.locator("#why")).not_to_be_visible()
+        shot(page, "why-words")
+        page.click("#why-engineers summary")
+        expect(page.locator("#why")).to_be_visible()
+        expect(page.locator("#p-explained")).to_contain_text("exp(Pref/τ)")
         rows = 0
         for state in context["states"]:
             for belief in state["actions"]:
@@ -262,6 +296,22 @@ class TestEpisodes:
         body = first.locator(".trace-body")
         expect(body).to_have_count(1)
         trace = site.get(f"/v1/episodes/{listed[0]['episode_id']}")
+        # Step by step in words for staff: one line per decision and later feedback.
+        steps = body.locator("li.step")
+        expect(steps).to_have_count(len(trace["decisions"]) + len(trace["feedback"]))
+        for step, decision in zip(steps.all(), trace["decisions"], strict=False):
+            assert step.inner_text().startswith("The robot "), step.inner_text()
+            assert step.get_attribute("data-decision-id") == decision["decision_id"]
+        expect(body.locator("tr.decision").first).not_to_be_visible()
+        shot(page, "episodes-words")
+        # Every trace opened: no engineers' term on the page staff read.
+        for other in page.locator("details.episode").all()[1:]:
+            other.locator("summary.ep-row").click()
+            expect(other.locator(".trace-body")).to_have_count(1)
+        _no_engineers_terms(page.locator("main").inner_text(), "episodes, every trace open")
+        for other in page.locator("details.episode").all()[1:]:
+            other.locator("summary.ep-row").click()  # closed again, for the screenshot
+        body.locator("details.engineers summary").click()
         decisions = body.locator("tr.decision")
         expect(decisions).to_have_count(len(trace["decisions"]))
         for row, decision in zip(decisions.all(), trace["decisions"], strict=True):

@@ -152,7 +152,8 @@ def test_the_grid_says_in_words_and_a_box_opens_its_evidence(
         else "no answer yet"
     )
     assert re.fullmatch(
-        r"2026-11-\d\d 15:\d\d \(UTC\+8\)", evidence.locator("dd[data-fact=last_seen]").inner_text()
+        r"2026-11-\d\d 15:\d\d \(robot's time of the event, Asia/Shanghai\)",
+        evidence.locator("dd[data-fact=last_seen]").inner_text(),
     )
     expect(evidence).to_be_focused()
     _check_basics(page)
@@ -163,7 +164,7 @@ def test_the_grid_says_in_words_and_a_box_opens_its_evidence(
     link.focus()
     page.keyboard.press("Enter")
     page.wait_for_url("**time_slot=morning&situation=arriving**")
-    expect(page.locator("#evidence-title")).to_have_text("morning, arriving")
+    expect(page.locator("#evidence-title")).to_have_text("Morning, arriving")
 
 
 def _correct(
@@ -215,7 +216,7 @@ def test_staff_correct_and_lift_and_the_robot_follows(
     expect(cell).to_contain_text("set by staff")
     rows = page.locator("#corrections tbody tr")
     expect(rows).to_have_count(1)
-    expect(rows.first.locator(".what")).to_have_text("Prefers Provide drink (coffee)")
+    expect(rows.first.locator(".what .words")).to_have_text("Prefers Provide drink (coffee)")
     expect(rows.first.locator(".note")).to_have_text(
         "Her daughter says she has coffee in the evening."
     )
@@ -234,7 +235,7 @@ def test_staff_correct_and_lift_and_the_robot_follows(
     )
     _correct(page, "noon", "stretching", "quiet")
     expect(rows).to_have_count(3)
-    expect(page.locator("#corrections .what")).to_have_text(
+    expect(page.locator("#corrections .what .words")).to_have_text(
         [
             "Prefers Provide drink (coffee)",
             "Do not offer Brief information",
@@ -242,6 +243,17 @@ def test_staff_correct_and_lift_and_the_robot_follows(
         ]
     )
     expect(_cell(page, "noon", "stretching")).to_contain_text("set by staff")
+    # A box set by staff says so, not that the person's answers agree.
+    expect(_cell(page, "evening", "working").locator(".sure")).to_have_text("set by staff")
+    # The whole table fits the page, Status and Lift included, on a tablet too.
+    wrap = page.locator("#corrections-card .table-wrap")
+    assert wrap.evaluate("w => w.scrollWidth <= w.clientWidth"), viewport
+    box = page.locator("#corrections button.lift").first.bounding_box()
+    assert box is not None
+    assert page.viewport_size is not None
+    assert box["x"] + box["width"] <= page.viewport_size["width"]
+    author = rows.first.locator(".author").inner_text()
+    assert author.startswith("console-tests"), author  # the key's name, not its id
     decision = _next_decision(site, user_id, f"after-quiet-{viewport}", "noon", "stretching")
     assert decision["action"]["kind"] == "pass", decision
     shot(page, "profile-corrections")

@@ -7,7 +7,7 @@ import datetime as dt
 from dataclasses import dataclass
 from typing import Any
 
-from sqlalchemy import func, insert, select
+from sqlalchemy import func, insert, select, update
 from sqlalchemy.dialects import postgresql, sqlite
 from sqlalchemy.orm import Session
 
@@ -25,6 +25,7 @@ __all__ = [
     "lock_latest",
     "models_behind",
     "open_episodes",
+    "set_document",
 ]
 
 
@@ -100,6 +101,16 @@ def add_first(session: Session, row: MissionRow) -> None:
 
 def add(session: Session, row: MissionRow) -> None:
     conn(session).execute(insert(_missions).values({name: getattr(row, name) for name in _NAMES}))
+
+
+def set_document(session: Session, fleet: str, version: int, document: dict[str, Any]) -> None:
+    """Replace a version's document by one of the same fingerprint: only its display fields
+    (labels, time zone) may differ, which learning never reads."""
+    conn(session).execute(
+        update(_missions)
+        .where(_missions.c.fleet == fleet, _missions.c.version == version)
+        .values(document=document)
+    )
 
 
 def by_change(session: Session, fleet: str, change_id: str) -> MissionRow | None:

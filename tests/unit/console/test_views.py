@@ -235,3 +235,96 @@ class TestProfileWords:
             correction_status(made("prefers", "overridden"), "Mrs. Lin")
             == "Overridden by Mrs. Lin's own answers"
         )
+
+
+# -- labels, the fleet's time zone, steps in words, refusals ---------------------------------
+def _labelled() -> Any:
+    from app.learning import Mission, office_mission
+
+    return Mission.from_dict(
+        {
+            **office_mission().to_dict(),
+            "labels": {"ProvideDrink": "a drink", "tea": "a cup of tea"},
+            "time_zone": "Asia/Tokyo",
+        }
+    )
+
+
+def test_labels_read_as_the_mission_says_and_default_to_a_readable_id() -> None:
+    from app.console.views import label, wanted_label
+
+    m = _labelled()
+    assert label(m, "ProvideDrink") == "a drink"
+    assert label(m, "BriefInformation") == "Brief information"
+    assert wanted_label(m, "ProvideDrink", "tea") == "a drink (a cup of tea)"
+    assert wanted_label(m, None, None) == "Nothing in particular"
+
+
+def test_times_are_in_the_fleets_time_zone() -> None:
+    from app.console.views import fmt_zone, zone_note
+
+    at = dt.datetime(2026, 11, 3, 1, 12, tzinfo=dt.UTC)
+    assert fmt_zone(at, "Asia/Tokyo") == "2026-11-03 10:12"
+    assert fmt_zone(at, "UTC") == "2026-11-03 01:12"
+    assert fmt_zone(at.replace(tzinfo=None), "Europe/London") == "2026-11-03 01:12"  # naive: UTC
+    summer = dt.datetime(2026, 7, 3, 1, 12, tzinfo=dt.UTC)
+    assert fmt_zone(summer, "Europe/London") == "2026-07-03 02:12"  # the zone's own rules
+    assert fmt_zone(None, "UTC") == "—"
+    assert zone_note("Asia/Tokyo") == "Times are in the fleet's time zone, Asia/Tokyo."
+
+
+def test_a_decision_in_words() -> None:
+    from app.console.views import person_step_words, robot_step_words
+    from app.schemas.common import ActionOut, ProbabilityOut
+
+    m = _labelled()
+
+    class Decision:
+        def __init__(self, action: ActionOut, chain: list[ProbabilityOut]) -> None:
+            self.action, self.chain = action, chain
+
+    guess = ProbabilityOut(action=ActionOut(kind="infer_type", service="ProvideDrink"), p=0.8)
+    ask = ActionOut(kind="query_detail", service="ProvideDrink")
+    assert robot_step_words(m, Decision(ask, [guess])) == (
+        "Guessed a drink was wanted, asked which one"
+    )
+    assert robot_step_words(m, Decision(ActionOut(kind="initiate"), [])) == "Offered help"
+    performed = ActionOut(kind="perform", service="ProvideDrink", detail="tea")
+    assert robot_step_words(m, Decision(performed, [])) == "Brought a cup of tea (a drink)"
+    assert person_step_words(m, "Mrs. Lin", "answered", "ProvideDrink", "tea") == (
+        "Mrs. Lin answered: a cup of tea"
+    )
+    assert person_step_words(m, "Mrs. Lin", "rejected", None, None) == "Mrs. Lin turned it down"
+    assert person_step_words(m, "Mrs. Lin", None, None, None) == "Waiting for Mrs. Lin's answer"
+
+
+def test_the_cores_reasons_become_the_forms_sentences() -> None:
+    from app.console.views import refusal_words
+    from app.learning.guidance import Rule, RuleKind
+
+    m = _labelled()
+
+    def said(kind: RuleKind, service: str | None = None, detail: str | None = None) -> str:
+        rule = Rule("c1", kind, "morning", "arriving", service, detail)
+        return refusal_words(rule.reasons(m), m, "north")
+
+    assert said(RuleKind.PREFERS) == "Choose what the person prefers."
+    assert said(RuleKind.AVOID) == "Choose what the robot should not offer."
+    assert said(RuleKind.PREFERS, "ProvideDrink") == (
+        "Choose the person's choice of a drink: a cup of tea, coffee or water."
+    )
+    assert said(RuleKind.AVOID, "ProvideDrink", "news") == (
+        "“news” is not a choice of a drink: choose a cup of tea, coffee or water."
+    )
+    assert said(RuleKind.AVOID, "Massage") == (
+        "The robots of fleet north do not offer “Massage” any more: choose another service."
+    )
+
+
+def test_the_learner_in_use_is_explained() -> None:
+    from app.console.views import learner_words, p_words
+
+    assert "Pref" in p_words("hri")
+    assert "Pref" not in p_words("dts-adapt")
+    assert "share of the drawn models" in p_words("dts-adapt")
+    assert learner_words("dts-adapt") != learner_words("hri")

@@ -32,7 +32,9 @@ from app.learning.guidance import (
     CONTRADICTIONS,
     PREFER_SLACK,
     Guidance,
+    ReasonCode,
     Rule,
+    RuleError,
     RuleKind,
     guidance_from_state,
 )
@@ -580,3 +582,70 @@ class TestMissionChange:
         again = remap_learner(back, MISSION)
         p = again.explain(CONTEXT, again.episodes + 1).probabilities
         assert p[act(ActionKind.INFER_TYPE, "ArrangeSchedule")] == 0.0
+
+
+class TestReasons:
+    """The one check of a correction: structured reasons, which the API and the console turn
+    into their own words."""
+
+    @pytest.mark.parametrize(
+        ("made", "code", "field", "got"),
+        [
+            (rule("x", RuleKind.PREFERS, DRINK), ReasonCode.NEEDS_DETAIL, "detail", None),
+            (rule("x", RuleKind.PREFERS), ReasonCode.NEEDS_SERVICE, "service", None),
+            (rule("x", RuleKind.QUIET, DRINK), ReasonCode.QUIET_TAKES_NOTHING, "service", DRINK),
+            (rule("x", RuleKind.AVOID, "Dance"), ReasonCode.UNKNOWN_SERVICE, "service", "Dance"),
+            (
+                rule("x", RuleKind.AVOID, DRINK, "whisky"),
+                ReasonCode.UNKNOWN_DETAIL,
+                "detail",
+                "whisky",
+            ),
+            (
+                rule("x", RuleKind.QUIET, time_slot="midnight"),
+                ReasonCode.UNKNOWN_TIME_SLOT,
+                "time_slot",
+                "midnight",
+            ),
+            (
+                rule("x", RuleKind.QUIET, situation="sleeping"),
+                ReasonCode.UNKNOWN_SITUATION,
+                "situation",
+                "sleeping",
+            ),
+            (rule("x/y", RuleKind.QUIET), ReasonCode.BAD_ID, "correction_id", "x/y"),
+        ],
+    )
+    def test_each_misfit_has_a_reason_naming_the_field_and_the_value(
+        self, made: Rule, code: ReasonCode, field: str, got: str | None
+    ) -> None:
+        mission = MISSION
+        (reason,) = made.reasons(mission)
+        assert (reason.code, reason.field, reason.got) == (code, field, got)
+        with pytest.raises(RuleError) as raised:
+            made.check(mission)
+        assert raised.value.reasons == (reason,)
+        assert str(raised.value) == reason.sentence()
+
+    def test_the_reasons_carry_what_is_allowed(self) -> None:
+        mission = MISSION
+        (reason,) = rule("x", RuleKind.AVOID, DRINK, "whisky").reasons(mission)
+        assert reason.service == DRINK
+        assert reason.allowed == mission.service(DRINK).details
+        assert reason.sentence() == (
+            f"detail of {DRINK} must be one of {', '.join(reason.allowed)}; got 'whisky'."
+        )
+        (reason,) = rule("x", RuleKind.AVOID).reasons(mission)
+        assert reason.allowed == tuple(s.name for s in mission.services)
+
+    def test_a_rule_that_fits_is_checked_once_per_mission(self) -> None:
+        mission = MISSION
+        made = rule("x", RuleKind.AVOID, DRINK)
+        assert made.reasons(mission) == ()
+        assert made.fits == mission.fingerprint
+        guidance = Guidance()
+        guidance.add(made, mission)  # no second check: the rule remembers the mission
+        kept = guidance.get("x")
+        assert kept is not None
+        assert kept.fits == mission.fingerprint
+        assert "fits" not in kept.to_dict()  # not part of the state document

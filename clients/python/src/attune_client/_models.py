@@ -542,6 +542,10 @@ class Mission(_Model):
     rewards: dict[str, float]
     unavailable_situations: list[str] = Field(default_factory=list)
     gamma: float | None = None
+    labels: dict[str, str] = Field(default_factory=dict)
+    """Display only: the words staff read for a name (outside the fingerprint)."""
+    time_zone: str = "UTC"
+    """Display only: the fleet's IANA time zone, for the console's times."""
 
     def document(self) -> dict[str, Any]:
         """The mission document alone, as ``set_mission`` takes it and a mission file holds
@@ -550,6 +554,10 @@ class Mission(_Model):
         doc = self.model_dump(mode="json", exclude=set(_PLACE_FIELDS))
         if doc.get("gamma") is None:
             doc.pop("gamma", None)
+        if not doc.get("labels"):  # the display fields at their defaults are left out
+            doc.pop("labels", None)
+        if doc.get("time_zone") == "UTC":
+            doc.pop("time_zone", None)
         return doc
 
 
