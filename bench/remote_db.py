@@ -2,6 +2,7 @@
 
     python bench/remote_db.py                         # 0, 0.25, 1 and 2.5 ms each way, 16 robots
     python bench/remote_db.py --delays 0,1 --seconds 5 --inline-writes false
+    python bench/remote_db.py --delays 0 --instances 2     # two instances on one PostgreSQL
 
 Loopback only. For each delay, in one run: a fresh database on the PostgreSQL server at
 127.0.0.1:5432 (``ATTUNE_TEST_POSTGRES_URL``), a delaying TCP proxy in front of it
@@ -18,6 +19,9 @@ writes ran (``attune_robot_writes``: inline on the event loop, or in the thread 
 targets, met or missed: at 1 ms each way, at least 0.85 of the no-delay throughput, p99 at most
 the no-delay p99 + 20 ms, and no worker's event loop held up over 5 ms.
 
+``--instances 2`` starts two ``attune serve`` (2 workers each) on the same database and shares
+the robots out among them: what a second instance adds on one PostgreSQL.
+
 Bounded: each delay takes the service's start, ``--warmup`` + ``--seconds`` of load and the
 stop; every request times out after 10 s; the proxy stops by itself after the run's time.
 """
@@ -25,6 +29,7 @@ stop; every request times out after 10 s; the proxy stops by itself after the ru
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import statistics
@@ -42,7 +47,9 @@ from prometheus_client.parser import text_string_to_metric_families
 from service import (
     PG_SERVER,
     Data,
+    Figures,
     fresh_database,
+    group_cpu_s,
     machine,
     require_wrk,
     run_wrk,
@@ -190,12 +197,16 @@ def round_trip_ms(conninfo: str, n: int = 50) -> float:
 
 
 # -- one delay ---------------------------------------------------------------------------------
+def _split(robots: int, instances: int) -> list[int]:
+    return [robots // instances + (1 if i < robots % instances else 0) for i in range(instances)]
+
+
 def run_delay(args: argparse.Namespace, wrk: str, delay_ms: float, workdir: Path) -> Window:
     server_url = PG_SERVER.rstrip("/")
     rest = server_url.split("://", 1)[1]
     userinfo, _, hostport = rest.rpartition("@")
     host, _, port = hostport.partition(":")
-    budget = args.warmup + args.seconds + 180
+    budget = args.warmup + args.seconds + 180 * args.instances
     proxy, proxy_port = start_proxy(delay_ms, (host, int(port or 5432)), budget)
     try:
         with fresh_database("postgresql", workdir) as db_url:
@@ -209,42 +220,83 @@ def run_delay(args: argparse.Namespace, wrk: str, delay_ms: float, workdir: Path
             via = f"postgresql+psycopg://{auth}127.0.0.1:{proxy_port}/{name}"
             rtt = round_trip_ms(f"postgresql://{auth}127.0.0.1:{proxy_port}/{name}")
             say(f"  {delay_ms:g} ms each way: SELECT 1 through the proxy takes {rtt:.3f} ms")
-            users = [f"robot{i}" for i in range(1, args.robots + 1)]
-            (workdir / "keys.txt").write_text("\n".join(keys) + "\n")
-            (workdir / "users.txt").write_text("\n".join(users) + "\n")
-            with server("service", WORKERS, workdir, via) as served:
+            # Each instance its own robots (a user and a key each), in a folder of its own.
+            dirs, first = [], 0
+            for i, count in enumerate(_split(args.robots, args.instances)):
+                d = workdir / f"instance{i}"
+                d.mkdir()
+                users = [f"robot{n}" for n in range(first + 1, first + count + 1)]
+                (d / "keys.txt").write_text("\n".join(keys[first : first + count]) + "\n")
+                (d / "users.txt").write_text("\n".join(users) + "\n")
+                dirs.append((d, count))
+                first += count
+            with contextlib.ExitStack() as stack:
+                served = [stack.enter_context(server("service", WORKERS, d, via)) for d, _ in dirs]
                 tag = f"d{delay_ms:g}".replace(".", "p")
+
+                def load(seconds: float, label: str) -> list[Figures]:
+                    found: list[Figures | BaseException] = [RuntimeError("no run")] * len(dirs)
+
+                    def one(i: int) -> None:
+                        d, count = dirs[i]
+                        try:
+                            found[i] = run_wrk(
+                                wrk, served[i].url, "loop", count, d, seconds, 0, f"{label}{i}"
+                            )
+                        except BaseException as exc:  # reported below, in the caller's thread
+                            found[i] = exc
+
+                    threads = [threading.Thread(target=one, args=(i,)) for i in range(len(dirs))]
+                    for t in threads:
+                        t.start()
+                    for t in threads:
+                        t.join()
+                    for f in found:
+                        if isinstance(f, BaseException):
+                            raise f
+                    return [f for f in found if isinstance(f, Figures)]
+
                 if args.warmup > 0:
-                    run_wrk(wrk, served.url, "loop", args.robots, workdir, args.warmup, 0, tag)
-                before = scrape(served.url)
-                with StallWatch(served.url, args.seconds) as watch:
-                    fig = run_wrk(
-                        wrk,
-                        served.url,
-                        "loop",
-                        args.robots,
-                        workdir,
-                        args.seconds,
-                        0,
-                        f"{tag}m",
-                        served.pgid,
-                    )
-                after = scrape(served.url)
+                    load(args.warmup, f"{tag}w")
+                before = [scrape(s.url) for s in served]
+                cpu_before = sum(group_cpu_s(s.pgid) for s in served)
+                with contextlib.ExitStack() as watching:
+                    watches = [
+                        watching.enter_context(StallWatch(s.url, args.seconds)) for s in served
+                    ]
+                    figs = load(args.seconds, f"{tag}m")
+                cpu_s = sum(group_cpu_s(s.pgid) for s in served) - cpu_before
+                after = [scrape(s.url) for s in served]
             limit = STALL_MS / 1000.0
-            w_before, w_after = writes_by_path(before), writes_by_path(after)
-            service_rtt = after.get(("attune_db_round_trip_seconds", ()))
+            writes: dict[str, float] = {}
+            for b, a in zip(before, after, strict=True):
+                wb = writes_by_path(b)
+                for path, n in writes_by_path(a).items():
+                    writes[path] = writes.get(path, 0.0) + n - wb.get(path, 0.0)
+            worst: dict[str, float] = {}
+            for i, watch in enumerate(watches):
+                for pid, v in sorted(watch.worst.items()):
+                    worst[pid if len(watches) == 1 else f"{i}:{pid}"] = v * 1000
+            rtts = [a.get(("attune_db_round_trip_seconds", ())) for a in after]
+            measured = [r for r in rtts if r is not None]
+            answered = sum(f.count + f.errors for f in figs)
             return Window(
                 delay_ms=delay_ms,
                 proxy_rtt_ms=rtt,
-                rps=fig.rps,
-                p50_ms=fig.p50_ms,
-                p99_ms=fig.p99_ms,
-                cpu_ms=fig.cpu_ms,
-                errors=fig.errors,
-                worst_stall_ms={pid: v * 1000 for pid, v in sorted(watch.worst.items())},
-                stalls_over_5ms=round(stalls_over(after, limit) - stalls_over(before, limit)),
-                writes={p: w_after[p] - w_before.get(p, 0.0) for p in sorted(w_after)},
-                service_rtt_ms=service_rtt * 1000 if service_rtt is not None else None,
+                rps=sum(f.rps for f in figs),
+                p50_ms=max(f.p50_ms for f in figs),
+                p99_ms=max(f.p99_ms for f in figs),
+                cpu_ms=cpu_s * 1000 / answered if answered else None,
+                errors=sum(f.errors for f in figs),
+                worst_stall_ms=worst,
+                stalls_over_5ms=round(
+                    sum(
+                        stalls_over(a, limit) - stalls_over(b, limit)
+                        for b, a in zip(before, after, strict=True)
+                    )
+                ),
+                writes={p: writes[p] for p in sorted(writes)},
+                service_rtt_ms=max(measured) * 1000 if measured else None,
             )
     finally:
         proxy.terminate()
@@ -310,6 +362,14 @@ def main(argv: list[str] | None = None) -> None:
     )
     parser.add_argument("--robots", type=int, default=16, help="concurrent robots (default 16)")
     parser.add_argument(
+        "--instances",
+        type=int,
+        default=1,
+        help="attune serve instances (2 workers each) on the one database, the robots shared "
+        "out among them (default 1); the figures are their sum (throughput, CPU), and the "
+        "worst of them (p50, p99)",
+    )
+    parser.add_argument(
         "--inline-writes",
         choices=["auto", "true", "false"],
         help="ATTUNE_PG_INLINE_WRITES for the service (default: the service's own, auto)",
@@ -317,15 +377,18 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--json", type=Path, help="also write the figures here")
     args = parser.parse_args(argv)
     delays = [float(d) for d in args.delays.split(",")]
-    if args.seconds <= 0 or args.robots < 1 or any(d < 0 for d in delays):
-        parser.error("--seconds and --robots must be positive, the delays at least 0")
+    if args.seconds <= 0 or any(d < 0 for d in delays):
+        parser.error("--seconds must be positive, the delays at least 0")
+    if not 1 <= args.instances <= args.robots:
+        parser.error("--instances must be from 1 to --robots")
     if args.inline_writes:
         os.environ["ATTUNE_PG_INLINE_WRITES"] = args.inline_writes
     wrk = require_wrk()
     before = machine()
     began = time.monotonic()
     say(
-        f"attune serve, {WORKERS} workers, {args.robots} robots, PostgreSQL through a delaying "
+        f"attune serve ×{args.instances}, {WORKERS} workers each, {args.robots} robots, "
+        f"PostgreSQL through a delaying "
         f"proxy; delays {', '.join(f'{d:g}' for d in delays)} ms each way, "
         f"{args.warmup:g} s warm-up + {args.seconds:g} s each; load average "
         f"{before['load'][0]:.2f}"
