@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import asyncio
 import logging
-import math
 import sqlite3
 import statistics
 import threading
@@ -49,7 +48,8 @@ NOWAIT = "attune_nowait"  # session.info: take the user's lock only if it is fre
 PROBE_EVERY_S = 2.0
 """PostgreSQL, ``ATTUNE_PG_INLINE_WRITES=auto``: how often each worker measures the round trip."""
 _PROBES_KEPT = 5  # the round trip in force is the median of the last probes
-_SAMPLES = 4  # statements per probe; a probe's figure is its fastest
+_SAMPLES = 5  # statements per probe; a probe's figure is their median
+_SLOW = 4  # on the loop, a probe stops at a statement this many times the threshold
 
 
 class LockBusy(Exception):
@@ -162,35 +162,38 @@ class Database:
 
     def probe_round_trip(self, *, on_loop: bool = False) -> float | None:
         """Measure the round trip to the database: a few ``SELECT 1``, each timed as its wall
-        time minus the CPU time of this thread (what the client itself spent on it), the
-        fastest kept; the round trip in force (:attr:`round_trip_s`) is the median of the last
-        probes. ``None``, and nothing changed, if the database did not answer.
+        time minus the CPU time of this thread (what the client itself spent on it), their
+        median kept (not the fastest: a write waits for ten typical round trips, and a relay or
+        a database on a saturated machine answers some fast and most slower); the round trip
+        in force (:attr:`round_trip_s`) is the median of the last probes. ``None``, and
+        nothing changed, if the database did not answer.
 
         ``on_loop``: on the event loop, on the inline connection (free between writes, and
-        the thread's CPU clock then counts no other thread's work); it stops at the first
-        statement faster than the threshold, so that a network grown slow holds the loop up
-        once, for a few round trips. Else on a connection of the pool, from any thread."""
+        the thread's CPU clock then counts no other thread's work); it stops at a statement
+        far over the threshold, so that a network grown slow holds the loop up once, for a
+        round trip or two. Else on a connection of the pool, from any thread."""
         engine = self._inline_engine if on_loop else self._autocommit_engine
         assert engine is not None
-        best = math.inf
+        samples: list[float] = []
         try:
             with engine.connect() as conn:
                 cursor: Any = conn.connection.driver_connection.cursor()  # type: ignore[union-attr]
-                for _ in range(_SAMPLES):
+                for _ in range(_SAMPLES + 1):  # the first also begins a transaction: not kept
                     wall, cpu = time.perf_counter(), time.thread_time()
                     cursor.execute("SELECT 1")
                     cursor.fetchone()
                     took = (time.perf_counter() - wall) - (time.thread_time() - cpu)
-                    best = min(best, max(0.0, took))
-                    if on_loop and best < self.inline_max_rtt_s:
-                        break
+                    samples.append(max(0.0, took))
+                    if on_loop and took > _SLOW * self.inline_max_rtt_s:
+                        break  # far over the threshold: no need to hold the loop up longer
                 cursor.close()
         except Exception as exc:  # the database is away: keep what was measured before
             log.warning("could not measure the round trip to the database: %s", exc)
             return None
-        self._probes.append(best)
+        measured = statistics.median(samples[1:] or samples)
+        self._probes.append(measured)
         self.round_trip_s = statistics.median(self._probes)
-        return best
+        return measured
 
     async def watch_round_trip(self, every_s: float = PROBE_EVERY_S) -> None:
         """Each worker's task, for its life (``auto``): measure the round trip every
