@@ -89,14 +89,24 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         to_thread.current_default_thread_limiter().total_tokens = settings.max_in_flight + 8
         logging.getLogger("attune").info("serving with database %s", mask_url(db.url))
         # The worker's own figures (CPU, memory, pool, cache, event loop), sampled every second.
-        watch = asyncio.create_task(app.state.metrics.watch(), name="attune-metrics")
+        tasks = [asyncio.create_task(app.state.metrics.watch(), name="attune-metrics")]
+        if settings.loop_watch_ms > 0:  # how long the event loop is held up, at a fine grain
+            watchdog = app.state.metrics.watch_stalls(settings.loop_watch_ms)
+            tasks.append(asyncio.create_task(watchdog, name="attune-loop-watch"))
+        if db.probes_round_trip:
+            # Where the robots' writes run (ATTUNE_PG_INLINE_WRITES=auto): measured before the
+            # first request, then every few seconds.
+            await asyncio.to_thread(db.probe_round_trip)
+            tasks.append(asyncio.create_task(db.watch_round_trip(), name="attune-round-trip"))
         try:
             # The server of `attune serve` finds the drain here and starts it on SIGTERM.
             yield {STATE_KEY: app.state.drain}
         finally:
-            watch.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await watch
+            for task in tasks:
+                task.cancel()
+            for task in tasks:
+                with contextlib.suppress(asyncio.CancelledError):
+                    await task
             db.dispose()
 
     app = FastAPI(

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import functools
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 from pydantic import Field, SecretStr, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
@@ -104,11 +104,27 @@ class Settings(BaseSettings):
         "loop when the database's write lock is free at once (else in the thread pool, as every "
         "other request).",
     )
-    pg_inline_writes: bool = Field(
-        default=True,
-        description="PostgreSQL: run the robots' short writes on the worker's "
+    pg_inline_writes: Literal["auto", "true", "false"] = Field(
+        default="auto",
+        description="PostgreSQL: where the robots' short writes run. true: on the worker's "
         "event loop, on a connection of its own, when the user's lock is free at once (else in "
-        "the thread pool, as every other request).",
+        "the thread pool, as every other request); false: always in the thread pool; auto: "
+        "inline while the measured round trip to the database is below "
+        "pg_inline_max_rtt_ms, else in the thread pool.",
+    )
+    pg_inline_max_rtt_ms: float = Field(
+        default=0.3,
+        gt=0,
+        le=100,
+        description="PostgreSQL, with pg_inline_writes=auto: the database round trip (measured "
+        "at start and every few seconds) under which the robots' writes run on the event loop.",
+    )
+    loop_watch_ms: float = Field(
+        default=10.0,
+        ge=0,
+        le=1000,
+        description="How often each worker's watchdog wakes to measure how long its event loop "
+        "was held up (attune_event_loop_stall_seconds); 0 turns it off.",
     )
     db_pool_size: int = Field(default=10, ge=1, description="Connections per worker process.")
     db_pre_ping: bool = Field(
@@ -248,6 +264,19 @@ class Settings(BaseSettings):
         if value is not None and len(value.get_secret_value()) < 16:
             raise ValueError("metrics_token must be at least 16 characters long.")
         return value
+
+    @field_validator("pg_inline_writes", mode="before")
+    @classmethod
+    def _inline_mode(cls, value: Any) -> str:
+        """auto, or a boolean as pydantic reads one (true/false, 1/0, yes/no, on/off)."""
+        text = str(value).strip().lower()
+        if text in {"true", "1", "yes", "on"}:
+            return "true"
+        if text in {"false", "0", "no", "off"}:
+            return "false"
+        if text != "auto":
+            raise ValueError("pg_inline_writes must be auto, true or false.")
+        return text
 
     @field_validator("log_level")
     @classmethod

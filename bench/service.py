@@ -348,6 +348,20 @@ def run_wrk(
     return fig
 
 
+def robot_writes(url: str) -> dict[str, float]:
+    """PostgreSQL: the robots' writes so far by where they ran (``attune_robot_writes_total``
+    of the service's /metrics: inline on the event loop, or in the thread pool)."""
+    import httpx
+    from prometheus_client.parser import text_string_to_metric_families
+
+    found: dict[str, float] = {}
+    for family in text_string_to_metric_families(httpx.get(f"{url}/metrics", timeout=10).text):
+        for sample in family.samples:
+            if sample.name == "attune_robot_writes_total":
+                found[sample.labels["path"]] = sample.value
+    return found
+
+
 # -- processes and databases -------------------------------------------------------------------
 def free_port() -> int:
     with socket.socket() as sock:
@@ -655,6 +669,8 @@ class Bench:
     def measure(
         self, served: Served, mode: str, clients: int, workdir: Path, label: str
     ) -> Figures:
+        paths = label.startswith("postgresql")  # where the robots' writes ran, from /metrics
+        before = robot_writes(served.url) if paths else {}
         fig = run_wrk(
             self.wrk,
             served.url,
@@ -666,6 +682,12 @@ class Bench:
             re.sub(r"[^A-Za-z0-9.-]", "-", f"{self.run_tag}-{label}"),
             served.pgid,
         )
+        if paths:
+            after = robot_writes(served.url)
+            fig.notes += [
+                "writes "
+                + ", ".join(f"{p} {n - before.get(p, 0.0):.0f}" for p, n in sorted(after.items()))
+            ]
         extra = f", {fig.loops_per_s:.1f} loops/s" if fig.loops_per_s is not None else ""
         cpu = f", {fig.cpu_ms:.3f} ms CPU/request" if fig.cpu_ms is not None else ""
         self.say(

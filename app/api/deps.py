@@ -187,6 +187,8 @@ def _in_transaction(
                         return endpoint(**call, session=session)
                 except LockBusy:  # the user's lock is taken: wait for it in the thread pool
                     pass
+            elif not db.is_sqlite:  # the round trip is too long to wait for on the loop
+                db.pooled += 1
             return await run_in_threadpool(run, **kwargs)
         failure: Exception | None = None
         try:

@@ -45,6 +45,9 @@ TICK_S = 0.5
 LAG_WINDOW = 20
 """Wake-ups the worst lag is taken over (10 s)."""
 
+STALL_WINDOW_S = 5
+"""Seconds the worst event-loop stall is taken over (``attune_event_loop_stall_max_seconds``)."""
+
 # The round trips of the request being served: [count, in a pipeline since the last one].
 _TRIPS: ContextVar[list[int] | None] = ContextVar("attune_round_trips", default=None)
 
@@ -175,6 +178,34 @@ class Metrics:
             registry=r,
             multiprocess_mode="livemax",
         )
+        self.loop_stall = Histogram(
+            "attune_event_loop_stall_seconds",
+            "How late each worker's loop watchdog woke (every ATTUNE_LOOP_WATCH_MS): how long "
+            "the event loop was held up by the work it ran.",
+            registry=r,
+            buckets=(0.001, 0.002, 0.005, 0.01, 0.02, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5),
+        )
+        self.loop_stall_max = Gauge(
+            "attune_event_loop_stall_max_seconds",
+            "The worst stall of each worker's event loop over the last 5 seconds (a series per "
+            "worker process).",
+            registry=r,
+            multiprocess_mode="liveall",
+        )
+        self.writes = Counter(
+            "attune_robot_writes",
+            "PostgreSQL: the robots' writes (starts and outcomes) by where they ran: inline on "
+            "the event loop, or in the thread pool.",
+            ["path"],
+            registry=r,
+        )
+        self.db_round_trip = Gauge(
+            "attune_db_round_trip_seconds",
+            "PostgreSQL, ATTUNE_PG_INLINE_WRITES=auto: the round trip to the database each "
+            "worker measured (the median of its last probes; the largest worker's).",
+            registry=r,
+            multiprocess_mode="livemax",
+        )
         self.draining = Gauge(
             "attune_draining",
             "1 while a worker is shutting down (after SIGTERM or SIGINT), else 0.",
@@ -188,6 +219,10 @@ class Metrics:
         self._by_outcome: dict[tuple[str, str, str], Any] = {}
         self._by_fleet: dict[str, tuple[Any, Any, Any]] = {}
         self._lags: deque[float] = deque(maxlen=LAG_WINDOW)
+        self._inline_writes, self._pool_writes = (
+            self.writes.labels("inline"),
+            self.writes.labels("pool"),
+        )
         self._lock = threading.Lock()
         self._seen: dict[str, tuple[object, float]] = {}
         self._db: Database | None = None
@@ -265,6 +300,11 @@ class Metrics:
                     self.pool_max.set(pool.capacity or 0)
                     self._add(self.pool_waits, "waits", pool, pool.waits)
                     self._add(self.pool_wait_seconds, "wait_seconds", pool, pool.wait_seconds)
+                db = self._db
+                self._add(self._inline_writes, "inline", db, db.inlined)
+                self._add(self._pool_writes, "pool", db, db.deferred + db.pooled)
+                if db.round_trip_s is not None:
+                    self.db_round_trip.set(db.round_trip_s)
             if self._cache is not None:
                 self._add(self.cache_hits, "hits", self._cache, self._cache.hits)
                 self._add(self.cache_misses, "misses", self._cache, self._cache.misses)
@@ -294,6 +334,32 @@ class Metrics:
             n += 1
             if n % 2 == 0:
                 self.sample()
+
+    async def watch_stalls(self, tick_ms: float) -> None:
+        """Each worker's loop watchdog, for its life: wake every ``tick_ms`` and count how late
+        the loop woke it as a stall (a stall shorter than the tick may be seen in part: it is
+        seen whole only when it begins before the watchdog's wake-up is due)."""
+        loop = asyncio.get_running_loop()
+        tick = tick_ms / 1000.0
+        seconds: deque[float] = deque(maxlen=STALL_WINDOW_S)  # the worst of each past second
+        worst, shown = 0.0, 0.0
+        second_ends = loop.time() + 1.0
+        observe, show = self.loop_stall.observe, self.loop_stall_max.set
+        while True:
+            start = loop.time()
+            await asyncio.sleep(tick)
+            now = loop.time()
+            stall = max(0.0, now - start - tick)
+            observe(stall)
+            worst = max(worst, stall)
+            if now >= second_ends:
+                seconds.append(worst)
+                worst, second_ends = 0.0, now + 1.0
+                shown = max(seconds)
+                show(shown)
+            elif worst > shown:
+                shown = worst
+                show(shown)
 
     def render(self) -> bytes:
         if os.environ.get("PROMETHEUS_MULTIPROC_DIR"):

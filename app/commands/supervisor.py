@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
+import gc
 import logging
 import math
 import os
@@ -71,6 +72,15 @@ class DrainingServer(uvicorn.Server):
         self.supervisor = supervisor  # a worker's: the process whose death stops it
         self.drain_deadline: float | None = None
         self._told = False
+
+    async def startup(self, sockets: list[socket] | None = None) -> None:
+        await super().startup(sockets)
+        # What the worker made to start (the modules, the app, its routes, the engine) lives
+        # as long as the worker: out of the garbage collector's reach, so that a full
+        # collection scans only what requests made. Each one held the event loop up for 70 to
+        # 220 ms with everything in reach (the robots' loop, PostgreSQL, a busy machine).
+        gc.collect()
+        gc.freeze()
 
     def handle_exit(self, sig: int, frame: FrameType | None) -> None:
         # A signal handler: it only notes the time; the event loop does the rest (on_tick).

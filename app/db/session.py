@@ -18,7 +18,10 @@ from __future__ import annotations
 import asyncio
 import logging
 import sqlite3
+import statistics
 import threading
+import time
+from collections import deque
 from collections.abc import Iterator
 from contextlib import contextmanager
 from typing import Any
@@ -35,12 +38,18 @@ from app.settings import Settings
 from .pool import MeteredQueuePool, is_lost_connection
 from .types import json_dumps
 
-__all__ = ["NOWAIT", "Database", "LockBusy", "WriteGroup"]
+__all__ = ["NOWAIT", "PROBE_EVERY_S", "Database", "LockBusy", "WriteGroup"]
 
 log = logging.getLogger("attune.db")
 
 _WRITE = "attune_write"
 NOWAIT = "attune_nowait"  # session.info: take the user's lock only if it is free at once
+
+PROBE_EVERY_S = 2.0
+"""PostgreSQL, ``ATTUNE_PG_INLINE_WRITES=auto``: how often each worker measures the round trip."""
+_PROBES_KEPT = 5  # the round trip in force is the median of the last probes
+_SAMPLES = 5  # statements per probe; a probe's figure is their median
+_SLOW = 4  # on the loop, a probe stops at a statement this many times the threshold
 
 
 class LockBusy(Exception):
@@ -121,12 +130,18 @@ class Database:
         self._inline_engine: Engine | None = None
         self._group: WriteGroup | None = None
         self.groups = self.grouped = 0  # committed write groups, and the writes in them
-        self.inlined = self.deferred = 0  # PostgreSQL: writes run inline, and sent to the pool
+        # PostgreSQL: robot writes run inline, rolled back there and sent to the pool (the
+        # user's lock was taken), and sent to the pool at once (the round trip is too long).
+        self.inlined = self.deferred = self.pooled = 0
+        self.inline_mode = "false" if self.is_sqlite else settings.pg_inline_writes
+        self.inline_max_rtt_s = settings.pg_inline_max_rtt_ms / 1000.0
+        self.round_trip_s: float | None = None  # the median of the last probes (auto)
+        self._probes: deque[float] = deque(maxlen=_PROBES_KEPT)
         if self.is_sqlite and settings.sqlite_inline_writes:
             inline = create_engine(self.url, pool_size=1, max_overflow=0, **kwargs)
             _configure_sqlite(inline, 0.0)
             self._inline_engine = inline.execution_options(**{_WRITE: True})
-        elif not self.is_sqlite and settings.pg_inline_writes:
+        elif self.inline_mode != "false":
             inline = create_engine(
                 self.url,
                 pool_size=1,
@@ -138,8 +153,66 @@ class Database:
 
     @property
     def writes_inline(self) -> bool:
-        """PostgreSQL: the robots' short writes run on the event loop (:meth:`inline`)."""
-        return not self.is_sqlite and self._inline_engine is not None
+        """PostgreSQL: the robots' short writes run on the event loop (:meth:`inline`): always
+        with ``ATTUNE_PG_INLINE_WRITES=true``; with ``auto`` while the measured round trip is
+        below ``ATTUNE_PG_INLINE_MAX_RTT_MS`` (none measured yet: not inline)."""
+        if self.is_sqlite or self._inline_engine is None:
+            return False
+        if self.inline_mode == "true":
+            return True
+        rtt = self.round_trip_s
+        return rtt is not None and rtt < self.inline_max_rtt_s
+
+    @property
+    def probes_round_trip(self) -> bool:
+        """Whether this database decides where writes run by measuring (PostgreSQL, auto)."""
+        return self.inline_mode == "auto" and self._inline_engine is not None
+
+    def probe_round_trip(self, *, on_loop: bool = False) -> float | None:
+        """Measure the round trip to the database: a few ``SELECT 1``, each timed as its wall
+        time minus the CPU time of this thread (what the client itself spent on it), their
+        median kept (not the fastest: a write waits for ten typical round trips, and a relay or
+        a database on a saturated machine answers some fast and most slower); the round trip
+        in force (:attr:`round_trip_s`) is the median of the last probes. ``None``, and
+        nothing changed, if the database did not answer.
+
+        ``on_loop``: on the event loop, on the inline connection (free between writes, and
+        the thread's CPU clock then counts no other thread's work); it stops at a statement
+        far over the threshold, so that a network grown slow holds the loop up once, for a
+        round trip or two. Else on a connection of the pool, from any thread."""
+        engine = self._inline_engine if on_loop else self._autocommit_engine
+        assert engine is not None
+        samples: list[float] = []
+        try:
+            with engine.connect() as conn:
+                cursor: Any = conn.connection.driver_connection.cursor()  # type: ignore[union-attr]
+                for _ in range(_SAMPLES + 1):  # the first also begins a transaction: not kept
+                    wall, cpu = time.perf_counter(), time.thread_time()
+                    cursor.execute("SELECT 1")
+                    cursor.fetchone()
+                    took = (time.perf_counter() - wall) - (time.thread_time() - cpu)
+                    samples.append(max(0.0, took))
+                    if on_loop and took > _SLOW * self.inline_max_rtt_s:
+                        break  # far over the threshold: no need to hold the loop up longer
+                cursor.close()
+        except Exception as exc:  # the database is away: keep what was measured before
+            log.warning("could not measure the round trip to the database: %s", exc)
+            return None
+        measured = statistics.median(samples[1:] or samples)
+        self._probes.append(measured)
+        self.round_trip_s = statistics.median(self._probes)
+        return measured
+
+    async def watch_round_trip(self, every_s: float = PROBE_EVERY_S) -> None:
+        """Each worker's task, for its life (``auto``): measure the round trip every
+        ``every_s`` seconds, on the loop while writes run there (the round trip is short),
+        else in a thread of its own (the loop waits for nothing)."""
+        while True:
+            await asyncio.sleep(every_s)
+            if self.writes_inline:
+                self.probe_round_trip(on_loop=True)
+            else:
+                await asyncio.to_thread(self.probe_round_trip)
 
     @contextmanager
     def inline(self) -> Iterator[Session]:

@@ -2,7 +2,11 @@
 once, and in the thread pool when they would have to wait for it: a write whose user is locked
 by another transaction waits without holding up the worker's other requests, and is stored once
 when the lock comes free. (SQLite's counterpart, the write group, waits for no lock either: it
-forms only when the database's write lock is free.)"""
+forms only when the database's write lock is free.)
+
+With ``ATTUNE_PG_INLINE_WRITES=auto`` (the default) a worker measures the round trip to the
+database before its first request and every few seconds after, and writes inline only while it
+is below ``ATTUNE_PG_INLINE_MAX_RTT_MS``; ``attune_robot_writes_total`` says where each went."""
 
 from __future__ import annotations
 
@@ -19,7 +23,10 @@ from sqlalchemy import func, select
 
 from app.db.models import Decision
 from app.db.session import Database
-from tests.support.episodes import event
+from app.main import create_app
+from app.services.auth import create_key
+from app.settings import Settings
+from tests.support.episodes import event, report, start
 from tests.support.fixtures import MakeKey
 from tests.support.live import serving
 
@@ -77,3 +84,66 @@ def test_a_write_on_a_locked_user_waits_aside_and_is_stored_once(
     # The held write went to the pool; the replay, with the lock free, ran inline.
     assert db.deferred == before[1] + 1
     assert db.inlined > before[0]
+
+
+def _auto(database_url: str, **kw: Any) -> Settings:
+    return Settings(database_url=database_url, pg_inline_writes="auto", _env_file=None, **kw)  # type: ignore[call-arg]
+
+
+def test_auto_writes_inline_only_below_the_round_trip_it_measured(database_url: str) -> None:
+    db = Database(_auto(database_url))
+    try:
+        if db.is_sqlite:
+            assert not db.probes_round_trip
+            assert not db.writes_inline
+            return
+        assert db.probes_round_trip
+        assert not db.writes_inline, "nothing measured yet: the thread pool"
+        measured = db.probe_round_trip()
+        assert measured is not None
+        assert measured >= 0
+        assert db.round_trip_s == measured
+        assert db.probe_round_trip(on_loop=True) is not None  # on the inline connection
+        db.inline_max_rtt_s = db.round_trip_s * 2 + 1.0
+        assert db.writes_inline
+        db.inline_max_rtt_s = db.round_trip_s / 2 if db.round_trip_s else 0.0
+        assert not db.writes_inline
+    finally:
+        db.dispose()
+
+
+def test_auto_sends_the_writes_to_the_pool_when_the_round_trip_is_long(
+    database_url: str, empty_tables: None
+) -> None:
+    if database_url.startswith("sqlite"):
+        pytest.skip("PostgreSQL's inline writes")
+    # Any real round trip is longer than a nanosecond: every write goes to the thread pool.
+    application = create_app(_auto(database_url, pg_inline_max_rtt_ms=1e-6))
+    db: Database = application.state.db
+    with db.transaction() as session:
+        _, key = create_key(session, role="robot", name="far")
+    headers = {"Authorization": f"Bearer {key}"}
+    with (
+        serving(application) as base,
+        httpx.Client(base_url=base, headers=headers, timeout=30) as http,
+    ):
+        episode = start(http, "far", "far-1")
+        report(http, episode["episode_id"], episode["decision"]["decision_id"], "accepted")
+        metrics = http.get("/metrics").text
+    assert db.round_trip_s is not None
+    assert db.round_trip_s > 0
+    assert not db.writes_inline
+    assert (db.inlined, db.pooled) == (0, 2)
+    assert 'attune_robot_writes_total{path="pool"} 2.0' in metrics
+    assert 'attune_robot_writes_total{path="inline"} 0.0' in metrics
+
+
+def test_false_makes_no_inline_connection(database_url: str) -> None:
+    db = Database(
+        Settings(database_url=database_url, pg_inline_writes="false", _env_file=None)  # type: ignore[call-arg]
+    )
+    try:
+        assert not db.writes_inline
+        assert not db.probes_round_trip
+    finally:
+        db.dispose()

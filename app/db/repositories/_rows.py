@@ -148,7 +148,7 @@ class _Compiled:
         column types (PostgreSQL numbers), known once the statement ran."""
         if self.results is None:
             found = (
-                t._cached_result_processor(self.dialect, d[1])
+                t.dialect_impl(self.dialect).result_processor(self.dialect, d[1])
                 for t, d in zip(self.types, cursor.description, strict=True)
             )
             self.results = tuple((i, f) for i, f in enumerate(found) if f is not None)

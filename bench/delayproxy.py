@@ -1,0 +1,183 @@
+"""A TCP proxy that delays every chunk by a fixed time each way: a database one network hop away.
+
+    python bench/delayproxy.py --listen 127.0.0.1:6543 --to 127.0.0.1:5432 --delay-ms 1
+
+Loopback only. Each accepted connection gets a connection of its own to ``--to``; each direction
+of it has a reader thread, which stamps every chunk it receives with the time it is due (now +
+the delay) and queues it, and a writer thread, which sends each chunk at its due time (it sleeps
+until the deadline of the oldest chunk, not for the delay after each one): chunks that arrive
+while others wait are delayed by the delay, not by the delay times their number, and no
+connection or direction waits for another. With ``--delay-ms 0`` the reader sends each chunk on
+at once. The proxy stops by itself after ``--max-seconds`` (default one hour), or on SIGTERM or
+SIGINT.
+
+:class:`DelayProxy` is the same proxy for a Python program: ``with DelayProxy(target, 1.0) as
+port:`` serves on a free port of 127.0.0.1 in threads of the caller's process.
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import contextlib
+import signal
+import socket
+import sys
+import threading
+import time
+from types import TracebackType
+
+__all__ = ["DelayProxy", "parse_address"]
+
+CHUNK = 65536
+
+
+def parse_address(text: str) -> tuple[str, int]:
+    host, _, port = text.rpartition(":")
+    if not host or not port.isdigit():
+        raise argparse.ArgumentTypeError(f"expected HOST:PORT, got {text!r}")
+    return host, int(port)
+
+
+class _Direction:
+    """One direction of a proxied connection: chunks read from ``source``, sent to ``sink``
+    ``delay_s`` after they arrived."""
+
+    def __init__(self, source: socket.socket, sink: socket.socket, delay_s: float) -> None:
+        self.source, self.sink, self.delay_s = source, sink, delay_s
+        self.queue: collections.deque[tuple[float, bytes]] = collections.deque()
+        self.ready = threading.Condition()
+        self.closed = False
+
+    def read(self) -> None:
+        try:
+            while True:
+                data = self.source.recv(CHUNK)
+                if not data:
+                    break
+                if self.delay_s <= 0:
+                    self.sink.sendall(data)
+                    continue
+                due = time.perf_counter() + self.delay_s
+                with self.ready:
+                    self.queue.append((due, data))
+                    self.ready.notify()
+        except OSError:
+            pass
+        finally:
+            with self.ready:
+                self.closed = True
+                self.ready.notify()
+            if self.delay_s <= 0:
+                _shut(self.sink)
+
+    def write(self) -> None:
+        try:
+            while True:
+                with self.ready:
+                    while not self.queue and not self.closed:
+                        self.ready.wait()
+                    if not self.queue:
+                        break
+                    due, data = self.queue.popleft()
+                wait = due - time.perf_counter()
+                if wait > 0:
+                    time.sleep(wait)  # Linux oversleeps by about 0.05 ms (its timer slack)
+                self.sink.sendall(data)
+        except OSError:
+            pass
+        finally:
+            _shut(self.sink)
+
+
+def _shut(sock: socket.socket) -> None:
+    with contextlib.suppress(OSError):
+        sock.shutdown(socket.SHUT_WR)
+
+
+class DelayProxy:
+    """The proxy on a free port of 127.0.0.1 (or ``listen``), in daemon threads of this process;
+    ``with DelayProxy(target, delay_ms) as port:``."""
+
+    def __init__(
+        self, target: tuple[str, int], delay_ms: float, listen: tuple[str, int] | None = None
+    ) -> None:
+        self.target, self.delay_s = target, max(0.0, delay_ms) / 1000.0
+        self.server = socket.create_server(listen or ("127.0.0.1", 0))
+        self.port: int = self.server.getsockname()[1]
+        self.connections = 0
+        self._sockets: list[socket.socket] = []
+        self._stopped = threading.Event()
+
+    def serve_forever(self) -> None:
+        self.server.settimeout(0.2)
+        while not self._stopped.is_set():
+            try:
+                client, _ = self.server.accept()
+            except TimeoutError:
+                continue
+            except OSError:
+                break
+            client.settimeout(None)
+            try:
+                upstream = socket.create_connection(self.target, timeout=10)
+            except OSError:
+                client.close()
+                continue
+            upstream.settimeout(None)
+            for sock in (client, upstream):
+                sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+                self._sockets.append(sock)
+            self.connections += 1
+            for direction in (
+                _Direction(client, upstream, self.delay_s),
+                _Direction(upstream, client, self.delay_s),
+            ):
+                threading.Thread(target=direction.read, daemon=True).start()
+                if self.delay_s > 0:
+                    threading.Thread(target=direction.write, daemon=True).start()
+
+    def stop(self) -> None:
+        self._stopped.set()
+        self.server.close()
+        for sock in self._sockets:
+            with contextlib.suppress(OSError):
+                sock.close()
+
+    def __enter__(self) -> int:
+        threading.Thread(target=self.serve_forever, daemon=True).start()
+        return self.port
+
+    def __exit__(
+        self,
+        kind: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.stop()
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(
+        description="A TCP proxy that delays every chunk by --delay-ms each way (loopback only)."
+    )
+    parser.add_argument("--listen", type=parse_address, default=("127.0.0.1", 0))
+    parser.add_argument("--to", type=parse_address, required=True, help="HOST:PORT to forward to")
+    parser.add_argument("--delay-ms", type=float, default=1.0, help="delay each way (default 1)")
+    parser.add_argument(
+        "--max-seconds", type=float, default=3600.0, help="stop after this long (default 3600)"
+    )
+    args = parser.parse_args(argv)
+    proxy = DelayProxy(args.to, args.delay_ms, args.listen)
+    stop = threading.Event()
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(sig, lambda *_: stop.set())
+    threading.Thread(target=proxy.serve_forever, daemon=True).start()
+    print(f"listening on 127.0.0.1:{proxy.port}", flush=True)
+    stop.wait(args.max_seconds)
+    proxy.stop()
+    sys.exit(0)
+
+
+if __name__ == "__main__":
+    main()
