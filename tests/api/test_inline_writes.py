@@ -86,12 +86,14 @@ def test_a_write_on_a_locked_user_waits_aside_and_is_stored_once(
     assert db.inlined > before[0]
 
 
-def _auto(database_url: str, **kw: Any) -> Settings:
-    return Settings(database_url=database_url, pg_inline_writes="auto", _env_file=None, **kw)  # type: ignore[call-arg]
+def _auto(settings: Settings, **kw: Any) -> Settings:
+    """The test's settings (its database, through PgBouncer or not) with the choice left to
+    the measured round trip."""
+    return settings.model_copy(update={"pg_inline_writes": "auto", **kw})
 
 
-def test_auto_writes_inline_only_below_the_round_trip_it_measured(database_url: str) -> None:
-    db = Database(_auto(database_url))
+def test_auto_writes_inline_only_below_the_round_trip_it_measured(settings: Settings) -> None:
+    db = Database(_auto(settings))
     try:
         if db.is_sqlite:
             assert not db.probes_round_trip
@@ -113,12 +115,12 @@ def test_auto_writes_inline_only_below_the_round_trip_it_measured(database_url: 
 
 
 def test_auto_sends_the_writes_to_the_pool_when_the_round_trip_is_long(
-    database_url: str, empty_tables: None
+    settings: Settings, empty_tables: None
 ) -> None:
-    if database_url.startswith("sqlite"):
+    if settings.database_url.startswith("sqlite"):
         pytest.skip("PostgreSQL's inline writes")
     # Any real round trip is longer than a nanosecond: every write goes to the thread pool.
-    application = create_app(_auto(database_url, pg_inline_max_rtt_ms=1e-6))
+    application = create_app(_auto(settings, pg_inline_max_rtt_ms=1e-6))
     db: Database = application.state.db
     with db.transaction() as session:
         _, key = create_key(session, role="robot", name="far")
