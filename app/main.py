@@ -24,7 +24,9 @@ from app.api.middleware import (
     InFlightLimitMiddleware,
     KeyRateLimiter,
     MetricsMiddleware,
+    ProxyMiddleware,
     RequestContextMiddleware,
+    TrustedProxies,
 )
 from app.api.routes import admin, episodes, meta, models, profile, users
 from app.console import mount_console
@@ -122,12 +124,13 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     install_docs(app)
     mount_console(app)
     # The last added is the outermost: every response, whoever answers it, gets its request id
-    # and its access line.
+    # and its access line, after the forwarded headers of untrusted peers are dropped.
     app.add_middleware(HeadMiddleware)
     app.add_middleware(BodyLimitMiddleware, limit=settings.max_body_bytes)
     app.add_middleware(InFlightLimitMiddleware, limit=settings.max_in_flight)
     app.add_middleware(MetricsMiddleware, metrics=app.state.metrics, drain=app.state.drain)
     app.add_middleware(RequestContextMiddleware)
+    app.add_middleware(ProxyMiddleware, trusted=TrustedProxies(settings.forwarded_allow_ips))
     return app
 
 
