@@ -44,8 +44,8 @@ from app.services.context import ServiceContext
 
 from . import views
 from .auth import (
-    COOKIE,
     CONSOLE_PATH,
+    COOKIE,
     Admin,
     AdminDep,
     FormDep,
@@ -461,7 +461,7 @@ def add_correction(
     return _redirect(
         request,
         views.user_url(user, time_slot=time_slot, situation=situation, done="corrected")
-        + "#evidence"
+        + "#evidence",
     )
 
 
@@ -498,7 +498,7 @@ def lift_correction(
     return _redirect(
         request,
         views.user_url(user, time_slot=lifted.time_slot, situation=lifted.situation, done="lifted")
-        + "#evidence"
+        + "#evidence",
     )
 
 
