@@ -235,8 +235,10 @@ def _run(
         else ""
     )
     if settings.root_path:
-        where += f" for a proxy's {settings.root_path}"
-        say(f"Attune on {where} (docs: {settings.root_path}/docs){metrics}, {workers} worker(s).")
+        say(
+            f"Attune on {where}, served by a proxy under {settings.root_path} (docs: "
+            f"{settings.root_path}/docs){metrics}, {workers} worker(s)."
+        )
     else:
         say(f"Attune on {where} (docs: {where}/docs){metrics}, {workers} worker(s).")
     scrapes: Any = None

@@ -76,7 +76,7 @@ def test_every_attune_variable_is_a_setting_with_a_valid_value(compose: dict[str
         env = {k: v for k, v in _env(service).items() if k.startswith("ATTUNE_")}
         assert set(env) <= known, (name, set(env) - known)
         if env:
-            given = {k.removeprefix("ATTUNE_").lower(): v for k, v in env.items()}
+            given: dict[str, Any] = {k.removeprefix("ATTUNE_").lower(): v for k, v in env.items()}
             Settings(_env_file=None, **given)  # type: ignore[call-arg]  # raises when invalid
 
 

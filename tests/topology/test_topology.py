@@ -165,7 +165,7 @@ def _stored(database_url: str) -> tuple[dict[str, list[str]], dict[str, str]]:
             "SELECT u.user_id, e.event_id FROM episodes e JOIN users u ON u.id = e.user_pk"
         ):
             episodes.setdefault(user, []).append(event_id)
-        answered = dict(
+        answered: dict[str, str] = dict(
             conn.execute("SELECT id, response FROM decisions WHERE response IS NOT NULL")
         )
     return episodes, answered
@@ -194,7 +194,8 @@ def test_sigterm_to_one_instance_mid_traffic_fails_no_request(topology: Topology
         began = time.monotonic()
         draining.stop(timeout=DRAIN_TIMEOUT_S + 10)
         took = time.monotonic() - began
-        assert draining.process is not None and draining.process.returncode == 0, draining.log()
+        assert draining.process is not None
+        assert draining.process.returncode == 0, draining.log()
         assert took < DRAIN_TIMEOUT_S + 5, f"drained in {took:.1f} s"
         after = robots.acks
         robots.wait_for(after + AFTER)
