@@ -24,7 +24,9 @@ from app.api.middleware import (
     InFlightLimitMiddleware,
     KeyRateLimiter,
     MetricsMiddleware,
+    ProxyMiddleware,
     RequestContextMiddleware,
+    TrustedProxies,
 )
 from app.api.routes import admin, episodes, meta, models, profile, users
 from app.console import mount_console
@@ -49,8 +51,9 @@ token instead).
 
 Errors are `{"error": "...", "detail": "...", "request_id": "..."}` (plus `fields` on a 422).
 Every response carries an `X-Request-ID` header: the caller's own when it sent a valid one
-(1 to 128 letters, digits and `. _ : -`), else one the service made (32 hexadecimal
-characters). The same id is in the error body and in the service's log lines of that request.
+(1 to 128 letters, digits and `. _ : -`) directly or through a proxy the deployment trusts,
+else one the service made (32 hexadecimal characters). The same id is in the error body and in
+the service's log lines of that request.
 
 Request bodies are JSON: a body sent with another `Content-Type` (`text/plain`, a form,
 multipart) or with none is refused with 415 `UnsupportedMediaType`; a request whose body is
@@ -132,12 +135,13 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     install_docs(app)
     mount_console(app)
     # The last added is the outermost: every response, whoever answers it, gets its request id
-    # and its access line.
+    # and its access line, after the forwarded headers of untrusted peers are dropped.
     app.add_middleware(HeadMiddleware)
     app.add_middleware(BodyLimitMiddleware, limit=settings.max_body_bytes)
     app.add_middleware(InFlightLimitMiddleware, limit=settings.max_in_flight)
     app.add_middleware(MetricsMiddleware, metrics=app.state.metrics, drain=app.state.drain)
     app.add_middleware(RequestContextMiddleware)
+    app.add_middleware(ProxyMiddleware, trusted=TrustedProxies(settings.forwarded_allow_ips))
     return app
 
 

@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 import functools
+import ipaddress
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 from pydantic import Field, SecretStr, field_validator
-from pydantic_settings import BaseSettings, SettingsConfigDict
+from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
 __all__ = ["Pooler", "Settings", "get_settings", "mask_url", "shown"]
 
@@ -227,6 +228,55 @@ class Settings(BaseSettings):
         description="When set, attune serve serves /metrics on this port of --host, and not on "
         "the service's port; unset, on the service's port.",
     )
+
+    root_path: str = Field(
+        default="",
+        description="The path prefix under which a reverse proxy serves the service (/attune): "
+        "the proxy strips it before passing a request on, and the service puts it back in every "
+        "link, redirect, cookie path and the documentation pages. Empty: served at /.",
+    )
+    forwarded_allow_ips: Annotated[list[str], NoDecode] = Field(
+        default=["127.0.0.1", "::1"],
+        description="The peers (IP addresses or CIDR networks, comma-separated; * for any) "
+        "trusted as reverse proxies: their X-Forwarded-For, X-Forwarded-Proto and "
+        "X-Forwarded-Host give the caller's address, scheme and host, and their X-Request-ID "
+        "is kept. From any other peer these headers are dropped and the request gets an id of "
+        "its own.",
+    )
+
+    @field_validator("root_path")
+    @classmethod
+    def _path_prefix(cls, value: str) -> str:
+        value = value.strip().rstrip("/")
+        if value and not (
+            value.startswith("/")
+            and "//" not in value
+            and all(ch.isalnum() or ch in "/-._~" for ch in value)
+        ):
+            raise ValueError(
+                "root_path must be empty or a path such as /attune (letters, digits and "
+                "- . _ ~ between slashes)."
+            )
+        return value
+
+    @field_validator("forwarded_allow_ips", mode="before")
+    @classmethod
+    def _proxies(cls, value: object) -> object:
+        if isinstance(value, str):
+            value = [part for part in (p.strip() for p in value.split(",")) if part]
+        if not isinstance(value, list):
+            return value
+        for part in value:
+            if part == "*":
+                continue
+            try:
+                ipaddress.ip_network(str(part), strict=False)
+            except ValueError:
+                raise ValueError(
+                    f"forwarded_allow_ips must list IP addresses or CIDR networks (or *), "
+                    f"comma-separated; {part!r} is neither."
+                ) from None
+        return value
 
     @field_validator("database_url")
     @classmethod

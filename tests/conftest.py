@@ -16,7 +16,7 @@ pytest_plugins = ["tests.support.fixtures"]
 
 TESTS = Path(__file__).parent
 # Folders whose every test is of a kind ``--fast`` leaves out, so it does not even import them.
-LEFT_OUT = {TESTS / "stress": "stress", TESTS / "fuzz": "live"}
+LEFT_OUT = {TESTS / "stress": "stress", TESTS / "fuzz": "live", TESTS / "topology": "live"}
 SLOW_KINDS = ("live", "browser", "stress", "slow")
 
 

@@ -16,7 +16,7 @@ import re
 from pathlib import Path
 from typing import Any
 
-from fastapi import FastAPI
+from fastapi import FastAPI, Request
 from fastapi.openapi.docs import get_redoc_html, get_swagger_ui_html
 from fastapi.responses import HTMLResponse
 from fastapi.staticfiles import StaticFiles
@@ -77,17 +77,22 @@ def install_docs(app: FastAPI) -> None:
     _with_request_id(app)
     app.mount(STATIC_URL, StaticFiles(directory=STATIC), name="docs-static")
     openapi_url = app.openapi_url or "/openapi.json"
-    favicon = f"{STATIC_URL}/swagger-ui/favicon-32x32.png"
+
+    # Behind a proxy on a prefix (ATTUNE_ROOT_PATH), the pages load the schema and their files
+    # from under the prefix; the schema's `servers` names it too (FastAPI adds it).
+    def root(request: Request) -> str:
+        return str(request.scope.get("root_path", "")).rstrip("/")
 
     @app.get("/docs", include_in_schema=False)
-    def swagger_ui() -> HTMLResponse:
+    def swagger_ui(request: Request) -> HTMLResponse:
+        static = root(request) + STATIC_URL
         return _page(
             get_swagger_ui_html(
-                openapi_url=openapi_url,
+                openapi_url=root(request) + openapi_url,
                 title=f"{app.title} API",
-                swagger_js_url=f"{STATIC_URL}/swagger-ui/swagger-ui-bundle.js",
-                swagger_css_url=f"{STATIC_URL}/swagger-ui/swagger-ui.css",
-                swagger_favicon_url=favicon,
+                swagger_js_url=f"{static}/swagger-ui/swagger-ui-bundle.js",
+                swagger_css_url=f"{static}/swagger-ui/swagger-ui.css",
+                swagger_favicon_url=f"{static}/swagger-ui/favicon-32x32.png",
                 oauth2_redirect_url=None,
                 # No validator badge: it would send the schema to an online validator.
                 swagger_ui_parameters={"validatorUrl": None},
@@ -95,13 +100,14 @@ def install_docs(app: FastAPI) -> None:
         )
 
     @app.get("/redoc", include_in_schema=False)
-    def redoc() -> HTMLResponse:
+    def redoc(request: Request) -> HTMLResponse:
+        static = root(request) + STATIC_URL
         return _page(
             get_redoc_html(
-                openapi_url=openapi_url,
+                openapi_url=root(request) + openapi_url,
                 title=f"{app.title} API reference",
-                redoc_js_url=f"{STATIC_URL}/redoc/redoc.standalone.js",
-                redoc_favicon_url=favicon,
+                redoc_js_url=f"{static}/redoc/redoc.standalone.js",
+                redoc_favicon_url=f"{static}/swagger-ui/favicon-32x32.png",
                 with_google_fonts=False,
             )
         )

@@ -1,15 +1,16 @@
-"""ASGI middleware and limits: request ids and the access line, HEAD on GET routes, the request
-body limit (413), overload shedding (503), the per-key rate limit (429) and Prometheus request
-metrics."""
+"""ASGI middleware and limits: the trusted proxies' forwarded headers, request ids and the access
+line, HEAD on GET routes, the request body limit (413), overload shedding (503), the per-key rate
+limit (429) and Prometheus request metrics."""
 
 from __future__ import annotations
 
+import ipaddress
 import json
 import logging
 import math
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from typing import Any
 
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
@@ -26,7 +27,9 @@ __all__ = [
     "InFlightLimitMiddleware",
     "KeyRateLimiter",
     "MetricsMiddleware",
+    "ProxyMiddleware",
     "RequestContextMiddleware",
+    "TrustedProxies",
     "error_body",
     "route_template",
 ]
@@ -81,11 +84,112 @@ async def _send_413(send: Send, limit: int) -> None:
     )
 
 
+def route_path(scope: Scope) -> str:
+    """The request's path without the root path (``ATTUNE_ROOT_PATH``) in front of it: the
+    path the routes are matched on."""
+    path: str = scope.get("path", "")
+    root = scope.get("root_path", "")
+    if root and (path == root or path.startswith(root + "/")):
+        return path[len(root) :] or "/"
+    return path
+
+
 def route_template(scope: Scope) -> str:
     """The path template of the route that answered (``/v1/users/{user_id}``), or
     ``unmatched``: a label of bounded cardinality for metrics and logs."""
     path = getattr(scope.get("route"), "path", None)
     return path if isinstance(path, str) and path else "unmatched"
+
+
+class TrustedProxies:
+    """The peers whose forwarded headers are believed: IP addresses and networks
+    (``ATTUNE_FORWARDED_ALLOW_IPS``), or ``*`` for every peer."""
+
+    def __init__(self, allowed: Iterable[str]) -> None:
+        allowed = list(allowed)
+        self.everyone = "*" in allowed
+        self.networks = [ipaddress.ip_network(a, strict=False) for a in allowed if a != "*"]
+
+    def __contains__(self, host: object) -> bool:
+        if not isinstance(host, str) or not host:
+            return False
+        if self.everyone:
+            return True
+        try:
+            ip = ipaddress.ip_address(host)
+        except ValueError:  # a Unix socket's peer, a name
+            return False
+        mapped = getattr(ip, "ipv4_mapped", None)  # ::ffff:10.0.0.5 is 10.0.0.5
+        return any(ip in net or (mapped is not None and mapped in net) for net in self.networks)
+
+    def client(self, forwarded_for: str) -> str | None:
+        """The caller in an ``X-Forwarded-For`` chain: the last address that is not a trusted
+        proxy (each proxy appends the peer it heard from), else the first one."""
+        hops = [hop.strip() for hop in forwarded_for.split(",") if hop.strip()]
+        for hop in reversed(hops):
+            if hop not in self:
+                return hop
+        return hops[0] if hops else None
+
+
+# What only a trusted proxy may say: from any other peer these headers are dropped, so nothing
+# downstream (the request id, the console's origin check, the access line) can be misled.
+FORWARDED_HEADERS = frozenset(
+    {
+        b"forwarded",
+        b"x-forwarded-for",
+        b"x-forwarded-host",
+        b"x-forwarded-port",
+        b"x-forwarded-prefix",
+        b"x-forwarded-proto",
+        b"x-real-ip",
+        b"x-request-id",
+    }
+)
+
+
+class ProxyMiddleware:
+    """The outermost middleware: what a trusted reverse proxy says about the request.
+
+    From a peer in ``trusted``: ``X-Forwarded-For`` gives the caller's address (the ASGI
+    ``client``: the access line's ``client``), ``X-Forwarded-Proto`` the scheme the browser used
+    (``http`` or ``https``: the console's ``Secure`` cookie), ``X-Forwarded-Host`` the host it
+    used (it replaces ``Host``: the console's same-origin check), and its ``X-Request-ID`` is
+    kept. From any other peer, all of these (and ``Forwarded``, ``X-Real-IP``) are dropped
+    before anything reads them, so the request gets an id of its own. As uvicorn's
+    ``ProxyHeadersMiddleware`` does for its ``--forwarded-allow-ips``, which ``attune serve``
+    leaves off."""
+
+    def __init__(self, app: ASGIApp, trusted: TrustedProxies) -> None:
+        self.app, self.trusted = app, trusted
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        client = scope.get("client")
+        headers: list[tuple[bytes, bytes]] = list(scope.get("headers", []))
+        if not (client and client[0] in self.trusted):
+            scope["headers"] = [(k, v) for k, v in headers if k not in FORWARDED_HEADERS]
+            await self.app(scope, receive, send)
+            return
+        given: dict[bytes, str] = {}
+        for name, value in headers:
+            if name in (b"x-forwarded-for", b"x-forwarded-proto", b"x-forwarded-host"):
+                text = value.decode("latin-1")
+                given[name] = f"{given[name]}, {text}" if name in given else text
+        proto = given.get(b"x-forwarded-proto", "").split(",")[0].strip().lower()
+        if proto in ("http", "https"):
+            scope["scheme"] = proto
+        caller = self.trusted.client(given.get(b"x-forwarded-for", ""))
+        if caller:
+            scope["client"] = (caller, 0)
+        host = given.get(b"x-forwarded-host", "").split(",")[0].strip()
+        if host:
+            scope["headers"] = [(k, v) for k, v in headers if k != b"host"] + [
+                (b"host", host.encode("latin-1"))
+            ]
+        await self.app(scope, receive, send)
 
 
 class RequestContextMiddleware:
@@ -138,20 +242,24 @@ class RequestContextMiddleware:
             if access_log.isEnabledFor(logging.INFO):
                 latency_ms = round((time.perf_counter() - start) * 1000, 2)
                 route = route_template(scope)
+                peer = scope.get("client")
+                client = peer[0] if peer else None
                 fields = {
                     "method": method,
                     "route": route,
                     "status": status,
                     "latency_ms": latency_ms,
                     "key_id": ctx.key_id,
+                    "client": client,
                 }
                 access_log.info(
-                    "method=%s route=%s status=%d latency_ms=%s key_id=%s",
+                    "method=%s route=%s status=%d latency_ms=%s key_id=%s client=%s",
                     method,
                     route,
                     status,
                     latency_ms,
                     ctx.key_id or "-",
+                    client or "-",
                     extra={logs.FIELDS: fields},
                 )
             logs.unbind(token)
@@ -294,7 +402,7 @@ class InFlightLimitMiddleware:
         self._retry_after = ((b"retry-after", str(retry_after).encode()),)
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
-        if scope["type"] != "http" or scope.get("path") in EXEMPT_PATHS:
+        if scope["type"] != "http" or route_path(scope) in EXEMPT_PATHS:
             await self.app(scope, receive, send)
             return
         if self.in_flight >= self.limit:

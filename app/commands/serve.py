@@ -145,6 +145,22 @@ def serve(
             "503 while it is behind."
         ),
     ] = True,
+    root_path: Annotated[
+        str | None,
+        typer.Option(
+            help="The path prefix a reverse proxy serves the service under (/attune), which it "
+            "strips from each request; links, redirects, cookies and /docs carry it. Default: "
+            "ATTUNE_ROOT_PATH, else none."
+        ),
+    ] = None,
+    forwarded_allow_ips: Annotated[
+        str | None,
+        typer.Option(
+            help="The reverse proxies to trust, comma-separated IP addresses or CIDR networks "
+            "(* for any): their X-Forwarded-For/-Proto/-Host and X-Request-ID are used, others' "
+            "dropped. Default: ATTUNE_FORWARDED_ALLOW_IPS, else 127.0.0.1,::1."
+        ),
+    ] = None,
 ) -> None:
     """Apply pending migrations, then serve the v1 API (docs at /docs).
 
@@ -157,6 +173,11 @@ def serve(
 
     from app import logs
 
+    # Through the environment: each worker process reads its settings from it.
+    if root_path is not None:
+        os.environ["ATTUNE_ROOT_PATH"] = root_path
+    if forwarded_allow_ips is not None:
+        os.environ["ATTUNE_FORWARDED_ALLOW_IPS"] = forwarded_allow_ips
     settings = load_settings()
     log_config = logs.logging_config(settings.log_level, settings.log_format)
     logging.config.dictConfig(log_config)
@@ -213,7 +234,13 @@ def _run(
         if settings.metrics_port is not None
         else ""
     )
-    say(f"Attune on {where} (docs: {where}/docs){metrics}, {workers} worker(s).")
+    if settings.root_path:
+        say(
+            f"Attune on {where}, served by a proxy under {settings.root_path} (docs: "
+            f"{settings.root_path}/docs){metrics}, {workers} worker(s)."
+        )
+    else:
+        say(f"Attune on {where} (docs: {where}/docs){metrics}, {workers} worker(s).")
     scrapes: Any = None
     if settings.metrics_port is not None:
         token = settings.metrics_token
@@ -230,7 +257,12 @@ def _run(
         log_config=log_config,
         log_level=settings.log_level,
         access_log=False,
+        # The service's own ProxyMiddleware reads the forwarded headers (of trusted proxies
+        # only, ATTUNE_FORWARDED_ALLOW_IPS) and drops the others'; uvicorn's is off.
         proxy_headers=False,
+        # The ASGI root_path: uvicorn puts it in front of each request's path, as a proxy that
+        # strips the prefix expects; routing ignores it, URLs the service builds carry it.
+        root_path=settings.root_path,
     )
     try:
         if workers == 1:

@@ -7,6 +7,10 @@ session) and every request authenticates it again as the v1 API does
 the next click.
 State-changing POSTs carry a CSRF token derived from the key (an HMAC, so the page never shows
 the key) and must come from the console's own origin.
+
+Behind a reverse proxy on a prefix (``ATTUNE_ROOT_PATH``), every address the console hands the
+browser (links, forms, redirects, the cookie's path) is ``console_url(request, ...)``: the
+request's root path, then ``/admin``.
 """
 
 from __future__ import annotations
@@ -27,18 +31,21 @@ from app.services.context import Principal
 __all__ = [
     "COOKIE",
     "Admin",
+    "CONSOLE_PATH",
     "AdminDep",
     "FormDep",
     "LoginRequired",
     "PageError",
     "check_post",
+    "console_url",
     "csrf_token",
     "safe_next",
     "sign_in",
 ]
 
 COOKIE = "attune_console"
-COOKIE_PATH = "/admin"
+CONSOLE_PATH = "/admin"
+"""Where the console's pages are, under the service's root path."""
 _CSRF_CONTEXT = b"attune console csrf v1"
 _MAX_FIELDS = 20
 
@@ -63,6 +70,15 @@ class PageError(Exception):
 class Admin:
     principal: Principal
     csrf: str
+
+
+def console_url(request: Request, path: str = "") -> str:
+    """``path`` of the console (``/users``, ``""`` for the console itself) as the browser must
+    ask for it: under the root path the reverse proxy serves the service on, if any (the ASGI
+    ``root_path``: ``attune serve --root-path``). Also the session cookie's path."""
+    scope = request.scope
+    root = str(scope.get("app_root_path", scope.get("root_path", ""))).rstrip("/")
+    return f"{root}{CONSOLE_PATH}{path}"
 
 
 def csrf_token(secret: str) -> str:
@@ -133,16 +149,41 @@ async def form_fields(request: Request) -> dict[str, str]:
 FormDep = Annotated[dict[str, str], Depends(form_fields)]
 
 
+_DEFAULT_PORTS = {"http": 80, "https": 443}
+
+
+def _origin(scheme: str, netloc: str) -> tuple[str, str, int | None] | None:
+    """``(scheme, host, port)`` with the scheme's default port filled in; None if unreadable."""
+    try:
+        parts = urlsplit(f"{scheme}://{netloc}")
+        port = parts.port
+    except ValueError:
+        return None
+    if not parts.hostname:
+        return None
+    return scheme.lower(), parts.hostname.lower(), port or _DEFAULT_PORTS.get(scheme.lower())
+
+
 def same_origin(request: Request) -> bool:
-    """False when the browser says the request comes from another site (Origin or
-    Sec-Fetch-Site); requests without either (command-line clients) are left to the token."""
+    """False when the browser says the request comes from another site (Sec-Fetch-Site, or an
+    Origin, else a Referer, other than the site it asked); requests with none of them
+    (command-line clients) are left to the token.
+
+    The site the browser asked is the request's scheme and Host: behind a trusted reverse
+    proxy, its X-Forwarded-Proto and X-Forwarded-Host (``ProxyMiddleware`` puts them there)."""
     site = request.headers.get("sec-fetch-site")
     if site is not None and site not in ("same-origin", "none"):
         return False
     origin = request.headers.get("origin")
-    if origin is not None and origin != "null":
-        return urlsplit(origin).netloc == request.headers.get("host")
-    return origin is None
+    if origin == "null":
+        return False
+    if origin is None:
+        origin = request.headers.get("referer")
+        if origin is None:
+            return True
+    given = urlsplit(origin)
+    asked = _origin(request.url.scheme, request.headers.get("host", ""))
+    return asked is not None and _origin(given.scheme, given.netloc) == asked
 
 
 def check_post(request: Request, admin: Admin, form: dict[str, str]) -> None:
@@ -157,14 +198,15 @@ def check_post(request: Request, admin: Admin, form: dict[str, str]) -> None:
         )
 
 
-def safe_next(path: str | None) -> str:
-    """Where to go after signing in: a console path only (no open redirect)."""
+def safe_next(path: str | None, console: str = CONSOLE_PATH) -> str:
+    """Where to go after signing in: a path under ``console`` (``console_url(request)``) only
+    (no open redirect)."""
     if (
         not path
-        or not path.startswith(COOKIE_PATH + "/")
+        or not path.startswith(console + "/")
         or path.startswith("//")
         or "\\" in path
         or any(ord(ch) < 32 for ch in path)
     ):
-        return f"{COOKIE_PATH}/users"
+        return f"{console}/users"
     return path

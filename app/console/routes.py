@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Annotated, Any
 from urllib.parse import quote, urlencode
 
+import jinja2
 from fastapi import APIRouter, Query, Request, Response
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import HTMLResponse, JSONResponse, RedirectResponse
@@ -43,14 +44,15 @@ from app.services.context import ServiceContext
 
 from . import views
 from .auth import (
+    CONSOLE_PATH,
     COOKIE,
-    COOKIE_PATH,
     Admin,
     AdminDep,
     FormDep,
     LoginRequired,
     PageError,
     check_post,
+    console_url,
     csrf_token,
     safe_next,
     same_origin,
@@ -63,6 +65,15 @@ __all__ = ["router", "templates"]
 HERE = Path(__file__).parent
 templates = Jinja2Templates(directory=str(HERE / "templates"))
 templates.env.globals["v"] = views
+
+
+@jinja2.pass_context
+def _url(context: jinja2.runtime.Context, path: str = "") -> str:
+    """``url("/users")`` in a template: the console's ``path`` under the request's root path."""
+    return console_url(context["request"], path)
+
+
+templates.env.globals["url"] = _url
 templates.env.globals["recent_episodes"] = console_service.RECENT_EPISODES
 
 _HEADERS = {
@@ -114,13 +125,11 @@ class ConsoleRoute(TransactionalRoute):
             try:
                 response = await handler(request)
             except LoginRequired as exc:
-                response = RedirectResponse(
-                    f"{COOKIE_PATH}/login?next={_quote(exc.next_path)}", status_code=303
-                )
+                response = _redirect(request, f"/login?next={_quote(exc.next_path)}")
             except PageError as exc:
                 response = _error_page(request, exc.status, exc.title, exc.detail)
                 if exc.sign_out:
-                    _forget(response)
+                    _forget(request, response)
             except AppError as exc:
                 response = _error_page(
                     request, exc.status_code, _TITLES.get(exc.status_code, "Error"), exc.detail
@@ -137,8 +146,15 @@ def _quote(path: str) -> str:
     return quote(path, safe="/")
 
 
-def _forget(response: Response) -> None:
-    response.delete_cookie(COOKIE, path=COOKIE_PATH, httponly=True, samesite="strict")
+def _forget(request: Request, response: Response) -> None:
+    response.delete_cookie(
+        COOKIE, path=console_url(request), httponly=True, samesite="strict", secure=_https(request)
+    )
+
+
+def _https(request: Request) -> bool:
+    """The browser asked over https (as a trusted proxy forwards it): the cookie is Secure."""
+    return request.url.scheme == "https"
 
 
 def _page(
@@ -149,14 +165,15 @@ def _page(
     )
 
 
-def _redirect(url: str) -> RedirectResponse:
-    return RedirectResponse(url, status_code=303)
+def _redirect(request: Request, path: str) -> RedirectResponse:
+    """303 to the console's ``path`` (``/users``), under the root path."""
+    return RedirectResponse(console_url(request, path), status_code=303)
 
 
 FleetQuery = Annotated[str | None, Query(max_length=128, pattern=CLIENT_ID_PATTERN)]
 
 
-router = APIRouter(prefix=COOKIE_PATH, route_class=ConsoleRoute, include_in_schema=False)
+router = APIRouter(prefix=CONSOLE_PATH, route_class=ConsoleRoute, include_in_schema=False)
 
 
 def _check_user_id(user_id: str) -> None:
@@ -168,9 +185,9 @@ def _check_user_id(user_id: str) -> None:
 
 # -- signing in and out --------------------------------------------------------------------------
 @router.get("")
-def home() -> RedirectResponse:
+def home(request: Request) -> RedirectResponse:
     """The console's front page is the users list."""
-    return _redirect(f"{COOKIE_PATH}/users")
+    return _redirect(request, "/users")
 
 
 @router.get("/login")
@@ -181,14 +198,19 @@ def login_form(
 ) -> HTMLResponse:
     """The sign-in form: an admin key."""
     return _page(
-        request, "login.html", None, next=safe_next(next), error=None, signed_out=signed_out
+        request,
+        "login.html",
+        None,
+        next=safe_next(next, console_url(request)),
+        error=None,
+        signed_out=signed_out,
     )
 
 
 @router.post("/login")
 async def login(request: Request, form: FormDep) -> Response:
     """Check the key; keep it in a browser-session cookie; go where the person was heading."""
-    target = safe_next(form.get("next"))
+    target = safe_next(form.get("next"), console_url(request))
     if not same_origin(request):
         raise PageError(403, "Request refused", "Sign in from the console's own login page.")
     secret = form.get("key", "").strip()
@@ -200,15 +222,15 @@ async def login(request: Request, form: FormDep) -> Response:
         return _page(
             request, "login.html", None, exc.status, next=target, error=exc, signed_out=False
         )
-    response = _redirect(target)
+    response = RedirectResponse(target, status_code=303)  # already under the root path
     # No Max-Age or Expires: a session cookie, gone when the browser closes.
     response.set_cookie(
         COOKIE,
         secret,
-        path=COOKIE_PATH,
+        path=console_url(request),
         httponly=True,
         samesite="strict",
-        secure=request.url.scheme == "https",
+        secure=_https(request),
     )
     return response
 
@@ -219,8 +241,8 @@ def logout(request: Request, form: FormDep) -> Response:
     secret = request.cookies.get(COOKIE)
     if secret and (not same_origin(request) or form.get("csrf") != csrf_token(secret)):
         raise PageError(403, "Request refused", "Sign out from a console page.")
-    response = _redirect(f"{COOKIE_PATH}/login?signed_out=true")
-    _forget(response)
+    response = _redirect(request, "/login?signed_out=true")
+    _forget(request, response)
     return response
 
 
@@ -423,8 +445,9 @@ def add_correction(
         )
     user = views.UserAt(user_id, users_service.fleet_of(principal, fleet, user_id))
     return _redirect(
+        request,
         views.user_url(user, time_slot=time_slot, situation=situation, done="corrected")
-        + "#evidence"
+        + "#evidence",
     )
 
 
@@ -459,8 +482,9 @@ def lift_correction(
             "person's history.",
         ) from None
     return _redirect(
+        request,
         views.user_url(user, time_slot=lifted.time_slot, situation=lifted.situation, done="lifted")
-        + "#evidence"
+        + "#evidence",
     )
 
 
@@ -728,7 +752,7 @@ def reset(
     check_post(request, admin, form)
     user = users_service.get_user(session, admin.principal, user_id, fleet=fleet)
     models_service.reset_model(session, ctx, admin.principal, user_id, fleet=user.fleet)
-    return _redirect(views.user_url(user, "/details", done="reset"))
+    return _redirect(request, views.user_url(user, "/details", done="reset"))
 
 
 @router.get("/users/{user_id}/delete")
@@ -757,7 +781,7 @@ def delete(
     _check_user_id(user_id)
     check_post(request, admin, form)
     users_service.delete_user(session, ctx, admin.principal, user_id, fleet=fleet)
-    return _redirect(f"{COOKIE_PATH}/users?deleted={user_id}")
+    return _redirect(request, f"/users?deleted={user_id}")
 
 
 # -- the fleet's mission: what it is, its versions, and a form to change it --------------------
@@ -765,7 +789,8 @@ _CHANGE_ID = re.compile(r"^[A-Za-z0-9_.:-]{1,128}$")
 
 
 def _mission_url(fleet: str, **params: object) -> str:
-    return f"{COOKIE_PATH}/mission?" + urlencode(
+    """The mission page's address in the console (for ``_redirect`` and ``console_url``)."""
+    return "/mission?" + urlencode(
         {"fleet": fleet, **{k: v for k, v in params.items() if v is not None}}
     )
 
@@ -806,7 +831,7 @@ def _mission_page(
         base_version=current.version if current.stored else 0,
         preview=preview,
         done=done,
-        action=_mission_url(fleet),
+        action=console_url(request, _mission_url(fleet)),
         fields=FIELDS,
         preview_changes=changes(preview.old, preview.new, preview.diff) if preview else None,
     )
@@ -907,7 +932,7 @@ def change_mission(
                 "Check the mission in force below, then preview again.",
                 new_id=True,
             )
-        return _redirect(_mission_url(name, done=out["version"]))
+        return _redirect(request, _mission_url(name, done=out["version"]))
     try:
         preview = missions_service.preview_change(
             session, ctx, principal, name, mission_doc=mission_doc, renames_doc=renames_doc
@@ -920,8 +945,8 @@ def change_mission(
 
 
 @router.get("/{rest:path}")
-def not_found(rest: str) -> RedirectResponse:
+def not_found(request: Request, rest: str) -> RedirectResponse:
     """Any other console address: the users list for ``/admin/``, else a 404 page."""
     if not rest:
-        return home()
+        return home(request)
     raise PageError(404, "Not found", "There is no such console page.")

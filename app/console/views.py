@@ -80,9 +80,10 @@ class UserAt(NamedTuple):
 
 def user_url(user: UserOut | UserAt, tail: str = "", **params: object) -> str:
     """A console address of a user's page (its fleet named, so that an admin's links work for
-    every fleet): ``user_url(user, "/why", time_slot="noon")``."""
+    every fleet): ``user_url(user, "/why", time_slot="noon")``, under the console (templates
+    write ``url(v.user_url(...))``, routes redirect to it)."""
     query = urlencode({"fleet": user.fleet, **{k: v for k, v in params.items() if v is not None}})
-    return f"/admin/users/{quote(user.user_id, safe='')}{tail}?{query}"
+    return f"/users/{quote(user.user_id, safe='')}{tail}?{query}"
 
 
 def fmt_pct(p: float | None, digits: int = 1) -> str:

@@ -15,7 +15,11 @@ from tests.support.fixtures import MakeKey
 
 def _client(app: FastAPI, key: str | None) -> TestClient:
     headers = {"Authorization": f"Bearer {key}"} if key else {}
-    return TestClient(app, headers=headers, raise_server_exceptions=False)
+    # From 127.0.0.1, as a robot on the service's machine (a trusted peer by default:
+    # ATTUNE_FORWARDED_ALLOW_IPS), not TestClient's "testclient".
+    return TestClient(
+        app, headers=headers, raise_server_exceptions=False, client=("127.0.0.1", 50000)
+    )
 
 
 @pytest.fixture

@@ -30,6 +30,7 @@ from tests.support.live import serving
 pytestmark = pytest.mark.one_engine
 
 FRESH = re.compile(r"^[0-9a-f]{32}$")
+LOCAL = ("127.0.0.1", 50000)  # a trusted peer by default: its X-Request-ID is kept
 
 
 class Lines:
@@ -155,7 +156,10 @@ class TestRequestId:
         try:
             _, secret = _key(db)
             with TestClient(
-                app, headers={"Authorization": f"Bearer {secret}"}, raise_server_exceptions=False
+                app,
+                headers={"Authorization": f"Bearer {secret}"},
+                raise_server_exceptions=False,
+                client=LOCAL,
             ) as c:
                 c.get("/v1/users")
                 r = c.get("/v1/users", headers={"X-Request-ID": "slow-down"})
@@ -175,7 +179,10 @@ class TestAccessLine:
     ) -> None:
         key_id, secret = _key(db)
         with TestClient(
-            app, headers={"Authorization": f"Bearer {secret}"}, raise_server_exceptions=False
+            app,
+            headers={"Authorization": f"Bearer {secret}"},
+            raise_server_exceptions=False,
+            client=LOCAL,
         ) as c:
             c.put("/v1/users/lin", json={}, headers={"X-Request-ID": "put-lin"})
             c.post("/v1/users/lin/episodes", json=event("e1"), headers={"X-Request-ID": "ev-1"})
@@ -233,7 +240,7 @@ class TestAccessLine:
         self, app: FastAPI, db: Database, lines: Lines
     ) -> None:
         key_id, secret = _key(db, "admin")
-        with TestClient(app, raise_server_exceptions=False) as c:
+        with TestClient(app, raise_server_exceptions=False, client=LOCAL) as c:
             c.cookies.set("attune_console", secret, path="/admin")
             assert c.get("/admin/users", headers={"X-Request-ID": "page"}).status_code == 200
         [line] = lines.access()
@@ -263,7 +270,7 @@ class TestUnhandledError:
     def test_is_a_500_with_the_contract_body_and_logged_once(
         self, app: FastAPI, lines: Lines, path: str
     ) -> None:
-        with TestClient(_failing_app(app), raise_server_exceptions=False) as c:
+        with TestClient(_failing_app(app), raise_server_exceptions=False, client=LOCAL) as c:
             r = c.get(path, headers={"X-Request-ID": "it-failed"})
         body = assert_error(r, 500, "InternalError")
         assert body == {

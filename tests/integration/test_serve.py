@@ -244,6 +244,44 @@ class TestFailedStart:
         assert "'xml'" in lines[0]
         assert list(folder.iterdir()) == []
 
+    @pytest.mark.parametrize(
+        ("args", "env", "variable", "given"),
+        [
+            (["--root-path", "attune"], {}, "ATTUNE_ROOT_PATH", "attune"),
+            ([], {"ATTUNE_ROOT_PATH": "/a b"}, "ATTUNE_ROOT_PATH", "/a b"),
+            (
+                ["--forwarded-allow-ips", "10.0.0.0/8,nginx"],
+                {},
+                "ATTUNE_FORWARDED_ALLOW_IPS",
+                "10.0.0.0/8,nginx",
+            ),
+            (
+                [],
+                {"ATTUNE_FORWARDED_ALLOW_IPS": "300.1.1.1"},
+                "ATTUNE_FORWARDED_ALLOW_IPS",
+                "300.1.1.1",
+            ),
+        ],
+    )
+    def test_a_bad_proxy_setting_is_one_line_naming_the_variable(
+        self, folder: Path, args: list[str], env: dict[str, str], variable: str, given: str
+    ) -> None:
+        done = subprocess.run(
+            [ATTUNE, "serve", *args],
+            cwd=folder,
+            capture_output=True,
+            text=True,
+            env=_env(**env),
+            timeout=60,
+            check=False,
+        )
+        assert done.returncode == 2, done.stderr
+        lines = done.stderr.strip().splitlines()
+        assert len(lines) == 1, done.stderr
+        assert lines[0].startswith(f"Bad setting {variable}:"), lines[0]
+        assert f"(got {given!r})" in lines[0]
+        assert list(folder.iterdir()) == []
+
 
 def _workers(pid: int) -> list[int]:
     """The worker processes of the supervisor ``pid`` (multiprocessing's spawned children)."""

@@ -23,7 +23,7 @@ import sys
 import tempfile
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 from types import TracebackType
@@ -134,7 +134,7 @@ def make_keys(database_url: str, n: int, role: str = "robot", fleet: str = "defa
 
 
 class LiveService:
-    """``attune serve --host 127.0.0.1 --port P --workers N`` as a child process.
+    """``attune serve --host 127.0.0.1 --port P --workers N [ARGS...]`` as a child process.
 
     Use as a context manager (started on entry, stopped on exit). ``url`` stays the same across
     ``kill()`` / ``stop()`` and ``start()``, so clients can reconnect to the restarted service.
@@ -149,9 +149,13 @@ class LiveService:
         log_path: Path | None = None,
         env: dict[str, str] | None = None,
         seed: int = 0,
+        args: Sequence[str] = (),
     ) -> None:
+        """``env`` is added to the environment (``ATTUNE_*`` settings), ``args`` to the
+        command line (``--root-path /attune``)."""
         self.database_url = database_url
         self.workers = workers
+        self.args = list(args)
         self.port = free_port()
         self.url = f"http://127.0.0.1:{self.port}"
         self.log_path = log_path or Path(tempfile.mkstemp(prefix="attune-serve-", suffix=".log")[1])
@@ -201,6 +205,7 @@ class LiveService:
                     str(self.port),
                     "--workers",
                     str(self.workers),
+                    *self.args,
                 ],
                 env=self.env,
                 stdout=log,
