@@ -117,7 +117,11 @@ def test_pgbouncer_points_at_the_topology_s_postgres(compose: dict[str, Any]) ->
     target = dict(part.split("=", 1) for part in ini["databases"]["attune"].split())
     assert target == {"host": "postgres", "port": "5432", "dbname": "attune"}
     assert ini["pgbouncer"]["listen_port"] == "6432"
-    assert ini["pgbouncer"]["pool_mode"] in {"session", "transaction"}
+    # Transaction pooling, as a shared PostgreSQL is fronted; the instances know it (no
+    # statement prepared on the server), or their first episode would answer 500.
+    assert ini["pgbouncer"]["pool_mode"] == "transaction"
+    for name in INSTANCES:
+        assert _env(compose["services"][name])["ATTUNE_DATABASE_POOLER"] == "transaction"
     assert "pgbouncer" in compose["services"]["pgbouncer"]["build"]["context"]
 
 

@@ -1,6 +1,7 @@
 """The production topology on this machine: Debian's nginx, on the site configuration the
 repository ships (``docker/nginx/attune.conf``), serves Attune under ``/attune/`` over two
-``attune serve --root-path /attune`` processes that share one PostgreSQL database. Robots drive
+``attune serve --root-path /attune`` processes that share one PostgreSQL database through
+PgBouncer in transaction pooling (migrated beforehand, as a migration job does). Robots drive
 it through the Python client (its retries with the same ids, nothing else).
 
 - SIGTERM to one instance mid-traffic: the robots see no failed request (it drains: its
@@ -26,12 +27,15 @@ import httpx
 import psycopg
 import pytest
 from attune_client import Client
+from sqlalchemy.engine import make_url
 
+from app.db import migrate
 from tests.support.commands import rebuild_all
 from tests.support.episodes import EVENT_TIME
 from tests.support.live import LiveService, fresh_database, make_keys
 from tests.support.nginx import Nginx
 from tests.support.people import cooperative
+from tests.support.pgbouncer import running_pgbouncer
 
 pytestmark = [pytest.mark.live, pytest.mark.xdist_group("topology")]
 
@@ -42,12 +46,22 @@ BEFORE = 40  # acknowledged writes before the signal
 AFTER = 60  # and after it, all through the other instance
 
 
+@dataclass(frozen=True)
+class Database:
+    """The one database of the topology: ``direct`` on PostgreSQL (the test's own checks, the
+    migration), ``served`` through PgBouncer in transaction pooling (both instances)."""
+
+    direct: str
+    served: str
+
+
 @pytest.fixture
-def instances_database_url() -> Iterator[str]:
-    """The one database both instances use (a fresh PostgreSQL database): the place to point
-    them elsewhere (PgBouncer)."""
-    with fresh_database("postgresql") as url:
-        yield url
+def instances_database() -> Iterator[Database]:
+    """A fresh PostgreSQL database, migrated directly (as a deployment's migration job does),
+    and PgBouncer in front of it for the instances."""
+    with fresh_database("postgresql") as url, running_pgbouncer() as bouncer:
+        migrate.upgrade(url)
+        yield Database(url, bouncer.url(make_url(url).database or ""))
 
 
 @dataclass
@@ -62,23 +76,27 @@ class Topology:
 
 
 @pytest.fixture
-def topology(instances_database_url: str, tmp_path: Path) -> Iterator[Topology]:
+def topology(instances_database: Database, tmp_path: Path) -> Iterator[Topology]:
     instances = [
         LiveService(
-            instances_database_url,
+            instances_database.served,
             log_path=tmp_path / f"attune-{n}.log",
-            args=["--root-path", PREFIX],
-            env={"ATTUNE_DRAIN_TIMEOUT_S": str(DRAIN_TIMEOUT_S), "ATTUNE_LOG_LEVEL": "info"},
+            args=["--root-path", PREFIX, "--no-migrate"],
+            env={
+                "ATTUNE_DRAIN_TIMEOUT_S": str(DRAIN_TIMEOUT_S),
+                "ATTUNE_LOG_LEVEL": "info",
+                "ATTUNE_DATABASE_POOLER": "transaction",
+            },
         )
         for n in (1, 2)
     ]
     (tmp_path / "nginx").mkdir()
     nginx = Nginx([f"127.0.0.1:{i.port}" for i in instances], tmp_path / "nginx")
     try:
-        for instance in instances:  # one after the other: the first one migrates
+        for instance in instances:
             instance.start()
         nginx.start()
-        yield Topology(nginx, instances, instances_database_url)
+        yield Topology(nginx, instances, instances_database.direct)
     finally:
         nginx.stop()
         for instance in instances:
