@@ -51,9 +51,10 @@ token instead).
 
 Errors are `{"error": "...", "detail": "...", "request_id": "..."}` (plus `fields` on a 422).
 Every response carries an `X-Request-ID` header: the caller's own when it sent a valid one
-(1 to 128 letters, digits and `. _ : -`) directly or through a proxy the deployment trusts,
-else one the service made (32 hexadecimal characters). The same id is in the error body and in
-the service's log lines of that request.
+(1 to 128 letters, digits and `. _ : -`) from an address the deployment trusts
+(`ATTUNE_FORWARDED_ALLOW_IPS`: by default the service's own machine, where a reverse proxy
+passes the caller's id on), else one the service made (32 hexadecimal characters). The same
+id is in the error body and in the service's log lines of that request.
 
 Request bodies are JSON: a body sent with another `Content-Type` (`text/plain`, a form,
 multipart) or with none is refused with 415 `UnsupportedMediaType`; a request whose body is

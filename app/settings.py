@@ -251,11 +251,12 @@ class Settings(BaseSettings):
         if value and not (
             value.startswith("/")
             and "//" not in value
-            and all(ch.isalnum() or ch in "/-._~" for ch in value)
+            and all((ch.isascii() and ch.isalnum()) or ch in "/-._~" for ch in value)
+            and not {".", ".."} & set(value.split("/"))
         ):
             raise ValueError(
-                "root_path must be empty or a path such as /attune (letters, digits and "
-                "- . _ ~ between slashes)."
+                "root_path must be empty or a path such as /attune (ASCII letters, digits and "
+                "- . _ ~ between slashes; no . or .. segment)."
             )
         return value
 

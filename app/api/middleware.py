@@ -124,12 +124,20 @@ class TrustedProxies:
 
     def client(self, forwarded_for: str) -> str | None:
         """The caller in an ``X-Forwarded-For`` chain: the last address that is not a trusted
-        proxy (each proxy appends the peer it heard from), else the first one."""
+        proxy (each proxy appends the peer it heard from), else the first one. A hop that is
+        not an IP address ends the walk: what lies left of it was written by the caller, not
+        by a proxy, and is not taken (``None``: the peer stays the client)."""
         hops = [hop.strip() for hop in forwarded_for.split(",") if hop.strip()]
+        last = None
         for hop in reversed(hops):
+            try:
+                ipaddress.ip_address(hop)
+            except ValueError:
+                return last
             if hop not in self:
                 return hop
-        return hops[0] if hops else None
+            last = hop
+        return last
 
 
 # What only a trusted proxy may say: from any other peer these headers are dropped, so nothing
@@ -170,7 +178,8 @@ class ProxyMiddleware:
         client = scope.get("client")
         headers: list[tuple[bytes, bytes]] = list(scope.get("headers", []))
         if not (client and client[0] in self.trusted):
-            scope["headers"] = [(k, v) for k, v in headers if k not in FORWARDED_HEADERS]
+            if any(k in FORWARDED_HEADERS for k, _ in headers):  # else nothing to drop
+                scope["headers"] = [(k, v) for k, v in headers if k not in FORWARDED_HEADERS]
             await self.app(scope, receive, send)
             return
         given: dict[bytes, str] = {}
@@ -185,7 +194,7 @@ class ProxyMiddleware:
         if caller:
             scope["client"] = (caller, 0)
         host = given.get(b"x-forwarded-host", "").split(",")[0].strip()
-        if host:
+        if host and (b"host", host.encode("latin-1")) not in headers:
             scope["headers"] = [(k, v) for k, v in headers if k != b"host"] + [
                 (b"host", host.encode("latin-1"))
             ]

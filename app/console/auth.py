@@ -181,7 +181,10 @@ def same_origin(request: Request) -> bool:
         origin = request.headers.get("referer")
         if origin is None:
             return True
-    given = urlsplit(origin)
+    try:
+        given = urlsplit(origin)
+    except ValueError:  # "http://[x": no origin at all
+        return False
     asked = _origin(request.url.scheme, request.headers.get("host", ""))
     return asked is not None and _origin(given.scheme, given.netloc) == asked
 

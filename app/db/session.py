@@ -89,6 +89,11 @@ class WriteGroup:
         await asyncio.shield(self.done)
 
 
+CONNECT_TIMEOUT_S = 10
+"""PostgreSQL: how long a new connection may take (libpq's ``connect_timeout``), unless the
+database URL sets it."""
+
+
 class Database:
     """One engine per process, and sessions that know whether they will write."""
 
@@ -112,8 +117,14 @@ class Database:
             # Behind a transaction pooler each transaction may run on another server
             # connection: a statement psycopg prepared on one (after prepare_threshold uses) is
             # unknown to the next ("prepared statement "_pg3_0" does not exist"), so none is.
+            connect_args: dict[str, Any] = {}
             if settings.database_pooler == "transaction":
-                kwargs["connect_args"] = {"prepare_threshold": None}
+                connect_args["prepare_threshold"] = None
+            # A database host that stops answering: a connect gives up after this (libpq waits
+            # for the kernel's TCP timeout otherwise, minutes), unless the URL says otherwise.
+            if "connect_timeout" not in make_url(self.url).query:
+                connect_args["connect_timeout"] = CONNECT_TIMEOUT_S
+            kwargs["connect_args"] = connect_args
             kwargs["pool_size"] = settings.db_pool_size
             kwargs["max_overflow"] = settings.db_pool_size
             pool = {"poolclass": MeteredQueuePool}
@@ -195,8 +206,12 @@ class Database:
                     if on_loop and took > _SLOW * self.inline_max_rtt_s:
                         break  # far over the threshold: no need to hold the loop up longer
                 cursor.close()
-        except Exception as exc:  # the database is away: keep what was measured before
+        except Exception as exc:  # the database is away: nothing known until it answers again
             log.warning("could not measure the round trip to the database: %s", exc)
+            # The writes go to the thread pool (and the next probes run in a thread) until a
+            # probe succeeds: a reconnect must not be made on the event loop.
+            self._probes.clear()
+            self.round_trip_s = None
             return None
         measured = statistics.median(samples[1:] or samples)
         self._probes.append(measured)

@@ -49,12 +49,16 @@ def readable(name: str) -> str:
     return " ".join([first, *rest])
 
 
+@functools.cache
+def _time_zones() -> frozenset[str]:
+    return frozenset(zoneinfo.available_timezones())
+
+
 def _check_time_zone(value: object) -> str:
     if not isinstance(value, str) or not value or len(value) > 64:
         raise MissionError(f"time_zone: {value!r} is not an IANA time zone name (Europe/Paris).")
-    try:
-        zoneinfo.ZoneInfo(value)
-    except (zoneinfo.ZoneInfoNotFoundError, ValueError):
+    # A name of the time zone database's list: "Europe", a folder of it, is no zone.
+    if value not in _time_zones():
         raise MissionError(
             f"time_zone: {value!r} is not an IANA time zone name (such as Europe/Paris or UTC)."
         ) from None

@@ -28,7 +28,7 @@ from app.services.auth import create_key
 from app.settings import Settings
 from tests.support.episodes import event, report, start
 from tests.support.fixtures import MakeKey
-from tests.support.live import serving
+from tests.support.live import free_port, serving
 
 
 @contextmanager
@@ -147,5 +147,27 @@ def test_false_makes_no_inline_connection(database_url: str) -> None:
     try:
         assert not db.writes_inline
         assert not db.probes_round_trip
+    finally:
+        db.dispose()
+
+
+def test_a_probe_that_fails_sends_the_writes_to_the_pool() -> None:
+    """A database that stops answering: what was measured before no longer holds, so the
+    writes (and the reconnects they would make) leave the event loop until a probe succeeds."""
+    port = free_port()  # nothing listens there: the connect is refused at once
+    db = Database(
+        Settings(  # type: ignore[call-arg]
+            database_url=f"postgresql+psycopg://postgres@127.0.0.1:{port}/none",
+            pg_inline_writes="auto",
+            _env_file=None,
+        )
+    )
+    try:
+        db._probes.append(0.0001)  # as if a short round trip had been measured
+        db.round_trip_s = 0.0001
+        assert db.writes_inline
+        assert db.probe_round_trip(on_loop=True) is None
+        assert db.round_trip_s is None
+        assert not db.writes_inline
     finally:
         db.dispose()

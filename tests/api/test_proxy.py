@@ -182,6 +182,8 @@ class TestConsole:
             ({"origin": "http://robots.example.org"}, False),  # not the scheme the browser used
             ({"origin": "http://attune-1:8000"}, False),  # the instance's own host
             ({"origin": "https://evil.example"}, False),
+            ({"origin": "http://[x"}, False),  # not a URL at all: refused, not a 500
+            ({"origin": "", "referer": "https://[robots.example.org/"}, False),
             ({"origin": "null"}, False),
             ({"origin": "", "referer": "https://robots.example.org/attune/admin/login"}, True),
             ({"origin": "", "referer": "https://evil.example/attune/admin/login"}, False),
@@ -286,6 +288,10 @@ class TestTrustedProxies:
         assert "203.0.113.9" in TrustedProxies(["*"])
         assert trusted.client("203.0.113.9, 10.0.0.1") == "203.0.113.9"
         assert trusted.client("10.0.0.2, 10.0.0.1") == "10.0.0.2"  # all trusted: the first
+        # What is left of a hop that is no address was written by the caller: not taken.
+        assert trusted.client("203.0.113.9 status=200, 10.0.0.1") == "10.0.0.1"
+        assert trusted.client("1.2.3.4, key_id=x, 203.0.113.9") == "203.0.113.9"
+        assert trusted.client("evil") is None
 
     def test_the_route_path_leaves_the_root_path_out(self) -> None:
         assert route_path({"path": "/attune/readyz", "root_path": "/attune"}) == "/readyz"
@@ -302,7 +308,9 @@ class TestSettings:
     def test_a_root_path(self, given: str, kept: str) -> None:
         assert Settings(_env_file=None, root_path=given).root_path == kept  # type: ignore[call-arg]
 
-    @pytest.mark.parametrize("given", ["attune", "/at tune", "/a//b", "/a?b", "http://x/a"])
+    @pytest.mark.parametrize(
+        "given", ["attune", "/at tune", "/a//b", "/a?b", "http://x/a", "/..", "/a/./b", "/ätt"]
+    )
     def test_a_bad_root_path(self, given: str) -> None:
         with pytest.raises(ValueError, match="root_path"):
             Settings(_env_file=None, root_path=given)  # type: ignore[call-arg]
