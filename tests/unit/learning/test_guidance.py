@@ -649,3 +649,9 @@ class TestReasons:
         assert kept is not None
         assert kept.fits == mission.fingerprint
         assert "fits" not in kept.to_dict()  # not part of the state document
+        # The skip is real: a detail made wrong after the check is not looked at again for
+        # this mission, and is found once the rule no longer remembers it.
+        object.__setattr__(kept, "detail", "whisky")
+        assert kept.reasons(mission) == ()
+        object.__setattr__(kept, "fits", None)
+        assert [r.code for r in kept.reasons(mission)] != []
