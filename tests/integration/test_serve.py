@@ -577,7 +577,11 @@ def test_the_metrics_port_taken_is_one_line(folder: Path, taken_port: int) -> No
 
 
 ROBOTS = 4
-MOST_EPISODES = 200  # per robot: each goes on until it played two episodes after the restart
+MOST_EPISODES = 2000  # per robot: each goes on until it played two episodes after the restart
+# While it drains, the service goes on serving the robots (they come to it directly, with no
+# balancer to turn them away) until no request is in flight or the drain's time is up: within
+# it, fast robots could play a small bound whole, and meet no restart.
+SIGTERM_DRAIN_S = 5
 
 
 @pytest.mark.parametrize(("engine", "workers"), [("sqlite", 1), ("postgresql", 2)])
@@ -592,7 +596,12 @@ def test_sigterm_under_robot_traffic_fails_no_request(
     from tests.support import people
 
     with fresh_database(engine, tmp_path) as url:
-        service = LiveService(url, workers=workers, log_path=tmp_path / "serve.log")
+        service = LiveService(
+            url,
+            workers=workers,
+            log_path=tmp_path / "serve.log",
+            env={"ATTUNE_DRAIN_TIMEOUT_S": str(SIGTERM_DRAIN_S)},
+        )
         service.start()
         try:
             keys = make_keys(url, ROBOTS)
