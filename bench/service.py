@@ -385,6 +385,26 @@ def wait_ready(url: str, proc: subprocess.Popen[bytes], log: Path, timeout: floa
     raise RuntimeError(f"server not ready within {timeout} s:\n{log.read_text()[-3000:]}")
 
 
+def wait_workers(base: str, workers: int, log: Path, timeout: float = 60) -> None:
+    """Until every worker of ``attune serve`` runs (``attune_workers`` of /metrics counts the
+    live ones): the first one answers /readyz while the others may still be starting, and a
+    window measured then would count one worker's throughput and the others' start-up."""
+    import httpx
+
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        try:
+            text = httpx.get(f"{base}/metrics", timeout=2).text
+        except httpx.TransportError:
+            text = ""
+        for line in text.splitlines():
+            if line.startswith("attune_workers ") and float(line.split()[1]) >= workers:
+                return
+        time.sleep(0.2)
+    tail = log.read_text()[-3000:]
+    raise RuntimeError(f"{workers} workers not running within {timeout} s:\n{tail}")
+
+
 @dataclass(frozen=True)
 class Served:
     """A server started by :func:`server`: its base URL and its process group (for its CPU)."""
@@ -455,6 +475,8 @@ def server(
         )
     try:
         wait_ready(probe, proc, log)
+        if kind == "service" and workers > 1:
+            wait_workers(f"http://127.0.0.1:{port}", workers, log)
         yield Served(f"http://127.0.0.1:{port}", proc.pid)
     finally:
         if profile is not None and kind == "service" and proc.poll() is None:

@@ -19,6 +19,7 @@ import os
 import resource
 import sys
 import threading
+import time
 from collections import deque
 from contextvars import ContextVar, Token
 from typing import TYPE_CHECKING, Any
@@ -192,10 +193,19 @@ class Metrics:
             registry=r,
             multiprocess_mode="liveall",
         )
+        self.loop_busy_max = Gauge(
+            "attune_event_loop_busy_stall_max_seconds",
+            "The worst stall of each worker's event loop over the last 5 seconds, counting only "
+            "the time its thread ran (its CPU time in the stall): the loop held up by its own "
+            "work, not by waiting for a CPU of a busy machine (a series per worker process).",
+            registry=r,
+            multiprocess_mode="liveall",
+        )
         self.writes = Counter(
             "attune_robot_writes",
             "PostgreSQL: the robots' writes (starts and outcomes) by where they ran: inline on "
-            "the event loop, or in the thread pool.",
+            "the event loop, on the loop through an asynchronous connection, or in the thread "
+            "pool.",
             ["path"],
             registry=r,
         )
@@ -219,8 +229,9 @@ class Metrics:
         self._by_outcome: dict[tuple[str, str, str], Any] = {}
         self._by_fleet: dict[str, tuple[Any, Any, Any]] = {}
         self._lags: deque[float] = deque(maxlen=LAG_WINDOW)
-        self._inline_writes, self._pool_writes = (
+        self._inline_writes, self._async_writes, self._pool_writes = (
             self.writes.labels("inline"),
+            self.writes.labels("async"),
             self.writes.labels("pool"),
         )
         self._lock = threading.Lock()
@@ -302,7 +313,8 @@ class Metrics:
                     self._add(self.pool_wait_seconds, "wait_seconds", pool, pool.wait_seconds)
                 db = self._db
                 self._add(self._inline_writes, "inline", db, db.inlined)
-                self._add(self._pool_writes, "pool", db, db.deferred + db.pooled)
+                self._add(self._pool_writes, "pool", db, db.pooled)
+                self._add(self._async_writes, "async", db, db.asynced)
                 if db.round_trip_s is not None:
                     self.db_round_trip.set(db.round_trip_s)
             if self._cache is not None:
@@ -341,25 +353,41 @@ class Metrics:
         seen whole only when it begins before the watchdog's wake-up is due)."""
         loop = asyncio.get_running_loop()
         tick = tick_ms / 1000.0
-        seconds: deque[float] = deque(maxlen=STALL_WINDOW_S)  # the worst of each past second
-        worst, shown = 0.0, 0.0
+        # The worst (wall, busy) of each past second; busy: the part of a stall the loop's
+        # thread ran, at most its CPU time over the tick and the stall (on a machine whose
+        # CPUs are all taken, a loop also waits for one: wall time, not the loop's own work).
+        seconds: deque[tuple[float, float]] = deque(maxlen=STALL_WINDOW_S)
+        worst = busiest = shown = shown_busy = 0.0
         second_ends = loop.time() + 1.0
-        observe, show = self.loop_stall.observe, self.loop_stall_max.set
+        observe, show, show_busy = (
+            self.loop_stall.observe,
+            self.loop_stall_max.set,
+            self.loop_busy_max.set,
+        )
+        cpu = time.thread_time
         while True:
-            start = loop.time()
+            start, ran = loop.time(), cpu()
             await asyncio.sleep(tick)
             now = loop.time()
             stall = max(0.0, now - start - tick)
+            busy = min(stall, cpu() - ran)
             observe(stall)
-            worst = max(worst, stall)
+            worst, busiest = max(worst, stall), max(busiest, busy)
             if now >= second_ends:
-                seconds.append(worst)
-                worst, second_ends = 0.0, now + 1.0
-                shown = max(seconds)
+                seconds.append((worst, busiest))
+                worst = busiest = 0.0
+                second_ends = now + 1.0
+                shown = max(w for w, _ in seconds)
+                shown_busy = max(b for _, b in seconds)
                 show(shown)
-            elif worst > shown:
+                show_busy(shown_busy)
+                continue
+            if worst > shown:
                 shown = worst
                 show(shown)
+            if busiest > shown_busy:
+                shown_busy = busiest
+                show_busy(shown_busy)
 
     def render(self) -> bytes:
         if os.environ.get("PROMETHEUS_MULTIPROC_DIR"):
@@ -403,14 +431,16 @@ def _install_round_trip_counting() -> None:
         _installed = True
 
 
-def _on_connect(dbapi_connection: Any, _record: Any) -> None:
-    base = getattr(dbapi_connection, "cursor_factory", None)
-    if base is None or not hasattr(dbapi_connection, "pgconn"):
+def _on_connect(_dbapi_connection: Any, record: Any) -> None:
+    # The driver's own connection: psycopg's, or the asynchronous one SQLAlchemy adapts.
+    driver = record.driver_connection
+    base = getattr(driver, "cursor_factory", None)
+    if base is None or not hasattr(driver, "pgconn"):
         return  # not psycopg: SQLite has no round trips
     counting = _counting_cursors.get(base)
     if counting is None:
         counting = _counting_cursors[base] = _counting_cursor(base)
-    dbapi_connection.cursor_factory = counting
+    driver.cursor_factory = counting
 
 
 def _count(cursor: Any) -> None:
