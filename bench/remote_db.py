@@ -196,7 +196,11 @@ def round_trip_ms(conninfo: str, n: int = 50) -> float:
     import psycopg
 
     times = []
-    with psycopg.connect(conninfo, autocommit=True, connect_timeout=10) as conn:
+    # No statement prepared on the server: through PgBouncer in transaction pooling, the next
+    # one may run on another server connection.
+    with psycopg.connect(
+        conninfo, autocommit=True, connect_timeout=10, prepare_threshold=None
+    ) as conn:
         for _ in range(n):
             t = time.perf_counter()
             conn.execute("SELECT 1").fetchone()
@@ -215,7 +219,25 @@ def run_delay(args: argparse.Namespace, wrk: str, delay_ms: float, workdir: Path
     userinfo, _, hostport = rest.rpartition("@")
     host, _, port = hostport.partition(":")
     budget = args.warmup + args.seconds + 180 * args.instances
-    proxy, proxy_port = start_proxy(delay_ms, (host, int(port or 5432)), budget)
+    with contextlib.ExitStack() as pooled:
+        target = (host, int(port or 5432))
+        if args.pooler == "pgbouncer":
+            from tests.support.pgbouncer import running_pgbouncer
+
+            target = ("127.0.0.1", pooled.enter_context(running_pgbouncer()).port)
+        return _run_delay(args, wrk, delay_ms, workdir, target, userinfo, budget)
+
+
+def _run_delay(
+    args: argparse.Namespace,
+    wrk: str,
+    delay_ms: float,
+    workdir: Path,
+    target: tuple[str, int],
+    userinfo: str,
+    budget: float,
+) -> Window:
+    proxy, proxy_port = start_proxy(delay_ms, target, budget)
     try:
         with fresh_database("postgresql", workdir) as db_url:
             data = Data(db_url)
@@ -396,6 +418,14 @@ def main(argv: list[str] | None = None) -> None:
         choices=["auto", "true", "false"],
         help="ATTUNE_PG_INLINE_WRITES for the service (default: the service's own, auto)",
     )
+    parser.add_argument(
+        "--pooler",
+        choices=["none", "pgbouncer"],
+        default="none",
+        help="pgbouncer: Debian's PgBouncer in transaction pooling beside the database, the "
+        "delay between it and the service (ATTUNE_DATABASE_POOLER=transaction), as a managed "
+        "PostgreSQL puts it (default none: the proxy in front of PostgreSQL itself)",
+    )
     parser.add_argument("--json", type=Path, help="also write the figures here")
     args = parser.parse_args(argv)
     delays = [float(d) for d in args.delays.split(",")]
@@ -405,13 +435,16 @@ def main(argv: list[str] | None = None) -> None:
         parser.error("--instances must be from 1 to --robots")
     if args.inline_writes:
         os.environ["ATTUNE_PG_INLINE_WRITES"] = args.inline_writes
+    if args.pooler == "pgbouncer":
+        os.environ["ATTUNE_DATABASE_POOLER"] = "transaction"
     wrk = require_wrk()
     before = machine()
     began = time.monotonic()
     say(
         f"attune serve ×{args.instances}, {WORKERS} workers each, {args.robots} robots, "
-        f"PostgreSQL through a delaying "
-        f"proxy; delays {', '.join(f'{d:g}' for d in delays)} ms each way, "
+        f"PostgreSQL through a delaying proxy"
+        + (" and PgBouncer (transaction pooling)" if args.pooler == "pgbouncer" else "")
+        + f"; delays {', '.join(f'{d:g}' for d in delays)} ms each way, "
         f"{args.warmup:g} s warm-up + {args.seconds:g} s each; load average "
         f"{before['load'][0]:.2f}"
     )
@@ -441,7 +474,8 @@ def main(argv: list[str] | None = None) -> None:
         f"Machine: {before['cpus']} CPUs ({before['cpu']}), {before['system']}, Python "
         f"{before['python']}; load average {before['load'][0]:.2f} before, "
         f"{after['load'][0]:.2f} after ({(time.monotonic() - began) / 60:.1f} min); "
-        f"ATTUNE_PG_INLINE_WRITES={os.environ.get('ATTUNE_PG_INLINE_WRITES', 'auto')}."
+        f"ATTUNE_PG_INLINE_WRITES={os.environ.get('ATTUNE_PG_INLINE_WRITES', 'auto')}; "
+        f"pooler {args.pooler}."
     )
     lines = targets(windows)
     print("Targets")
@@ -455,6 +489,7 @@ def main(argv: list[str] | None = None) -> None:
                     "load_after": after["load"],
                     "command": " ".join(sys.argv),
                     "inline_writes": os.environ.get("ATTUNE_PG_INLINE_WRITES", "auto"),
+                    "pooler": args.pooler,
                     "windows": [asdict(w) for w in windows],
                     "targets": lines,
                 },
