@@ -109,15 +109,9 @@ class Settings(BaseSettings):
         default="auto",
         description="PostgreSQL: where the robots' short writes run. true: on the worker's "
         "event loop, on a connection of its own, when the user's lock is free at once (else in "
-        "the thread pool, as every other request); false: never inline; auto: "
+        "the thread pool, as every other request); false: always in the thread pool; auto: "
         "inline while the measured round trip to the database is below "
-        "pg_inline_max_rtt_ms, else asynchronously (pg_async_writes) or in the thread pool.",
-    )
-    pg_async_writes: bool = Field(
-        default=True,
-        description="PostgreSQL: the robots' short writes that do not run inline run on the "
-        "worker's event loop through psycopg's asynchronous connections, each waiting for the "
-        "database without holding the loop or a thread (true), or in the thread pool (false).",
+        "pg_inline_max_rtt_ms, else in the thread pool.",
     )
     pg_inline_max_rtt_ms: float = Field(
         default=0.3,

@@ -185,11 +185,9 @@ def _in_transaction(
                 try:
                     with db.inline() as session:
                         return endpoint(**call, session=session)
-                except LockBusy:  # the user's lock is taken: wait for it, not on the loop
+                except LockBusy:  # the user's lock is taken: wait for it in the thread pool
                     pass
-            if db.writes_async:  # waits for the database (and the lock) let the loop go on
-                return await db.run_async(lambda session: endpoint(**call, session=session))
-            if not db.is_sqlite:  # the round trip is too long to wait for on the loop
+            elif not db.is_sqlite:  # the round trip is too long to wait for on the loop
                 db.pooled += 1
             return await run_in_threadpool(run, **kwargs)
         failure: Exception | None = None

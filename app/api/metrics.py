@@ -204,8 +204,7 @@ class Metrics:
         self.writes = Counter(
             "attune_robot_writes",
             "PostgreSQL: the robots' writes (starts and outcomes) by where they ran: inline on "
-            "the event loop, on the loop through an asynchronous connection, or in the thread "
-            "pool.",
+            "the event loop, or in the thread pool.",
             ["path"],
             registry=r,
         )
@@ -229,9 +228,8 @@ class Metrics:
         self._by_outcome: dict[tuple[str, str, str], Any] = {}
         self._by_fleet: dict[str, tuple[Any, Any, Any]] = {}
         self._lags: deque[float] = deque(maxlen=LAG_WINDOW)
-        self._inline_writes, self._async_writes, self._pool_writes = (
+        self._inline_writes, self._pool_writes = (
             self.writes.labels("inline"),
-            self.writes.labels("async"),
             self.writes.labels("pool"),
         )
         self._lock = threading.Lock()
@@ -313,8 +311,7 @@ class Metrics:
                     self._add(self.pool_wait_seconds, "wait_seconds", pool, pool.wait_seconds)
                 db = self._db
                 self._add(self._inline_writes, "inline", db, db.inlined)
-                self._add(self._pool_writes, "pool", db, db.pooled)
-                self._add(self._async_writes, "async", db, db.asynced)
+                self._add(self._pool_writes, "pool", db, db.deferred + db.pooled)
                 if db.round_trip_s is not None:
                     self.db_round_trip.set(db.round_trip_s)
             if self._cache is not None:

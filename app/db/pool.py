@@ -14,9 +14,9 @@ import time
 from typing import Any
 
 from sqlalchemy import Connection
-from sqlalchemy.pool import AsyncAdaptedQueuePool, QueuePool
+from sqlalchemy.pool import QueuePool
 
-__all__ = ["MeteredAsyncQueuePool", "MeteredQueuePool", "invalidate_all", "is_lost_connection"]
+__all__ = ["MeteredQueuePool", "invalidate_all", "is_lost_connection"]
 
 # SQLSTATEs that say the server ended the session: an administrator or a failover ended it
 # (pg_terminate_backend, a fast shutdown: 57P01), the server crashed or is starting (57P02,
@@ -78,11 +78,6 @@ class MeteredQueuePool(QueuePool):
             with self._counting:  # only on this path: a checkout that waited
                 self.waits += 1
                 self.wait_seconds += waited
-
-
-class MeteredAsyncQueuePool(MeteredQueuePool, AsyncAdaptedQueuePool):
-    """The same, for an engine of asynchronous connections (SQLAlchemy's pool for them,
-    whose queue waits without blocking the event loop)."""
 
 
 # SQLAlchemy logs a pool's life (disposed, recreated) at INFO, under the pool class's own name;

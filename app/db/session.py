@@ -16,37 +16,31 @@ processes only.
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import logging
 import sqlite3
 import statistics
 import threading
 import time
-import weakref
 from collections import deque
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from contextlib import contextmanager
-from typing import Any, TypeVar
+from typing import Any
 
 import orjson
 from sqlalchemy import Engine, create_engine, event
 from sqlalchemy.engine import Connection, ExceptionContext, make_url
 from sqlalchemy.exc import OperationalError
-from sqlalchemy.ext.asyncio import AsyncEngine, create_async_engine
 from sqlalchemy.orm import Session
-from sqlalchemy.util import greenlet_spawn
 
 from app.errors import ServiceUnavailable
 from app.settings import Settings
 
-from .pool import MeteredAsyncQueuePool, MeteredQueuePool, is_lost_connection
+from .pool import MeteredQueuePool, is_lost_connection
 from .types import json_dumps
 
 __all__ = ["NOWAIT", "PROBE_EVERY_S", "Database", "LockBusy", "WriteGroup"]
 
 log = logging.getLogger("attune.db")
-
-T = TypeVar("T")
 
 _WRITE = "attune_write"
 NOWAIT = "attune_nowait"  # session.info: take the user's lock only if it is free at once
@@ -150,8 +144,6 @@ class Database:
         # PostgreSQL: robot writes run inline, rolled back there and sent to the pool (the
         # user's lock was taken), and sent to the pool at once (the round trip is too long).
         self.inlined = self.deferred = self.pooled = 0
-        self.asynced = 0  # PostgreSQL: robot writes run on the loop through an async connection
-        self.async_in_flight = 0  # of them, those not finished
         self.inline_mode = "false" if self.is_sqlite else settings.pg_inline_writes
         self.inline_max_rtt_s = settings.pg_inline_max_rtt_ms / 1000.0
         self.round_trip_s: float | None = None  # the median of the last probes (auto)
@@ -169,70 +161,18 @@ class Database:
             )
             event.listen(inline, "handle_error", _mark_lost_connection)
             self._inline_engine = inline.execution_options(**{_WRITE: True})
-        self._async_engine: AsyncEngine | None = None
-        if not self.is_sqlite and settings.pg_async_writes:
-            # The same driver in its asynchronous form; a pool of its own, as large as the
-            # main one (a write holds a connection while it waits for the user's lock).
-            self._async_engine = create_async_engine(
-                make_url(self.url).set(drivername="postgresql+psycopg_async"),
-                poolclass=MeteredAsyncQueuePool,
-                **kwargs,
-            )
-            event.listen(self._async_engine.sync_engine, "handle_error", _mark_lost_connection)
-            self._async_connections = _OpenConnections(self._async_engine.sync_engine.pool)
-            weakref.finalize(self, self._async_connections.close_all)
 
     @property
     def writes_inline(self) -> bool:
         """PostgreSQL: the robots' short writes run on the event loop (:meth:`inline`): always
         with ``ATTUNE_PG_INLINE_WRITES=true``; with ``auto`` while the measured round trip is
-        below ``ATTUNE_PG_INLINE_MAX_RTT_MS`` (none measured yet: not inline); never while an
-        asynchronous write of this worker is in flight."""
+        below ``ATTUNE_PG_INLINE_MAX_RTT_MS`` (none measured yet: not inline)."""
         if self.is_sqlite or self._inline_engine is None:
-            return False
-        if self.async_in_flight:
-            # An inline write holds the loop while it waits for the database, and the
-            # asynchronous writes in flight need the loop to finish: if it waited for any of
-            # them (a row they lock, a connection of a pooler they hold), neither would end.
             return False
         if self.inline_mode == "true":
             return True
         rtt = self.round_trip_s
         return rtt is not None and rtt < self.inline_max_rtt_s
-
-    @property
-    def writes_async(self) -> bool:
-        """PostgreSQL: the robots' writes that do not run inline run on the event loop through
-        an asynchronous connection (:meth:`run_async`), not in the thread pool."""
-        return self._async_engine is not None
-
-    async def run_async(self, work: Callable[[Session], T]) -> T:
-        """Run ``work(session)`` as a write transaction on an asynchronous connection, on the
-        event loop: ``work`` is the same synchronous code as everywhere (run in a greenlet, as
-        ``AsyncSession.run_sync`` runs it), but each statement's wait for the database
-        lets the loop serve other requests, and the user's lock is waited for the same way.
-
-        It spares the write the hand-offs to and from a pool thread, and the loop the
-        contention for the interpreter's lock with that thread at every round trip: with the
-        database a network hop away, waits cost wall time, not throughput."""
-        assert self._async_engine is not None
-        self.asynced += 1
-        self.async_in_flight += 1
-        try:
-            result: T = await greenlet_spawn(self._whole_write, work)
-        finally:
-            self.async_in_flight -= 1
-        return result
-
-    def _whole_write(self, work: Callable[[Session], T]) -> T:
-        """In the greenlet: a plain session on the asynchronous engine's synchronous face (what
-        ``AsyncSession`` wraps; one greenlet for the whole write, its close included)."""
-        assert self._async_engine is not None
-        with (
-            Session(bind=self._async_engine.sync_engine, expire_on_commit=False) as session,
-            self.within(session, write=True),
-        ):
-            return work(session)
 
     @property
     def probes_round_trip(self) -> bool:
@@ -415,36 +355,6 @@ class Database:
         self.engine.dispose()
         if self._inline_engine is not None:
             self._inline_engine.dispose()
-        if self._async_engine is not None:
-            # No event loop may run here to await their close: closed at once instead.
-            self._async_connections.close_all()
-            self._async_engine.sync_engine.dispose(close=False)
-
-
-class _OpenConnections:
-    """The driver connections a pool of asynchronous connections opened and has not closed,
-    to close without an event loop (:meth:`close_all`): when the database is disposed of, or
-    dropped without it. psycopg's ``AsyncConnection.close()`` does no I/O (it finishes the
-    libpq connection, and the server ends the session as the socket closes), so neither does
-    this; an asynchronous connection left open warns when it is garbage-collected."""
-
-    def __init__(self, pool: Any) -> None:
-        self.open: set[Any] = set()
-        event.listen(pool, "connect", self._opened)
-        event.listen(pool, "close", self._closed)
-
-    def _opened(self, _dbapi_connection: Any, record: Any) -> None:
-        self.open.add(record.driver_connection)
-
-    def _closed(self, _dbapi_connection: Any, record: Any) -> None:
-        self.open.discard(record.driver_connection)
-
-    def close_all(self) -> None:
-        for driver in list(self.open):
-            with contextlib.suppress(Exception):
-                if not driver.closed:
-                    driver.pgconn.finish()
-        self.open.clear()
 
 
 def _mark_lost_connection(ctx: ExceptionContext) -> None:

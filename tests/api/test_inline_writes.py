@@ -1,10 +1,8 @@
 """PostgreSQL: the robots' short writes run on the event loop when the user's lock is free at
-once, and aside when they would have to wait for it (on an asynchronous connection, or in the
-thread pool without them); with the database far away, on asynchronous connections from the
-start. A write whose user is locked by another transaction waits without holding up the
-worker's other requests, and is stored once when the lock comes free. (SQLite's counterpart,
-the write group, waits for no lock either: it forms only when the database's write lock is
-free.)
+once, and in the thread pool when they would have to wait for it: a write whose user is locked
+by another transaction waits without holding up the worker's other requests, and is stored once
+when the lock comes free. (SQLite's counterpart, the write group, waits for no lock either: it
+forms only when the database's write lock is free.)
 
 With ``ATTUNE_PG_INLINE_WRITES=auto`` (the default) a worker measures the round trip to the
 database before its first request and every few seconds after, and writes inline only while it
@@ -13,7 +11,6 @@ is below ``ATTUNE_PG_INLINE_MAX_RTT_MS``; ``attune_robot_writes_total`` says whe
 from __future__ import annotations
 
 import threading
-import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from typing import Any
@@ -21,6 +18,7 @@ from typing import Any
 import httpx
 import psycopg
 import pytest
+from fastapi import FastAPI
 from sqlalchemy import func, select
 
 from app.db.models import Decision
@@ -29,6 +27,7 @@ from app.main import create_app
 from app.services.auth import create_key
 from app.settings import Settings
 from tests.support.episodes import event, report, start
+from tests.support.fixtures import MakeKey
 from tests.support.live import free_port, serving
 
 
@@ -44,31 +43,18 @@ def user_held(database_url: str, user_id: str) -> Iterator[None]:
         other.close()
 
 
-PATHS: dict[str, dict[str, Any]] = {
-    "inline": {"pg_inline_writes": "true"},
-    "async": {"pg_inline_writes": "false", "pg_async_writes": True},
-    "pool": {"pg_inline_writes": "false", "pg_async_writes": False},
-}
-"""Where the robots' writes run: inline (aside when the user's lock is taken), on asynchronous
-connections, in the thread pool."""
-
-
-@pytest.mark.parametrize("path", PATHS)
 def test_a_write_on_a_locked_user_waits_aside_and_is_stored_once(
-    settings: Settings, database_url: str, empty_tables: None, path: str
+    app: FastAPI, db: Database, make_key: MakeKey, database_url: str
 ) -> None:
-    if settings.is_sqlite:
+    if db.is_sqlite:
         pytest.skip("PostgreSQL's inline writes and row locks")
-    app = create_app(settings.model_copy(update=PATHS[path]))
-    db: Database = app.state.db
-    with db.transaction() as session:
-        _, key = create_key(session, role="robot", name="held")
+    key = make_key("robot")
     headers = {"Authorization": f"Bearer {key}"}
     with serving(app) as base, httpx.Client(base_url=base, headers=headers, timeout=30) as http:
         first = http.post("/v1/users/held/episodes", json=event("held-1"))
         assert first.status_code == 201, first.text
         episode = first.json()
-        before = (db.inlined, db.deferred, db.asynced, db.pooled)
+        before = (db.inlined, db.deferred)
         outcome = {"decision_id": episode["decision"]["decision_id"], "response": "accepted"}
         answered: dict[str, Any] = {}
         with user_held(database_url, "held"):
@@ -94,18 +80,10 @@ def test_a_write_on_a_locked_user_waits_aside_and_is_stored_once(
             .select_from(Decision)
             .where(Decision.outcome_hash.is_not(None), Decision.episode_id == episode["episode_id"])
         ).scalar_one()
-    db.dispose()
     assert stored == 1
-    if path == "inline":  # the held write went aside; the replay, with the lock free, inline
-        assert db.deferred == before[1] + 1
-        assert db.inlined > before[0]
-        assert db.asynced == before[2] + 1  # aside: on an asynchronous connection
-    elif path == "async":  # both on asynchronous connections: the loop answered meanwhile
-        assert (db.inlined, db.deferred) == before[:2]
-        assert db.asynced == before[2] + 2
-    else:
-        assert db.pooled == before[3] + 2
-        assert db.asynced == before[2]
+    # The held write went to the pool; the replay, with the lock free, ran inline.
+    assert db.deferred == before[1] + 1
+    assert db.inlined > before[0]
 
 
 def _auto(settings: Settings, **kw: Any) -> Settings:
@@ -136,17 +114,13 @@ def test_auto_writes_inline_only_below_the_round_trip_it_measured(settings: Sett
         db.dispose()
 
 
-@pytest.mark.parametrize("aside", ["async", "pool"])
-def test_auto_sends_the_writes_aside_when_the_round_trip_is_long(
-    settings: Settings, empty_tables: None, aside: str
+def test_auto_sends_the_writes_to_the_pool_when_the_round_trip_is_long(
+    settings: Settings, empty_tables: None
 ) -> None:
     if settings.database_url.startswith("sqlite"):
         pytest.skip("PostgreSQL's inline writes")
-    # Any real round trip is longer than a nanosecond: every write goes to asynchronous
-    # connections (or to the thread pool, without them).
-    application = create_app(
-        _auto(settings, pg_inline_max_rtt_ms=1e-6, pg_async_writes=aside == "async")
-    )
+    # Any real round trip is longer than a nanosecond: every write goes to the thread pool.
+    application = create_app(_auto(settings, pg_inline_max_rtt_ms=1e-6))
     db: Database = application.state.db
     with db.transaction() as session:
         _, key = create_key(session, role="robot", name="far")
@@ -160,13 +134,9 @@ def test_auto_sends_the_writes_aside_when_the_round_trip_is_long(
         metrics = http.get("/metrics").text
     assert db.round_trip_s is not None
     assert db.round_trip_s > 0
-    db.dispose()
     assert not db.writes_inline
-    if aside == "async":
-        assert (db.inlined, db.asynced, db.pooled) == (0, 2, 0)
-    else:
-        assert (db.inlined, db.asynced, db.pooled) == (0, 0, 2)
-    assert f'attune_robot_writes_total{{path="{aside}"}} 2.0' in metrics
+    assert (db.inlined, db.pooled) == (0, 2)
+    assert 'attune_robot_writes_total{path="pool"} 2.0' in metrics
     assert 'attune_robot_writes_total{path="inline"} 0.0' in metrics
 
 
@@ -201,46 +171,3 @@ def test_a_probe_that_fails_sends_the_writes_to_the_pool() -> None:
         assert not db.writes_inline
     finally:
         db.dispose()
-
-
-def test_no_write_runs_inline_while_one_waits_aside(
-    settings: Settings, database_url: str, empty_tables: None
-) -> None:
-    """An inline write holds the loop while it waits for the database; a write waiting aside
-    needs the loop to finish. So while one waits aside, the worker's next writes go aside too
-    (one inline could wait, behind a pooler, for a connection the write aside holds)."""
-    if settings.is_sqlite:
-        pytest.skip("PostgreSQL's inline writes and row locks")
-    app = create_app(settings.model_copy(update=PATHS["inline"]))
-    db: Database = app.state.db
-    with db.transaction() as session:
-        _, key = create_key(session, role="robot", name="aside")
-    headers = {"Authorization": f"Bearer {key}"}
-    with serving(app) as base, httpx.Client(base_url=base, headers=headers, timeout=30) as http:
-        start(http, "held", "held-0")
-        start(http, "free", "free-0")
-        assert db.writes_inline
-        answered: dict[str, Any] = {}
-        with user_held(database_url, "held"):
-            writer = threading.Thread(
-                target=lambda: answered.update(
-                    r=http.post("/v1/users/held/episodes", json=event("held-1"))
-                )
-            )
-            writer.start()
-            deadline = time.monotonic() + 10
-            while not db.async_in_flight:  # the held write went aside and waits there
-                assert time.monotonic() < deadline, "the held write never went aside"
-                time.sleep(0.01)
-            inlined = db.inlined
-            start(http, "free", "free-1")  # a free user's write, meanwhile: aside too
-            assert db.inlined == inlined
-            assert not db.writes_inline
-            assert writer.is_alive()
-        writer.join(timeout=30)
-        assert answered["r"].status_code == 201, answered["r"].text
-        assert db.async_in_flight == 0
-        assert db.writes_inline  # nothing aside any more: inline again
-        start(http, "free", "free-2")
-        assert db.inlined > inlined
-    db.dispose()

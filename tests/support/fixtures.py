@@ -242,16 +242,14 @@ def database_url(request: pytest.FixtureRequest, worker_databases: WorkerDatabas
 
 @pytest.fixture
 def settings(database_url: str, worker_databases: WorkerDatabases) -> Settings:
-    # PostgreSQL's robot writes where ATTUNE_PG_INLINE_WRITES=auto sends them once it measured
-    # the round trip (which it does at startup, which these apps' TestClients never run), the
-    # same whatever the machine's load: inline for the local database, and on asynchronous
-    # connections through PgBouncer (the production topology: a database a hop away).
-    pooler = worker_databases.pooler(database_url)
+    # PostgreSQL's robot writes inline, as ATTUNE_PG_INLINE_WRITES=auto chooses for a local
+    # database once it measured the round trip (which it does at startup, which these apps'
+    # TestClients never run): the suite takes the same path whatever the machine's load.
     return Settings(
         database_url=database_url,
-        database_pooler=pooler,
+        database_pooler=worker_databases.pooler(database_url),
         seed=0,
-        pg_inline_writes="false" if pooler == "transaction" else "true",
+        pg_inline_writes="true",
         _env_file=None,
     )  # type: ignore[call-arg]
 

@@ -7,11 +7,6 @@ fails with a sentence naming what changed when an upgrade of SQLAlchemy or FastA
   ``TypeEngine.dialect_impl(dialect).result_processor(...)``.
 - ``app.api.deps._lean_handler`` reads FastAPI's ``APIRoute.dependant`` (the parameters FastAPI
   worked out for the endpoint) and validates with its ``ModelField.validate``.
-- ``app.db.repositories._rows.batch``, in a write run on an asynchronous connection
-  (``Database.run_async``, a greenlet of ``AsyncSession.run_sync``), enters psycopg's pipeline
-  through ``sqlalchemy.util.await_``, the function SQLAlchemy's own asynchronous adapters wait
-  with; ``Prepared`` runs on the session's DBAPI connection, for those SQLAlchemy's adapter
-  (its cursor waits the same way).
 """
 
 from __future__ import annotations
@@ -140,33 +135,3 @@ def test_fastapi_still_describes_a_route_as_the_lean_handler_reads_it() -> None:
     assert _lean_handler(route, route.get_route_handler()) is not None, (
         "the lean handler no longer recognises a robot write's route"
     )
-
-
-def test_sqlalchemy_still_waits_for_a_coroutine_from_a_greenlet_with_await_() -> None:
-    import asyncio
-
-    from sqlalchemy.util import await_, greenlet_spawn
-
-    async def answer() -> int:
-        await asyncio.sleep(0)
-        return 42
-
-    async def main() -> int:
-        result: int = await greenlet_spawn(lambda: await_(answer()))
-        return result
-
-    assert asyncio.run(main()) == 42, (
-        "sqlalchemy.util.await_ no longer waits for a coroutine inside greenlet_spawn: "
-        "app.db.repositories._rows._pipeline enters psycopg's pipeline with it"
-    )
-
-
-def test_sqlalchemy_s_psycopg_adapter_still_has_a_synchronous_cursor() -> None:
-    from sqlalchemy.dialects.postgresql.psycopg import AsyncAdapt_psycopg_connection
-
-    cursor_class = AsyncAdapt_psycopg_connection._cursor_cls
-    for name in ("execute", "executemany", "fetchone", "fetchall", "close", "description"):
-        assert hasattr(cursor_class, name), (
-            f"SQLAlchemy's adapter of psycopg's asynchronous connections lost its cursor's "
-            f"{name}: Prepared (app.db.repositories._rows) runs on it in asynchronous writes"
-        )

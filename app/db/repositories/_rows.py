@@ -18,7 +18,6 @@ from sqlalchemy import Connection, Dialect, Table
 from sqlalchemy.exc import DBAPIError
 from sqlalchemy.orm import Session
 from sqlalchemy.sql import ClauseElement
-from sqlalchemy.util import await_
 
 from app.db.pool import invalidate_all, is_lost_connection
 
@@ -39,7 +38,7 @@ def batch(session: Session) -> Iterator[None]:
         yield
         return
     try:
-        with _pipeline(driver, dialect.is_async):
+        with driver.pipeline():
             yield
     except dialect.loaded_dbapi.Error as exc:  # raised when the pipeline syncs
         lost = is_lost_connection(exc) or dialect.is_disconnect(
@@ -55,25 +54,6 @@ def batch(session: Session) -> Iterator[None]:
             connection_invalidated=lost,
             dialect=dialect,
         ) from exc
-
-
-@contextmanager
-def _pipeline(driver: Any, is_async: bool) -> Iterator[None]:
-    """psycopg's pipeline mode on ``driver``, a connection of either kind: an asynchronous one
-    (in the greenlet of ``Database.run_async``) enters and leaves it through the loop."""
-    if not is_async:
-        with driver.pipeline():
-            yield
-        return
-    manager = driver.pipeline()
-    await_(manager.__aenter__())
-    try:
-        yield
-    except BaseException as exc:
-        if not await_(manager.__aexit__(type(exc), exc, exc.__traceback__)):
-            raise
-    else:
-        await_(manager.__aexit__(None, None, None))
 
 
 def conn(session: Session) -> Connection:
@@ -163,14 +143,13 @@ class _Compiled:
                 values[i] = f(values[i])
         return values
 
-    def processors(self, description: Any) -> tuple[tuple[int, Callable[[Any], Any]], ...]:
+    def processors(self, cursor: Any) -> tuple[tuple[int, Callable[[Any], Any]], ...]:
         """The result columns that need a conversion, with it: it may depend on the driver's
-        column types (PostgreSQL numbers), known once the statement ran (its cursor's
-        ``description``)."""
+        column types (PostgreSQL numbers), known once the statement ran."""
         if self.results is None:
             found = (
                 t.dialect_impl(self.dialect).result_processor(self.dialect, d[1])
-                for t, d in zip(self.types, description, strict=True)
+                for t, d in zip(self.types, cursor.description, strict=True)
             )
             self.results = tuple((i, f) for i, f in enumerate(found) if f is not None)
         return self.results
@@ -184,42 +163,6 @@ class _Compiled:
             if values[i] is not None:
                 values[i] = f(values[i])
         return values
-
-
-_Fetched = tuple[Any, list[Any]]  # a cursor's description, and the rows read
-
-
-def _run(cursor: Any, sql: str, args: Any, fetch: int, *, many: bool) -> _Fetched:
-    """One statement on a synchronous driver's cursor; ``fetch``: 0 nothing, 1 the first row,
-    2 every row."""
-    if many:
-        cursor.executemany(sql, args)
-        return None, []
-    cursor.execute(sql, args)
-    if fetch == 0:
-        return None, []
-    if fetch == 1:
-        raw = cursor.fetchone()
-        return cursor.description, [] if raw is None else [raw]
-    return cursor.description, cursor.fetchall()
-
-
-async def _run_async(driver: Any, sql: str, args: Any, fetch: int, *, many: bool) -> _Fetched:
-    """:func:`_run` on psycopg's asynchronous connection."""
-    cursor = driver.cursor()
-    try:
-        if many:
-            await cursor.executemany(sql, args)
-            return None, []
-        await cursor.execute(sql, args)
-        if fetch == 0:
-            return None, []
-        if fetch == 1:
-            raw = await cursor.fetchone()
-            return cursor.description, [] if raw is None else [raw]
-        return cursor.description, await cursor.fetchall()
-    finally:
-        await cursor.close()
 
 
 class Prepared:
@@ -264,23 +207,19 @@ class Prepared:
         rows: list[Mapping[str, Any]] = params if isinstance(params, list) else [params]
         compiled = self._for(dialect, rows[0])
         driver: Any = connection.connection.driver_connection
-        many = isinstance(params, list)
-        args: Any = [compiled.args(p) for p in rows] if many else compiled.args(rows[0])
-        cursor: Any = None
+        cursor = driver.cursor()
         try:
-            if dialect.is_async:
-                # An asynchronous connection, in a greenlet (Database.run_async): the whole
-                # statement, its answer read, in one wait through the event loop.
-                description, raw_rows = await_(
-                    _run_async(driver, compiled.sql, args, fetch, many=many)
-                )
-            else:
-                cursor = driver.cursor()
-                description, raw_rows = _run(cursor, compiled.sql, args, fetch, many=many)
-            if not raw_rows:
+            if isinstance(params, list):
+                cursor.executemany(compiled.sql, [compiled.args(p) for p in rows])
                 return []
-            processors = compiled.processors(description)
-            return [compiled.row(processors, raw) for raw in raw_rows]
+            cursor.execute(compiled.sql, compiled.args(params))
+            if fetch == 0:
+                return []
+            processors = compiled.processors(cursor)
+            if fetch == 1:
+                raw = cursor.fetchone()
+                return [] if raw is None else [compiled.row(processors, raw)]
+            return [compiled.row(processors, raw) for raw in cursor.fetchall()]
         except dialect.loaded_dbapi.Error as exc:
             lost = is_lost_connection(exc) or dialect.is_disconnect(
                 exc, connection.connection.dbapi_connection, cursor
@@ -296,8 +235,7 @@ class Prepared:
                 dialect=dialect,
             ) from exc
         finally:
-            if cursor is not None:
-                cursor.close()
+            cursor.close()
 
     def first(self, session: Session, params: Mapping[str, Any]) -> list[Any] | None:
         rows = self._execute(session, params, 1)
