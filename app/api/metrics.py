@@ -196,8 +196,10 @@ class Metrics:
         self.loop_busy_max = Gauge(
             "attune_event_loop_busy_stall_max_seconds",
             "The worst stall of each worker's event loop over the last 5 seconds, counting only "
-            "the time its thread ran (its CPU time in the stall): the loop held up by its own "
-            "work, not by waiting for a CPU of a busy machine (a series per worker process).",
+            "the time its thread ran (its CPU time in the stall, at most): the loop held up by "
+            "its own computing; the rest of a stall is a wait, for a CPU of a busy machine, for "
+            "the interpreter's lock, or in a blocking call on the loop (a series per worker "
+            "process).",
             registry=r,
             multiprocess_mode="liveall",
         )
@@ -351,8 +353,8 @@ class Metrics:
         loop = asyncio.get_running_loop()
         tick = tick_ms / 1000.0
         # The worst (wall, busy) of each past second; busy: the part of a stall the loop's
-        # thread ran, at most its CPU time over the tick and the stall (on a machine whose
-        # CPUs are all taken, a loop also waits for one: wall time, not the loop's own work).
+        # thread ran, at most its CPU time over the tick and the stall (the rest it waited:
+        # for a CPU of a busy machine, for the interpreter's lock, or in a blocking call).
         seconds: deque[tuple[float, float]] = deque(maxlen=STALL_WINDOW_S)
         worst = busiest = shown = shown_busy = 0.0
         second_ends = loop.time() + 1.0
@@ -428,16 +430,14 @@ def _install_round_trip_counting() -> None:
         _installed = True
 
 
-def _on_connect(_dbapi_connection: Any, record: Any) -> None:
-    # The driver's own connection: psycopg's, or the asynchronous one SQLAlchemy adapts.
-    driver = record.driver_connection
-    base = getattr(driver, "cursor_factory", None)
-    if base is None or not hasattr(driver, "pgconn"):
+def _on_connect(dbapi_connection: Any, _record: Any) -> None:
+    base = getattr(dbapi_connection, "cursor_factory", None)
+    if base is None or not hasattr(dbapi_connection, "pgconn"):
         return  # not psycopg: SQLite has no round trips
     counting = _counting_cursors.get(base)
     if counting is None:
         counting = _counting_cursors[base] = _counting_cursor(base)
-    driver.cursor_factory = counting
+    dbapi_connection.cursor_factory = counting
 
 
 def _count(cursor: Any) -> None:

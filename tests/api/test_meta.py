@@ -298,9 +298,8 @@ class TestRoundTrips:
         out = trace.open("w")
         traced: set[int] = set()
 
-        def on_checkout(_dbapi_connection: Any, record: Any, _proxy: Any) -> None:
-            # The driver's own connection: psycopg's, or the asynchronous one SQLAlchemy adapts.
-            pgconn = getattr(record.driver_connection, "pgconn", None)
+        def on_checkout(dbapi_connection: Any, _record: Any, _proxy: Any) -> None:
+            pgconn = getattr(dbapi_connection, "pgconn", None)
             if pgconn is not None and id(pgconn) not in traced:
                 traced.add(id(pgconn))
                 pgconn.trace(out.fileno())
