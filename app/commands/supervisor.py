@@ -72,6 +72,7 @@ class DrainingServer(uvicorn.Server):
         self.supervisor = supervisor  # a worker's: the process whose death stops it
         self.drain_deadline: float | None = None
         self._told = False
+        self._told_orphaned = False
 
     async def startup(self, sockets: list[socket] | None = None) -> None:
         await super().startup(sockets)
@@ -105,17 +106,31 @@ class DrainingServer(uvicorn.Server):
                 self.should_exit = True
         return await super().on_tick(counter)
 
+    async def shutdown(self, sockets: list[socket] | None = None) -> None:
+        await super().shutdown(sockets)
+        # A supervisor killed with SIGKILL may still be this process's parent when the drain
+        # begins: the kernel signals the worker (PR_SET_PDEATHSIG) as the thread that made
+        # it exits, and makes it another thread's child while the rest of the supervisor
+        # exits. It is gone by the time the drain is over.
+        self._say_if_orphaned()
+
+    def _say_if_orphaned(self) -> None:
+        """Say, once, that the supervisor is gone, if this worker's parent is no longer it."""
+        if self._told_orphaned or self.supervisor is None or os.getppid() == self.supervisor:
+            return
+        self._told_orphaned = True
+        log.error(
+            "The supervisor (process %s) is gone; worker process %s stops.",
+            self.supervisor,
+            os.getpid(),
+        )
+
     def _begin_drain(self) -> None:
         lifespan = getattr(self, "lifespan", None)
         drain = getattr(lifespan, "state", {}).get(DRAIN_STATE_KEY)
         if drain is not None:
             drain.begin()
-        if self.supervisor is not None and os.getppid() != self.supervisor:
-            log.error(
-                "The supervisor (process %s) is gone; worker process %s stops.",
-                self.supervisor,
-                os.getpid(),
-            )
+        self._say_if_orphaned()
         log.info(
             "Worker process %s is shutting down: it finishes the requests in flight (at most "
             "%g s), then exits.",
