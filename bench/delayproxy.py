@@ -52,6 +52,8 @@ class _Direction:
 
     def __init__(self, source: socket.socket, sink: socket.socket, delay_s: float) -> None:
         self.source, self.sink, self.delay_s = source, sink, delay_s
+        self.chunks = 0  # chunks delayed
+        self.unstamped = 0  # of them, read without the kernel's stamp: delayed from the read
 
     def run(self) -> None:
         try:
@@ -59,16 +61,19 @@ class _Direction:
                 while data := self.source.recv(CHUNK):
                     self.sink.sendall(data)
                 return
-            self.source.setsockopt(socket.SOL_SOCKET, _SO_TIMESTAMPNS, 1)
             while True:
                 data, ancillary, _, _ = self.source.recvmsg(CHUNK, _ANCILLARY)
                 if not data:
                     break
-                arrived = time.time()
+                arrived = None
                 for level, kind, raw in ancillary:
                     if level == socket.SOL_SOCKET and kind == _SO_TIMESTAMPNS:
                         seconds, nanoseconds = _STAMP.unpack(raw[: _STAMP.size])
                         arrived = seconds + nanoseconds * 1e-9
+                self.chunks += 1
+                if arrived is None:
+                    self.unstamped += 1
+                    arrived = time.time()
                 wait = arrived + self.delay_s - time.time()
                 if wait > 0:
                     time.sleep(wait)  # Linux oversleeps by about 0.05 ms (its timer slack)
@@ -93,8 +98,11 @@ class DelayProxy:
     ) -> None:
         self.target, self.delay_s = target, max(0.0, delay_ms) / 1000.0
         self.server = socket.create_server(listen or ("127.0.0.1", 0))
+        if self.delay_s > 0:  # stamps from the first byte on: accepted sockets inherit it
+            self.server.setsockopt(socket.SOL_SOCKET, _SO_TIMESTAMPNS, 1)
         self.port: int = self.server.getsockname()[1]
         self.connections = 0
+        self._directions: list[_Direction] = []
         self._sockets: list[socket.socket] = []
         self._stopped = threading.Event()
 
@@ -109,7 +117,7 @@ class DelayProxy:
                 break
             client.settimeout(None)
             try:
-                upstream = socket.create_connection(self.target, timeout=10)
+                upstream = self._connect()
             except OSError:
                 client.close()
                 continue
@@ -122,7 +130,34 @@ class DelayProxy:
                 _Direction(client, upstream, self.delay_s),
                 _Direction(upstream, client, self.delay_s),
             ):
+                self._directions.append(direction)
                 threading.Thread(target=direction.run, daemon=True).start()
+
+    def _connect(self) -> socket.socket:
+        """A connection to the target, stamping what arrives on it from the first byte on."""
+        host, port = self.target
+        family, kind, proto, _, address = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)[0]
+        sock = socket.socket(family, kind, proto)
+        try:
+            if self.delay_s > 0:
+                sock.setsockopt(socket.SOL_SOCKET, _SO_TIMESTAMPNS, 1)
+            sock.settimeout(10)
+            sock.connect(address)
+        except OSError:
+            sock.close()
+            raise
+        return sock
+
+    @property
+    def chunks(self) -> int:
+        """Chunks delayed so far (none with ``delay_ms`` 0)."""
+        return sum(d.chunks for d in self._directions)
+
+    @property
+    def unstamped(self) -> int:
+        """Of them, those the kernel gave no arrival stamp: delayed from when they were read,
+        later than the delay by however long they waited in the socket."""
+        return sum(d.unstamped for d in self._directions)
 
     def stop(self) -> None:
         self._stopped.set()
@@ -163,6 +198,13 @@ def main(argv: list[str] | None = None) -> None:
     print(f"listening on 127.0.0.1:{proxy.port}", flush=True)
     stop.wait(args.max_seconds)
     proxy.stop()
+    if proxy.delay_s > 0:
+        print(
+            f"{proxy.chunks} chunks delayed, {proxy.unstamped} of them without the kernel's "
+            "arrival stamp (delayed from when they were read)",
+            file=sys.stderr,
+            flush=True,
+        )
     sys.exit(0)
 
 

@@ -231,9 +231,9 @@ def run_delay(args: argparse.Namespace, wrk: str, delay_ms: float, workdir: Path
     with contextlib.ExitStack() as pooled:
         target = (host, int(port or 5432))
         if args.pooler == "pgbouncer":
-            from tests.support.pgbouncer import running_pgbouncer
+            from tests.support.pgbouncer import launch as launch_pgbouncer
 
-            target = ("127.0.0.1", pooled.enter_context(running_pgbouncer()).port)
+            target = ("127.0.0.1", pooled.enter_context(launch_pgbouncer()).port)
         return _run_delay(args, wrk, delay_ms, workdir, target, userinfo, budget)
 
 

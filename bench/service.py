@@ -390,6 +390,7 @@ def wait_workers(base: str, workers: int, log: Path, timeout: float = 60) -> Non
     live ones): the first one answers /readyz while the others may still be starting, and a
     window measured then would count one worker's throughput and the others' start-up."""
     import httpx
+    from prometheus_client.parser import text_string_to_metric_families
 
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
@@ -397,9 +398,14 @@ def wait_workers(base: str, workers: int, log: Path, timeout: float = 60) -> Non
             text = httpx.get(f"{base}/metrics", timeout=2).text
         except httpx.TransportError:
             text = ""
-        for line in text.splitlines():
-            if line.startswith("attune_workers ") and float(line.split()[1]) >= workers:
-                return
+        running = [
+            sample.value
+            for family in text_string_to_metric_families(text)
+            for sample in family.samples
+            if sample.name == "attune_workers"
+        ]
+        if running and running[0] >= workers:
+            return
         time.sleep(0.2)
     tail = log.read_text()[-3000:]
     raise RuntimeError(f"{workers} workers not running within {timeout} s:\n{tail}")
@@ -674,6 +680,8 @@ SCENARIOS = ("loop", "outcome", "model")
 # The robots of the CPU and open-loop targets: SQLite with 1 worker, PostgreSQL with 2.
 TARGET_CLIENTS = {"sqlite": 8, "postgresql": 16}
 CPU_TARGET = {"sqlite": 4.0, "postgresql": 5.0}  # service CPU/request ≤ this × the reference's
+FLOOR_TARGET = {"sqlite": 2.0, "postgresql": 1.5}
+"""The most a robot-loop request's server CPU may be, × its floor printed in the same run."""
 OPEN_P99_MS = {"sqlite": 30.0, "postgresql": 60.0}
 
 
@@ -1069,6 +1077,13 @@ def targets(bench: Bench, console: Any) -> list[str]:
             floor = bench.floors.get(engine)
             if floor is not None:
                 lines.append(floor_line(engine, floor, bare, limit * bare, r.fig.cpu_ms))
+                least = bare + floor.learner_ms + floor.statements_ms
+                over = r.fig.cpu_ms / least
+                lines.append(
+                    f"{engine}, {clients} robots: the service's {r.fig.cpu_ms:.3f} ms is "
+                    f"{over:.2f}× this floor of {least:.3f} ms (target ≤ "
+                    f"{FLOOR_TARGET[engine]:g}×): {verdict(over <= FLOOR_TARGET[engine])}"
+                )
         r = find(engine, "open", clients)
         if r is not None:
             limit = OPEN_P99_MS[engine]

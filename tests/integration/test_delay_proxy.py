@@ -89,6 +89,17 @@ def test_each_way_is_delayed(delayproxy: Any, echo: tuple[str, int]) -> None:
     assert took >= 0.080  # 40 ms there and 40 ms back, at the least
 
 
+def test_every_chunk_is_delayed_from_its_arrival(delayproxy: Any, echo: tuple[str, int]) -> None:
+    """Each chunk carries the kernel's arrival stamp: the delay is counted from it, not from
+    the read (a chunk read late would be delayed by its wait in the socket as well)."""
+    proxy = delayproxy.DelayProxy(echo, 5.0)
+    with proxy as port:
+        got, _ = _exchange(port, os.urandom(200_000))
+    assert len(got) == 200_000
+    assert proxy.chunks >= 2  # at least one each way
+    assert proxy.unstamped == 0
+
+
 def test_chunks_in_flight_are_delayed_once(delayproxy: Any, echo: tuple[str, int]) -> None:
     """Ten chunks sent back to back arrive about one round trip later, not ten: the delay is
     counted from each chunk's arrival, not after the chunk before it was sent."""

@@ -1,11 +1,14 @@
 """PgBouncer in transaction pooling, in front of the test PostgreSQL, as the test's own process.
 
-``running_pgbouncer()`` starts Debian's ``/usr/sbin/pgbouncer`` on a free port of 127.0.0.1
-with an ini, a log, a pid file and a users file of its own in a temporary folder, in
-``pool_mode = transaction`` for every database of the test server (a ``*`` entry), and stops it
-at the end. PgBouncer refuses to run as root: under root it is started with ``-u postgres``
-(it drops to that user itself; the folder is given to that user). Clients authenticate with
-``auth_type = trust``; PgBouncer logs in to the server as the test URL's user (and password).
+``launch()`` starts Debian's ``/usr/sbin/pgbouncer`` on a free port of 127.0.0.1 with an ini,
+a log, a pid file and a users file of its own in a temporary folder, in ``pool_mode =
+transaction`` for every database of the test server (a ``*`` entry), and stops it at the end;
+it raises ``PgBouncerFailed`` when PgBouncer is missing or does not start.
+``running_pgbouncer()``, the tests' form of it, fails the test with that message instead (it
+never skips); ``bench/remote_db.py --pooler pgbouncer`` uses ``launch()``. PgBouncer refuses
+to run as root: under root it is started with ``-u postgres`` (it drops to that user itself;
+the folder is given to that user). Clients authenticate with ``auth_type = trust``; PgBouncer
+logs in to the server as the test URL's user (and password).
 
 The ``pgbouncer`` test engine (``tests/support/fixtures.py``) and the stress tests put the
 service's URL through it, with ``ATTUNE_DATABASE_POOLER=transaction``; databases are made and
@@ -22,7 +25,7 @@ import subprocess
 import tempfile
 import time
 from collections.abc import Iterator
-from contextlib import contextmanager
+from contextlib import ExitStack, contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -91,15 +94,30 @@ def _ini(folder: Path, port: int) -> str:
     )
 
 
+class PgBouncerFailed(RuntimeError):
+    """PgBouncer is missing, or did not start (the message has its log)."""
+
+
 @contextmanager
 def running_pgbouncer() -> Iterator[Bouncer]:
-    """PgBouncer on a free port, transaction pooling, until the block ends. Fails the test (it
-    never skips) when PgBouncer is missing or does not start."""
+    """``launch()`` for a test: fails the test (it never skips) when PgBouncer is missing or
+    does not start."""
+    with ExitStack() as stack:
+        try:
+            bouncer = stack.enter_context(launch())
+        except PgBouncerFailed as failure:
+            pytest.fail(str(failure), pytrace=False)
+        yield bouncer
+
+
+@contextmanager
+def launch() -> Iterator[Bouncer]:
+    """PgBouncer on a free port, transaction pooling, until the block ends; raises
+    ``PgBouncerFailed`` when it is missing or does not start."""
     if not PGBOUNCER.exists():
-        pytest.fail(
-            f"{PGBOUNCER} is missing: the pgbouncer test engine needs Debian's pgbouncer "
-            "(apt-get install pgbouncer; .ci/run installs it).",
-            pytrace=False,
+        raise PgBouncerFailed(
+            f"{PGBOUNCER} is missing: PgBouncer in transaction pooling needs Debian's pgbouncer "
+            "(apt-get install pgbouncer; .ci/run installs it)."
         )
     folder = Path(tempfile.mkdtemp(prefix="attune-pgbouncer-"))
     user = make_url(PG_SERVER).username or "postgres"
@@ -123,7 +141,7 @@ def running_pgbouncer() -> Iterator[Bouncer]:
         deadline = time.monotonic() + 15
         while not _answers(port):
             if process.poll() is not None or time.monotonic() > deadline:
-                pytest.fail(f"PgBouncer did not start:\n{bouncer.log()}", pytrace=False)
+                raise PgBouncerFailed(f"PgBouncer did not start:\n{bouncer.log()}")
             time.sleep(0.05)
         yield bouncer
     finally:
