@@ -52,20 +52,26 @@ from pathlib import Path
 from typing import Any
 
 import httpx
-from prometheus_client.parser import text_string_to_metric_families
 from service import (
     PG_SERVER,
     Data,
     Figures,
+    Samples,
     fresh_database,
     group_cpu_s,
     machine,
     require_wrk,
     run_wrk,
+    scrape,
     server,
+    writes_by_path,
 )
 
 HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE.parent))  # the repository, for its PgBouncer launcher
+from tests.support.pgbouncer import PgBouncerFailed  # noqa: E402
+from tests.support.pgbouncer import launch as launch_pgbouncer  # noqa: E402
+
 WORKERS = 2
 STALL_MS = 5.0  # the stall target
 TARGET_DELAY_MS = 1.0
@@ -98,18 +104,8 @@ def say(text: str) -> None:
 
 
 # -- /metrics ----------------------------------------------------------------------------------
-def scrape(url: str) -> dict[tuple[str, tuple[tuple[str, str], ...]], float]:
-    """Every sample of ``url``'s /metrics, by name and labels."""
-    text = httpx.get(f"{url}/metrics", timeout=10).text
-    out: dict[tuple[str, tuple[tuple[str, str], ...]], float] = {}
-    for family in text_string_to_metric_families(text):
-        for sample in family.samples:
-            out[(sample.name, tuple(sorted(sample.labels.items())))] = sample.value
-    return out
-
-
 def stall_max_by_worker(
-    samples: dict[tuple[str, tuple[tuple[str, str], ...]], float],
+    samples: Samples,
     metric: str = "attune_event_loop_stall_max_seconds",
 ) -> dict[str, float]:
     return {
@@ -119,23 +115,11 @@ def stall_max_by_worker(
     }
 
 
-def stalls_over(
-    samples: dict[tuple[str, tuple[tuple[str, str], ...]], float], limit_s: float
-) -> float:
+def stalls_over(samples: Samples, limit_s: float) -> float:
     """How many stalls the histogram counted above ``limit_s`` (a bucket's bound)."""
     total = samples.get(("attune_event_loop_stall_seconds_count", ()), 0.0)
     under = samples.get(("attune_event_loop_stall_seconds_bucket", (("le", f"{limit_s}"),)), 0.0)
     return total - under
-
-
-def writes_by_path(
-    samples: dict[tuple[str, tuple[tuple[str, str], ...]], float],
-) -> dict[str, float]:
-    return {
-        dict(labels)["path"]: value
-        for (name, labels), value in samples.items()
-        if name == "attune_robot_writes_total"
-    }
 
 
 class StallWatch:
@@ -231,8 +215,6 @@ def run_delay(args: argparse.Namespace, wrk: str, delay_ms: float, workdir: Path
     with contextlib.ExitStack() as pooled:
         target = (host, int(port or 5432))
         if args.pooler == "pgbouncer":
-            from tests.support.pgbouncer import launch as launch_pgbouncer
-
             target = ("127.0.0.1", pooled.enter_context(launch_pgbouncer()).port)
         return _run_delay(args, wrk, delay_ms, workdir, target, userinfo, budget)
 
@@ -462,7 +444,10 @@ def main(argv: list[str] | None = None) -> None:
     for delay in delays:
         say(f"delay {delay:g} ms each way")
         with tempfile.TemporaryDirectory(prefix="attune-remote-") as tmp:
-            w = run_delay(args, wrk, delay, Path(tmp))
+            try:
+                w = run_delay(args, wrk, delay, Path(tmp))
+            except PgBouncerFailed as failure:
+                sys.exit(f"remote_db.py: {failure}")
         windows.append(w)
         say(
             f"  {w.rps:.0f} req/s, p50 {w.p50_ms:.1f} ms, p99 {w.p99_ms:.1f} ms, "

@@ -348,18 +348,36 @@ def run_wrk(
     return fig
 
 
-def robot_writes(url: str) -> dict[str, float]:
-    """PostgreSQL: the robots' writes so far by where they ran (``attune_robot_writes_total``
-    of the service's /metrics: inline on the event loop, or in the thread pool)."""
+Samples = dict[tuple[str, tuple[tuple[str, str], ...]], float]
+"""A /metrics scrape: each sample's value by its name and its sorted labels."""
+
+
+def scrape(url: str, timeout: float = 10) -> Samples:
+    """Every sample of the service's /metrics at ``url``, parsed by prometheus_client."""
     import httpx
     from prometheus_client.parser import text_string_to_metric_families
 
-    found: dict[str, float] = {}
-    for family in text_string_to_metric_families(httpx.get(f"{url}/metrics", timeout=10).text):
-        for sample in family.samples:
-            if sample.name == "attune_robot_writes_total":
-                found[sample.labels["path"]] = sample.value
-    return found
+    text = httpx.get(f"{url}/metrics", timeout=timeout).text
+    return {
+        (sample.name, tuple(sorted(sample.labels.items()))): sample.value
+        for family in text_string_to_metric_families(text)
+        for sample in family.samples
+    }
+
+
+def writes_by_path(samples: Samples) -> dict[str, float]:
+    """PostgreSQL: the robots' writes so far by where they ran (``attune_robot_writes_total``:
+    inline on the event loop, or in the thread pool)."""
+    return {
+        dict(labels)["path"]: value
+        for (name, labels), value in samples.items()
+        if name == "attune_robot_writes_total"
+    }
+
+
+def robot_writes(url: str) -> dict[str, float]:
+    """``writes_by_path`` of the service at ``url`` now."""
+    return writes_by_path(scrape(url))
 
 
 # -- processes and databases -------------------------------------------------------------------
@@ -390,21 +408,14 @@ def wait_workers(base: str, workers: int, log: Path, timeout: float = 60) -> Non
     live ones): the first one answers /readyz while the others may still be starting, and a
     window measured then would count one worker's throughput and the others' start-up."""
     import httpx
-    from prometheus_client.parser import text_string_to_metric_families
 
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         try:
-            text = httpx.get(f"{base}/metrics", timeout=2).text
+            running = scrape(base, timeout=2).get(("attune_workers", ()), 0.0)
         except httpx.TransportError:
-            text = ""
-        running = [
-            sample.value
-            for family in text_string_to_metric_families(text)
-            for sample in family.samples
-            if sample.name == "attune_workers"
-        ]
-        if running and running[0] >= workers:
+            running = 0.0
+        if running >= workers:
             return
         time.sleep(0.2)
     tail = log.read_text()[-3000:]
