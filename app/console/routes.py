@@ -695,9 +695,11 @@ _ACTIONS = {
         "should go too).",
     ),
     "delete": (
-        "Delete the person",
-        "Remove {who} with the whole history ({episodes} episodes) and the model. This "
-        "cannot be undone; export the model first if it may be needed again.",
+        "Erase the person",
+        "Erase everything stored about {who}: the whole history ({episodes} episodes), what "
+        "the robots learned, feedback, and the staff corrections with their notes. The audit "
+        "log keeps only that they were erased, by whom and when. This cannot be undone; "
+        "export the model first if it may be needed again.",
     ),
 }
 
@@ -777,7 +779,7 @@ def delete(
     form: FormDep,
     fleet: FleetQuery = None,
 ) -> RedirectResponse:
-    """Delete the user with its history and model (as DELETE /v1/users/{id})."""
+    """Erase the person (as DELETE /v1/users/{id})."""
     _check_user_id(user_id)
     check_post(request, admin, form)
     users_service.delete_user(session, ctx, admin.principal, user_id, fleet=fleet)

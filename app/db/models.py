@@ -63,7 +63,9 @@ class User(Base):
     since."""
 
     __tablename__ = "users"
-    __table_args__ = (UniqueConstraint("fleet", "user_id"),)
+    # SQLite: AUTOINCREMENT, so that an erased user's number is never given to the next user
+    # made (it keys their learner in every worker's cache, and each row that was theirs).
+    __table_args__ = (UniqueConstraint("fleet", "user_id"), {"sqlite_autoincrement": True})
 
     id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)
     user_id: Mapped[str] = mapped_column(String(CLIENT_ID))
@@ -304,8 +306,10 @@ class AuditEntry(Base):
     """One admin action: who (the key, its role and fleet), what (action, target), when.
 
     Append only: rows are added and read, never changed or removed (the ORM refuses both, see
-    ``app.db.repositories.audit``), and they outlive their target (no foreign key: the entry of
-    a deleted user stays).
+    ``app.db.repositories.audit``; the database too, with triggers), and they outlive their
+    target (no foreign key: the entry of a deleted user stays). The one change allowed, by the
+    database as well: once a person is erased, the ``detail`` of the entries about them becomes
+    ``{"erased": true}`` (who did what, when, and to which id, stay).
     """
 
     __tablename__ = "audit_log"

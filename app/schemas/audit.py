@@ -37,8 +37,9 @@ class AuditEntryOut(BaseModel):
     )
     fleet: str | None = Field(description="The target's fleet.")
     detail: dict[str, Any] | None = Field(
-        description="Facts of the action (the model version "
-        "it produced, the episodes a deletion removed, ...)."
+        description="Facts of the action (the model version it produced, what a correction "
+        'said, ...); {"erased": true} for the entries about a person who was erased, and for '
+        "the erasure's own (user.delete)."
     )
 
 

@@ -20,7 +20,7 @@ from app.schemas.common import position_of
 
 from .context import Principal
 
-__all__ = ["ACTIONS", "CLI", "list_audit", "record"]
+__all__ = ["ABOUT_A_USER", "ACTIONS", "CLI", "list_audit", "record"]
 
 ACTIONS = (
     "user.delete",
@@ -37,6 +37,8 @@ ACTIONS = (
     "correction.lift",
     "fleet.prior",
 )
+# The actions whose target is a user: their entries' details are blanked when the user is erased.
+ABOUT_A_USER = ("user.", "model.", "correction.")
 CLI = Principal("cli", "admin", "default")  # an operator at the machine (``attune keys ...``)
 
 

@@ -9,12 +9,14 @@ from __future__ import annotations
 
 import base64
 import binascii
+import logging
 import re
 from dataclasses import dataclass
 from typing import Any
 
 from sqlalchemy.orm import Session
 
+from app.db.repositories import audit as audit_repo
 from app.db.repositories import models as models_repo
 from app.db.repositories import users as repo
 from app.db.repositories.users import UserRow
@@ -30,6 +32,8 @@ from .context import Principal, ServiceContext
 from .learners import fresh_learner, replace_model
 from .missions import current_version
 from .prior import starting_learner
+
+log = logging.getLogger("attune.users")
 
 __all__ = [
     "USER_FIELD_RIGHTS",
@@ -326,15 +330,30 @@ def delete_user(
     *,
     fleet: str | None = None,
 ) -> None:
+    """Erase a person: their row and every row that refers to it (the model, its journal and
+    snapshots, episodes, decisions, answers, feedback, corrections and their notes: the
+    foreign keys cascade), and, in the audit log, the details of the entries about them
+    (``{"erased": true}``: who did what to which id, and when, stay). The erasure's own entry
+    holds nothing of the person either. The learner leaves this process's cache; the other
+    workers' never find it again (a user's number is never reused)."""
     require_manager(principal)
     user = visible_user(session, principal, user_id, fleet=fleet, lock=True)
+    repo.delete_user(session, user)
+    redacted = audit_repo.redact_erased(
+        session, fleet=user.fleet, user_id=user_id, prefixes=audit.ABOUT_A_USER
+    )
     audit.record(
         session,
         principal,
         "user.delete",
         target=user_id,
         fleet=user.fleet,
-        detail={"episodes": user.episode_count},
+        detail=dict(audit_repo.ERASED),
     )
-    repo.delete_user(session, user)
     ctx.cache.drop(user.id)
+    log.info(
+        "erased user %s of fleet %s (%d audit entries about them blanked)",
+        user_id,
+        user.fleet,
+        redacted,
+    )

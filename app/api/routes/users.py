@@ -92,6 +92,8 @@ def delete_user(
     principal: CurrentPrincipal,
     fleet: Fleet = None,
 ) -> Response:
-    """Remove a user with its history and model (staff of the fleet, admin)."""
+    """Erase a person: their user, history, model, journal, feedback and corrections; the
+    audit entries about them keep who did what and when, and nothing of them (staff of the
+    fleet, admin)."""
     service.delete_user(session, ctx, principal, user_id, fleet=fleet)
     return no_content()

@@ -1,5 +1,7 @@
 """The audit log of admin actions. Entries are added and read, never changed or removed: this
-module offers nothing else, and the database refuses both (triggers, see the migrations)."""
+module offers nothing else, and the database refuses both (triggers, see the migrations), with
+one exception the database checks too: once a person is erased, the details of the entries about
+them are blanked (:func:`redact_erased`)."""
 
 from __future__ import annotations
 
@@ -7,13 +9,13 @@ import datetime as dt
 from dataclasses import dataclass
 from typing import Any
 
-from sqlalchemy import insert, select
+from sqlalchemy import insert, select, update
 from sqlalchemy.orm import Session
 
 from ..models import AuditEntry
 from ._rows import columns, conn, table
 
-__all__ = ["AuditRow", "add", "list_page"]
+__all__ = ["ERASED", "AuditRow", "add", "list_page", "redact_erased"]
 
 
 @dataclass(slots=True)
@@ -28,6 +30,8 @@ class AuditRow:
     fleet: str | None  # the target's fleet
     detail: dict[str, Any] | None
 
+
+ERASED: dict[str, Any] = {"erased": True}  # the detail of an entry about an erased person
 
 _audit = table(AuditEntry)
 _COLS = columns(_audit, AuditRow)
@@ -58,3 +62,16 @@ def list_page(
     if fleet is not None:
         stmt = stmt.where(_audit.c.fleet == fleet)
     return [AuditRow(*row) for row in conn(session).execute(stmt)]
+
+
+def redact_erased(session: Session, *, fleet: str, user_id: str, prefixes: tuple[str, ...]) -> int:
+    """Blank the detail of every entry of ``fleet`` about ``user_id`` whose action starts with
+    one of ``prefixes`` (``ERASED`` instead): who did what and when stay. Called once the user
+    is deleted, in the same transaction; the database refuses it while the user exists. The
+    number of entries blanked."""
+    about = (_audit.c.fleet == fleet) & (_audit.c.target == user_id)
+    family = _audit.c.action.startswith(prefixes[0])
+    for prefix in prefixes[1:]:
+        family = family | _audit.c.action.startswith(prefix)
+    done = conn(session).execute(update(_audit).where(about & family).values(detail=ERASED))
+    return int(done.rowcount or 0)
