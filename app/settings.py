@@ -153,6 +153,14 @@ class Settings(BaseSettings):
         "snapshots a write stores only the samples it taught, and a worker that does not have "
         "the learner in memory replays them onto the last snapshot (1: store it on every write).",
     )
+    view_log_days: int = Field(
+        default=365,
+        ge=0,
+        le=36_500,
+        description="How long the record of who looked at a person's data keeps each entry, in "
+        "days (older ones are removed as new ones are added; 0: kept until the person is "
+        "erased).",
+    )
     prior_min_contributors: int = Field(
         default=5,
         ge=3,

@@ -274,6 +274,9 @@ class RequestContextMiddleware:
             logs.unbind(token)
 
 
+HEAD_KEY = "attune.head"  # in a HEAD request's scope, run as its GET: no body is sent
+
+
 class HeadMiddleware:
     """``HEAD`` on every ``GET`` route: the request runs as its ``GET`` (same status and
     headers, ``Content-Length`` included) and the body is left out. Routes do not declare
@@ -298,7 +301,7 @@ class HeadMiddleware:
             await send(message)
 
         # A copy: the server reads the method of its own scope to know that no body follows.
-        as_get = {**scope, "method": "GET"}
+        as_get = {**scope, "method": "GET", HEAD_KEY: True}
         try:
             await self.app(as_get, receive, headers_only)
         finally:

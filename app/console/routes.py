@@ -27,6 +27,7 @@ from pydantic import ValidationError
 
 from app.api.deps import RequestSession, TransactionalRoute, writes
 from app.api.errors import validation_detail
+from app.api.middleware import HEAD_KEY
 from app.errors import AppError, Conflict, NotFound, ValidationFailed
 from app.learning import Mission
 from app.schemas.common import CLIENT_ID_PATTERN, MAX_POSITION
@@ -40,6 +41,7 @@ from app.services import missions as missions_service
 from app.services import models as models_service
 from app.services import profile as profile_service
 from app.services import users as users_service
+from app.services import views as data_views
 from app.services.context import ServiceContext
 
 from . import views
@@ -284,6 +286,37 @@ def _counts(session: RequestSession, user: UserOut) -> dict[str, int]:
     }
 
 
+def _looked(
+    request: Request, session: RequestSession, admin: Admin, user: UserOut, page: str
+) -> list[Any]:
+    """Record that this staff member or admin opens ``page`` of the person (who looked:
+    ``app.services.views``), and the few who looked before them, newest first, for the
+    page's header."""
+    before = data_views.list_views(
+        session,
+        admin.principal,
+        limit=LOOKED_SHOWN,
+        cursor=None,
+        user_id=user.user_id,
+        fleet=user.fleet,
+    ).items
+    if request.scope.get(HEAD_KEY):  # a HEAD sends no data: nothing looked at
+        return before
+    data_views.record(
+        request.app.state.db,
+        request.app.state.settings,
+        admin.principal,
+        user_id=user.user_id,
+        fleet=user.fleet,
+        what=f"console.{page}",
+        via="console",
+    )
+    return before
+
+
+LOOKED_SHOWN = 3  # the header's "looked at by" entries
+
+
 _SLOT_NAME = Annotated[str | None, Query(max_length=64)]
 _CORRECTION_KINDS = ("prefers", "avoid", "quiet")
 _CORRECTION_FIELDS = ("kind", "service", "detail", "note")
@@ -306,6 +339,7 @@ def _profile_page(
     typed: dict[str, str] | None = None,
     error: str | None = None,
     status: int = 200,
+    looked: list[Any] | None = None,
 ) -> HTMLResponse:
     principal = admin.principal
     profile = profile_service.profile_view(session, ctx, principal, user.user_id, fleet=user.fleet)
@@ -346,6 +380,7 @@ def _profile_page(
         mission_version=console_service.mission_version(session, user),
         zone=mission.time_zone,
         key_names=console_service.key_names(session, [c.author for c in profile.corrections]),
+        looked=looked,
     )
 
 
@@ -365,8 +400,17 @@ def user_page(
     (``time_slot`` and ``situation``) shows the evidence and the form that corrects it."""
     _check_user_id(user_id)
     user = users_service.get_user(session, admin.principal, user_id, fleet=fleet)
+    looked = _looked(request, session, admin, user, "profile")
     return _profile_page(
-        request, session, ctx, admin, user, time_slot=time_slot, situation=situation, done=done
+        request,
+        session,
+        ctx,
+        admin,
+        user,
+        time_slot=time_slot,
+        situation=situation,
+        done=done,
+        looked=looked,
     )
 
 
@@ -511,10 +555,12 @@ def details_page(
     recent = models_service.stats(session, principal, user_id, last=last, fleet=user.fleet)
     xs, ys = views.curve(overall.cumulative_reward)
     mission = console_service.user_mission(session, ctx, user)
+    looked = _looked(request, session, admin, user, "details")
     return _page(
         request,
         "details.html",
         admin,
+        looked=looked,
         user=user,
         model=model,
         tab="details",
@@ -565,10 +611,12 @@ def why_page(
     trace = console_service.latest_trace_in_context(
         session, ctx, principal, user_id, time_slot=time_slot, situation=situation, fleet=user.fleet
     )
+    looked = _looked(request, session, admin, user, "why")
     return _page(
         request,
         "why.html",
         admin,
+        looked=looked,
         user=user,
         model=model,
         tab="details",
@@ -621,10 +669,12 @@ def episodes_page(
     if newest is not None and newest < user.episodes:
         newer = newest + per_page + 1 if newest + per_page < user.episodes else 0
     mission = console_service.user_mission(session, ctx, user)
+    looked = _looked(request, session, admin, user, "episodes")
     return _page(
         request,
         "episodes.html",
         admin,
+        looked=looked,
         user=user,
         tab="episodes",
         page=page,
@@ -655,6 +705,7 @@ def trace_fragment(
     trace = episodes_service.get_trace(session, ctx, admin.principal, episode_id)
     if trace.user_id != user_id or trace.fleet != user.fleet:
         raise PageError(404, "Not found", f"Episode {episode_id!r} is not {user_id!r}'s.")
+    _looked(request, session, admin, user, "trace")
     mission = console_service.user_mission(session, ctx, user)
     return _page(
         request,
@@ -681,6 +732,15 @@ def export_model(
     """Download the model document of GET /v1/users/{id}/model/export."""
     _check_user_id(user_id)
     doc = models_service.export_model(session, ctx, admin.principal, user_id, fleet=fleet)
+    data_views.add(
+        session,
+        ctx.settings,
+        admin.principal,
+        fleet=users_service.fleet_of(admin.principal, fleet, user_id),
+        user_id=user_id,
+        what="export",
+        via="console",
+    )
     name = f"attune-model-{user_id.replace(':', '_')}.json"
     return JSONResponse(doc, headers={"Content-Disposition": f'attachment; filename="{name}"'})
 

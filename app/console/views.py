@@ -20,6 +20,7 @@ from urllib.parse import quote, urlencode
 
 from app.learning import Mission
 from app.learning.guidance import Reason, ReasonCode
+from app.schemas.audit import ViewOut
 from app.schemas.common import ActionOut
 from app.schemas.models import ActionBelief, ContextModel, ModelOut, StartedFrom, StateModel
 from app.schemas.profile import CorrectionOut, ProfileContext, ProfileOut, RobotWill, Wanted
@@ -682,6 +683,24 @@ def drivers(started: StartedFrom, corrections: Sequence[CorrectionOut], episodes
         started.contributors if started.kind == "fleet_prior" else None,
         episodes,
     )
+
+
+_PAGE_WORDS = {
+    "console.profile": "the profile",
+    "console.details": "the details",
+    "console.why": "why an action",
+    "console.episodes": "the episodes",
+    "console.trace": "an episode",
+    "export": "the export",
+}
+
+
+def looked_words(view: ViewOut, me: str, zone: str) -> str:
+    """One earlier look at a person, for the page's header: "night-shift, 2026-12-02 02:14 (the
+    profile)"; the reader's own key is "you"."""
+    who = "you" if view.actor.key_id == me else (view.actor.name or f"key {view.actor.key_id[:12]}")
+    where = _PAGE_WORDS.get(view.what, f"the API's {view.what}" if view.via == "api" else view.what)
+    return f"{who}, {fmt_zone(view.at, zone)} ({where})"
 
 
 def key_label(key_id: str, names: dict[str, str]) -> str:

@@ -26,6 +26,7 @@ __all__ = [
     "ApiKey",
     "AuditEntry",
     "Correction",
+    "DataView",
     "Decision",
     "Episode",
     "Feedback",
@@ -323,3 +324,28 @@ class AuditEntry(Base):
     target: Mapped[str] = mapped_column(String(CLIENT_ID))  # a user id or a key id
     fleet: Mapped[str | None] = mapped_column(String(CLIENT_ID))  # the target's fleet
     detail: Mapped[dict[str, Any] | None] = mapped_column(JSON)
+
+
+class DataView(Base):
+    """One read of a person's data by staff or an admin: who (the key, its role and fleet),
+    when, what (``what``: the API resource or console page) and through which door (``via``:
+    ``api`` or ``console``). Robots' reads are not recorded. Part of the person's data: erased
+    with them (the foreign key cascades); older entries than the deployment's window
+    (``ATTUNE_VIEW_LOG_DAYS``) are removed as new ones are added."""
+
+    __tablename__ = "data_views"
+    __table_args__ = (
+        Index("ix_data_views_user_id", "user_pk", "id"),
+        Index("ix_data_views_fleet_id", "fleet", "id"),
+        Index("ix_data_views_fleet_at", "fleet", "at"),
+    )
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)
+    user_pk: Mapped[int] = mapped_column(ForeignKey("users.id", ondelete="CASCADE"))
+    fleet: Mapped[str] = mapped_column(String(CLIENT_ID))  # the person's
+    at: Mapped[dt.datetime] = mapped_column(UTCDateTime(), default=utcnow)
+    actor_key_id: Mapped[str] = mapped_column(String(ID))
+    actor_role: Mapped[str] = mapped_column(String(16))
+    actor_fleet: Mapped[str] = mapped_column(String(CLIENT_ID))
+    what: Mapped[str] = mapped_column(String(32))
+    via: Mapped[str] = mapped_column(String(8))

@@ -7,7 +7,7 @@ from pydantic import BaseModel, Field
 
 from .common import Page
 
-__all__ = ["AuditActor", "AuditEntryOut", "AuditList"]
+__all__ = ["AuditActor", "AuditEntryOut", "AuditList", "ViewActor", "ViewList", "ViewOut"]
 
 
 class AuditActor(BaseModel):
@@ -45,3 +45,30 @@ class AuditEntryOut(BaseModel):
 
 class AuditList(Page):
     items: list[AuditEntryOut]
+
+
+class ViewActor(AuditActor):
+    """The key that read (its ``name`` if it has one, as staff named it: "night-shift")."""
+
+    name: str | None
+
+
+class ViewOut(BaseModel):
+    """One read of a person's data by staff or an admin."""
+
+    id: str = Field(description="Opaque; entries are listed newest first.")
+    at: dt.datetime
+    user_id: str
+    fleet: str
+    actor: ViewActor
+    what: str = Field(
+        examples=["profile"],
+        description="What was read: user, model, stats, profile, corrections, episodes, "
+        "episode, export (the API), or a console page: console.profile, console.details, "
+        "console.why, console.episodes, console.trace.",
+    )
+    via: str = Field(description="api or console.")
+
+
+class ViewList(Page):
+    items: list[ViewOut]

@@ -162,6 +162,7 @@ MATRIX: list[Row] = [
     Row("PUT", U + "/model{q}", (401, 401, 403, 403, 200, 200, 200), json=EXPORT, writes=True),
     Row("GET", U + "/profile{q}", (401, 401, 200, 200, 200, 200, 200)),
     Row("GET", U + "/corrections{q}", (401, 401, 200, 200, 200, 200, 200)),
+    Row("GET", U + "/views{q}", (401, 401, 403, 403, 200, 200, 200)),
     Row(
         "POST",
         U + "/corrections{q}",
@@ -193,6 +194,7 @@ MATRIX: list[Row] = [
     ),
     Row("GET", "/v1/episodes/{episode_id}", (401, 401, 200, 404, 200, 404, 200)),
     Row("GET", "/v1/admin/audit", (401, 401, 403, 403, 200, 200, 200)),
+    Row("GET", "/v1/admin/views", (401, 401, 403, 403, 200, 200, 200)),
     Row("POST", "/v1/admin/keys", (401, 401, 403, 403, 403, 403, 201), json=NEW_KEY),
     Row("GET", "/v1/admin/keys", (401, 401, 403, 403, 403, 403, 200)),
     Row("DELETE", "/v1/admin/keys/{key_id}", (401, 401, 403, 403, 403, 403, 204)),

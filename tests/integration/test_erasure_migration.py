@@ -120,8 +120,8 @@ def _blank(url: str, target: str) -> int:
 def test_the_upgrade_keeps_everything_and_erasure_then_leaves_nothing(filled: Filled) -> None:
     url, names, before, tables, rows_before = filled
     migrate.upgrade(url)
-    assert revision(url) == AFTER
-    assert table_names(url) == tables
+    assert revision(url) == migrate.head_revision()  # this code runs on the newest schema
+    assert set(tables) <= set(table_names(url))
     assert table_rows(url, tables) == rows_before
     if url.startswith("sqlite"):
         [ddl] = scalars(url, "SELECT sql FROM sqlite_master WHERE name = 'users'")
@@ -162,7 +162,7 @@ def test_the_upgrade_keeps_everything_and_erasure_then_leaves_nothing(filled: Fi
 
 def test_the_downgrade_gives_back_the_strict_log(filled: Filled) -> None:
     url, _, _, tables, rows_before = filled
-    migrate.upgrade(url)
+    migrate.upgrade(url, AFTER)  # this revision's own downgrade
     command.downgrade(migrate.alembic_config(url), BEFORE)
     assert revision(url) == BEFORE
     assert table_names(url) == tables
@@ -173,5 +173,5 @@ def test_the_downgrade_gives_back_the_strict_log(filled: Filled) -> None:
     with pytest.raises(DBAPIError, match="append only"):
         _blank(url, GONE)
     migrate.upgrade(url)
-    assert revision(url) == AFTER
+    assert revision(url) == migrate.head_revision()  # this code runs on the newest schema
     assert table_rows(url, tables) == rows_before

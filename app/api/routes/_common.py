@@ -3,11 +3,14 @@ from __future__ import annotations
 from typing import Annotated
 
 import orjson
-from fastapi import Path, Query, Response
+from fastapi import Path, Query, Request, Response
 from pydantic import AfterValidator, BeforeValidator
 from pydantic_core import PydanticCustomError
 
+from app.api.middleware import HEAD_KEY
 from app.schemas.common import CLIENT_ID_PATTERN, not_a_dot_segment
+from app.services import views
+from app.services.context import Principal
 from app.services.episodes import Written
 
 
@@ -116,3 +119,20 @@ def written(result: Written) -> Response:
 
 def no_content() -> Response:
     return Response(status_code=204)
+
+
+def record_read(
+    request: Request, principal: Principal, user_id: str, fleet: str | None, what: str
+) -> None:
+    """A staff or admin read of the person's data, recorded before the answer leaves (who
+    looked: ``app.services.views``); a robot's read is not, nor a HEAD (it sends no data)."""
+    if request.scope.get(HEAD_KEY):
+        return
+    views.record(
+        request.app.state.db,
+        request.app.state.settings,
+        principal,
+        user_id=user_id,
+        fleet=fleet,
+        what=what,
+    )

@@ -2,20 +2,21 @@ from __future__ import annotations
 
 from typing import Annotated
 
-from fastapi import APIRouter, Path, Response
+from fastapi import APIRouter, Path, Query, Response
 from fastapi.responses import JSONResponse
 from sqlalchemy.orm import Session
 
 from app.api.deps import CurrentPrincipal, TransactionalRoute
 from app.api.errors import responses
 from app.schemas.admin import FleetList, FleetPriorIn, FleetPriorOut, KeyCreated, KeyIn, KeyList
-from app.schemas.audit import AuditList
+from app.schemas.audit import AuditList, ViewList
+from app.schemas.common import CLIENT_ID_PATTERN
 from app.schemas.models import MissionChanged, MissionChangeIn, MissionVersionList
-from app.services import admin, missions, prior
+from app.services import admin, missions, prior, views
 from app.services import audit as service
 from app.services.context import ServiceContext
 
-from ._common import REPLAY_HEADER, FleetName, Limit, SeqCursor, no_content
+from ._common import REPLAY_HEADER, FleetName, IdRule, Limit, SeqCursor, no_content
 
 KeyId = Annotated[
     str,
@@ -37,6 +38,27 @@ def list_audit(
     key.revoke, mission.set, correction.add, correction.lift, fleet.prior), when.
     Admins read every fleet's entries, a fleet's staff its own."""
     return service.list_audit(session, principal, limit=limit, cursor=cursor)
+
+
+@router.get("/views", response_model=ViewList, responses=responses(403, 404))
+def list_views(
+    session: Session,
+    principal: CurrentPrincipal,
+    limit: Limit = 50,
+    cursor: SeqCursor = None,
+    fleet: Annotated[
+        str | None,
+        Query(
+            pattern=CLIENT_ID_PATTERN,
+            description="Only this fleet's (admin keys; staff read their own fleet's, and "
+            "naming another is 404).",
+        ),
+        IdRule,
+    ] = None,
+) -> ViewList:
+    """Who looked at whom, newest first: every read of a person's data by a staff or admin key.
+    Admins read every fleet's (or one's, ?fleet=), a fleet's staff its own."""
+    return views.list_views(session, principal, limit=limit, cursor=cursor, fleet=fleet)
 
 
 @router.post("/keys", status_code=201, response_model=KeyCreated, responses=responses(403, 415))

@@ -20,7 +20,16 @@ from app.schemas.episodes import (
 from app.services import episodes as service
 from app.services.context import ServiceContext
 
-from ._common import REPLAY_HEADER, EpisodeId, Fleet, Limit, SeqCursor, UserId, written
+from ._common import (
+    REPLAY_HEADER,
+    EpisodeId,
+    Fleet,
+    Limit,
+    SeqCursor,
+    UserId,
+    record_read,
+    written,
+)
 
 router = APIRouter(tags=["episodes"], route_class=TransactionalRoute)
 
@@ -116,10 +125,17 @@ def add_feedback(
 
 @router.get("/v1/episodes/{episode_id}", response_model=EpisodeTrace, responses=responses(404))
 def get_episode(
-    episode_id: EpisodeId, session: Session, ctx: ServiceContext, principal: CurrentPrincipal
+    episode_id: EpisodeId,
+    session: Session,
+    ctx: ServiceContext,
+    principal: CurrentPrincipal,
+    request: Request,
 ) -> EpisodeTrace:
-    """The whole trace of an episode: every decision, response, reward and feedback."""
-    return service.get_trace(session, ctx, principal, episode_id)
+    """The whole trace of an episode: every decision, response, reward and feedback (a staff
+    or admin read is recorded)."""
+    out = service.get_trace(session, ctx, principal, episode_id)
+    record_read(request, principal, out.user_id, out.fleet, "episode")
+    return out
 
 
 @router.get("/v1/users/{user_id}/episodes", response_model=EpisodeList, responses=responses(404))
@@ -128,11 +144,14 @@ def list_episodes(
     session: Session,
     ctx: ServiceContext,
     principal: CurrentPrincipal,
+    request: Request,
     limit: Limit = 50,
     cursor: SeqCursor = None,
     fleet: Fleet = None,
 ) -> EpisodeList:
-    """A user's episodes, newest first, without traces."""
-    return service.list_episodes(
+    """A user's episodes, newest first, without traces (a staff or admin read is recorded)."""
+    out = service.list_episodes(
         session, ctx, principal, user_id, limit=limit, cursor=cursor, fleet=fleet
     )
+    record_read(request, principal, user_id, fleet, "episodes")
+    return out

@@ -2,7 +2,7 @@ from __future__ import annotations
 
 from typing import Annotated
 
-from fastapi import APIRouter, Path, Response
+from fastapi import APIRouter, Path, Request, Response
 from fastapi.responses import JSONResponse
 from sqlalchemy.orm import Session
 
@@ -14,7 +14,7 @@ from app.services import corrections
 from app.services import profile as service
 from app.services.context import ServiceContext
 
-from ._common import REPLAY_HEADER, Fleet, IdRule, UserId, no_content
+from ._common import REPLAY_HEADER, Fleet, IdRule, UserId, no_content, record_read
 
 router = APIRouter(prefix="/v1/users/{user_id}", tags=["profile"], route_class=TransactionalRoute)
 
@@ -29,11 +29,15 @@ def get_profile(
     session: Session,
     ctx: ServiceContext,
     principal: CurrentPrincipal,
+    request: Request,
     fleet: Fleet = None,
 ) -> ProfileOut:
     """What Attune believes the person wants in each context, how sure it is, what the robot
-    will do there, and the staff corrections in force, in plain words."""
-    return service.profile_view(session, ctx, principal, user_id, fleet=fleet)
+    will do there, and the staff corrections in force, in plain words (a staff or admin read
+    is recorded)."""
+    out = service.profile_view(session, ctx, principal, user_id, fleet=fleet)
+    record_read(request, principal, user_id, fleet, "profile")
+    return out
 
 
 @router.post(
@@ -73,11 +77,14 @@ def list_corrections(
     session: Session,
     ctx: ServiceContext,
     principal: CurrentPrincipal,
+    request: Request,
     fleet: Fleet = None,
 ) -> CorrectionList:
     """The person's corrections, lifted ones too, oldest first, with author, time, note and
-    status."""
-    return corrections.list_corrections(session, ctx, principal, user_id, fleet=fleet)
+    status (a staff or admin read is recorded)."""
+    out = corrections.list_corrections(session, ctx, principal, user_id, fleet=fleet)
+    record_read(request, principal, user_id, fleet, "corrections")
+    return out
 
 
 @router.delete(

@@ -2,19 +2,31 @@ from __future__ import annotations
 
 from typing import Annotated
 
-from fastapi import APIRouter, Query, Response
+from fastapi import APIRouter, Query, Request, Response
 from fastapi.responses import JSONResponse
 from sqlalchemy.orm import Session
 
 from app.api.deps import CurrentPrincipal, TransactionalRoute
 from app.api.errors import responses
 from app.api.links import USER_LINKS
+from app.schemas.audit import ViewList
 from app.schemas.common import CLIENT_ID_PATTERN
 from app.schemas.users import UserIn, UserList, UserOut
 from app.services import users as service
+from app.services import views
 from app.services.context import ServiceContext
 
-from ._common import Fleet, IdRule, Limit, QueryBool, UserCursor, UserId, no_content
+from ._common import (
+    Fleet,
+    IdRule,
+    Limit,
+    QueryBool,
+    SeqCursor,
+    UserCursor,
+    UserId,
+    no_content,
+    record_read,
+)
 
 router = APIRouter(prefix="/v1/users", tags=["users"], route_class=TransactionalRoute)
 
@@ -55,10 +67,16 @@ def put_user(
 
 @router.get("/{user_id}", response_model=UserOut, responses=responses(404))
 def get_user(
-    user_id: UserId, session: Session, principal: CurrentPrincipal, fleet: Fleet = None
+    user_id: UserId,
+    session: Session,
+    principal: CurrentPrincipal,
+    request: Request,
+    fleet: Fleet = None,
 ) -> UserOut:
-    """One user."""
-    return service.get_user(session, principal, user_id, fleet=fleet)
+    """One user (a staff or admin read is recorded: GET .../views)."""
+    out = service.get_user(session, principal, user_id, fleet=fleet)
+    record_read(request, principal, user_id, fleet, "user")
+    return out
 
 
 @router.get("", response_model=UserList, responses=responses(404))
@@ -97,3 +115,20 @@ def delete_user(
     fleet, admin)."""
     service.delete_user(session, ctx, principal, user_id, fleet=fleet)
     return no_content()
+
+
+@router.get("/{user_id}/views", response_model=ViewList, responses=responses(403, 404))
+def list_user_views(
+    user_id: UserId,
+    session: Session,
+    principal: CurrentPrincipal,
+    limit: Limit = 50,
+    cursor: SeqCursor = None,
+    fleet: Fleet = None,
+) -> ViewList:
+    """Who looked at the person's data, newest first: each read by a staff or admin key, of
+    the API or the console (staff of the fleet, admin). Robots' reads are not recorded, nor is
+    reading this list."""
+    return views.list_views(
+        session, principal, limit=limit, cursor=cursor, user_id=user_id, fleet=fleet
+    )
