@@ -21,7 +21,7 @@ from urllib.parse import quote, urlencode
 import jinja2
 from fastapi import APIRouter, Query, Request, Response
 from fastapi.exceptions import RequestValidationError
-from fastapi.responses import HTMLResponse, JSONResponse, RedirectResponse
+from fastapi.responses import HTMLResponse, JSONResponse, RedirectResponse, StreamingResponse
 from fastapi.templating import Jinja2Templates
 from pydantic import ValidationError
 
@@ -40,6 +40,7 @@ from app.services import episodes as episodes_service
 from app.services import missions as missions_service
 from app.services import models as models_service
 from app.services import profile as profile_service
+from app.services import subject as subject_service
 from app.services import users as users_service
 from app.services import views as data_views
 from app.services.context import ServiceContext
@@ -743,6 +744,29 @@ def export_model(
     )
     name = f"attune-model-{user_id.replace(':', '_')}.json"
     return JSONResponse(doc, headers={"Content-Disposition": f'attachment; filename="{name}"'})
+
+
+@router.get("/users/{user_id}/everything")
+@writes  # the export leaves an audit entry
+def export_person(
+    request: Request,
+    user_id: str,
+    session: RequestSession,
+    ctx: ServiceContext,
+    admin: AdminDep,
+    fleet: FleetQuery = None,
+) -> StreamingResponse:
+    """Download everything stored about the person (as GET /v1/users/{id}/export)."""
+    _check_user_id(user_id)
+    started = subject_service.begin_export(session, ctx, admin.principal, user_id, fleet=fleet)
+    return StreamingResponse(
+        started.stream(request.app.state.db, ctx),
+        media_type="application/json",
+        headers={
+            "Content-Disposition": f'attachment; filename="{started.filename}"',
+            "Cache-Control": "no-store",
+        },
+    )
 
 
 # -- admin actions: a confirmation page, then a POST with the CSRF token ----------------------

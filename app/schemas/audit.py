@@ -27,9 +27,9 @@ class AuditEntryOut(BaseModel):
     action: str = Field(
         examples=["user.delete"],
         description="user.delete, user.learner (a change of learner, which replaces the "
-        "model), user.prior (the user's fleet_prior changed), model.reset, model.export, "
-        "model.import, model.rebuild (attune models rebuild --save), key.create, key.revoke, "
-        "mission.set, correction.add, correction.lift or fleet.prior.",
+        "model), user.prior (the user's fleet_prior changed), user.export, model.reset, "
+        "model.export, model.import, model.rebuild (attune models rebuild --save), key.create, "
+        "key.revoke, mission.set, correction.add, correction.lift or fleet.prior.",
     )
     target: str = Field(
         description="The user id (user.*, model.*, correction.*), key id (key.*) or fleet "
@@ -64,8 +64,8 @@ class ViewOut(BaseModel):
     what: str = Field(
         examples=["profile"],
         description="What was read: user, model, stats, profile, corrections, episodes, "
-        "episode, export (the API), or a console page: console.profile, console.details, "
-        "console.why, console.episodes, console.trace.",
+        "episode, export, subject (the API; subject: the person's export), or a console page: "
+        "console.profile, console.details, console.why, console.episodes, console.trace.",
     )
     via: str = Field(description="api or console.")
 

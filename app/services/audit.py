@@ -20,12 +20,13 @@ from app.schemas.common import position_of
 
 from .context import Principal
 
-__all__ = ["ABOUT_A_USER", "ACTIONS", "CLI", "list_audit", "record"]
+__all__ = ["ABOUT_A_USER", "ACTIONS", "CLI", "entry_out", "list_audit", "record"]
 
 ACTIONS = (
     "user.delete",
     "user.learner",
     "user.prior",
+    "user.export",
     "model.reset",
     "model.export",
     "model.import",
@@ -70,7 +71,7 @@ def record(
     )
 
 
-def _out(entry: AuditRow) -> AuditEntryOut:
+def entry_out(entry: AuditRow) -> AuditEntryOut:
     return AuditEntryOut(
         id=str(entry.id),
         at=entry.at,
@@ -102,5 +103,6 @@ def list_audit(
     )
     more = len(rows) > limit
     return AuditList(
-        items=[_out(e) for e in rows[:limit]], next_cursor=str(rows[limit - 1].id) if more else None
+        items=[entry_out(e) for e in rows[:limit]],
+        next_cursor=str(rows[limit - 1].id) if more else None,
     )

@@ -213,6 +213,12 @@ def export_model(
         fleet=user.fleet,
         detail={"version": model.version},
     )
+    return model_document(session, ctx, user)
+
+
+def model_document(session: Session, ctx: ServiceContext, user: UserRow) -> dict[str, Any]:
+    """The user's model as the document that PUT /model accepts (what an export holds)."""
+    model = _head(session, user)
     if model.state_version == model.version:  # the stored document is the model: as it is
         return models_repo.snapshot(session, user.id)
     return load_learner(session, ctx, user.fleet, user.id, model, for_write=False).to_state()

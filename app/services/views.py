@@ -26,7 +26,7 @@ from .auth import require_manager
 from .context import Principal
 from .users import fleet_of, visible_user
 
-__all__ = ["READS", "add", "list_views", "record"]
+__all__ = ["READS", "add", "list_views", "record", "view_out"]
 
 READS = (
     "user",
@@ -37,6 +37,7 @@ READS = (
     "episodes",
     "episode",
     "export",
+    "subject",
     "console.profile",
     "console.details",
     "console.why",
@@ -95,7 +96,7 @@ def record(
         add(session, settings, principal, fleet=in_fleet, user_id=user_id, what=what, via=via)
 
 
-def _out(row: repo.ViewRow) -> ViewOut:
+def view_out(row: repo.ViewRow) -> ViewOut:
     return ViewOut(
         id=str(row.id),
         at=row.at,
@@ -138,6 +139,6 @@ def list_views(
     rows = repo.list_page(session, fleet=listed, user_id=user_id, before_id=before, limit=limit + 1)
     more = len(rows) > limit
     return ViewList(
-        items=[_out(r) for r in rows[:limit]],
+        items=[view_out(r) for r in rows[:limit]],
         next_cursor=str(rows[limit - 1].id) if more else None,
     )

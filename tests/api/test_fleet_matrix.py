@@ -163,6 +163,7 @@ MATRIX: list[Row] = [
     Row("GET", U + "/profile{q}", (401, 401, 200, 200, 200, 200, 200)),
     Row("GET", U + "/corrections{q}", (401, 401, 200, 200, 200, 200, 200)),
     Row("GET", U + "/views{q}", (401, 401, 403, 403, 200, 200, 200)),
+    Row("GET", U + "/export{q}", (401, 401, 403, 403, 200, 200, 200)),
     Row(
         "POST",
         U + "/corrections{q}",
@@ -256,6 +257,7 @@ MATRIX: list[Row] = [
     Row("GET", C + "/episodes{q}", (303, 401, 403, 403, 200, 200, 200)),
     Row("GET", C + "/episodes/{episode_id}/trace{q}", (303, 401, 403, 403, 200, 404, 200)),
     Row("GET", C + "/export{q}", (303, 401, 403, 403, 200, 200, 200)),
+    Row("GET", C + "/everything{q}", (303, 401, 403, 403, 200, 200, 200)),
     Row("GET", C + "/reset{q}", (303, 401, 403, 403, 200, 200, 200)),
     Row("POST", C + "/reset{q}", (303, 401, 403, 403, 303, 303, 303), form=CSRF, writes=True),
     Row("GET", C + "/delete{q}", (303, 401, 403, 403, 200, 200, 200)),
@@ -573,6 +575,8 @@ def _check_console(r: httpx.Response, row: Row, who: str, status: int) -> None:
         assert "Lin of" not in r.text  # a refusal shows no one's data
     elif row.path.endswith("/export{q}"):
         assert r.json()["format"] == "attune.learner-state"
+    elif row.path.endswith("/everything{q}"):
+        assert r.json()["format"] == "attune.subject"
     else:
         assert r.headers["content-type"].startswith("text/html")
 

@@ -355,6 +355,21 @@ class TestAdminActions:
             doc = json.load(f)
         assert doc == site.get("/v1/users/chen/model/export")
 
+    def test_export_everything_downloads_the_persons_export(
+        self, admin_page: Page, site: Site
+    ) -> None:
+        page = admin_page
+        page.goto(f"{site.url}/admin/users/chen")
+        with page.expect_download() as download:
+            page.click("#export-everything")
+        assert download.value.suggested_filename == "attune-person-default-chen.json"
+        with open(download.value.path(), encoding="utf-8") as f:
+            doc = json.load(f)
+        assert doc["format"] == "attune.subject"
+        assert doc["person"]["user_id"] == "chen"
+        assert len(doc["episodes"]) == doc["episode_count"] == doc["person"]["episodes"]
+        assert any(v["what"] == "console.profile" for v in doc["views"])
+
     def test_reset_asks_first_then_forgets_the_model(
         self, admin_page: Page, site: Site, shot: Shot, viewport: str
     ) -> None:

@@ -34,7 +34,7 @@ def list_audit(
     cursor: SeqCursor = None,
 ) -> AuditList:
     """The audit log, newest first: who (the key), what (user.delete, user.learner,
-    user.prior, model.reset, model.export, model.import, model.rebuild, key.create,
+    user.prior, user.export, model.reset, model.export, model.import, model.rebuild, key.create,
     key.revoke, mission.set, correction.add, correction.lift, fleet.prior), when.
     Admins read every fleet's entries, a fleet's staff its own."""
     return service.list_audit(session, principal, limit=limit, cursor=cursor)

@@ -3,17 +3,17 @@ from __future__ import annotations
 from typing import Annotated
 
 from fastapi import APIRouter, Query, Request, Response
-from fastapi.responses import JSONResponse
+from fastapi.responses import JSONResponse, StreamingResponse
 from sqlalchemy.orm import Session
 
-from app.api.deps import CurrentPrincipal, TransactionalRoute
+from app.api.deps import CurrentPrincipal, TransactionalRoute, writes
 from app.api.errors import responses
 from app.api.links import USER_LINKS
 from app.schemas.audit import ViewList
 from app.schemas.common import CLIENT_ID_PATTERN
 from app.schemas.users import UserIn, UserList, UserOut
+from app.services import subject, views
 from app.services import users as service
-from app.services import views
 from app.services.context import ServiceContext
 
 from ._common import (
@@ -131,4 +131,39 @@ def list_user_views(
     reading this list."""
     return views.list_views(
         session, principal, limit=limit, cursor=cursor, user_id=user_id, fleet=fleet
+    )
+
+
+@router.get(
+    "/{user_id}/export",
+    response_class=StreamingResponse,
+    responses={
+        200: {
+            "content": {"application/json": {}},
+            "description": "The person's export (docs/api.md, \"A person's export\"), streamed.",
+        },
+        **responses(403, 404),
+    },
+)
+@writes  # the export leaves an audit entry, and is recorded as a read
+def export_person(
+    user_id: UserId,
+    session: Session,
+    ctx: ServiceContext,
+    principal: CurrentPrincipal,
+    request: Request,
+    fleet: Fleet = None,
+) -> StreamingResponse:
+    """Everything stored about the person, in one JSON document (staff of the fleet, admin):
+    who they are, their part in the fleet's prior, the model and what it says in plain words,
+    corrections, the audit entries about them, who looked, and every episode with its
+    decisions, answers and feedback (streamed, newest first)."""
+    started = subject.begin_export(session, ctx, principal, user_id, fleet=fleet)
+    return StreamingResponse(
+        started.stream(request.app.state.db, ctx),
+        media_type="application/json",
+        headers={
+            "Content-Disposition": f'attachment; filename="{started.filename}"',
+            "Cache-Control": "no-store",
+        },
     )

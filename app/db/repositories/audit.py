@@ -15,7 +15,7 @@ from sqlalchemy.orm import Session
 from ..models import AuditEntry
 from ._rows import columns, conn, table
 
-__all__ = ["ERASED", "AuditRow", "add", "list_page", "redact_erased"]
+__all__ = ["ERASED", "AuditRow", "about", "add", "list_page", "redact_erased"]
 
 
 @dataclass(slots=True)
@@ -75,3 +75,19 @@ def redact_erased(session: Session, *, fleet: str, user_id: str, prefixes: tuple
         family = family | _audit.c.action.startswith(prefix)
     done = conn(session).execute(update(_audit).where(about & family).values(detail=ERASED))
     return int(done.rowcount or 0)
+
+
+def about(
+    session: Session, *, fleet: str, user_id: str, prefixes: tuple[str, ...]
+) -> list[AuditRow]:
+    """The entries of ``fleet`` about ``user_id`` (actions starting with one of ``prefixes``),
+    oldest first."""
+    family = _audit.c.action.startswith(prefixes[0])
+    for prefix in prefixes[1:]:
+        family = family | _audit.c.action.startswith(prefix)
+    stmt = (
+        select(*_COLS)
+        .where(_audit.c.fleet == fleet, _audit.c.target == user_id, family)
+        .order_by(_audit.c.id)
+    )
+    return [AuditRow(*row) for row in conn(session).execute(stmt)]

@@ -1,0 +1,135 @@
+"""A person's export (docs/api.md, "A person's export"): everything stored about them in one
+JSON document, for the person (a subject's access request) or for another deployment.
+
+The document's head (who they are, their part in the fleet's prior, the model and what it says
+in plain words, the corrections, the audit entries about them, who looked at them) is read in
+the request's transaction, which also records the export (audit ``user.export``, and a read
+``subject``). Their episodes follow, newest first, each with its decisions, answers and
+feedback: read a page at a time in transactions of their own while the answer is sent, so
+that a person with any number of episodes is exported in bounded memory. The episodes are
+those the person had when the head was read.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass
+from typing import Any
+
+import orjson
+from pydantic_core import to_jsonable_python
+from sqlalchemy.orm import Session
+
+from app.db.repositories import audit as audit_repo
+from app.db.repositories import episodes as episodes_repo
+from app.db.repositories import views as views_repo
+from app.db.session import Database
+from app.db.types import utcnow
+
+from . import audit, views
+from .auth import require_manager
+from .context import Principal, ServiceContext
+from .corrections import list_corrections
+from .episodes import get_trace
+from .models import model_document
+from .profile import profile_view
+from .users import user_out, visible_user
+
+__all__ = ["FORMAT", "FORMAT_VERSION", "PAGE", "Export", "begin_export"]
+
+FORMAT = "attune.subject"
+FORMAT_VERSION = 1
+PAGE = 200  # episodes read per transaction while the document streams
+
+
+@dataclass(frozen=True, slots=True)
+class Export:
+    """An export under way: its head (every part but the episodes) and where the episodes
+    are."""
+
+    head: dict[str, Any]
+    user_pk: int
+    user_id: str
+    fleet: str
+    episodes: int  # the person's episode count when the head was read
+    principal: Principal
+
+    @property
+    def filename(self) -> str:
+        return f"attune-person-{self.fleet}-{self.user_id}.json".replace(":", "_")
+
+    def stream(self, db: Database, ctx: ServiceContext) -> Iterator[bytes]:
+        """The document, in pieces: the head's fields, then ``"episodes": [...]``."""
+        head = orjson.dumps(to_jsonable_python(self.head))
+        yield head[:-1] + b',"episodes":['
+        before = self.episodes + 1
+        first = True
+        while True:
+            with db.transaction(write=False) as session:
+                rows = episodes_repo.list_page(session, self.user_pk, before_seq=before, limit=PAGE)
+                traces = [
+                    get_trace(session, ctx, self.principal, row.id).model_dump(mode="json")
+                    for row in rows
+                ]
+            for trace in traces:
+                yield (b"" if first else b",") + orjson.dumps(trace)
+                first = False
+            if len(rows) < PAGE:
+                break
+            before = rows[-1].seq
+        yield b"]}"
+
+
+def begin_export(
+    session: Session,
+    ctx: ServiceContext,
+    principal: Principal,
+    user_id: str,
+    *,
+    fleet: str | None = None,
+) -> Export:
+    """Check the caller (staff of the fleet, admin), record the export, and read the head."""
+    require_manager(principal)
+    user = visible_user(session, principal, user_id, fleet=fleet)
+    profile = profile_view(session, ctx, principal, user_id, fleet=user.fleet)
+    head: dict[str, Any] = {
+        "format": FORMAT,
+        "format_version": FORMAT_VERSION,
+        "exported_at": utcnow(),
+        "exported_by": {
+            "key_id": principal.key_id,
+            "role": principal.role,
+            "fleet": principal.fleet,
+        },
+        "person": user_out(user),
+        "fleet_prior": {
+            "takes_part": user.fleet_prior,
+            "model_started_from": profile.started_from,
+        },
+        "profile": profile,
+        "model": model_document(session, ctx, user),
+        "corrections": list_corrections(session, ctx, principal, user_id, fleet=user.fleet).items,
+        "audit": [
+            audit.entry_out(e)
+            for e in audit_repo.about(
+                session, fleet=user.fleet, user_id=user_id, prefixes=audit.ABOUT_A_USER
+            )
+        ],
+        "views": [
+            views.view_out(v)
+            for v in views_repo.list_page(
+                session, fleet=user.fleet, user_id=user_id, before_id=None, limit=1_000_000
+            )
+        ],
+        "episode_count": user.episode_count,
+    }
+    audit.record(
+        session,
+        principal,
+        "user.export",
+        target=user_id,
+        fleet=user.fleet,
+        detail={"episodes": user.episode_count},
+    )
+    views.add(session, ctx.settings, principal, fleet=user.fleet, user_id=user_id, what="subject")
+    return Export(head, user.id, user_id, user.fleet, user.episode_count, principal)
