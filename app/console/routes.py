@@ -28,6 +28,7 @@ from pydantic import ValidationError
 from app.api.deps import RequestSession, TransactionalRoute, writes
 from app.api.errors import validation_detail
 from app.api.middleware import HEAD_KEY
+from app.api.routes._common import export_response
 from app.errors import AppError, Conflict, NotFound, ValidationFailed
 from app.learning import Mission
 from app.schemas.common import CLIENT_ID_PATTERN, MAX_POSITION
@@ -759,14 +760,7 @@ def export_person(
     """Download everything stored about the person (as GET /v1/users/{id}/export)."""
     _check_user_id(user_id)
     started = subject_service.begin_export(session, ctx, admin.principal, user_id, fleet=fleet)
-    return StreamingResponse(
-        started.stream(request.app.state.db, ctx),
-        media_type="application/json",
-        headers={
-            "Content-Disposition": f'attachment; filename="{started.filename}"',
-            "Cache-Control": "no-store",
-        },
-    )
+    return export_response(request, started, ctx)
 
 
 # -- admin actions: a confirmation page, then a POST with the CSRF token ----------------------

@@ -4,14 +4,16 @@ from typing import Annotated
 
 import orjson
 from fastapi import Path, Query, Request, Response
+from fastapi.responses import StreamingResponse
 from pydantic import AfterValidator, BeforeValidator
 from pydantic_core import PydanticCustomError
 
 from app.api.middleware import HEAD_KEY
 from app.schemas.common import CLIENT_ID_PATTERN, not_a_dot_segment
 from app.services import views
-from app.services.context import Principal
+from app.services.context import Principal, ServiceContext
 from app.services.episodes import Written
+from app.services.subject import Export
 
 
 def _true_or_false(value: object) -> object:
@@ -135,4 +137,17 @@ def record_read(
         user_id=user_id,
         fleet=fleet,
         what=what,
+    )
+
+
+def export_response(request: Request, started: Export, ctx: ServiceContext) -> StreamingResponse:
+    """A person's export as the download the API and the console answer: streamed from
+    transactions of its own, never cached."""
+    return StreamingResponse(
+        started.stream(request.app.state.db, ctx),
+        media_type="application/json",
+        headers={
+            "Content-Disposition": f'attachment; filename="{started.filename}"',
+            "Cache-Control": "no-store",
+        },
     )

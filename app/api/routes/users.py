@@ -24,6 +24,7 @@ from ._common import (
     SeqCursor,
     UserCursor,
     UserId,
+    export_response,
     no_content,
     record_read,
 )
@@ -159,11 +160,4 @@ def export_person(
     corrections, the audit entries about them, who looked, and every episode with its
     decisions, answers and feedback (streamed, newest first)."""
     started = subject.begin_export(session, ctx, principal, user_id, fleet=fleet)
-    return StreamingResponse(
-        started.stream(request.app.state.db, ctx),
-        media_type="application/json",
-        headers={
-            "Content-Disposition": f'attachment; filename="{started.filename}"',
-            "Cache-Control": "no-store",
-        },
-    )
+    return export_response(request, started, ctx)
