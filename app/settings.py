@@ -7,7 +7,14 @@ import ipaddress
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-from pydantic import Field, SecretStr, field_validator
+from pydantic import (
+    Field,
+    PrivateAttr,
+    SecretStr,
+    ValidationInfo,
+    field_validator,
+    model_validator,
+)
 from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
 __all__ = ["Pooler", "Settings", "get_settings", "mask_url", "shown"]
@@ -15,7 +22,7 @@ __all__ = ["Pooler", "Settings", "get_settings", "mask_url", "shown"]
 Pooler = Literal["none", "transaction"]
 """What stands between the service and PostgreSQL (``ATTUNE_DATABASE_POOLER``)."""
 
-SECRET_SETTINGS = frozenset({"metrics_token"})
+SECRET_SETTINGS = frozenset({"metrics_token", "db_key"})
 """Settings whose values are never printed, whole or in part."""
 
 
@@ -62,17 +69,55 @@ def _ports_of(url: str) -> list[str]:
     return ports
 
 
+def _read_key_file(path: Path) -> str:
+    """The key in ``path``: its content without the surrounding whitespace (a final newline)."""
+    try:
+        return path.read_text(encoding="utf-8").strip()
+    except (OSError, UnicodeDecodeError) as exc:
+        reason = exc.strerror if isinstance(exc, OSError) else "it is not UTF-8 text"
+        raise ValueError(f"db_key_file cannot be read: {reason}.") from None
+
+
+def _key_for_sqlite_only(info: ValidationInfo) -> None:
+    """A database key is for SQLite: with a PostgreSQL URL it is a bad setting."""
+    url = info.data.get("database_url")  # absent when the URL itself was wrong
+    if isinstance(url, str) and not url.startswith("sqlite"):
+        raise ValueError(
+            "a database key is for an encrypted SQLite file; PostgreSQL is encrypted by its "
+            "storage, and reached over TLS (docs/operations.md, Encryption at rest)."
+        )
+
+
 class Settings(BaseSettings):
     """Everything the service reads from its environment, with the defaults of a fresh machine."""
 
+    # No value in the text of a validation error (a traceback shows that text): the commands
+    # say what was wrong themselves, through ``shown``, which hides the secrets.
     model_config = SettingsConfigDict(
-        env_prefix="ATTUNE_", env_file=".env", env_file_encoding="utf-8", extra="ignore"
+        env_prefix="ATTUNE_",
+        env_file=".env",
+        env_file_encoding="utf-8",
+        extra="ignore",
+        hide_input_in_errors=True,
     )
 
     database_url: str = Field(
         default="sqlite:///./attune.db",
         description="SQLAlchemy URL: sqlite:///PATH (embedded default) or "
         "postgresql+psycopg://USER@HOST:PORT/DB (production).",
+    )
+    db_key: SecretStr | None = Field(
+        default=None,
+        description="SQLite: the key the database file is encrypted with (SQLCipher, the "
+        "encryption extra): a passphrase, or x'...' with 64 hex digits for a raw 256-bit key; "
+        "surrounding whitespace is stripped. Never printed. Unset (and db_key_file unset): a "
+        "plain SQLite file.",
+    )
+    db_key_file: Path | None = Field(
+        default=None,
+        description="SQLite: a file whose content, without surrounding whitespace, is the key "
+        "(as db_key), read at start: for a key kept in a secrets mount. Set db_key or "
+        "db_key_file, not both.",
     )
     database_pooler: Pooler = Field(
         default="none",
@@ -160,6 +205,13 @@ class Settings(BaseSettings):
         description="How long the record of who looked at a person's data keeps each entry, in "
         "days (older ones are removed as new ones are added; 0: kept until the person is "
         "erased).",
+    )
+    retention_batch: int = Field(
+        default=500,
+        ge=1,
+        le=100_000,
+        description="How many episodes (or journal entries) a retention run removes per "
+        "transaction: smaller batches hold the database for less time at once.",
     )
     prior_min_contributors: int = Field(
         default=5,
@@ -252,6 +304,8 @@ class Settings(BaseSettings):
         "its own.",
     )
 
+    _file_key: SecretStr | None = PrivateAttr(default=None)
+
     @field_validator("root_path")
     @classmethod
     def _path_prefix(cls, value: str) -> str:
@@ -317,6 +371,35 @@ class Settings(BaseSettings):
             ) from None
         return value
 
+    @field_validator("db_key")
+    @classmethod
+    def _key(cls, value: SecretStr | None, info: ValidationInfo) -> SecretStr | None:
+        if value is None:
+            return None
+        _key_for_sqlite_only(info)
+        key = value.get_secret_value().strip()
+        if not key:
+            raise ValueError("db_key is empty: set a key, or leave ATTUNE_DB_KEY unset.")
+        return SecretStr(key)
+
+    @field_validator("db_key_file")
+    @classmethod
+    def _key_file(cls, value: Path | None, info: ValidationInfo) -> Path | None:
+        if value is None:
+            return None
+        if info.data.get("db_key") is not None:
+            raise ValueError("set ATTUNE_DB_KEY or ATTUNE_DB_KEY_FILE, not both.")
+        _key_for_sqlite_only(info)
+        if not _read_key_file(value):
+            raise ValueError("db_key_file is empty: it must hold the key.")
+        return value
+
+    @model_validator(mode="after")
+    def _keep_file_key(self) -> Settings:
+        if self.db_key_file is not None:
+            self._file_key = SecretStr(_read_key_file(self.db_key_file))
+        return self
+
     @field_validator("metrics_token")
     @classmethod
     def _long_token(cls, value: SecretStr | None) -> SecretStr | None:
@@ -356,6 +439,12 @@ class Settings(BaseSettings):
     @property
     def is_sqlite(self) -> bool:
         return self.database_url.startswith("sqlite")
+
+    @property
+    def database_key(self) -> SecretStr | None:
+        """The key of an encrypted SQLite database (``db_key``, or what ``db_key_file`` held at
+        start), or None for a plain file."""
+        return self.db_key if self.db_key is not None else self._file_key
 
 
 @functools.lru_cache

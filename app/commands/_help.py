@@ -133,16 +133,23 @@ class Typer(typer.Typer):
     (unless given another class), and whose usage errors are plain text too (Typer's rich mode
     off: ``rich_markup_mode=None``): a box drawn around an error helps no one reading a log, and
     in rich mode a group called without a command (``attune experiment``) relies on rich's own
-    help to print anything."""
+    help to print anything. A traceback shows no local variables: one may hold a database's
+    password or key."""
 
     def __init__(
         self,
         *,
         cls: type[TyperGroup] | None = HelpGroup,
         rich_markup_mode: MarkupMode = None,
+        pretty_exceptions_show_locals: bool = False,
         **kwargs: Any,
     ) -> None:
-        super().__init__(cls=cls, rich_markup_mode=rich_markup_mode, **kwargs)
+        super().__init__(
+            cls=cls,
+            rich_markup_mode=rich_markup_mode,
+            pretty_exceptions_show_locals=pretty_exceptions_show_locals,
+            **kwargs,
+        )
 
     def command(
         self,

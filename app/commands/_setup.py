@@ -29,6 +29,7 @@ else:  # imported when a command runs: --help needs neither SQLAlchemy, Alembic 
     mask_url = lazy_callable("app.settings", "mask_url")
 
 __all__ = [
+    "ENCRYPTED",
     "StartFailure",
     "fail",
     "load_settings",
@@ -37,20 +38,32 @@ __all__ = [
     "open_database",
     "sqlite_file",
     "tell",
+    "unreadable",
     "upgrade_schema",
 ]
+
+ENCRYPTED = "An encrypted SQLite database (ATTUNE_DB_KEY or ATTUNE_DB_KEY_FILE)"
+"""What needs the ``encryption`` extra, as the line that names the extra says it."""
 
 err = Console(stderr=True)
 
 
 def load_settings() -> Settings:
     """The settings from the ``ATTUNE_*`` environment variables; when one is wrong, one line per
-    wrong variable on stderr and exit 2."""
+    wrong variable on stderr and exit 2. A database key without SQLCipher's driver installed
+    stops the command the same way, with the line that names the extra."""
     try:
-        return Settings()
+        settings = Settings()
     except Exception as exc:  # pydantic's ValidationError: say which variable is wrong
         typer.echo(_bad_settings(exc), err=True)
         raise typer.Exit(2) from None
+    if settings.is_sqlite and settings.database_key is not None:
+        from app.db.encryption import DRIVER, EXTRA
+
+        from ._extras import require
+
+        require(DRIVER, EXTRA, ENCRYPTED)
+    return settings
 
 
 def _bad_settings(exc: Exception) -> str:
@@ -96,6 +109,27 @@ def sqlite_file(settings: Settings) -> Path | None:
     if not name or name == ":memory:" or name.startswith("file:"):
         return None
     return Path(name).absolute()
+
+
+def unreadable(settings: Settings, exc: BaseException) -> StartFailure | None:
+    """Why a SQLite file could not be read as a database (a wrong key, a key for a plain file,
+    none for an encrypted one), as one sentence that holds no key; None for another error."""
+    from app.db.encryption import is_wrong_key
+
+    if not settings.is_sqlite or not is_wrong_key(exc):
+        return None
+    url = mask_url(settings.database_url)
+    if settings.database_key is None:
+        return StartFailure(
+            f"The database {url} cannot be read: it is not a SQLite database, or it is "
+            "encrypted (then set ATTUNE_DB_KEY or ATTUNE_DB_KEY_FILE to its key)."
+        )
+    where = "ATTUNE_DB_KEY_FILE" if settings.db_key_file is not None else "ATTUNE_DB_KEY"
+    return StartFailure(
+        f"The database {url} cannot be read with the key of {where}: the key is wrong, or the "
+        "file is not encrypted with it (a plain SQLite file: see Encryption at rest in "
+        "docs/operations.md to encrypt it)."
+    )
 
 
 def _remove_sqlite(path: Path) -> None:
@@ -153,6 +187,9 @@ def upgrade_schema(
         try:
             before = migrate.current_revision(safe.engine)
         except Exception as exc:  # the driver's error: refused, unknown host, bad password...
+            why = unreadable(settings, exc)
+            if why is not None:
+                raise why from None  # the driver's message is in the sentence's words
             raise StartFailure(f"Cannot reach the database {url}: {one_line(exc)}.") from exc
         finally:
             safe.dispose()
@@ -171,7 +208,7 @@ def upgrade_schema(
                 say(f"Database {url} is up to date (schema {head}).")
             return
         try:
-            migrate.upgrade(settings.database_url)
+            migrate.upgrade(settings.database_url, key=settings.database_key)
         except Exception as exc:
             raise StartFailure(
                 f"Upgrading the database {url} to schema {head} failed: {one_line(exc)}."

@@ -15,7 +15,11 @@ from alembic import command
 from alembic.config import Config
 from alembic.runtime.migration import MigrationContext
 from alembic.script import ScriptDirectory
-from sqlalchemy import Engine
+from pydantic import SecretStr
+from sqlalchemy import Engine, create_engine
+from sqlalchemy.pool import NullPool
+
+from . import encryption
 
 __all__ = [
     "MigrationsMissing",
@@ -68,5 +72,18 @@ def is_current(engine: Engine) -> bool:
     return current_revision(engine) == head_revision()
 
 
-def upgrade(url: str, revision: str = "head") -> None:
-    command.upgrade(alembic_config(url), revision)
+def upgrade(url: str, revision: str = "head", key: SecretStr | None = None) -> None:
+    """Migrate the database of ``url`` to ``revision``. ``key``: an encrypted SQLite file's;
+    the migrations then run on a connection given the key (the URL never holds it)."""
+    cfg = alembic_config(url)
+    if key is None:
+        command.upgrade(cfg, revision)
+        return
+    engine = create_engine(url, poolclass=NullPool, module=encryption.driver())
+    encryption.apply_key(engine, key)
+    try:
+        with engine.connect() as connection:
+            cfg.attributes["connection"] = connection
+            command.upgrade(cfg, revision)
+    finally:
+        engine.dispose()

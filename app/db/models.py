@@ -84,12 +84,15 @@ class User(Base):
 
 class FleetSettings(Base):
     """A fleet's own settings, where they differ from the deployment's: whether its newcomers
-    start from the fleet's prior (``prior_enabled``). A fleet without a row has the defaults."""
+    start from the fleet's prior (``prior_enabled``), and how long its raw history is kept
+    (``history_days``; ``None``: kept until the person is erased). A fleet without a row has
+    the defaults."""
 
     __tablename__ = "fleet_settings"
 
     fleet: Mapped[str] = mapped_column(String(CLIENT_ID), primary_key=True)
     prior_enabled: Mapped[bool] = mapped_column(Boolean, default=True)
+    history_days: Mapped[int | None] = mapped_column(Integer)
     updated_at: Mapped[dt.datetime] = mapped_column(UTCDateTime(), default=utcnow)
     updated_by: Mapped[str | None] = mapped_column(String(ID))
 
@@ -349,3 +352,22 @@ class DataView(Base):
     actor_fleet: Mapped[str] = mapped_column(String(CLIENT_ID))
     what: Mapped[str] = mapped_column(String(32))
     via: Mapped[str] = mapped_column(String(8))
+
+
+class HistoryFold(Base):
+    """What a retention run kept of a person's removed history: the episodes up to
+    ``upto_seq`` (all closed, received before ``kept_from``) are folded into ``doc`` (the
+    profile's walk over them, :mod:`app.services.folds`) and into the model's base (the
+    learner at ``upto_version``, the model's base since), and then removed with the journal's
+    entries up to ``upto_version``. Part of the person's data: erased with them."""
+
+    __tablename__ = "history_folds"
+
+    user_pk: Mapped[int] = mapped_column(
+        ForeignKey("users.id", ondelete="CASCADE"), primary_key=True
+    )
+    upto_seq: Mapped[int] = mapped_column(Integer)
+    upto_version: Mapped[int] = mapped_column(Integer)
+    kept_from: Mapped[dt.datetime] = mapped_column(UTCDateTime())
+    folded_at: Mapped[dt.datetime] = mapped_column(UTCDateTime(), default=utcnow)
+    doc: Mapped[dict[str, Any]] = mapped_column(JSON)

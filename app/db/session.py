@@ -11,13 +11,15 @@ polls with sleeps of up to 100 ms, so under contention writers slept long after 
 free (p99 over a second at 8 concurrent robots). Waiting on an in-process lock wakes the next
 writer the moment the previous one commits; the busy handler is left to arbitrate between
 processes only.
+
+An encrypted SQLite file (``ATTUNE_DB_KEY`` or ``ATTUNE_DB_KEY_FILE``) is opened with SQLCipher's
+driver instead of ``sqlite3``, each connection given the key first (``app.db.encryption``).
 """
 
 from __future__ import annotations
 
 import asyncio
 import logging
-import sqlite3
 import statistics
 import threading
 import time
@@ -27,6 +29,7 @@ from contextlib import contextmanager
 from typing import Any
 
 import orjson
+from pydantic import SecretStr
 from sqlalchemy import Engine, create_engine, event
 from sqlalchemy.engine import Connection, ExceptionContext, make_url
 from sqlalchemy.exc import OperationalError
@@ -35,6 +38,7 @@ from sqlalchemy.orm import Session
 from app.errors import ServiceUnavailable
 from app.settings import Settings
 
+from . import encryption
 from .pool import MeteredQueuePool, is_lost_connection
 from .types import json_dumps
 
@@ -100,6 +104,7 @@ class Database:
     def __init__(self, settings: Settings) -> None:
         self.url = settings.database_url
         self.is_sqlite = settings.is_sqlite
+        key = settings.database_key if self.is_sqlite else None  # None: a plain file
         kwargs: dict[str, Any] = {
             "pool_pre_ping": settings.db_pre_ping,
             "json_serializer": json_dumps,
@@ -111,6 +116,8 @@ class Database:
                 "timeout": settings.sqlite_busy_timeout_s,
                 "check_same_thread": False,
             }
+            if key is not None:
+                kwargs["module"] = encryption.driver()  # EncryptionUnavailable without the extra
             if make_url(self.url).database not in (None, "", ":memory:"):
                 pool = {"poolclass": MeteredQueuePool}  # SQLAlchemy's sizes for a file (5 + 10)
         else:
@@ -130,7 +137,7 @@ class Database:
             pool = {"poolclass": MeteredQueuePool}
         self.engine: Engine = create_engine(self.url, **kwargs, **pool)
         if self.is_sqlite:
-            _configure_sqlite(self.engine, settings.sqlite_busy_timeout_s)
+            _configure_sqlite(self.engine, settings.sqlite_busy_timeout_s, key)
         else:
             event.listen(self.engine, "handle_error", _mark_lost_connection)
         self._write_engine = self.engine.execution_options(**{_WRITE: True})
@@ -150,7 +157,7 @@ class Database:
         self._probes: deque[float] = deque(maxlen=_PROBES_KEPT)
         if self.is_sqlite and settings.sqlite_inline_writes:
             inline = create_engine(self.url, pool_size=1, max_overflow=0, **kwargs)
-            _configure_sqlite(inline, 0.0)
+            _configure_sqlite(inline, 0.0, key)
             self._inline_engine = inline.execution_options(**{_WRITE: True})
         elif self.inline_mode != "false":
             inline = create_engine(
@@ -367,7 +374,11 @@ def _mark_lost_connection(ctx: ExceptionContext) -> None:
         ctx.is_disconnect = True
 
 
-def _configure_sqlite(engine: Engine, busy_timeout_s: float) -> None:
+def _configure_sqlite(engine: Engine, busy_timeout_s: float, key: SecretStr | None) -> None:
+    if key is not None:
+        encryption.apply_key(engine, key)
+    locked: type[Exception] = engine.dialect.loaded_dbapi.OperationalError
+
     @event.listens_for(engine, "connect")
     def _connect(dbapi_connection: Any, _record: Any) -> None:
         # Let SQLAlchemy's begin event, not the driver, decide how each transaction starts.
@@ -389,5 +400,5 @@ def _configure_sqlite(engine: Engine, busy_timeout_s: float) -> None:
         statement = "BEGIN IMMEDIATE" if options.get(_WRITE, False) else "BEGIN"
         try:
             driver.execute(statement)
-        except sqlite3.OperationalError as exc:  # "database is locked": SQLAlchemy's, as any
+        except locked as exc:  # "database is locked": SQLAlchemy's, as any
             raise OperationalError(statement, None, exc) from exc

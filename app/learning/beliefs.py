@@ -19,6 +19,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 from .space import ActionKind, NegotiationSpace
 
@@ -29,6 +30,7 @@ __all__ = [
     "WINDOW",
     "Answer",
     "Belief",
+    "BeliefFold",
     "Change",
     "EpisodeEvidence",
     "Item",
@@ -168,34 +170,138 @@ class Belief:
 
 def belief(evidence: Sequence[EpisodeEvidence]) -> Belief:
     """What the person wants in a context, from its episodes' evidence in order."""
-    relevant = [e for e in evidence if e.relevant]
+    fold = BeliefFold()
+    for ev in evidence:
+        fold.add(ev)
+    return fold.belief()
+
+
+@dataclass(slots=True)
+class BeliefFold:
+    """The walk of :func:`belief` over a context's episodes, kept so that it can go on later
+    from where it stopped: what a retention run stores of the episodes it removes.
+
+    It keeps only what the rest of the walk can still look at: the current choice, where it
+    began, the contradicting episodes in a row, the latest change and the latest
+    :data:`WINDOW` relevant episodes. Folding some episodes and then the rest gives exactly
+    the belief of walking them all at once."""
+
+    relevant: int = 0  # relevant episodes walked
     current: Item | None = None
-    since = 0  # index in ``relevant`` where the current belief's episodes start
-    run: list[int] = []  # contradicting episodes in a row
+    since: int = 0  # index (among the relevant) where the current belief's episodes start
+    run: list[tuple[int, EpisodeEvidence]] = field(default_factory=list)
     change: Change | None = None
-    for i, ev in enumerate(relevant):
+    tail: list[tuple[int, EpisodeEvidence]] = field(default_factory=list)
+
+    def add(self, ev: EpisodeEvidence) -> None:
+        if not ev.relevant:
+            return
+        i = self.relevant
+        self.relevant += 1
+        self.tail = [*self.tail[-(WINDOW - 1) :], (i, ev)] if WINDOW > 1 else [(i, ev)]
+        current = self.current
         if current is None:
             if ev.chose is not None:
-                current, since, run = ev.chose, i, []
-            continue
+                self.current, self.since, self.run = ev.chose, i, []
+            return
         if ev.supports(current):
-            run = []
+            self.run = []
             if current.detail is None and ev.chose is not None and ev.chose.detail is not None:
-                current = Item(current.service, ev.chose.detail)
+                self.current = Item(current.service, ev.chose.detail)
         elif ev.contradicts(current):
-            run.append(i)
-            if len(run) >= CHANGE_RUN:
-                now = _latest_choice(relevant[j] for j in run)
-                change = Change(relevant[run[0]].seq, current, now)
-                current, since, run = now, run[0], []
-    window = relevant[max(since, len(relevant) - WINDOW) :]
-    if change is not None and all(e.seq > change.seq for e in relevant[-WINDOW:]):
-        change = None
-    if current is None:
-        return Belief(None, "unknown", 0, len(window), change)
-    support = sum(e.supports(current) for e in window)
-    confident = support >= CONFIDENT_SUPPORT and support >= CONFIDENT_SHARE * len(window)
-    return Belief(current, "confident" if confident else "tentative", support, len(window), change)
+            self.run.append((i, ev))
+            if len(self.run) >= CHANGE_RUN:
+                now = _latest_choice(e for _, e in self.run)
+                self.change = Change(self.run[0][1].seq, current, now)
+                self.current, self.since, self.run = now, self.run[0][0], []
+
+    def belief(self) -> Belief:
+        window = [e for i, e in self.tail if i >= self.since]
+        change = self.change
+        if change is not None and all(e.seq > change.seq for _, e in self.tail):
+            change = None
+        current = self.current
+        if current is None:
+            return Belief(None, "unknown", 0, len(window), change)
+        support = sum(e.supports(current) for e in window)
+        confident = support >= CONFIDENT_SUPPORT and support >= CONFIDENT_SHARE * len(window)
+        return Belief(
+            current, "confident" if confident else "tentative", support, len(window), change
+        )
+
+    def recent(self, n: int) -> list[EpisodeEvidence]:
+        """The latest ``n`` relevant episodes walked (at most :data:`WINDOW`)."""
+        return [e for _, e in self.tail[-n:]] if n else []
+
+    def to_doc(self) -> dict[str, Any]:
+        """A JSON document of the walk (:meth:`from_doc` reads it back)."""
+        return {
+            "relevant": self.relevant,
+            "current": _item_doc(self.current),
+            "since": self.since,
+            "run": [[i, _evidence_doc(e)] for i, e in self.run],
+            "change": None
+            if self.change is None
+            else {
+                "seq": self.change.seq,
+                "before": _item_doc(self.change.before),
+                "now": _item_doc(self.change.now),
+            },
+            "tail": [[i, _evidence_doc(e)] for i, e in self.tail],
+        }
+
+    @classmethod
+    def from_doc(cls, doc: dict[str, Any]) -> BeliefFold:
+        change = doc["change"]
+        before = _item(change["before"]) if change else None
+        return cls(
+            relevant=int(doc["relevant"]),
+            current=_item(doc["current"]),
+            since=int(doc["since"]),
+            run=[(int(i), _evidence(e)) for i, e in doc["run"]],
+            change=None
+            if change is None or before is None
+            else Change(int(change["seq"]), before, _item(change["now"])),
+            tail=[(int(i), _evidence(e)) for i, e in doc["tail"]],
+        )
+
+
+def _item_doc(item: Item | None) -> list[str | None] | None:
+    return None if item is None else [item.service, item.detail]
+
+
+def _item(doc: list[str | None] | None) -> Item | None:
+    if doc is None:
+        return None
+    service, detail = doc
+    assert service is not None
+    return Item(service, detail)
+
+
+def _evidence_doc(ev: EpisodeEvidence) -> dict[str, Any]:
+    return {
+        "seq": ev.seq,
+        "chose": _item_doc(ev.chose),
+        "refused": [_item_doc(r) for r in ev.refused],
+        "refused_offer": ev.refused_offer,
+        "accepted": ev.accepted,
+        "refused_count": ev.refused_count,
+        "asked_for": ev.asked_for,
+        "answered": ev.answered,
+    }
+
+
+def _evidence(doc: dict[str, Any]) -> EpisodeEvidence:
+    return EpisodeEvidence(
+        seq=int(doc["seq"]),
+        chose=_item(doc["chose"]),
+        refused=[r for r in map(_item, doc["refused"]) if r is not None],
+        refused_offer=bool(doc["refused_offer"]),
+        accepted=int(doc["accepted"]),
+        refused_count=int(doc["refused_count"]),
+        asked_for=int(doc["asked_for"]),
+        answered=int(doc["answered"]),
+    )
 
 
 def _latest_choice(episodes: Iterable[EpisodeEvidence]) -> Item | None:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import datetime as dt
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field, StrictBool
+from pydantic import BaseModel, ConfigDict, Field, StrictBool, StrictInt
 
 from .common import ClientId
 
@@ -106,3 +106,23 @@ class FleetPriorOut(BaseModel):
     shared: str = Field(description="What the prior takes from the contributors' models.")
     updated_at: dt.datetime | None
     updated_by: str | None = Field(description="The key that last turned it on or off.")
+
+
+class FleetHistoryIn(BaseModel):
+    model_config = ConfigDict(
+        extra="forbid", json_schema_extra={"examples": [{"history_days": 90}]}
+    )
+
+    history_days: StrictInt | None = Field(
+        ge=1,
+        le=36_500,
+        description="How many days of the fleet's raw history (episodes, decisions, answers, "
+        "feedback, the model's journal) to keep; null: keep everything.",
+    )
+
+
+class FleetHistoryOut(BaseModel):
+    """A fleet's retention window for raw history."""
+
+    fleet: str
+    history_days: int | None = Field(description="The window in days; null: kept until erased.")

@@ -68,6 +68,12 @@ class ModelOut(BaseModel):
 
 class StatsOut(BaseModel):
     episodes: int
+    history_from: dt.datetime | None = Field(
+        default=None,
+        description="From when the person's raw history is kept (the fleet's retention window "
+        "removed what came before; the model and the profile still hold what it taught): "
+        "null when all of it is kept. The figures here are over the kept episodes.",
+    )
     missions: int
     interaction_rate: float | None = Field(description="null when there is no episode.")
     success_rate: float | None = Field(description="null when there is no mission.")

@@ -37,6 +37,8 @@ ACTIONS = (
     "correction.add",
     "correction.lift",
     "fleet.prior",
+    "fleet.history",
+    "fleet.retention",
 )
 # The actions whose target is a user: their entries' details are blanked when the user is erased.
 ABOUT_A_USER = ("user.", "model.", "correction.")

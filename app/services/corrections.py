@@ -17,6 +17,7 @@ from sqlalchemy.orm import Session
 from app.db.repositories import corrections as repo
 from app.db.repositories import episodes as episodes_repo
 from app.db.repositories import models as models_repo
+from app.db.repositories import retention as retention_repo
 from app.db.repositories.corrections import CorrectionRow
 from app.db.repositories.models import ModelRow, SampleRow
 from app.db.repositories.users import UserRow
@@ -29,6 +30,7 @@ from app.schemas.profile import CorrectionIn, CorrectionList, CorrectionOut
 from . import audit
 from .auth import require_manager
 from .context import Principal, ServiceContext, body_hash
+from .folds import History
 from .learners import Rules, load_learner, save_learner
 from .users import visible_user
 
@@ -357,4 +359,10 @@ def _status(
         return "idle", None
     if rule.overridden_at is None:
         return "in_force", None
-    return "overridden", episodes_repo.occurred_at_of(session, user.id, rule.overridden_at)
+    at = episodes_repo.occurred_at_of(session, user.id, rule.overridden_at)
+    if at is None:  # removed by a retention run: its fold keeps the moment
+        moment = History.from_doc(retention_repo.doc(session, user.id)).moments.get(
+            rule.overridden_at
+        )
+        at = None if moment is None else moment.at
+    return "overridden", at

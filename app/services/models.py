@@ -11,6 +11,7 @@ from sqlalchemy.orm import Session
 
 from app.db.repositories import episodes as episodes_repo
 from app.db.repositories import models as models_repo
+from app.db.repositories import retention as retention_repo
 from app.db.repositories import users as users_repo
 from app.db.repositories.models import ModelRow
 from app.db.repositories.users import UserRow
@@ -150,6 +151,7 @@ def stats(
     )
     return StatsOut(
         episodes=len(rows),
+        history_from=retention_repo.kept_from(session, user.id),
         missions=int(m["missions"]),
         interaction_rate=_num(m["interaction_rate"]),
         success_rate=_num(m["success_rate"]),

@@ -8,18 +8,16 @@ the staff corrections applied).
 
 from __future__ import annotations
 
-import datetime as dt
 import re
-from collections import defaultdict
 from typing import Any
 
 from sqlalchemy.orm import Session
 
 from app.db.repositories import episodes as episodes_repo
 from app.db.repositories import models as models_repo
-from app.db.repositories.episodes import HistoryAnswer, HistoryEpisode, local_time
+from app.db.repositories import retention as folds_repo
 from app.learning import ActionKind, Mission, NegotiationSpace
-from app.learning.beliefs import Answer, Belief, EpisodeEvidence, Item, belief, episode_evidence
+from app.learning.beliefs import Item
 from app.learning.guidance import Rule, RuleKind
 from app.learning.learners import TabularLearner
 from app.learning.masks import initiates_never
@@ -35,6 +33,7 @@ from app.schemas.profile import (
 
 from .context import Principal, ServiceContext
 from .corrections import correction_views
+from .folds import ContextHistory, History, Moment
 from .learners import load_learner
 from .prior import started_from
 from .users import visible_user
@@ -58,13 +57,6 @@ def profile_view(
     learner = load_learner(session, ctx, user.fleet, user.id, model, for_write=False)
     mission = learner.mission
     display = ctx.missions.display(session, user.fleet, model.mission_version)
-    episodes, answers = episodes_repo.history(session, user.id)
-    by_seq: dict[int, list[HistoryAnswer]] = defaultdict(list)
-    for a in answers:
-        by_seq[a.seq].append(a)
-    per_context: dict[tuple[str, str], list[HistoryEpisode]] = defaultdict(list)
-    for ep in episodes:
-        per_context[(ep.time_slot, ep.situation)].append(ep)
     spaces: dict[int, NegotiationSpace] = {}
 
     def space_of(version: int) -> NegotiationSpace:
@@ -72,22 +64,14 @@ def profile_view(
             spaces[version] = ctx.missions.get(session, user.fleet, version).space
         return spaces[version]
 
+    history = History.from_doc(folds_repo.doc(session, user.id))
+    history.walk(*episodes_repo.history(session, user.id, after_seq=history.upto_seq), space_of)
     corrections = correction_views(session, user, learner, lifted=False)
-    when_of = {ep.learner_episode: local_time(ep.occurred_at, ep.utc_offset) for ep in episodes}
     now = user.episode_count + model.episode_offset + 1
     contexts = []
     for c in range(mission.n_contexts):
         slot, situation = mission.context_names(c)
-        eps = per_context.get((slot, situation), [])
-        evidence = [
-            episode_evidence(
-                space_of(ep.mission_version),
-                ep.seq,
-                [Answer(a.action, a.response, a.service, a.detail) for a in by_seq[ep.seq]],
-                request=Item(ep.request_service, ep.request_detail) if ep.request_service else None,
-            )
-            for ep in eps
-        ]
+        here = history.context(slot, situation)
         rules = [
             r for r in learner.guidance.rules if (r.time_slot, r.situation) == (slot, situation)
         ]
@@ -98,22 +82,19 @@ def profile_view(
                 now,
                 slot,
                 situation,
-                eps,
-                evidence,
-                belief(evidence),
+                here,
                 rules,
-                when_of,
+                history.moments,
                 user.display_name or user.user_id,
                 display,
             )
         )
-    last = episodes[-1] if episodes else None
     return ProfileOut(
         user_id=user.user_id,
         display_name=user.display_name,
-        episodes=len(episodes),
-        open_episodes=sum(ep.status == "open" for ep in episodes),
-        utc_offset=last.utc_offset if last else None,
+        episodes=history.episodes,
+        open_episodes=history.open,
+        utc_offset=history.utc_offset,
         started_from=StartedFrom(**started_from(session, user.id)),
         contexts=contexts,
         corrections=corrections,
@@ -126,20 +107,18 @@ def _context(
     now: int,
     slot: str,
     situation: str,
-    eps: list[HistoryEpisode],
-    evidence: list[EpisodeEvidence],
-    found: Belief,
+    here: ContextHistory,
     rules: list[Rule],
-    when_of: dict[int, dt.datetime],
+    moments: dict[int, Moment],
     name: str | None,
     display: Mission,
 ) -> ProfileContext:
-    seq_time = {ep.seq: local_time(ep.occurred_at, ep.utc_offset) for ep in eps}
+    found = here.fold.belief()
     wants, certainty, source = found.wants, found.certainty, "person" if found.wants else None
     change = None
     if found.change is not None:
         change = ChangeOut(
-            at=seq_time.get(found.change.seq),
+            at=here.times.get(found.change.seq),
             episode=found.change.seq,
             before=_wanted(found.change.before),
             now=_wanted(found.change.now),
@@ -155,23 +134,22 @@ def _context(
         if overridden:
             rule = overridden[-1]
             assert rule.service is not None
+            moment = moments.get(rule.overridden_at or 0)
             change = ChangeOut(
-                at=when_of.get(rule.overridden_at or 0),
-                episode=_seq_of(eps, rule, learner),
+                at=None if moment is None else moment.at,
+                episode=0 if moment is None else moment.seq,
                 before=Wanted(service=rule.service, detail=rule.detail),
                 now=_wanted(found.wants),
                 overrides=rule.id,
             )
-    turned_down = found.wants is None and any(
-        e.refused_offer for e in [e for e in evidence if e.relevant][-3:]
-    )
+    turned_down = found.wants is None and any(e.refused_offer for e in here.recent(3))
     will = _robot_will(learner, c, now, rules, turned_down)
     ev = EvidenceOut(
-        accepted=sum(e.accepted for e in evidence),
-        refused=sum(e.refused_count for e in evidence),
-        asked_for=sum(e.asked_for for e in evidence),
-        answered=sum(e.answered for e in evidence),
-        last_seen=seq_time[eps[-1].seq] if eps else None,
+        accepted=here.accepted,
+        refused=here.refused,
+        asked_for=here.asked_for,
+        answered=here.answered,
+        last_seen=here.last_seen,
         support=found.support if source == "person" else 0,
         recent=found.recent,
     )
@@ -179,8 +157,8 @@ def _context(
     return ProfileContext(
         time_slot=slot,
         situation=situation,
-        episodes=len(eps),
-        open_episodes=sum(ep.status == "open" for ep in eps),
+        episodes=here.episodes,
+        open_episodes=here.open,
         wants=_wanted(wants),
         certainty=certainty,  # type: ignore[arg-type]
         source=source,  # type: ignore[arg-type]
@@ -198,13 +176,6 @@ def _fits(learner: TabularLearner[Any], rule: Rule) -> bool:
     except ValueError:
         return False
     return True
-
-
-def _seq_of(eps: list[HistoryEpisode], rule: Rule, learner: TabularLearner[Any]) -> int:
-    for ep in eps:
-        if ep.learner_episode == rule.overridden_at:
-            return ep.seq
-    return 0
 
 
 def _wanted(item: Item | None) -> Wanted | None:

@@ -1,7 +1,8 @@
 """Erasing a person (``DELETE /v1/users/{id}``) leaves nothing of them, on both engines: every
 table and column of the database is read (``tests/support/erasure``), after a history with
 feedback, staff corrections with notes, a lifted correction, an export, an import, a change of
-their prior, a mission change and an episode left open. Their audit entries keep who did what,
+their prior, a mission change, an episode left open and a retention run that folded
+their oldest episodes. Their audit entries keep who did what,
 when and to which id, and nothing else; the database refuses to blank anyone else's. Their
 number is never given to a newcomer. And the check finds a table that keeps something of them.
 """
@@ -9,16 +10,20 @@ number is never given to a newcomer. And the check finds a table that keeps some
 from __future__ import annotations
 
 import copy
+import datetime as dt
 from collections.abc import Iterator
 from typing import Any
 
 import pytest
+from fastapi import FastAPI
 from fastapi.testclient import TestClient
-from sqlalchemy import text
+from sqlalchemy import select, text
 from sqlalchemy.exc import DBAPIError
 
+from app.db.models import Episode
 from app.db.session import Database
 from app.learning import office_mission
+from app.services import retention
 from tests.support.episodes import play, start
 from tests.support.erasure import Subject, remains
 from tests.support.people import person
@@ -90,10 +95,28 @@ def _fill(robot: TestClient, staff: TestClient, admin: TestClient) -> None:
     start(robot, ADA, "zw-evt-open", situation="stretching", robot_id="zw-robot")
 
 
+def _retention_run(app: FastAPI, staff: TestClient, db: Database) -> None:
+    """A retention run that folds and removes ADA's first four episodes (and BO's)."""
+    r = staff.put("/v1/admin/fleets/default/history", json={"history_days": 30})
+    assert r.status_code == 200, r.text
+    with db.transaction(write=False) as session:
+        pk = user_pk(session, ADA)
+        at = session.scalar(
+            select(Episode.created_at).where(Episode.user_pk == pk, Episode.seq == 5)
+        )
+    assert at is not None
+    report = retention.run(app.state.db, app.state.ctx, now=at + dt.timedelta(days=30))
+    assert report.episodes_removed >= 4
+
+
 @pytest.fixture
-def erased(robot: TestClient, staff: TestClient, admin: TestClient, db: Database) -> Subject:
-    """ADA, filled and then erased by her fleet's staff."""
+def erased(
+    app: FastAPI, robot: TestClient, staff: TestClient, admin: TestClient, db: Database
+) -> Subject:
+    """ADA, filled, her oldest history folded by a retention run, and then erased by her
+    fleet's staff."""
     _fill(robot, staff, admin)
+    _retention_run(app, staff, db)
     with db.transaction() as session:
         pk = user_pk(session, ADA)
     subject = Subject(
@@ -112,7 +135,7 @@ def test_nothing_of_an_erased_person_remains(
     # The neighbour keeps all of theirs.
     assert staff.get(f"/v1/users/{BO}").json()["episodes"] == 3
     assert staff.get(f"/v1/users/{BO}/model").status_code == 200
-    assert len(staff.get(f"/v1/users/{BO}/episodes").json()["items"]) == 3
+    assert staff.get(f"/v1/users/{BO}/profile").json()["episodes"] == 3  # folded, not erased
 
 
 def test_the_audit_log_keeps_who_did_what_and_nothing_of_the_person(

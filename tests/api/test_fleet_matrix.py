@@ -228,6 +228,19 @@ MATRIX: list[Row] = [
         json={"enabled": False},
         route="/v1/admin/fleets/{fleet}/prior",
     ),
+    Row(
+        "GET",
+        f"/v1/admin/fleets/{A}/history",
+        (401, 401, 403, 403, 200, 403, 200),
+        route="/v1/admin/fleets/{fleet}/history",
+    ),
+    Row(
+        "PUT",
+        f"/v1/admin/fleets/{A}/history",
+        (401, 401, 403, 403, 200, 403, 200),
+        json={"history_days": 3650},
+        route="/v1/admin/fleets/{fleet}/history",
+    ),
     # The console: a cookie holding the key (staff and admin get it by signing in; robot and
     # revoked keys, refused there, send one made by hand). "none": no cookie, so the pages
     # send the browser to the login form (303).

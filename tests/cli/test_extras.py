@@ -12,10 +12,15 @@ from pathlib import Path
 
 import pytest
 import typer
+from pydantic import SecretStr
 from typer.testing import CliRunner
 
 from app.cli import app
 from app.commands._extras import install_command, missing_extra_message, require
+from app.commands._setup import ENCRYPTED
+from app.db.encryption import EncryptionUnavailable
+from app.db.session import Database
+from app.settings import Settings
 
 # The install from the clone's folder: "attune" on PyPI is another project, and the client is on
 # no package index, so pip must be given its folder (README, "With pip").
@@ -27,6 +32,10 @@ PLOT = (
 )
 EXPERIMENTS = (
     f"attune experiment needs the 'experiments' extra: {CLONE} pip install '.[experiments]'\n"
+)
+ENCRYPTION = (
+    "An encrypted SQLite database (ATTUNE_DB_KEY or ATTUNE_DB_KEY_FILE) needs the 'encryption' "
+    f"extra: {CLONE} pip install '.[encryption]'\n"
 )
 NOBODY = "http://127.0.0.1:9"  # nothing listens there: the command must stop before connecting
 
@@ -47,9 +56,10 @@ def test_the_install_commands_are_the_readmes() -> None:
     assert install_command("fleet") == "pip install ./clients/python '.[fleet]'"
     assert install_command("dev") == "pip install ./clients/python '.[dev]'"
     assert install_command("experiments") == "pip install '.[experiments]'"
-    for extra in ("fleet", "experiments"):
+    assert install_command("encryption") == "pip install '.[encryption]'"
+    for extra in ("fleet", "experiments", "encryption"):
         assert f"`{extra}`" in with_pip
-    for extra in ("fleet", "experiments"):
+    for extra in ("fleet", "experiments", "encryption"):
         assert f"`{install_command(extra)}`" in with_pip, extra
     assert "attune[" not in missing_extra_message("fleet", "attune fleet")
 
@@ -166,3 +176,23 @@ def test_the_console_script_prints_one_line_and_no_traceback(tmp_path: Path) -> 
     assert done.returncode == 2
     assert done.stderr == EXPERIMENTS
     assert done.stdout == ""
+
+
+def test_a_database_key_without_sqlcipher(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
+    """A key set without the extra: one line naming it, exit 2, and no database file made; the
+    service's own engine says the same (``EncryptionUnavailable``)."""
+    without(monkeypatch, "sqlcipher3", "sqlcipher3.dbapi2")
+    url = f"sqlite:///{tmp_path / 'attune.db'}"
+    env = {"ATTUNE_DATABASE_URL": url, "ATTUNE_DB_KEY": "a passphrase", "ATTUNE_DB_KEY_FILE": None}
+    for args in (["db", "upgrade"], ["serve", "--port", "9"], ["keys", "list"]):
+        done = CliRunner(env=env).invoke(app, args)
+        assert done.exit_code == 2, args
+        assert done.stderr == ENCRYPTION
+        assert "a passphrase" not in done.output
+    assert not (tmp_path / "attune.db").exists()
+    assert str(EncryptionUnavailable()) + "\n" == ENCRYPTION
+    assert missing_extra_message("encryption", ENCRYPTED) + "\n" == ENCRYPTION
+    key = SecretStr("a passphrase")
+    settings = Settings(database_url=url, db_key=key, _env_file=None)  # type: ignore[call-arg]
+    with pytest.raises(EncryptionUnavailable):
+        Database(settings)

@@ -8,11 +8,20 @@ from sqlalchemy.orm import Session
 
 from app.api.deps import CurrentPrincipal, TransactionalRoute
 from app.api.errors import responses
-from app.schemas.admin import FleetList, FleetPriorIn, FleetPriorOut, KeyCreated, KeyIn, KeyList
+from app.schemas.admin import (
+    FleetHistoryIn,
+    FleetHistoryOut,
+    FleetList,
+    FleetPriorIn,
+    FleetPriorOut,
+    KeyCreated,
+    KeyIn,
+    KeyList,
+)
 from app.schemas.audit import AuditList, ViewList
 from app.schemas.common import CLIENT_ID_PATTERN
 from app.schemas.models import MissionChanged, MissionChangeIn, MissionVersionList
-from app.services import admin, missions, prior, views
+from app.services import admin, missions, prior, retention, views
 from app.services import audit as service
 from app.services.context import ServiceContext
 
@@ -35,7 +44,8 @@ def list_audit(
 ) -> AuditList:
     """The audit log, newest first: who (the key), what (user.delete, user.learner,
     user.prior, user.export, model.reset, model.export, model.import, model.rebuild, key.create,
-    key.revoke, mission.set, correction.add, correction.lift, fleet.prior), when.
+    key.revoke, mission.set, correction.add, correction.lift, fleet.prior, fleet.history,
+    fleet.retention), when.
     Admins read every fleet's entries, a fleet's staff its own."""
     return service.list_audit(session, principal, limit=limit, cursor=cursor)
 
@@ -156,4 +166,30 @@ def set_fleet_prior(
     changes."""
     return FleetPriorOut.model_validate(
         prior.set_fleet_prior(session, ctx, principal, fleet, enabled=body.enabled)
+    )
+
+
+@router.get("/fleets/{fleet}/history", response_model=FleetHistoryOut, responses=responses(403))
+def get_fleet_history(
+    fleet: FleetName, session: Session, ctx: ServiceContext, principal: CurrentPrincipal
+) -> FleetHistoryOut:
+    """How long a fleet keeps its raw history (the fleet's staff, admins)."""
+    return FleetHistoryOut.model_validate(retention.history_view(session, ctx, principal, fleet))
+
+
+@router.put(
+    "/fleets/{fleet}/history", response_model=FleetHistoryOut, responses=responses(403, 415, 422)
+)
+def set_fleet_history(
+    fleet: FleetName,
+    body: FleetHistoryIn,
+    session: Session,
+    ctx: ServiceContext,
+    principal: CurrentPrincipal,
+) -> FleetHistoryOut:
+    """Set how many days of raw history a fleet keeps (null: everything; the fleet's staff,
+    admins). The next retention run folds what is older into the people's models and removes
+    it. Audit entry ``fleet.history`` when it changes."""
+    return FleetHistoryOut.model_validate(
+        retention.set_history(session, ctx, principal, fleet, days=body.history_days)
     )

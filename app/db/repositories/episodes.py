@@ -386,13 +386,18 @@ class HistoryAnswer:
     detail: str | None
 
 
-def history(session: Session, user_pk: int) -> tuple[list[HistoryEpisode], list[HistoryAnswer]]:
-    """Every episode of the user (oldest first) and the person's answers to the robot's own
-    decisions, in order."""
+def history(
+    session: Session, user_pk: int, *, after_seq: int = 0, upto_seq: int | None = None
+) -> tuple[list[HistoryEpisode], list[HistoryAnswer]]:
+    """The user's episodes after ``after_seq`` (up to ``upto_seq``), oldest first, and the
+    person's answers to the robot's own decisions in them, in order."""
     c = conn(session)
+    span = [_episodes.c.user_pk == user_pk, _episodes.c.seq > after_seq]
+    if upto_seq is not None:
+        span.append(_episodes.c.seq <= upto_seq)
     eps = c.execute(
         select(*[_episodes.c[n] for n in names(HistoryEpisode)])
-        .where(_episodes.c.user_pk == user_pk)
+        .where(*span)
         .order_by(_episodes.c.seq)
     )
     answers = c.execute(
@@ -405,7 +410,7 @@ def history(session: Session, user_pk: int) -> tuple[list[HistoryEpisode], list[
         )
         .join(_episodes, _episodes.c.id == _decisions.c.episode_id)
         .where(
-            _episodes.c.user_pk == user_pk,
+            *span,
             _decisions.c.response.is_not(None),
             _decisions.c.forced.is_(False),
         )
