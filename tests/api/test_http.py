@@ -258,8 +258,9 @@ class TestContentType:
                     assert "415" in op["responses"], (method, path)
                 else:
                     assert "415" not in op["responses"], (method, path)
-        # users, episodes, outcomes, feedback, model, corrections, keys, mission, fleet prior
-        assert seen == 9
+        # users, episodes, outcomes, feedback, model, corrections, keys, mission, fleet prior,
+        # fleet history
+        assert seen == 10
 
 
 # (path, parameter, lowest, highest): every integer query parameter of the API.
