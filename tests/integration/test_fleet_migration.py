@@ -98,7 +98,7 @@ def _api_view(api: Any, users: dict[str, list[str]], *, fleet_param: bool) -> di
             user.pop("fleet_prior", None)
             model = comparable_model(api.get(f"/v1/users/{uid}/model", params=q).json())
             model.pop("started_from", None)
-            stats = api.get(f"/v1/users/{uid}/stats", params=q).json()
+            stats = release.stats(api, uid, q)
             episodes = api.get(f"/v1/users/{uid}/episodes", params={**q, "limit": 500}).json()
             traces = []
             # Later releases add fields: the fleet (traces, episodes), the mission version

@@ -135,7 +135,7 @@ def _api_view(api: Any) -> dict[str, Any]:
             view[f"{fleet}/{uid}"] = {
                 "user": user,
                 "model": model,
-                "stats": api.get(f"/v1/users/{uid}/stats", params=q).json(),
+                "stats": release.stats(api, uid, q),
                 "episodes": episodes["items"],
                 "traces": traces,
             }

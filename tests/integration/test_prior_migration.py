@@ -95,7 +95,7 @@ def _api_view(api: Any) -> dict[str, Any]:
             "model": comparable_model(
                 without(api.get(f"/v1/users/{uid}/model").json(), "started_from")
             ),
-            "stats": api.get(f"/v1/users/{uid}/stats").json(),
+            "stats": release.stats(api, uid),
             "episodes": episodes["items"],
         }
     return view

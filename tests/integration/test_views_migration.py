@@ -72,7 +72,7 @@ def test_the_upgrade_keeps_everything_and_records_reads_from_then_on(filled: Fil
     url, names, before, tables, rows_before = filled
     migrate.upgrade(url)
     assert revision(url) == migrate.head_revision()  # this code runs on the newest schema
-    assert table_names(url) == sorted([*tables, "data_views"])
+    assert "data_views" in set(table_names(url)) - set(tables)
     assert table_rows(url, tables) == rows_before
     assert scalars(url, "SELECT COUNT(*) FROM data_views") == [0]
     app = create_app(Settings(database_url=url, seed=0, _env_file=None))  # type: ignore[call-arg]
