@@ -33,6 +33,7 @@ __all__ = [
     "Mover",
     "Rules",
     "StartOver",
+    "base_learner",
     "fresh_learner",
     "load_learner",
     "replace_model",
@@ -57,6 +58,19 @@ def fresh_learner(
         return make_learner(algorithm, params, mission)
     except ValueError as exc:
         raise ValidationFailed(str(exc)) from None
+
+
+def base_learner(
+    session: Session, ctx: ServiceContext, user: UserRow, model: ModelRow
+) -> TabularLearner[Any]:
+    """The learner a rebuild of the user's model starts from, at ``model.base_version`` and
+    laid out for ``model.base_mission_version``: the stored base (an import, the fleet's
+    prior, or a retention run's fold), or a fresh learner."""
+    base = repo.base_state(session, user.id)
+    mission = ctx.missions.get(session, user.fleet, model.base_mission_version).mission
+    if base:
+        return learner_from_state(base, mission)
+    return fresh_learner(user.algorithm, dict(user.params), mission)
 
 
 def replay(

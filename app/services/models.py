@@ -36,7 +36,14 @@ from . import audit, corrections, missions
 from .auth import require_manager
 from .context import Principal, ServiceContext, rng_for
 from .episodes import action_out
-from .learners import fresh_learner, load_learner, replace_model, replay, save_learner
+from .learners import (
+    base_learner,
+    fresh_learner,
+    load_learner,
+    replace_model,
+    replay,
+    save_learner,
+)
 from .prior import started_from
 from .users import visible_user
 
@@ -306,14 +313,8 @@ def rebuild_model(
     a rebuilt model that differs is stored (one version on, audited)."""
     user = visible_user(session, principal, user_id, fleet=fleet, lock=True)
     model = _head(session, user)
-    base = models_repo.base_state(session, user.id)
     layout = model.base_mission_version
-    mission = ctx.missions.get(session, user.fleet, layout).mission
-    learner: TabularLearner[Any] = (
-        learner_from_state(base, mission)
-        if base
-        else fresh_learner(user.algorithm, dict(user.params), mission)
-    )
+    learner = base_learner(session, ctx, user, model)
     samples = models_repo.samples_since(session, user.id, model.base_version)
     report = RebuildReport(user_id, model.version, samples=len(samples))
     taught = 0

@@ -37,14 +37,14 @@ from app.db.repositories.users import UserRow
 from app.db.session import Database
 from app.db.types import utcnow
 from app.errors import Forbidden, ValidationFailed
-from app.learning import NegotiationSpace, learner_from_state
+from app.learning import NegotiationSpace
 from app.learning.learners import TabularLearner
 
 from . import audit, corrections, missions
 from .auth import require_manager
 from .context import Principal, ServiceContext
 from .folds import History
-from .learners import fresh_learner, load_learner, replay
+from .learners import base_learner, load_learner, replay
 
 __all__ = [
     "MAX_DAYS",
@@ -267,14 +267,8 @@ def _learner_at(
 ) -> tuple[TabularLearner[Any], int]:
     """The user's learner at ``version``: its base replayed through the journal, as a rebuild
     replays it (and the layout it has then)."""
-    base = models_repo.base_state(session, user.id)
     layout = model.base_mission_version
-    mission = ctx.missions.get(session, user.fleet, layout).mission
-    learner: TabularLearner[Any] = (
-        learner_from_state(base, mission)
-        if base
-        else fresh_learner(user.algorithm, dict(user.params), mission)
-    )
+    learner = base_learner(session, ctx, user, model)
 
     def move(learner: TabularLearner[Any], old: int, new: int) -> TabularLearner[Any]:
         return missions.move_learner(session, ctx, user.fleet, learner, old, new)
