@@ -32,6 +32,7 @@ from app.api.routes import admin, episodes, meta, models, profile, users
 from app.console import mount_console
 from app.db.session import Database
 from app.services.context import ServiceContext
+from app.services.retention_runs import DailyRetention
 from app.settings import Settings, get_settings, mask_url
 
 __all__ = ["app", "create_app", "package_version"]
@@ -102,10 +103,23 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             # first request, then every few seconds.
             await asyncio.to_thread(db.probe_round_trip)
             tasks.append(asyncio.create_task(db.watch_round_trip(), name="attune-round-trip"))
+        daily = None
+        if settings.retention_at is not None:
+            # The retention run at the set time, in a thread of its own (ATTUNE_RETENTION_AT):
+            # each worker wakes then, the one that takes the lease runs it. The drain stops it.
+            daily = DailyRetention(
+                db,
+                app.state.ctx,
+                settings.retention_at,
+                stopping=lambda: app.state.drain.draining,
+            )
+            daily.start()
         try:
             # The server of `attune serve` finds the drain here and starts it on SIGTERM.
             yield {STATE_KEY: app.state.drain}
         finally:
+            if daily is not None:
+                await asyncio.to_thread(daily.stop)
             for task in tasks:
                 task.cancel()
             for task in tasks:

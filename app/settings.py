@@ -17,6 +17,8 @@ from pydantic import (
 )
 from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
+from app.daily import DailyTime
+
 __all__ = ["Pooler", "Settings", "get_settings", "mask_url", "shown"]
 
 Pooler = Literal["none", "transaction"]
@@ -213,6 +215,14 @@ class Settings(BaseSettings):
         description="How many episodes (or journal entries) a retention run removes per "
         "transaction: smaller batches hold the database for less time at once.",
     )
+    retention_at: Annotated[DailyTime | None, NoDecode] = Field(
+        default=None,
+        description="When set (HH:MM, in UTC, or HH:MM followed by an IANA time zone name: "
+        "03:30 Europe/London), each running service starts the retention run of attune "
+        "retention run once a day at that time, in the background; a lease in the database "
+        "lets one process of the deployment run it at a time. Unset or empty: the service runs "
+        "none (cron may run attune retention run).",
+    )
     prior_min_contributors: int = Field(
         default=5,
         ge=3,
@@ -305,6 +315,11 @@ class Settings(BaseSettings):
     )
 
     _file_key: SecretStr | None = PrivateAttr(default=None)
+
+    @field_validator("retention_at", mode="before")
+    @classmethod
+    def _daily_time(cls, value: object) -> object:
+        return DailyTime.parse(value) if isinstance(value, str) else value
 
     @field_validator("root_path")
     @classmethod

@@ -16,6 +16,9 @@ __all__ = ["retention"]
 
 retention = Typer(help="Raw history kept for each fleet's window only.", no_args_is_help=True)
 
+HELD = 3
+"""The exit status of a run that found another holding the retention lease (nothing done)."""
+
 
 @retention.command("run")
 def retention_run(
@@ -46,12 +49,15 @@ def retention_run(
     decisions, answers and feedback) and the model's journal up to that point, a batch at a
     time. Models, decisions and profiles stay exactly as they were. Safe to run while robots
     work, to interrupt and to run again (the next run finishes the job). Run it from cron, for
-    example every night."""
+    example every night, or let the service run it (ATTUNE_RETENTION_AT). One run at a time:
+    a run takes the deployment's retention lease first; while another run (the service's or
+    another command's) holds it, this one does nothing, says so and exits with status 3."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
     from rich.table import Table
 
-    from app.services import retention as service
     from app.services.context import ServiceContext
+    from app.services.leases import LeaseHeld, LeaseLost
+    from app.services.retention_runs import run_held
 
     settings = load_settings()
     ctx = ServiceContext.from_settings(settings)
@@ -64,13 +70,37 @@ def retention_run(
         console=err,
         disable=not progress or as_json,
     )
-    with open_database(settings) as database, bar:
-        task = bar.add_task("people", total=None)
+    task = bar.add_task("people", total=None)
 
-        def advance(in_fleet: str, _user: str) -> None:
-            bar.update(task, advance=1, description=f"people of {in_fleet}")
+    def advance(in_fleet: str, _user: str) -> None:
+        bar.update(task, advance=1, description=f"people of {in_fleet}")
 
-        report = service.run(database, ctx, fleet=fleet, batch=batch, progress=advance)
+    try:
+        with open_database(settings) as database:
+            try:  # the bar once the lease is held: a run that finds it taken shows none
+                report = run_held(
+                    database,
+                    ctx,
+                    fleet=fleet,
+                    batch=batch,
+                    progress=advance,
+                    started=lambda _lease: bar.start(),
+                )
+            finally:
+                bar.stop()
+    except LeaseHeld as held:
+        err.print(
+            f"Another retention run holds the lease ({held.holding()}): nothing was done. "
+            "Run again once it is over.",
+            markup=False,
+        )
+        raise typer.Exit(HELD) from None
+    except LeaseLost as lost:
+        err.print(
+            f"The run stopped: {lost}; that run goes on from where this one stopped.",
+            markup=False,
+        )
+        raise typer.Exit(1) from None
     if as_json:
         print_json(report.to_json())
         return

@@ -33,6 +33,7 @@ __all__ = [
     "FleetMission",
     "FleetSettings",
     "LearnerModel",
+    "Lease",
     "Sample",
     "User",
 ]
@@ -371,3 +372,21 @@ class HistoryFold(Base):
     kept_from: Mapped[dt.datetime] = mapped_column(UTCDateTime())
     folded_at: Mapped[dt.datetime] = mapped_column(UTCDateTime(), default=utcnow)
     doc: Mapped[dict[str, Any]] = mapped_column(JSON)
+
+
+class Lease(Base):
+    """A job that one process of the deployment runs at a time (``retention``: the retention
+    run, whether the service's own at ``ATTUNE_RETENTION_AT`` or ``attune retention run``):
+    ``holder`` holds it until ``expires_at`` and renews it while it works; it took it at
+    ``acquired_at``. A lease whose ``expires_at`` has passed is free (a holder that finished
+    sets it to the time it let go; one that died lets it run out). The row is taken by a
+    conditional ``UPDATE`` (or the first ``INSERT``) in a transaction of its own, so it works
+    on SQLite, on PostgreSQL and through a pooler in transaction pooling, where a
+    session-level advisory lock would not."""
+
+    __tablename__ = "leases"
+
+    name: Mapped[str] = mapped_column(String(64), primary_key=True)
+    holder: Mapped[str] = mapped_column(String(200))  # host:pid:random, one per taking
+    acquired_at: Mapped[dt.datetime] = mapped_column(UTCDateTime())
+    expires_at: Mapped[dt.datetime] = mapped_column(UTCDateTime())

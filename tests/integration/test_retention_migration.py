@@ -81,7 +81,7 @@ def test_the_upgrade_keeps_everything_and_a_run_then_folds_exactly(filled: Fille
     url, names, before, tables, rows_before = filled
     migrate.upgrade(url)
     assert revision(url) == migrate.head_revision()
-    assert table_names(url) == sorted([*tables, "history_folds"])
+    assert "history_folds" in set(table_names(url)) - set(tables)
     after = table_rows(url, tables)
     after["fleet_settings"] = [
         tuple(c for c in row if c[0] != "history_days") for row in after["fleet_settings"]
