@@ -108,7 +108,8 @@ def retention_run(
         err.print(
             "No fleet has a history window"
             + (f" named {fleet!r}" if fleet else "")
-            + ": nothing to do (set one with PUT /v1/admin/fleets/{fleet}/history)."
+            + ": nothing to do (set one on the console's History kept page, or with PUT "
+            "/v1/admin/fleets/{fleet}/history)."
         )
         return
     table = Table(

@@ -41,6 +41,7 @@ from app.services import episodes as episodes_service
 from app.services import missions as missions_service
 from app.services import models as models_service
 from app.services import profile as profile_service
+from app.services import retention as retention_service
 from app.services import subject as subject_service
 from app.services import users as users_service
 from app.services import views as data_views
@@ -383,6 +384,7 @@ def _profile_page(
         zone=mission.time_zone,
         key_names=console_service.key_names(session, [c.author for c in profile.corrections]),
         looked=looked,
+        history_from=console_service.history_from(session, user),
     )
 
 
@@ -574,6 +576,7 @@ def details_page(
         done=done,
         mission=mission,
         counts=_counts(session, user),
+        history_from=console_service.history_from(session, user),
     )
 
 
@@ -635,6 +638,7 @@ def why_page(
             views.episodes_in(context),
         ),
         key_names=console_service.key_names(session, [c.author for c in corrections]),
+        history_from=console_service.history_from(session, user),
     )
 
 
@@ -686,6 +690,7 @@ def episodes_page(
         zone=mission.time_zone,
         older=int(page.next_cursor) if page.next_cursor else None,
         counts=_counts(session, user),
+        history_from=console_service.history_from(session, user),
     )
 
 
@@ -864,6 +869,13 @@ def delete(
     return _redirect(request, f"/users?deleted={user_id}")
 
 
+def _fleet_choice(session: RequestSession, admin: Admin, fleet: str) -> list[str] | None:
+    """The fleets an admin may pick on a fleet's page (``None`` for staff: their own only)."""
+    if not admin.principal.is_admin:
+        return None
+    return sorted({f.fleet for f in admin_service.fleets(session, admin.principal).items} | {fleet})
+
+
 # -- the fleet's mission: what it is, its versions, and a form to change it --------------------
 _CHANGE_ID = re.compile(r"^[A-Za-z0-9_.:-]{1,128}$")
 
@@ -891,11 +903,6 @@ def _mission_page(
     listed = missions_service.list_missions(session, ctx, admin.principal, fleet)  # may 403
     versions = history(listed["items"])
     current = versions[0]
-    fleets = None
-    if admin.principal.is_admin:
-        fleets = sorted(
-            {f.fleet for f in admin_service.fleets(session, admin.principal).items} | {fleet}
-        )
     return _page(
         request,
         "mission.html",
@@ -903,7 +910,7 @@ def _mission_page(
         status,
         nav="mission",
         fleet=fleet,
-        fleets=fleets,
+        fleets=_fleet_choice(session, admin, fleet),
         current=current,
         versions=versions,
         form=form or MissionForm.of(current.mission),
@@ -1022,6 +1029,110 @@ def change_mission(
     return _mission_page(
         request, session, ctx, admin, name, form=typed, change_id=change_id, preview=preview
     )
+
+
+# -- how long the fleet keeps its history: its retention window --------------------------------
+_DAYS_TEXT = re.compile(r"^[0-9]{1,9}$")
+
+
+def _retention_url(fleet: str, **params: object) -> str:
+    return "/retention?" + urlencode(
+        {"fleet": fleet, **{k: v for k, v in params.items() if v is not None}}
+    )
+
+
+def _retention_page(
+    request: Request,
+    session: RequestSession,
+    ctx: ServiceContext,
+    admin: Admin,
+    fleet: str,
+    *,
+    done: bool = False,
+    typed: dict[str, str] | None = None,
+    error: str | None = None,
+    status: int = 200,
+) -> HTMLResponse:
+    window = retention_service.window_view(session, ctx, admin.principal, fleet)  # may 403
+    zone = console_service.time_zones(session, ctx, {fleet})[fleet]
+    return _page(
+        request,
+        "retention.html",
+        admin,
+        status,
+        nav="retention",
+        fleet=fleet,
+        fleets=_fleet_choice(session, admin, fleet),
+        window=window,
+        zone=zone,
+        set_by=(
+            views.key_label(window.set_by, console_service.key_names(session, [window.set_by]))
+            if window.set_by
+            else None
+        ),
+        done=done,
+        typed=typed,
+        error=error,
+        max_days=retention_service.MAX_DAYS,
+        action=console_url(request, _retention_url(fleet)),
+    )
+
+
+@router.get("/retention")
+def retention_page(
+    request: Request,
+    session: RequestSession,
+    ctx: ServiceContext,
+    admin: AdminDep,
+    fleet: FleetQuery = None,
+    done: Annotated[str | None, Query(max_length=16)] = None,
+) -> HTMLResponse:
+    """How long the fleet keeps its episodes, in words: the window, when the last clean-up ran
+    and what it removed, and the form that sets the window (staff: their fleet; admins:
+    ``?fleet=``)."""
+    name = fleet or admin.principal.fleet
+    return _retention_page(request, session, ctx, admin, name, done=done == "saved")
+
+
+@router.post("/retention")
+def set_retention(
+    request: Request,
+    session: RequestSession,
+    ctx: ServiceContext,
+    admin: AdminDep,
+    form: FormDep,
+    fleet: FleetQuery = None,
+) -> Response:
+    """Set the fleet's window (as PUT /v1/admin/fleets/{fleet}/history, through the same
+    service: validated and audited there), then back to the page. A mistake comes back on the
+    form in words, with what was typed."""
+    check_post(request, admin, form)
+    name = fleet or admin.principal.fleet
+    typed = {"keep": form.get("keep", ""), "days": form.get("days", "").strip()}
+
+    def again(message: str) -> HTMLResponse:
+        return _retention_page(
+            request, session, ctx, admin, name, typed=typed, error=message, status=422
+        )
+
+    days: int | None = None
+    if typed["keep"] == "days":
+        if not _DAYS_TEXT.match(typed["days"]):
+            return again(
+                f"Write the number of days as a whole number, from 1 to "
+                f"{retention_service.MAX_DAYS:,}."
+            )
+        days = int(typed["days"])
+    elif typed["keep"] != "all":
+        return again("Choose whether to keep every episode or to remove the older ones.")
+    try:
+        retention_service.set_history(session, ctx, admin.principal, name, days=days)
+    except ValidationFailed:  # out of range: the service's rule, said in words here
+        return again(
+            f"{typed['days']} days cannot be set: the number of days goes from 1 to "
+            f"{retention_service.MAX_DAYS:,} (a hundred years)."
+        )
+    return _redirect(request, _retention_url(name, done="saved"))
 
 
 @router.get("/{rest:path}")

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 from typing import NamedTuple
 from urllib.parse import quote, urlencode
 
+from app.daily import DailyTime
 from app.learning import Mission
 from app.learning.guidance import Reason, ReasonCode
 from app.schemas.audit import ViewOut
@@ -39,6 +40,7 @@ __all__ = [
     "correction_status",
     "correction_words",
     "curve",
+    "days_words",
     "episode_words",
     "expectation",
     "fmt_aware",
@@ -58,6 +60,7 @@ __all__ = [
     "or_list",
     "profile_grid",
     "response_words",
+    "retention_words",
     "robot_words",
     "state_label",
     "state_words",
@@ -756,3 +759,24 @@ def refusal_words(reasons: Sequence[Reason], mission: Mission, fleet: str) -> st
 def cap(text: str) -> str:
     """The first letter upper case, the rest as written: "lunchtime" -> "Lunchtime"."""
     return text[:1].upper() + text[1:]
+
+
+def days_words(days: int) -> str:
+    """A number of days in words: 1 day, 90 days, 1,000 days."""
+    return "1 day" if days == 1 else f"{days:,} days"
+
+
+def retention_words(days: int | None, runs_at: DailyTime | None) -> str:
+    """What a fleet's retention window means, in one sentence: when its episodes go and what
+    stays. ``runs_at``: the service's own time of day for the clean-up (``None``: the
+    operator runs it)."""
+    if days is None:
+        return "Every episode is kept until the person is erased."
+    if runs_at is None:
+        when = "each time the clean-up runs (your operator schedules it)"
+    else:
+        when = f"each day at {runs_at.at:%H:%M} ({runs_at.zone})"
+    return (
+        f"Episodes older than {days_words(days)} are removed {when}; what the robot learned "
+        "from them is kept."
+    )

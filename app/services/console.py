@@ -18,6 +18,7 @@ from app.db.repositories import console as repo
 from app.db.repositories import keys as keys_repo
 from app.db.repositories import missions as missions_repo
 from app.db.repositories import models as models_repo
+from app.db.repositories import retention as retention_repo
 from app.db.repositories import users as users_repo
 from app.db.repositories.users import UserRow
 from app.errors import ValidationFailed
@@ -35,6 +36,7 @@ __all__ = [
     "UserPage",
     "episode_offsets",
     "find_users",
+    "history_from",
     "key_names",
     "latest_trace_in_context",
     "mission_version",
@@ -121,6 +123,12 @@ def _pk(session: Session, user: UserOut | UserRow) -> int:
 def open_episodes(session: Session, user: UserOut | UserRow) -> int:
     """How many of the user's episodes are still open (counted in ``user.episodes`` too)."""
     return repo.open_episodes(session, _pk(session, user))
+
+
+def history_from(session: Session, user: UserOut | UserRow) -> dt.datetime | None:
+    """From when the person's history is kept, since a retention run removed what was older
+    (``None``: all of it is kept), as ``GET /v1/users/{id}/stats`` says ``history_from``."""
+    return retention_repo.kept_from(session, _pk(session, user))
 
 
 def episode_offsets(session: Session, episode_ids: list[str]) -> dict[str, int | None]:

@@ -28,6 +28,8 @@ from typing import Any
 
 from sqlalchemy.orm import Session
 
+from app.daily import DailyTime
+from app.db.repositories import audit as audit_repo
 from app.db.repositories import episodes as episodes_repo
 from app.db.repositories import models as models_repo
 from app.db.repositories import retention as repo
@@ -49,10 +51,13 @@ from .learners import base_learner, load_learner, replay
 __all__ = [
     "MAX_DAYS",
     "FleetRun",
+    "LastRun",
     "RunReport",
+    "WindowView",
     "history_view",
     "run",
     "set_history",
+    "window_view",
 ]
 
 log = logging.getLogger("attune.retention")
@@ -361,6 +366,56 @@ def set_history(
             detail={"history_days": days},
         )
     return history_view(session, ctx, principal, fleet)
+
+
+@dataclass(frozen=True, slots=True)
+class LastRun:
+    """What the latest run did in a fleet (its ``fleet.retention`` audit entry)."""
+
+    at: dt.datetime
+    days: int  # the window it applied
+    people: int
+    episodes_removed: int
+
+
+@dataclass(frozen=True, slots=True)
+class WindowView:
+    """A fleet's window with its story, for the console: when and by which key it was last
+    set, the latest run there, and the service's own time of day for runs (``None``: the
+    service runs none; cron may run ``attune retention run``)."""
+
+    fleet: str
+    days: int | None
+    set_at: dt.datetime | None
+    set_by: str | None
+    last_run: LastRun | None
+    runs_at: DailyTime | None
+
+
+def window_view(
+    session: Session, ctx: ServiceContext, principal: Principal, fleet: str
+) -> WindowView:
+    """The fleet's window, its last change and its last run (the fleet's staff, admins)."""
+    _check_fleet(principal, fleet)
+    changed = audit_repo.latest(session, fleet=fleet, action="fleet.history")
+    ran = audit_repo.latest(session, fleet=fleet, action="fleet.retention")
+    last = None
+    if ran is not None:
+        detail = ran.detail or {}
+        last = LastRun(
+            at=ran.at,
+            days=int(detail.get("days", 0)),
+            people=int(detail.get("people", 0)),
+            episodes_removed=int(detail.get("episodes_removed", 0)),
+        )
+    return WindowView(
+        fleet=fleet,
+        days=repo.window(session, fleet),
+        set_at=None if changed is None else changed.at,
+        set_by=None if changed is None else changed.actor_key_id,
+        last_run=last,
+        runs_at=ctx.settings.retention_at,
+    )
 
 
 def _check_fleet(principal: Principal, fleet: str) -> None:

@@ -330,6 +330,7 @@ def test_staff_pages_hold_no_engineers_words(console: Console) -> None:
     pages = {
         "users": console.page("/admin/users").text,
         "mission": console.page("/admin/mission").text,
+        "retention": console.page("/admin/retention").text,
         "profile": console.page("/admin/users/lin").text,
         "evidence": console.page(f"/admin/users/lin?{where}").text,
         "evidence, no episode": console.page(

@@ -72,6 +72,7 @@ EXPORT = "{export}"  # a body: the export document of the caller's fleet's lin (
 LOGIN, CSRF = "login", "csrf"  # console forms: the caller's key; the page's CSRF token
 MISSION = "mission"  # the mission page's form, applying COCOA's mission, with the CSRF token
 CORRECT = "correct"  # a profile's correction form (a quiet correction), with the CSRF token
+RETENTION = "retention"  # the history kept page's form (3650 days), with the CSRF token
 
 Expect = tuple[int, int, int, int, int, int, int]  # one status per PRINCIPALS
 
@@ -279,6 +280,8 @@ MATRIX: list[Row] = [
     Row(
         "POST", "/admin/mission{q}", (303, 401, 403, 403, 303, 303, 303), form=MISSION, writes=True
     ),
+    Row("GET", "/admin/retention{q}", (303, 401, 403, 403, 200, 200, 200)),
+    Row("POST", "/admin/retention{q}", (303, 401, 403, 403, 303, 303, 303), form=RETENTION),
     Row("GET", "/admin/nowhere", (404, 404, 404, 404, 404, 404, 404), route="/admin/{rest:path}"),
 ]
 # Served to anyone, key or not: the schema, its two pages and the static files.
@@ -576,7 +579,9 @@ def _cells(*, writes: bool) -> Iterator[Any]:
 def _check_console(r: httpx.Response, row: Row, who: str, status: int) -> None:
     if status == 303:
         location = r.headers["location"]
-        if who == "none" and row.path.startswith(("/admin/users", "/admin/mission")):
+        if who == "none" and row.path.startswith(
+            ("/admin/users", "/admin/mission", "/admin/retention")
+        ):
             # Back to the page asked for, once signed in (the path's first words, before ids).
             path = row.path.split("{")[0]
             assert location.startswith(f"/admin/login?next={path}"), location
@@ -615,6 +620,8 @@ def _check_cell(world: World, row: Row, who: str, status: int) -> None:
         form = {"csrf": world.csrf(who)}
     elif row.form == MISSION:
         form = {"csrf": world.csrf(who), **MISSION_FORM}
+    elif row.form == RETENTION:
+        form = {"csrf": world.csrf(who), "keep": "days", "days": "3650"}
     elif row.form == CORRECT:
         form = {"csrf": world.csrf(who), **CORRECTION, "correction_id": "matrix-console-c"}
     r = send(world, row.method, path, who, json=world.fill(row.json, who), form=form)

@@ -63,6 +63,7 @@ DOCS_SHOTS = {
     ("desktop", "confirm-reset"): "console-confirm-reset.png",
     ("tablet", "profile"): "console-user-tablet.png",
     ("tablet", "profile-evidence"): "console-evidence-tablet.png",
+    ("desktop", "retention"): "console-retention.png",
 }
 DOCS_IMG = REPO / "docs" / "img"
 

@@ -9,6 +9,15 @@ function autosubmit() {
   });
 }
 
+// The retention form: typing a number of days chooses "removed once older than" (without a
+// script the choice is made by hand; the server refuses neither way round in silence).
+function windowForm() {
+  const days = document.querySelector("#window-form #days");
+  const choice = document.querySelector("#window-form #keep-days");
+  if (!days || !choice) return;
+  days.addEventListener("input", () => { choice.checked = true; });
+}
+
 // Episode rows load their trace (an HTML fragment rendered by the server) when first opened.
 function traces() {
   document.querySelectorAll("details[data-trace-url]").forEach((details) => {
@@ -142,6 +151,7 @@ function evidenceFocus() {
 
 document.addEventListener("DOMContentLoaded", () => {
   autosubmit();
+  windowForm();
   traces();
   rewardChart();
   correctionForm();

@@ -15,7 +15,7 @@ from sqlalchemy.orm import Session
 from ..models import AuditEntry
 from ._rows import columns, conn, table
 
-__all__ = ["ERASED", "AuditRow", "about", "add", "list_page", "redact_erased"]
+__all__ = ["ERASED", "AuditRow", "about", "add", "latest", "list_page", "redact_erased"]
 
 
 @dataclass(slots=True)
@@ -62,6 +62,18 @@ def list_page(
     if fleet is not None:
         stmt = stmt.where(_audit.c.fleet == fleet)
     return [AuditRow(*row) for row in conn(session).execute(stmt)]
+
+
+def latest(session: Session, *, fleet: str, action: str) -> AuditRow | None:
+    """The newest entry of ``action`` in ``fleet`` (``None``: none yet)."""
+    stmt = (
+        select(*_COLS)
+        .where(_audit.c.fleet == fleet, _audit.c.action == action)
+        .order_by(_audit.c.id.desc())
+        .limit(1)
+    )
+    row = conn(session).execute(stmt).first()
+    return None if row is None else AuditRow(*row)
 
 
 def redact_erased(session: Session, *, fleet: str, user_id: str, prefixes: tuple[str, ...]) -> int:
