@@ -869,6 +869,7 @@ def delete(
     return _redirect(request, f"/users?deleted={user_id}")
 
 
+# -- a fleet's pages (the mission, the history kept): the fleet in the address ------------------
 def _fleet_choice(session: RequestSession, admin: Admin, fleet: str) -> list[str] | None:
     """The fleets an admin may pick on a fleet's page (``None`` for staff: their own only)."""
     if not admin.principal.is_admin:
@@ -876,15 +877,16 @@ def _fleet_choice(session: RequestSession, admin: Admin, fleet: str) -> list[str
     return sorted({f.fleet for f in admin_service.fleets(session, admin.principal).items} | {fleet})
 
 
-# -- the fleet's mission: what it is, its versions, and a form to change it --------------------
-_CHANGE_ID = re.compile(r"^[A-Za-z0-9_.:-]{1,128}$")
-
-
-def _mission_url(fleet: str, **params: object) -> str:
-    """The mission page's address in the console (for ``_redirect`` and ``console_url``)."""
-    return "/mission?" + urlencode(
+def _fleet_url(page: str, fleet: str, **params: object) -> str:
+    """A fleet's page's address in the console (``/mission?fleet=...``, for ``_redirect`` and
+    ``console_url``)."""
+    return f"{page}?" + urlencode(
         {"fleet": fleet, **{k: v for k, v in params.items() if v is not None}}
     )
+
+
+# -- the fleet's mission: what it is, its versions, and a form to change it --------------------
+_CHANGE_ID = re.compile(r"^[A-Za-z0-9_.:-]{1,128}$")
 
 
 def _mission_page(
@@ -918,7 +920,7 @@ def _mission_page(
         base_version=current.version if current.stored else 0,
         preview=preview,
         done=done,
-        action=console_url(request, _mission_url(fleet)),
+        action=console_url(request, _fleet_url("/mission", fleet)),
         fields=FIELDS,
         preview_changes=changes(preview.old, preview.new, preview.diff) if preview else None,
     )
@@ -1019,7 +1021,7 @@ def change_mission(
                 "Check the mission in force below, then preview again.",
                 new_id=True,
             )
-        return _redirect(request, _mission_url(name, done=out["version"]))
+        return _redirect(request, _fleet_url("/mission", name, done=out["version"]))
     try:
         preview = missions_service.preview_change(
             session, ctx, principal, name, mission_doc=mission_doc, renames_doc=renames_doc
@@ -1033,12 +1035,6 @@ def change_mission(
 
 # -- how long the fleet keeps its history: its retention window --------------------------------
 _DAYS_TEXT = re.compile(r"^[0-9]{1,9}$")
-
-
-def _retention_url(fleet: str, **params: object) -> str:
-    return "/retention?" + urlencode(
-        {"fleet": fleet, **{k: v for k, v in params.items() if v is not None}}
-    )
 
 
 def _retention_page(
@@ -1074,7 +1070,7 @@ def _retention_page(
         typed=typed,
         error=error,
         max_days=retention_service.MAX_DAYS,
-        action=console_url(request, _retention_url(fleet)),
+        action=console_url(request, _fleet_url("/retention", fleet)),
     )
 
 
@@ -1132,7 +1128,7 @@ def set_retention(
             f"{typed['days']} days cannot be set: the number of days goes from 1 to "
             f"{retention_service.MAX_DAYS:,} (a hundred years)."
         )
-    return _redirect(request, _retention_url(name, done="saved"))
+    return _redirect(request, _fleet_url("/retention", name, done="saved"))
 
 
 @router.get("/{rest:path}")
