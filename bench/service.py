@@ -620,8 +620,8 @@ class Data:
 
         from app.db.models import LearnerModel, User
         from app.db.types import utcnow
-        from app.services.learners import fresh_learner
         from app.services.missions import current_version
+        from app.services.person_model import fresh_learner
 
         learner = fresh_learner("hri", None, self.ctx.mission)
         params, state, now = learner.params.to_dict(), learner.to_state(), utcnow()

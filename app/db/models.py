@@ -1,5 +1,6 @@
-"""The tables. History (episodes, decisions, feedback, samples) is the source of truth; each
-user's learner state sits beside it and changes in the same transaction as the rows that fed it.
+"""The tables. History (episodes, decisions, feedback, the model's journal) is the source of
+truth; each user's learner state sits beside it and changes in the same transaction as the rows
+that fed it.
 """
 
 from __future__ import annotations
@@ -32,9 +33,10 @@ __all__ = [
     "Feedback",
     "FleetMission",
     "FleetSettings",
+    "HistoryFold",
+    "JournalEntry",
     "LearnerModel",
     "Lease",
-    "Sample",
     "User",
 ]
 
@@ -134,10 +136,10 @@ class LearnerModel(Base):
 
     ``version`` goes up by one with every change and never goes back (a reset or an import is a
     change too). ``state`` is the learner as of ``state_version`` (written every few versions):
-    replaying the samples written after ``state_version`` onto it gives the learner at
-    ``version``. ``base_state`` is the imported document the current model grew from (``None``:
-    a fresh learner), ``base_version`` the version it had then: replaying the samples written
-    after ``base_version`` onto the base rebuilds the model.
+    replaying the journal's entries written after ``state_version`` onto it gives the learner
+    at ``version``. ``base_state`` is the imported document the current model grew from (``None``:
+    a fresh learner), ``base_version`` the version it had then: replaying the journal's entries
+    written after ``base_version`` onto the base rebuilds the model.
     """
 
     __tablename__ = "learner_models"
@@ -249,10 +251,10 @@ class Feedback(Base):
 class Correction(Base):
     """A staff correction of what was learned about a user: in one context, the person
     ``prefers`` a service and detail, the robot must ``avoid`` a service (or a detail), or must
-    stay ``quiet``. Part of the user's history: the journal holds a "correction" sample when it
-    is made and a "lift" sample when it is lifted (their ``action`` is this row's ``id``), so a
-    rebuild replays it. ``correction_id`` makes the request idempotent (``request_hash`` and
-    ``response`` answer a repeat)."""
+    stay ``quiet``. Part of the user's history: the journal holds a "correction" entry when it
+    is made and a "lift" entry when it is lifted (their ``correction_pk`` is this row's
+    ``id``), so a rebuild replays it. ``correction_id`` makes the request idempotent
+    (``request_hash`` and ``response`` answer a repeat)."""
 
     __tablename__ = "corrections"
     __table_args__ = (UniqueConstraint("user_pk", "correction_id"),)
@@ -275,36 +277,54 @@ class Correction(Base):
     response: Mapped[dict[str, Any]] = mapped_column(JSON)
 
 
-class Sample(Base):
-    """The model's journal: every transition and feedback handed to the learner, in order.
+class JournalEntry(Base):
+    """The model's journal: what changed a person's learner model, one model version at a
+    time, as typed entries (``app.db.repositories.journal`` reads and writes them; its record
+    classes name every field of every kind).
 
-    ``version`` is the model version the write produced; the samples of one version were one
-    ``update`` call (``kind`` "transition"), one ``feedback`` call, one move to another
-    mission version (``kind`` "mission"), or one staff correction made or lifted (``kind``
-    "correction" or "lift", ``action`` the correction's row id, ``episode`` the learner's
-    episode count then).
+    ``kind`` says which entry a row is, and each column means one thing for every kind that
+    has it:
+
+    - ``"transition"``: a step the learner was taught (the transitions of one version were one
+      ``update`` call): ``episode`` (the learner's episode index), ``context``, ``state``,
+      ``action``, ``reward``, ``next_state``, ``signal``;
+    - ``"feedback"``: explicit feedback taught on a step: ``episode``, ``context``, ``state``,
+      ``action``, ``reward``;
+    - ``"correction"`` and ``"lift"``: a staff correction put in force or lifted:
+      ``correction_pk`` (the correction's row), ``since`` (the episodes the learner had seen
+      then), ``context`` (the context it is about, 0 if the mission no longer has it);
+    - ``"mission"``: the model moved to mission version ``mission_version``;
+    - ``"reset"``, ``"import"`` and ``"fold"``: the model started over from a new base at this
+      version (a reset or a new learner, an imported document, a retention run's fold): they
+      mark the base a rebuild starts from and are never replayed; ``detail`` says who and how.
+
+    ``mission_version`` is, for every kind, the mission version whose layout the entry's
+    indices refer to (for a move, the one moved to).
     """
 
-    __tablename__ = "samples"
+    __tablename__ = "journal"
     __table_args__ = (
-        Index("ix_samples_user_version", "user_pk", "version"),
-        Index("ix_samples_user_episode", "user_pk", "episode"),
+        Index("ix_journal_user_version", "user_pk", "version"),
+        Index("ix_journal_user_episode", "user_pk", "episode"),
     )
 
     id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)
     user_pk: Mapped[int] = mapped_column(ForeignKey("users.id", ondelete="CASCADE"))
     version: Mapped[int] = mapped_column(Integer)
     kind: Mapped[str] = mapped_column(String(16))
-    episode: Mapped[int] = mapped_column(Integer)
-    context: Mapped[int] = mapped_column(Integer)
-    state: Mapped[int] = mapped_column(Integer)
-    action: Mapped[int] = mapped_column(Integer)
-    reward: Mapped[float] = mapped_column(Float)
+    mission_version: Mapped[int] = mapped_column(Integer)
+    episode: Mapped[int | None] = mapped_column(Integer)
+    context: Mapped[int | None] = mapped_column(Integer)
+    state: Mapped[int | None] = mapped_column(Integer)
+    action: Mapped[int | None] = mapped_column(Integer)
+    reward: Mapped[float | None] = mapped_column(Float)
     next_state: Mapped[int | None] = mapped_column(Integer)
-    signal: Mapped[int] = mapped_column(Integer, default=0)
-    # The mission version whose layout the indices refer to. A "mission" sample moves the model
-    # to that version (carrying what still applies) before the next samples are taught.
-    mission_version: Mapped[int] = mapped_column(Integer, default=1)
+    signal: Mapped[int | None] = mapped_column(Integer)
+    correction_pk: Mapped[int | None] = mapped_column(
+        ForeignKey("corrections.id", ondelete="CASCADE")
+    )
+    since: Mapped[int | None] = mapped_column(Integer)
+    detail: Mapped[dict[str, Any] | None] = mapped_column(JSON)
 
 
 class AuditEntry(Base):

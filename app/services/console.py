@@ -140,15 +140,14 @@ def episode_offsets(session: Session, episode_ids: list[str]) -> dict[str, int |
 def mission_version(session: Session, user: UserOut | UserRow) -> int:
     """The fleet's mission version the user's model follows."""
     model = models_repo.head(session, _pk(session, user))
-    assert model is not None  # every user is created with its model
+    if model is None:  # every person is created with a model; only a broken database lacks it
+        raise RuntimeError(f"user {user.fleet}/{user.user_id} has no model row")
     return model.mission_version
 
 
 def user_mission(session: Session, ctx: ServiceContext, user: UserOut | UserRow) -> Mission:
     """The mission version a user's model is laid out for (the fleet's in force)."""
-    model = models_repo.head(session, _pk(session, user))
-    assert model is not None  # every user is created with its model
-    return ctx.missions.display(session, user.fleet, model.mission_version)
+    return ctx.missions.display(session, user.fleet, mission_version(session, user))
 
 
 def latest_trace_in_context(

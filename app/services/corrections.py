@@ -1,7 +1,7 @@
 """Staff corrections of what was learned about a person: made, listed, lifted.
 
 A correction is part of the user's history: it is stored (``corrections``), journalled (a
-"correction" sample when made, a "lift" sample when lifted, each one model version), audited,
+"correction" entry when made, a "lift" entry when lifted, each one model version), audited,
 and taught to the learner, which keeps the rules in force in its state
 (:mod:`app.learning.guidance`). ``attune models rebuild`` replays them in order with the rest.
 """
@@ -9,21 +9,18 @@ and taught to the learner, which keeps the rules in force in its state
 from __future__ import annotations
 
 import datetime as dt
-from collections.abc import Callable
 from typing import Any
 
 from sqlalchemy.orm import Session
 
 from app.db.repositories import corrections as repo
 from app.db.repositories import episodes as episodes_repo
-from app.db.repositories import models as models_repo
 from app.db.repositories import retention as retention_repo
 from app.db.repositories.corrections import CorrectionRow
-from app.db.repositories.models import ModelRow, SampleRow
 from app.db.repositories.users import UserRow
 from app.db.types import utcnow
 from app.errors import Conflict, NotFound, ValidationFailed
-from app.learning.guidance import Guidance, Reason, Rule, RuleKind
+from app.learning.guidance import Guidance, Reason, Rule
 from app.learning.learners import TabularLearner
 from app.schemas.profile import CorrectionIn, CorrectionList, CorrectionOut
 
@@ -31,7 +28,7 @@ from . import audit
 from .auth import require_manager
 from .context import Principal, ServiceContext, body_hash
 from .folds import History
-from .learners import Rules, load_learner, save_learner
+from .person_model import PersonModel, rule_of
 from .users import visible_user
 
 __all__ = [
@@ -41,8 +38,6 @@ __all__ = [
     "lift_correction",
     "list_corrections",
     "rule_of",
-    "rules_for",
-    "rules_resolver",
 ]
 
 
@@ -53,57 +48,6 @@ class CorrectionRefused(ValidationFailed):
     def __init__(self, reasons: tuple[Reason, ...]) -> None:
         super().__init__(reasons[0].sentence())
         self.reasons = reasons
-
-
-def _head(session: Session, user: UserRow) -> ModelRow:
-    model = models_repo.head(session, user.id)
-    if model is None:  # every user is created with its model; only a broken database lacks it
-        raise RuntimeError(f"user {user.fleet}/{user.user_id} has no model row")
-    return model
-
-
-def rule_of(row: CorrectionRow, since: int) -> Rule:
-    """The learning core's rule of a stored correction, made when the learner had seen
-    ``since`` episodes."""
-    return Rule(
-        id=row.correction_id,
-        kind=RuleKind(row.kind),
-        time_slot=row.time_slot,
-        situation=row.situation,
-        service=row.service,
-        detail=row.detail,
-        since=since,
-        meta={"author": row.actor_key_id, "at": _stamp(row.created_at), "note": row.note},
-    )
-
-
-def _stamp(at: dt.datetime) -> str:
-    return at.astimezone(dt.UTC).replace(microsecond=0).isoformat()
-
-
-def rules_resolver(session: Session, user_pk: int) -> Rules:
-    """The rules of a user's "correction" and "lift" journal entries, read once when first
-    needed (a rebuild)."""
-    loaded: dict[int, CorrectionRow] | None = None
-
-    def resolve(sample: SampleRow) -> Rule:
-        nonlocal loaded
-        if loaded is None:
-            loaded = {row.id: row for row in repo.for_user(session, user_pk) if row.id is not None}
-        row = loaded.get(sample.action)
-        if row is None:
-            raise ValueError(
-                f"version {sample.version} names correction row {sample.action}, "
-                "which is not stored"
-            )
-        return rule_of(row, sample.episode)
-
-    return resolve
-
-
-def rules_for(row: CorrectionRow, since: int) -> Callable[[SampleRow], Rule]:
-    rule = rule_of(row, since)
-    return lambda _sample: rule
 
 
 def add_correction(
@@ -130,11 +74,10 @@ def add_correction(
             raise Conflict(
                 f"correction_id {body.correction_id!r} was already used with another body."
             )
-        model = _head(session, user)
-        learner = load_learner(session, ctx, user.fleet, user.id, model, for_write=False)
+        learner = PersonModel.open(session, ctx, user).learner
         return _out(session, user, earlier, learner.guidance, learner), False
-    model = _head(session, user)
-    learner = load_learner(session, ctx, user.fleet, user.id, model, for_write=True)
+    model = PersonModel.open(session, ctx, user, write=True)
+    learner = model.learner
     now = utcnow()
     row = CorrectionRow(
         id=None,
@@ -157,7 +100,6 @@ def add_correction(
     rule = rule_of(row, learner.episodes)
     reasons = rule.reasons(learner.mission)
     if reasons:
-        ctx.cache.drop(user.id)
         raise CorrectionRefused(reasons)
     made = CorrectionOut(
         correction_id=row.correction_id,
@@ -174,21 +116,10 @@ def add_correction(
     )
     row.response = made.model_dump(mode="json")
     row_id = repo.add(session, row)
-    context = learner.mission.context_index(body.time_slot, body.situation)
-    sample = SampleRow(
-        user.id,
-        0,
-        "correction",
-        learner.episodes,
-        context,
-        0,
-        row_id,
-        0.0,
-        None,
-        0,
-        model.mission_version,
+    model.correct(
+        rule, row_id, context=learner.mission.context_index(body.time_slot, body.situation)
     )
-    save_learner(session, ctx, user.id, model, learner, [sample], rules=lambda _sample: rule)
+    model.save()
     audit.record(
         session,
         principal,
@@ -223,28 +154,15 @@ def lift_correction(
     row = repo.by_id(session, user.id, correction_id)
     if row is None or row.id is None:
         raise NotFound(f"No correction {correction_id!r} for user {user_id!r}.")
-    model = _head(session, user)
     if row.lifted_at is not None:
-        learner = load_learner(session, ctx, user.fleet, user.id, model, for_write=False)
+        learner = PersonModel.open(session, ctx, user).learner
         return _out(session, user, row, learner.guidance, learner)
-    learner = load_learner(session, ctx, user.fleet, user.id, model, for_write=True)
-    context = _context_or_zero(learner, row)
-    sample = SampleRow(
-        user.id,
-        0,
-        "lift",
-        learner.episodes,
-        context,
-        0,
-        row.id,
-        0.0,
-        None,
-        0,
-        model.mission_version,
+    model = PersonModel.open(session, ctx, user, write=True)
+    model.lift(
+        rule_of(row, model.learner.episodes), row.id, context=_context_or_zero(model.learner, row)
     )
-    save_learner(
-        session, ctx, user.id, model, learner, [sample], rules=rules_for(row, learner.episodes)
-    )
+    model.save()
+    learner = model.learner
     row.lifted_at, row.lifted_by = utcnow(), principal.key_id
     repo.lift(session, row.id, at=row.lifted_at, by=principal.key_id)
     audit.record(
@@ -276,8 +194,7 @@ def list_corrections(
     """Every correction of the user, lifted ones too, oldest first (staff, admin, robots of the
     fleet may read them)."""
     user = visible_user(session, principal, user_id, fleet=fleet)
-    model = _head(session, user)
-    learner = load_learner(session, ctx, user.fleet, user.id, model, for_write=False)
+    learner = PersonModel.open(session, ctx, user).learner
     return CorrectionList(items=correction_views(session, user, learner))
 
 

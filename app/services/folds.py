@@ -13,10 +13,13 @@ from __future__ import annotations
 
 import datetime as dt
 from collections import defaultdict
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Container, Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
+from sqlalchemy.orm import Session
+
+from app.db.repositories import episodes as episodes_repo
 from app.db.repositories.episodes import HistoryAnswer, HistoryEpisode, local_time
 from app.learning import NegotiationSpace
 from app.learning.beliefs import Answer, BeliefFold, EpisodeEvidence, Item, episode_evidence
@@ -24,6 +27,10 @@ from app.learning.beliefs import Answer, BeliefFold, EpisodeEvidence, Item, epis
 __all__ = ["ContextHistory", "History", "Moment"]
 
 FOLD_VERSION = 1
+PAGE = 2_000  # episodes read at a time while a long history is walked
+# A context's walk keeps the local times of its latest episodes only (those its belief can
+# still look at); it sheds the others once it holds this many.
+_TIMES_KEPT = 256
 
 
 @dataclass(slots=True)
@@ -50,6 +57,9 @@ class ContextHistory:
         self.last_seen = when
         self.times[ep.seq] = when
         self.fold.add(ev)
+        if len(self.times) > _TIMES_KEPT:  # only the episodes the walk can still look at
+            keep = {e.seq for _, e in (*self.fold.tail, *self.fold.run)}
+            self.times = {s: t for s, t in self.times.items() if s in keep}
 
     def recent(self, n: int) -> list[EpisodeEvidence]:
         return self.fold.recent(n)
@@ -105,14 +115,34 @@ class History:
     utc_offset: int | None = None  # the offset of the last episode walked
     moments: dict[int, Moment] = field(default_factory=dict)
 
+    def walk_stored(
+        self,
+        session: Session,
+        user_pk: int,
+        space_of: Callable[[int], NegotiationSpace],
+        *,
+        upto_seq: int,
+        keep_moments: Container[int] | None = None,
+    ) -> None:
+        """Go on over the person's stored episodes after :attr:`upto_seq` up to ``upto_seq``,
+        read :data:`PAGE` at a time: a history of any length in bounded memory."""
+        for after in range(self.upto_seq, upto_seq, PAGE):
+            episodes, answers = episodes_repo.history(
+                session, user_pk, after_seq=after, upto_seq=min(upto_seq, after + PAGE)
+            )
+            self.walk(episodes, answers, space_of, keep_moments=keep_moments)
+
     def walk(
         self,
         episodes: Iterable[HistoryEpisode],
         answers: Iterable[HistoryAnswer],
         space_of: Callable[[int], NegotiationSpace],
+        *,
+        keep_moments: Container[int] | None = None,
     ) -> None:
         """Go on over ``episodes`` (after :attr:`upto_seq`, oldest first) with their answers
-        (in order; those of other episodes are ignored)."""
+        (in order; those of other episodes are ignored). ``keep_moments``: the learner's
+        episodes whose moments to keep (those corrections point to); all if not given."""
         by_seq: dict[int, list[HistoryAnswer]] = defaultdict(list)
         for a in answers:
             by_seq[a.seq].append(a)
@@ -131,7 +161,8 @@ class History:
             self.open += ep.status == "open"
             self.upto_seq = ep.seq
             self.utc_offset = ep.utc_offset
-            self.moments[ep.learner_episode] = Moment(ep.seq, when)
+            if keep_moments is None or ep.learner_episode in keep_moments:
+                self.moments[ep.learner_episode] = Moment(ep.seq, when)
 
     def context(self, slot: str, situation: str) -> ContextHistory:
         found = self.contexts.get((slot, situation))

@@ -5,13 +5,15 @@ from __future__ import annotations
 
 import threading
 from dataclasses import dataclass
+from typing import Any
 
 from sqlalchemy.orm import Session
 
 from app.db.repositories import missions as repo
 from app.db.repositories.missions import MissionRow
 from app.learning import Mission, NegotiationSpace, space_for
-from app.learning.remap import Renames
+from app.learning.learners import TabularLearner
+from app.learning.remap import Renames, remap_learner
 
 __all__ = ["MissionBook", "Stored"]
 
@@ -49,6 +51,16 @@ class MissionBook:
         with self._lock:
             self._items[(fleet, version)] = stored
         return stored
+
+    def carry(
+        self, session: Session, fleet: str, learner: TabularLearner[Any], old: int, new: int
+    ) -> TabularLearner[Any]:
+        """``learner`` (laid out for version ``old`` of ``fleet``'s mission) carried to version
+        ``new``, one version at a time: what still applies is kept, the rest dropped."""
+        for version in range(old + 1, new + 1):
+            target = self.get(session, fleet, version)
+            learner = remap_learner(learner, target.mission, target.renames)
+        return learner
 
     def display(self, session: Session, fleet: str, version: int) -> Mission:
         """The version's mission with its display fields (labels, time zone) as stored now:

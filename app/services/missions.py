@@ -22,7 +22,6 @@ from sqlalchemy.orm import Session
 
 from app.db.repositories import episodes as episodes_repo
 from app.db.repositories import missions as repo
-from app.db.repositories import models as models_repo
 from app.db.repositories import users as users_repo
 from app.db.repositories.missions import MissionRow
 from app.db.repositories.models import ModelRow
@@ -36,14 +35,13 @@ from app.learning.remap import (
     SpaceMap,
     check_renames,
     diff_missions,
-    remap_learner,
 )
 
 from . import audit
 from .auth import require_manager
 from .context import Principal, ServiceContext
-from .learners import load_learner, save_move
 from .mission_book import Stored
+from .person_model import PersonModel
 
 __all__ = [
     "LIMITS",
@@ -179,10 +177,7 @@ def move_learner(
 ) -> TabularLearner[Any]:
     """``learner`` (laid out for version ``old``) carried to version ``new``, one version at a
     time."""
-    for version in range(old + 1, new + 1):
-        target = mission_of(session, ctx, fleet, version)
-        learner = remap_learner(learner, target.mission, target.renames)
-    return learner
+    return ctx.missions.carry(session, fleet, learner, old, new)
 
 
 def _check_fleet(principal: Principal, fleet: str) -> None:
@@ -343,11 +338,11 @@ def set_mission(
         ),
     )
     for user_pk in repo.models_behind(session, fleet, version):
-        model = models_repo.head(session, user_pk)
-        assert model is not None  # joined on the model row
-        learner = load_learner(session, ctx, fleet, user_pk, model, for_write=True)
-        moved_learner = move_learner(session, ctx, fleet, learner, model.mission_version, version)
-        save_move(session, ctx, user_pk, model, moved_learner, version)
+        user = users_repo.by_pk(session, user_pk)
+        assert user is not None  # joined on the user row, locked
+        model = PersonModel.open(session, ctx, user, write=True)
+        model.move(version)
+        model.save()
     audit.record(
         session,
         principal,

@@ -10,11 +10,8 @@ import numpy as np
 from sqlalchemy.orm import Session
 
 from app.db.repositories import episodes as episodes_repo
-from app.db.repositories import models as models_repo
 from app.db.repositories import retention as retention_repo
 from app.db.repositories import users as users_repo
-from app.db.repositories.models import ModelRow
-from app.db.repositories.users import UserRow
 from app.errors import ValidationFailed
 from app.learning import Observation, StateFormatError, learner_from_state
 from app.learning.evaluation import episode_metrics
@@ -32,18 +29,11 @@ from app.schemas.models import (
     StatsOut,
 )
 
-from . import audit, corrections, missions
+from . import audit
 from .auth import require_manager
 from .context import Principal, ServiceContext, rng_for
 from .episodes import action_out
-from .learners import (
-    base_learner,
-    fresh_learner,
-    load_learner,
-    replace_model,
-    replay,
-    save_learner,
-)
+from .person_model import PersonModel, fresh_learner
 from .prior import started_from
 from .users import visible_user
 
@@ -53,6 +43,7 @@ __all__ = [
     "export_model",
     "fleets_with",
     "import_model",
+    "imported_learner",
     "model_view",
     "rebuild_model",
     "reset_model",
@@ -63,13 +54,6 @@ __all__ = [
 
 def _num(x: float) -> float | None:
     return None if math.isnan(x) else x
-
-
-def _head(session: Session, user: UserRow) -> ModelRow:
-    model = models_repo.head(session, user.id)
-    if model is None:  # every user is created with its model; only a broken database lacks it
-        raise RuntimeError(f"user {user.fleet}/{user.user_id} has no model row")
-    return model
 
 
 def model_view(
@@ -83,7 +67,7 @@ def model_view(
     fleet: str | None = None,
 ) -> ModelOut:
     user = visible_user(session, principal, user_id, fleet=fleet)
-    model = _head(session, user)
+    model = PersonModel.open(session, ctx, user)
     layout = ctx.missions.get(session, user.fleet, model.mission_version)
     mission, space = layout.mission, layout.space
     if time_slot is not None and time_slot not in [t.name for t in mission.time_slots]:
@@ -92,10 +76,8 @@ def model_view(
         )
     if situation is not None and situation not in mission.situations:
         raise ValidationFailed(f"situation must be one of {', '.join(mission.situations)}.")
-    learner = load_learner(session, ctx, user.fleet, user.id, model, for_write=False)
-    # "if asked now": the next episode; an imported model may have seen more episodes than
-    # this user has (learned elsewhere), and its clock must not run backwards
-    now = user.episode_count + model.episode_offset + 1
+    learner = model.learner
+    now = model.now  # "if asked now": the person's next episode
     contexts = []
     for c in range(mission.n_contexts):
         slot, sit = mission.context_names(c)
@@ -181,26 +163,19 @@ def reset_model(
     ``drop_corrections``."""
     require_manager(principal)
     user = visible_user(session, principal, user_id, fleet=fleet, lock=True)
-    model = _head(session, user)
-    mission = ctx.missions.get(session, user.fleet, model.mission_version).mission
-    fresh = fresh_learner(user.algorithm, dict(user.params), mission)
-    kept = 0
+    model = PersonModel.open(session, ctx, user, write=True)
+    fresh = fresh_learner(user.algorithm, dict(user.params), model.mission)
     if not drop_corrections:
-        old = load_learner(session, ctx, user.fleet, user.id, model, for_write=False)
-        fresh.guidance = old.guidance.copy()
-        kept = len(fresh.guidance)
+        fresh.guidance = model.learner.guidance.copy()
     # A fresh learner that keeps corrections is the base a rebuild starts from, as an import is
-    replace_model(
-        session,
-        ctx,
-        principal,
-        user,
-        model,
+    model.reset(
         fresh,
-        start_over="imported" if kept else "fresh",
+        actor=principal,
+        cause="reset",
         action="model.reset",
-        detail={"corrections_kept": kept},
+        detail={"corrections_kept": len(fresh.guidance)},
     )
+    model.save()
 
 
 def export_model(
@@ -213,7 +188,7 @@ def export_model(
 ) -> dict[str, Any]:
     require_manager(principal)
     user = visible_user(session, principal, user_id, fleet=fleet)
-    model = _head(session, user)
+    model = PersonModel.open(session, ctx, user)
     audit.record(
         session,
         principal,
@@ -222,15 +197,7 @@ def export_model(
         fleet=user.fleet,
         detail={"version": model.version},
     )
-    return model_document(session, ctx, user)
-
-
-def model_document(session: Session, ctx: ServiceContext, user: UserRow) -> dict[str, Any]:
-    """The user's model as the document that PUT /model accepts (what an export holds)."""
-    model = _head(session, user)
-    if model.state_version == model.version:  # the stored document is the model: as it is
-        return models_repo.snapshot(session, user.id)
-    return load_learner(session, ctx, user.fleet, user.id, model, for_write=False).to_state()
+    return model.document()
 
 
 def import_model(
@@ -244,28 +211,24 @@ def import_model(
 ) -> ModelOut:
     require_manager(principal)
     user = visible_user(session, principal, user_id, fleet=fleet, lock=True)
-    model = _head(session, user)
-    learner = _imported(session, ctx, user.fleet, model.mission_version, doc)
+    model = PersonModel.open(session, ctx, user, write=True)
+    learner = imported_learner(session, ctx, user.fleet, model.mission_version, doc)
     user.algorithm, user.params = learner.algorithm, learner.params.to_dict()
     users_repo.save_profile(session, user)
-    replace_model(
-        session,
-        ctx,
-        principal,
-        user,
-        model,
+    model.import_learner(
         learner,
-        start_over="imported",
+        actor=principal,
         action="model.import",
         detail={"algorithm": learner.algorithm},
-        episode_offset=max(model.episode_offset, learner.episodes - user.episode_count),
+        episode_offset=max(model.head.episode_offset, learner.episodes - user.episode_count),
     )
+    model.save()
     return model_view(
         session, ctx, principal, user_id, time_slot=None, situation=None, fleet=user.fleet
     )
 
 
-def _imported(
+def imported_learner(
     session: Session, ctx: ServiceContext, fleet: str, layout: int, doc: Any
 ) -> TabularLearner[Any]:
     """An exported learner state, carried to the fleet's mission version ``layout`` if it was
@@ -282,7 +245,7 @@ def _imported(
         learner = learner_from_state(doc, ctx.missions.get(session, fleet, source).mission)
     except (StateFormatError, ValueError) as exc:
         raise ValidationFailed(f"Not a learner state this deployment can load: {exc}") from None
-    return missions.move_learner(session, ctx, fleet, learner, source, layout)
+    return ctx.missions.carry(session, fleet, learner, source, layout)
 
 
 @dataclass
@@ -312,32 +275,13 @@ def rebuild_model(
     decision from the same seed stream; the result must equal the stored model. With ``save``,
     a rebuilt model that differs is stored (one version on, audited)."""
     user = visible_user(session, principal, user_id, fleet=fleet, lock=True)
-    model = _head(session, user)
-    layout = model.base_mission_version
-    learner = base_learner(session, ctx, user, model)
-    samples = models_repo.samples_since(session, user.id, model.base_version)
-    report = RebuildReport(user_id, model.version, samples=len(samples))
-    taught = 0
-    rules = corrections.rules_resolver(session, user.id)
-
-    def move(learner: TabularLearner[Any], old: int, new: int) -> TabularLearner[Any]:
-        return missions.move_learner(session, ctx, user.fleet, learner, old, new)
-
-    def teach_through(version: int) -> None:
-        nonlocal taught, learner, layout
-        upto = taught
-        while upto < len(samples) and samples[upto].version <= version:
-            upto += 1
-        learner, layout, writes = replay(
-            learner, samples[taught:upto], layout=layout, move=move, rules=rules
-        )
-        report.writes += writes
-        taught = upto
-
+    model = PersonModel.open(session, ctx, user, write=save)
+    replay = model.replay()
+    report = RebuildReport(user_id, model.version)
     for decision, context, seq in episodes_repo.decisions_for_rebuild(
-        session, user.id, model.base_version
+        session, user.id, model.head.base_version
     ):
-        teach_through(decision.model_version)
+        learner = replay.through(decision.model_version)
         drawn_steps = [s for s in decision.chain if not s.get("forced")]
         start = drawn_steps[0]["state"] if drawn_steps else decision.state
         assert decision.draw is not None
@@ -351,12 +295,14 @@ def rebuild_model(
         report.decisions += 1
         if not same:
             report.mismatched_decisions.append(decision.id)
-    teach_through(model.version)
+    learner = replay.through(model.version)
+    report.writes, report.samples = replay.writes, replay.entries
     report.rebuilt = learner.to_state()
-    stored = load_learner(session, ctx, user.fleet, user.id, model, for_write=False).to_state()
+    stored = PersonModel.open(session, ctx, user).learner.to_state()
     report.identical = same_state(report.rebuilt, stored) and not report.mismatched_decisions
     if save and not report.identical:
-        save_learner(session, ctx, user.id, model, learner, snapshot=True)
+        model.restore(learner)
+        model.save()
         audit.record(
             session,
             principal,
@@ -383,12 +329,7 @@ def snapshot_model(
     snapshot replayed onto it); the model does not change. False when it was current."""
     require_manager(principal)
     user = visible_user(session, principal, user_id, fleet=fleet, lock=True)
-    model = _head(session, user)
-    if model.state_version == model.version:
-        return False
-    learner = load_learner(session, ctx, user.fleet, user.id, model, for_write=False)
-    models_repo.store_snapshot(session, user.id, version=model.version, state=learner.to_state())
-    return True
+    return PersonModel.open(session, ctx, user).store_snapshot()
 
 
 def fleets_with(session: Session, user_id: str) -> list[str]:

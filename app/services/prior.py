@@ -17,6 +17,7 @@ from sqlalchemy.orm import Session
 
 from app.db.repositories import fleets as repo
 from app.db.repositories import models as models_repo
+from app.db.repositories import users as users_repo
 from app.db.repositories.models import Origin
 from app.db.types import utcnow
 from app.errors import Forbidden
@@ -26,8 +27,8 @@ from app.learning.prior import FRESH_ONLY, population_prior
 from . import audit
 from .auth import require_manager
 from .context import Principal, ServiceContext
-from .learners import fresh_learner, load_learner
 from .missions import current_version
+from .person_model import PersonModel, fresh_learner
 
 __all__ = [
     "SHARED",
@@ -87,9 +88,9 @@ def starting_learner(
         return fresh, Origin()
     learners = []
     for pk in pks:
-        model = models_repo.head(session, pk)
-        assert model is not None  # every user is created with its model
-        learners.append(load_learner(session, ctx, fleet, pk, model, for_write=False))
+        contributor = users_repo.by_pk(session, pk)
+        assert contributor is not None  # listed from the user rows
+        learners.append(PersonModel.open(session, ctx, contributor).learner)
     prior = population_prior(
         algorithm, fresh.params.to_dict(), mission, learners, strength=ctx.settings.prior_strength
     )

@@ -13,8 +13,6 @@ from typing import Any
 
 from sqlalchemy.orm import Session
 
-from app.db.repositories import episodes as episodes_repo
-from app.db.repositories import models as models_repo
 from app.db.repositories import retention as folds_repo
 from app.learning import ActionKind, Mission, NegotiationSpace
 from app.learning.beliefs import Item
@@ -34,7 +32,7 @@ from app.schemas.profile import (
 from .context import Principal, ServiceContext
 from .corrections import correction_views
 from .folds import ContextHistory, History, Moment
-from .learners import load_learner
+from .person_model import PersonModel
 from .prior import started_from
 from .users import visible_user
 
@@ -51,10 +49,8 @@ def profile_view(
 ) -> ProfileOut:
     """The profile of ``user_id`` (robots, staff of the fleet, admins)."""
     user = visible_user(session, principal, user_id, fleet=fleet)
-    model = models_repo.head(session, user.id)
-    if model is None:
-        raise RuntimeError(f"user {user.fleet}/{user.user_id} has no model row")
-    learner = load_learner(session, ctx, user.fleet, user.id, model, for_write=False)
+    model = PersonModel.open(session, ctx, user)
+    learner = model.learner
     mission = learner.mission
     display = ctx.missions.display(session, user.fleet, model.mission_version)
     spaces: dict[int, NegotiationSpace] = {}
@@ -65,9 +61,15 @@ def profile_view(
         return spaces[version]
 
     history = History.from_doc(folds_repo.doc(session, user.id))
-    history.walk(*episodes_repo.history(session, user.id, after_seq=history.upto_seq), space_of)
+    history.walk_stored(
+        session,
+        user.id,
+        space_of,
+        upto_seq=user.episode_count,
+        keep_moments={r.overridden_at for r in learner.guidance.rules if r.overridden_at},
+    )
     corrections = correction_views(session, user, learner, lifted=False)
-    now = user.episode_count + model.episode_offset + 1
+    now = model.now
     contexts = []
     for c in range(mission.n_contexts):
         slot, situation = mission.context_names(c)

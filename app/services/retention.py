@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import datetime as dt
 import logging
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
@@ -30,23 +30,21 @@ from sqlalchemy.orm import Session
 
 from app.daily import DailyTime
 from app.db.repositories import audit as audit_repo
-from app.db.repositories import episodes as episodes_repo
-from app.db.repositories import models as models_repo
+from app.db.repositories import journal
 from app.db.repositories import retention as repo
 from app.db.repositories import users as users_repo
-from app.db.repositories.models import ModelRow, SampleRow
+from app.db.repositories.models import ModelRow
 from app.db.repositories.users import UserRow
 from app.db.session import Database
 from app.db.types import utcnow
 from app.errors import Forbidden, ValidationFailed
 from app.learning import NegotiationSpace
-from app.learning.learners import TabularLearner
 
-from . import audit, corrections, missions
+from . import audit
 from .auth import require_manager
 from .context import Principal, ServiceContext
 from .folds import History
-from .learners import base_learner, load_learner, replay
+from .person_model import PersonModel
 
 __all__ = [
     "MAX_DAYS",
@@ -64,8 +62,6 @@ log = logging.getLogger("attune.retention")
 
 MAX_DAYS = 36_500
 PEOPLE_PAGE = 200  # people read per transaction while a fleet is walked
-JOURNAL_PAGE = 5_000  # journal entries read at a time while a base is replayed
-EPISODE_PAGE = 2_000  # episodes walked at a time while a fold is made
 
 
 @dataclass
@@ -209,7 +205,7 @@ def _person(
             break
     while True:
         with db.transaction() as session:
-            n = repo.delete_samples(session, user_pk, fold.upto_version, limit=size)
+            n = journal.delete_folded(session, user_pk, fold.upto_version, limit=size)
         done.journal_removed += n
         if n < size:
             break
@@ -221,9 +217,8 @@ def _plan(
     user = users_repo.get(session, fleet, user_id)
     if user is None:
         return None
-    model = models_repo.head(session, user.id)
-    if model is None:
-        return None
+    person = PersonModel.open(session, ctx, user)
+    model = person.head
     previous = repo.fold(session, user.id)
     start = 0 if previous is None else previous.upto_seq
     upto = repo.upto_seq(session, user.id, before)
@@ -233,9 +228,9 @@ def _plan(
     version = max(model.base_version, min(model.version, model.version if first is None else first))
     base, layout = None, model.base_mission_version
     if version > model.base_version:
-        learner, layout = _learner_at(session, ctx, user, model, version)
-        base = learner.to_state()
-    current = load_learner(session, ctx, fleet, user.id, model, for_write=False)
+        replay = person.replay(upto=version)
+        base, layout = replay.through(version).to_state(), replay.layout
+    current = person.learner
     history = History.from_doc(None if previous is None else previous.doc)
     spaces: dict[int, NegotiationSpace] = {}
 
@@ -244,15 +239,9 @@ def _plan(
             spaces[version] = ctx.missions.get(session, fleet, version).space
         return spaces[version]
 
-    for after in range(start, upto, EPISODE_PAGE):
-        history.walk(
-            *episodes_repo.history(
-                session, user.id, after_seq=after, upto_seq=min(upto, after + EPISODE_PAGE)
-            ),
-            space_of,
-        )
+    pointed = {r.overridden_at for r in current.guidance.rules if r.overridden_at is not None}
+    history.walk_stored(session, user.id, space_of, upto_seq=upto, keep_moments=pointed)
     history.upto_seq = upto
-    pointed = [r.overridden_at for r in current.guidance.rules if r.overridden_at is not None]
     kept = repo.first_kept_created(session, user.id, upto)
     return _Plan(
         user=user,
@@ -267,57 +256,26 @@ def _plan(
     )
 
 
-def _learner_at(
-    session: Session, ctx: ServiceContext, user: UserRow, model: ModelRow, version: int
-) -> tuple[TabularLearner[Any], int]:
-    """The user's learner at ``version``: its base replayed through the journal, as a rebuild
-    replays it (and the layout it has then)."""
-    layout = model.base_mission_version
-    learner = base_learner(session, ctx, user, model)
-
-    def move(learner: TabularLearner[Any], old: int, new: int) -> TabularLearner[Any]:
-        return missions.move_learner(session, ctx, user.fleet, learner, old, new)
-
-    samples: Iterator[SampleRow] = repo.samples_between(
-        session, user.id, model.base_version, version, page=JOURNAL_PAGE
-    )
-    learner, layout, _ = replay(
-        learner,
-        samples,
-        layout=layout,
-        move=move,
-        rules=corrections.rules_resolver(session, user.id),
-    )
-    return learner, layout
-
-
 def _fold(session: Session, ctx: ServiceContext, plan: _Plan) -> bool:
     """Store the plan, if the person is as it was planned on: whether it was stored."""
     user = users_repo.lock(session, plan.user.fleet, plan.user.user_id)
     if user is None or user.id != plan.user.id:
         return False
-    model = models_repo.head(session, user.id)
     fold = repo.fold(session, user.id)
     before = 0 if plan.previous is None else plan.previous.upto_seq
-    if model is None or (0 if fold is None else fold.upto_seq) != before:
+    if (0 if fold is None else fold.upto_seq) != before:
         return False
-    if plan.base is not None and not repo.move_base(
-        session,
-        user.id,
+    person = PersonModel.open(session, ctx, user, write=True)
+    if not person.fold(
+        base=plan.base,
+        base_layout=plan.base_layout,
+        upto_version=plan.upto_version,
+        upto_seq=plan.upto_seq,
+        kept_from=plan.kept_from,
         expect_base_version=plan.model.base_version,
-        base_state=plan.base,
-        base_version=plan.upto_version,
-        base_mission_version=plan.base_layout,
     ):
         return False
-    if plan.base is None and model.base_version != plan.model.base_version:
-        return False
-    if model.state_version < plan.upto_version:
-        # The snapshot must not need the journal entries about to be removed.
-        learner = load_learner(session, ctx, user.fleet, user.id, model, for_write=False)
-        models_repo.store_snapshot(
-            session, user.id, version=model.version, state=learner.to_state()
-        )
+    person.save()
     repo.put_fold(
         session,
         user.id,

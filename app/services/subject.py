@@ -22,7 +22,9 @@ from sqlalchemy.orm import Session
 
 from app.db.repositories import audit as audit_repo
 from app.db.repositories import episodes as episodes_repo
+from app.db.repositories import retention as folds_repo
 from app.db.repositories import views as views_repo
+from app.db.repositories.episodes import EpisodeRow
 from app.db.session import Database
 from app.db.types import utcnow
 
@@ -31,11 +33,19 @@ from .auth import require_manager
 from .context import Principal, ServiceContext
 from .corrections import list_corrections
 from .episodes import get_trace
-from .models import model_document
+from .person_model import PersonModel
 from .profile import profile_view
 from .users import user_out, visible_user
 
-__all__ = ["FORMAT", "FORMAT_VERSION", "PAGE", "Export", "begin_export"]
+__all__ = [
+    "FORMAT",
+    "FORMAT_VERSION",
+    "PAGE",
+    "Export",
+    "begin_export",
+    "restore_part",
+    "stored_episode",
+]
 
 FORMAT = "attune.subject"
 FORMAT_VERSION = 1
@@ -68,7 +78,10 @@ class Export:
             with db.transaction(write=False) as session:
                 rows = episodes_repo.list_page(session, self.user_pk, before_seq=before, limit=PAGE)
                 traces = [
-                    get_trace(session, ctx, self.principal, row.id).model_dump(mode="json")
+                    {
+                        **get_trace(session, ctx, self.principal, row.id).model_dump(mode="json"),
+                        "stored": stored_episode(session, row),
+                    }
                     for row in rows
                 ]
             for trace in traces:
@@ -92,6 +105,7 @@ def begin_export(
     require_manager(principal)
     user = visible_user(session, principal, user_id, fleet=fleet)
     profile = profile_view(session, ctx, principal, user_id, fleet=user.fleet)
+    model = PersonModel.open(session, ctx, user)
     head: dict[str, Any] = {
         "format": FORMAT,
         "format_version": FORMAT_VERSION,
@@ -107,7 +121,7 @@ def begin_export(
             "model_started_from": profile.started_from,
         },
         "profile": profile,
-        "model": model_document(session, ctx, user),
+        "model": model.document(),
         "corrections": list_corrections(session, ctx, principal, user_id, fleet=user.fleet).items,
         "audit": [
             audit.entry_out(e)
@@ -122,6 +136,7 @@ def begin_export(
             )
         ],
         "episode_count": user.episode_count,
+        "restore": restore_part(session, ctx, user.fleet, user.id, model, user.draws),
     }
     audit.record(
         session,
@@ -133,3 +148,74 @@ def begin_export(
     )
     views.add(session, ctx.settings, principal, fleet=user.fleet, user_id=user_id, what="subject")
     return Export(head, user.id, user_id, user.fleet, user.episode_count, principal)
+
+
+def restore_part(
+    session: Session,
+    ctx: ServiceContext,
+    fleet: str,
+    user_pk: int,
+    model: PersonModel,
+    draws: int,
+) -> dict[str, Any]:
+    """What another deployment needs besides the rest to put the person back as stored
+    (``POST /v1/users/import``): the model's version and episode clock, the decisions drawn,
+    the fleet's mission versions the episodes and the model ran under (by fingerprint: the
+    importing fleet must have the same missions), and a retention run's fold of the removed
+    episodes (what the profile goes on from)."""
+    versions = {model.mission_version, *episodes_repo.mission_versions(session, user_pk)}
+    fold = folds_repo.fold(session, user_pk)
+    return {
+        "model_version": model.version,
+        "episode_offset": model.head.episode_offset,
+        "mission_version": model.mission_version,
+        "decisions_drawn": draws,
+        "missions": [
+            {"version": v, "fingerprint": ctx.missions.get(session, fleet, v).mission.fingerprint}
+            for v in sorted(versions)
+        ],
+        "history_fold": None
+        if fold is None
+        else {"upto_seq": fold.upto_seq, "kept_from": fold.kept_from, "doc": fold.doc},
+    }
+
+
+def stored_episode(session: Session, row: EpisodeRow) -> dict[str, Any]:
+    """An episode as stored (indices into its mission version's layout), with its decisions
+    and feedback: what an import writes back."""
+    return {
+        "seq": row.seq,
+        "learner_episode": row.learner_episode,
+        "context": row.context,
+        "state": row.state,
+        "request": None
+        if row.request_service is None
+        else {"service": row.request_service, "detail": row.request_detail},
+        "initiated": row.initiated,
+        "success": row.success,
+        "queries": row.queries,
+        "utc_offset": row.utc_offset,
+        "received_at": row.created_at,
+        "closed_at": row.closed_at,
+        "decisions": [
+            {
+                "position": d.position,
+                "state": d.state,
+                "action": d.action,
+                "probabilities": d.probabilities,
+                "chain": d.chain,
+                "draw": d.draw,
+                "forced": d.forced,
+                "model_version": d.model_version,
+                "decided_at": d.decided_at,
+                "response": d.response,
+                "service": d.service,
+                "detail": d.detail,
+                "feedback": d.feedback,
+                "reward": d.reward,
+                "next_state": d.next_state,
+                "answered_at": d.answered_at,
+            }
+            for d in episodes_repo.decisions(session, row.id)
+        ],
+    }

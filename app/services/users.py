@@ -17,7 +17,6 @@ from typing import Any
 from sqlalchemy.orm import Session
 
 from app.db.repositories import audit as audit_repo
-from app.db.repositories import models as models_repo
 from app.db.repositories import users as repo
 from app.db.repositories.users import UserRow
 from app.db.types import utcnow
@@ -29,8 +28,8 @@ from app.schemas.users import LearnerSpec, UserIn, UserList, UserOut
 from . import audit
 from .auth import ROLES, require_manager
 from .context import Principal, ServiceContext
-from .learners import fresh_learner, replace_model
 from .missions import current_version
+from .person_model import PersonModel, fresh_learner
 from .prior import starting_learner
 
 log = logging.getLogger("attune.users")
@@ -207,8 +206,7 @@ def put_user(
     user = visible_user(session, principal, user_id, fleet=in_fleet, lock=True)
     if created:
         return user_out(user), True
-    model = models_repo.head(session, user.id)
-    assert model is not None  # every user is created with its model
+    model = PersonModel.open(session, ctx, user, write=True)
     learner: TabularLearner[Any] | None = None
     learner_error: ValidationFailed | None = None
     if body.learner is not None:
@@ -251,14 +249,10 @@ def put_user(
             )
         before = user.algorithm
         user.algorithm, user.params = body.learner.algorithm, learner.params.to_dict()
-        replace_model(
-            session,
-            ctx,
-            principal,
-            user,
-            model,
+        model.reset(
             learner,
-            start_over="fresh",
+            actor=principal,
+            cause="learner",
             action="user.learner",
             detail={
                 "algorithm": user.algorithm,
@@ -266,6 +260,7 @@ def put_user(
                 "episodes": user.episode_count,
             },
         )
+        model.save()
     repo.save_profile(session, user)
     return user_out(user), False
 

@@ -607,7 +607,7 @@ class TestAudit:
         from app import cli
         from app.db.models import LearnerModel
         from app.services.context import ServiceContext
-        from app.services.learners import fresh_learner
+        from app.services.person_model import fresh_learner
         from tests.support.rows import user_pk
 
         kind = robot.get(f"/v1/episodes/{lin['episode']}").json()["decisions"][0]["action"]

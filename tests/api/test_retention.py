@@ -25,7 +25,7 @@ from fastapi import FastAPI
 from fastapi.testclient import TestClient
 from sqlalchemy import func, select
 
-from app.db.models import Episode, HistoryFold, Sample
+from app.db.models import Episode, HistoryFold, JournalEntry
 from app.db.repositories import retention as retention_repo
 from app.db.session import Database
 from app.learning import office_mission
@@ -134,8 +134,8 @@ def _kept(db: Database, user_id: str) -> tuple[int, int, int]:
         n, first = session.execute(
             select(func.count(), func.min(Episode.seq)).where(Episode.user_pk == pk)
         ).one()
-        samples = session.scalar(select(func.count()).where(Sample.user_pk == pk))
-    return int(n), int(first or 0), int(samples or 0)
+        entries = session.scalar(select(func.count()).where(JournalEntry.user_pk == pk))
+    return int(n), int(first or 0), int(entries or 0)
 
 
 @pytest.fixture

@@ -23,7 +23,7 @@ from typing import Any
 import httpx
 from sqlalchemy import create_engine, select
 
-from app.db.models import Decision, Episode, Feedback, LearnerModel, Sample, User
+from app.db.models import Decision, Episode, Feedback, JournalEntry, LearnerModel, User
 from app.learning import Mission
 from tests.support import commands, people
 from tests.support.office import MISSION
@@ -362,7 +362,7 @@ class Snapshot:
     episodes: list[Episode]
     decisions: list[Decision]
     feedback: list[Feedback]
-    samples: list[Sample]
+    journal: list[JournalEntry]
     model: LearnerModel
     user: User
     traces: dict[str, dict[str, Any]]
@@ -401,11 +401,11 @@ def _snapshot(api: httpx.Client, database_url: str, user_id: str, fleet: str) ->
                     if ids
                     else []
                 )
-                samples = list(
+                journal = list(
                     s.scalars(
-                        select(Sample)
-                        .where(Sample.user_pk == user.id)
-                        .order_by(Sample.version, Sample.id)
+                        select(JournalEntry)
+                        .where(JournalEntry.user_pk == user.id)
+                        .order_by(JournalEntry.version, JournalEntry.id)
                     )
                 )
                 model = s.scalars(select(LearnerModel).where(LearnerModel.user_pk == user.id)).one()
@@ -429,7 +429,7 @@ def _snapshot(api: httpx.Client, database_url: str, user_id: str, fleet: str) ->
         r = api.get(f"/v1/episodes/{episode_id}")
         traces[episode_id] = r.json() if r.status_code == 200 else {"status_code": r.status_code}
     view = api.get(f"/v1/users/{user_id}/model", params={"fleet": fleet}).json()
-    return Snapshot(episodes, decisions, feedback, samples, model, user, traces, view)
+    return Snapshot(episodes, decisions, feedback, journal, model, user, traces, view)
 
 
 def check_history(
@@ -576,7 +576,7 @@ def _check_user(
     # 5. Model versions: contiguous, one per model-changing write, and as many as the writes
     #    the robots had acknowledged (plus, at most, those whose answer was lost) and the moves
     #    to a new version of the fleet's mission (each one version, a "mission" sample).
-    versions = sorted({s.version for s in snap.samples})
+    versions = sorted({s.version for s in snap.journal})
     if versions != list(range(initial + 1, snap.model.version + 1)):
         missing = sorted(set(range(initial + 1, snap.model.version + 1)) - set(versions))
         out.append(
@@ -584,7 +584,7 @@ def _check_user(
             f"{len(versions)} versions after {initial} (missing {missing[:10]})"
         )
     kinds_per_version: dict[int, set[str]] = defaultdict(set)
-    for s in snap.samples:
+    for s in snap.journal:
         kinds_per_version[s.version].add(s.kind)
     if any(len(k) > 1 for k in kinds_per_version.values()):
         out.append(f"{user_id}: a model version mixes transitions and feedback")
@@ -608,7 +608,7 @@ def _check_user(
     steps = sum(d.response is not None for d in snap.decisions) + sum(
         len(d.chain) for d in snap.decisions
     )
-    journal = sum(s.kind == "transition" for s in snap.samples)
+    journal = sum(s.kind == "transition" for s in snap.journal)
     if journal != steps:
         out.append(f"{user_id}: the journal holds {journal} transitions, the history {steps}")
     per_context: Counter[tuple[str, str]] = Counter()
@@ -658,19 +658,19 @@ def _model_changing_writes(snap: Snapshot) -> int:
         n += sum(d.response is not None for d in ds)
     return n + sum(
         s.kind in ("feedback", "mission", "correction", "lift")
-        for s in {s.version: s for s in snap.samples}.values()
+        for s in {s.version: s for s in snap.journal}.values()
     )
 
 
 def _moves(snap: Snapshot) -> int:
     """The moves of the user's model to a new version of the fleet's mission."""
-    return len({s.version for s in snap.samples if s.kind == "mission"})
+    return len({s.version for s in snap.journal if s.kind == "mission"})
 
 
 def _staff_writes(snap: Snapshot) -> int:
     """Corrections made and lifted by staff (one version each; the staff's own requests, not
     the robots', check them: see test_corrections_under_load)."""
-    return len({s.version for s in snap.samples if s.kind in ("correction", "lift")})
+    return len({s.version for s in snap.journal if s.kind in ("correction", "lift")})
 
 
 def _acked_model_changing(acks: list[Ack]) -> int:

@@ -13,7 +13,7 @@ from sqlalchemy import create_engine, text
 
 from app.db import migrate
 from app.main import create_app
-from app.services.learners import save_learner
+from app.services.person_model import PersonModel
 from app.settings import Settings
 from tests.support.fixtures import WorkerDatabases
 from tests.support.live import LiveService, fresh_database, make_keys, serving
@@ -81,16 +81,16 @@ def _in_process_run(url: str, *, clients: int = 8) -> tuple[list[str], Workload,
 
 def test_the_check_reports_a_lost_model_update(monkeypatch: pytest.MonkeyPatch) -> None:
     """Break the update path: every 4th write is acknowledged, but its learning is not saved."""
-    real = save_learner  # what the write path calls
+    real = PersonModel.save  # what every write path calls
     calls = {"n": 0}
 
-    def lossy_save_learner(*args: object, **kwargs: object) -> None:
+    def lossy_save(model: PersonModel) -> None:
         calls["n"] += 1
         if calls["n"] % 4 == 0:
             return  # the write's transitions never reach the model or the journal
-        real(*args, **kwargs)  # type: ignore[arg-type]
+        real(model)
 
-    monkeypatch.setattr("app.services.episodes.write.save_learner", lossy_save_learner)
+    monkeypatch.setattr(PersonModel, "save", lossy_save)
     with fresh_database("sqlite") as url:
         findings, _, _ = _in_process_run(url)
     assert calls["n"] >= 8

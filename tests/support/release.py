@@ -31,7 +31,7 @@ from pathlib import Path
 from typing import Any, NamedTuple
 
 import httpx
-from sqlalchemy import create_engine, text
+from sqlalchemy import create_engine, inspect, text
 
 from tests.support import episodes
 from tests.support.live import free_port, fresh_database
@@ -306,15 +306,23 @@ def table_rows(
     """Every row of ``tables`` as sorted (column, value) pairs, the rows sorted, for comparing
     a database before and after a migration: the columns ``leave_out`` names (a later
     release's) are left out, times are compared without their zone (the engines give them
-    differently), and ``rewrite(table, row)`` may change a row in place first."""
+    differently), and ``rewrite(table, row)`` may change a row in place first. A table a later
+    release renamed and reshaped (``samples``, now ``journal``) is read in its old form."""
     skip = set(leave_out)
     engine = create_engine(url)
     out: dict[str, list[tuple[Any, ...]]] = {}
     try:
         with engine.connect() as conn:
+            stored = set(inspect(conn).get_table_names())
             for table in tables:
                 rows = []
-                for found in conn.execute(text(f"SELECT * FROM {table}")).mappings():
+                if table == "samples" and "samples" not in stored and "journal" in stored:
+                    found_rows = _samples_of_journal(conn)
+                else:
+                    found_rows = [
+                        dict(r) for r in conn.execute(text(f"SELECT * FROM {table}")).mappings()
+                    ]
+                for found in found_rows:
                     row = {k: v for k, v in found.items() if k not in skip}
                     if rewrite is not None:
                         rewrite(table, row)
@@ -322,6 +330,33 @@ def table_rows(
                 out[table] = sorted(rows, key=repr)
     finally:
         engine.dispose()
+    return out
+
+
+def _samples_of_journal(conn: Any) -> list[dict[str, Any]]:
+    """The rows of ``journal`` in the form ``samples`` had before the journal was typed (what
+    its migration's downgrade writes back; its new kinds had no place there)."""
+    out = []
+    for row in conn.execute(
+        text("SELECT * FROM journal WHERE kind NOT IN ('reset', 'import', 'fold')")
+    ).mappings():
+        correction = row["kind"] in ("correction", "lift")
+        out.append(
+            {
+                "id": row["id"],
+                "user_pk": row["user_pk"],
+                "version": row["version"],
+                "kind": row["kind"],
+                "episode": row["since"] if correction else row["episode"] or 0,
+                "context": row["context"] or 0,
+                "state": row["state"] or 0,
+                "action": row["correction_pk"] if correction else row["action"] or 0,
+                "reward": row["reward"] or 0.0,
+                "next_state": row["next_state"],
+                "signal": row["signal"] or 0,
+                "mission_version": row["mission_version"],
+            }
+        )
     return out
 
 
@@ -341,15 +376,20 @@ def scalars(url: str, sql: str) -> list[Any]:
         engine.dispose()
 
 
-def table_names(url: str) -> list[str]:
-    """The tables of the database at ``url`` (its schema's), sorted, without Alembic's own."""
-    from sqlalchemy import inspect
+# Tables a later release renamed: their name in the releases before.
+RENAMED_SINCE = {"journal": "samples"}
 
+
+def table_names(url: str, *, as_stored: bool = False) -> list[str]:
+    """The tables of the database at ``url`` (its schema's), sorted, without Alembic's own;
+    a table a later release renamed under the name the earlier releases gave it (unless
+    ``as_stored``)."""
     engine = create_engine(url)
     try:
-        return sorted(t for t in inspect(engine).get_table_names() if t != "alembic_version")
+        names = [t for t in inspect(engine).get_table_names() if t != "alembic_version"]
     finally:
         engine.dispose()
+    return sorted(names if as_stored else [RENAMED_SINCE.get(t, t) for t in names])
 
 
 def without(doc: dict[str, Any], *names: str) -> dict[str, Any]:

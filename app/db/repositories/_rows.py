@@ -34,10 +34,11 @@ def batch(session: Session) -> Iterator[None]:
     connection = session.connection()
     driver: Any = connection.connection.driver_connection
     dialect = connection.dialect
-    if dialect.name != "postgresql":
-        yield
-        return
+    session.info[_WRITES_ONLY] = True
     try:
+        if dialect.name != "postgresql":
+            yield
+            return
         with driver.pipeline():
             yield
     except dialect.loaded_dbapi.Error as exc:  # raised when the pipeline syncs
@@ -54,6 +55,8 @@ def batch(session: Session) -> Iterator[None]:
             connection_invalidated=lost,
             dialect=dialect,
         ) from exc
+    finally:
+        session.info.pop(_WRITES_ONLY, None)
 
 
 def conn(session: Session) -> Connection:
@@ -87,6 +90,7 @@ def values(rec: Any, which: tuple[str, ...]) -> dict[str, Any]:
 
 _Convert = Callable[[Any], Any] | None
 _DRIVER = "attune_driver"  # session.info: (its transaction, its connection)
+_WRITES_ONLY = "attune_writes_only"  # session.info: inside ``batch``, where nothing is read
 
 
 class _Compiled:
@@ -197,6 +201,10 @@ class Prepared:
         """Run on the session's driver connection; ``fetch``: 0 nothing, 1 the first row, 2
         every row. A driver error leaves as SQLAlchemy's own (``DataError``, ``IntegrityError``,
         ``OperationalError``...), and a lost connection is invalidated, as SQLAlchemy does."""
+        if fetch and session.info.get(_WRITES_ONLY):
+            # On PostgreSQL a pipeline has no result to give yet; on every engine, a read here
+            # is a read that the batch's single round trip was meant to have done before.
+            raise RuntimeError(f"a read inside a batch of writes: {self.stmt}")
         transaction = session.get_transaction()
         found = session.info.get(_DRIVER)
         if found is None or transaction is None or found[0] is not transaction:

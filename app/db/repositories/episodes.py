@@ -36,6 +36,7 @@ __all__ = [
     "local_time",
     "load_for_outcome",
     "metric_rows",
+    "mission_versions",
     "occurred_at_of",
     "owner",
     "save_answer",
@@ -303,6 +304,20 @@ def interrupt_open(session: Session, user_pk: int, *, at: dt.datetime) -> int:
         .values(status="interrupted", closed_at=at)
     )
     return int(result.rowcount or 0)
+
+
+def mission_versions(session: Session, user_pk: int) -> list[int]:
+    """The fleet's mission versions the user's stored episodes ran under."""
+    return list(
+        conn(session)
+        .execute(
+            select(_episodes.c.mission_version)
+            .where(_episodes.c.user_pk == user_pk)
+            .distinct()
+            .order_by(_episodes.c.mission_version)
+        )
+        .scalars()
+    )
 
 
 def list_page(

@@ -1,11 +1,12 @@
-"""The learner-model aggregate: a user's model row and its journal (the samples it was taught).
+"""The head of a person's learner model: its row (the journal is ``journal``'s).
 
 The model row holds ``version`` (up by one with every change), the learner's state document as
 of ``state_version`` (a snapshot, written every few versions), and where the model started
 (``base_state`` at ``base_version``: an imported document or the fleet's prior, or ``None`` for
 a fresh learner).
-Replaying the journal's samples after ``state_version`` onto the snapshot gives the learner at
+Replaying the journal's entries after ``state_version`` onto the snapshot gives the learner at
 ``version``; replaying those after ``base_version`` onto the base gives it too (a rebuild).
+The aggregate that keeps them in step is ``app.services.person_model``.
 """
 
 from __future__ import annotations
@@ -14,25 +15,22 @@ import datetime as dt
 from dataclasses import dataclass
 from typing import Any
 
-from sqlalchemy import bindparam, insert, select, update
+from sqlalchemy import bindparam, select, update
 from sqlalchemy.orm import Session
 
-from ..models import LearnerModel, Sample, User
-from ._rows import Prepared, columns, conn, names, record, table
+from ..models import LearnerModel, User
+from ._rows import Prepared, columns, conn, record, table
 
 __all__ = [
     "ModelRow",
     "Origin",
-    "SampleRow",
-    "add_samples",
     "advance",
     "base_state",
-    "has_transition",
     "head",
+    "move_base",
     "origin",
     "prior_contributors",
     "replace",
-    "samples_since",
     "snapshot",
     "store_snapshot",
 ]
@@ -59,41 +57,13 @@ class Origin:
     contributors: int | None = None
 
 
-@dataclass(slots=True)
-class SampleRow:
-    """One journal entry: a transition the learner was taught, or explicit feedback
-    (``kind`` "feedback", ``next_state`` None). ``version`` is the model version its write
-    produced; the samples of one version were one ``update`` (or ``feedback``) call, or one move
-    to another mission version (``kind`` "mission", its indices 0)."""
-
-    user_pk: int
-    version: int
-    kind: str
-    episode: int
-    context: int
-    state: int
-    action: int
-    reward: float
-    next_state: int | None
-    signal: int
-    mission_version: int  # the layout its indices refer to; kind "mission": the version moved to
-
-
 _models = table(LearnerModel)
 _users = table(User)
-_samples = table(Sample)
 _HEAD = Prepared(
     select(*columns(_models, ModelRow)).where(_models.c.user_pk == bindparam("user_pk"))
 )
 _SNAPSHOT = Prepared(select(_models.c.state).where(_models.c.user_pk == bindparam("user_pk")))
 _ADVANCE = Prepared(update(_models).where(_models.c.user_pk == bindparam("b_user_pk")), keyed=True)
-_INSERT_SAMPLES = Prepared(insert(_samples), keyed=True)
-_SAMPLE_NAMES = names(SampleRow)
-_SINCE = Prepared(
-    select(*columns(_samples, SampleRow))
-    .where(_samples.c.user_pk == bindparam("user_pk"), _samples.c.version > bindparam("version"))
-    .order_by(_samples.c.version, _samples.c.id)
-)
 
 
 def head(session: Session, user_pk: int) -> ModelRow | None:
@@ -187,6 +157,29 @@ def store_snapshot(session: Session, user_pk: int, *, version: int, state: dict[
     )
 
 
+def move_base(
+    session: Session,
+    user_pk: int,
+    *,
+    expect_base_version: int,
+    base_state: dict[str, Any] | None,
+    base_version: int,
+    base_mission_version: int,
+) -> bool:
+    """Move the model's base to ``base_version`` (the learner then: ``base_state``), if it is
+    still at ``expect_base_version`` (no reset or import since): whether it moved."""
+    moved = conn(session).execute(
+        update(_models)
+        .where(_models.c.user_pk == user_pk, _models.c.base_version == expect_base_version)
+        .values(
+            base_state=base_state,
+            base_version=base_version,
+            base_mission_version=base_mission_version,
+        )
+    )
+    return bool(moved.rowcount)
+
+
 def replace(
     session: Session,
     user_pk: int,
@@ -220,35 +213,3 @@ def replace(
             base_contributors=made.contributors,
         )
     )
-
-
-def add_samples(session: Session, rows: list[SampleRow]) -> None:
-    _INSERT_SAMPLES.run_many(
-        session, [{name: getattr(r, name) for name in _SAMPLE_NAMES} for r in rows]
-    )
-
-
-def samples_since(session: Session, user_pk: int, version: int) -> list[SampleRow]:
-    """The journal after ``version``, in the order it was taught."""
-    return [
-        SampleRow(*row) for row in _SINCE.all(session, {"user_pk": user_pk, "version": version})
-    ]
-
-
-def has_transition(
-    session: Session, user_pk: int, *, episode: int, action: int, after_version: int
-) -> bool:
-    """Whether the model taught after ``after_version`` holds ``action``'s sample of
-    ``episode``."""
-    stmt = (
-        select(_samples.c.id)
-        .where(
-            _samples.c.user_pk == user_pk,
-            _samples.c.episode == episode,
-            _samples.c.action == action,
-            _samples.c.kind == "transition",
-            _samples.c.version > after_version,
-        )
-        .limit(1)
-    )
-    return conn(session).execute(stmt).first() is not None

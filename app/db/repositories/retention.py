@@ -1,25 +1,23 @@
 """What a retention run reads and removes: the folds (``history_folds``), the fleets' windows,
-the old part of a person's history and of their model's journal, removed a batch at a time."""
+the old part of a person's history, removed a batch at a time (the journal's part is
+``journal.delete_folded``)."""
 
 from __future__ import annotations
 
 import datetime as dt
-from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Any
 
-from sqlalchemy import delete, func, or_, select, update
+from sqlalchemy import delete, func, or_, select
 from sqlalchemy.dialects import postgresql, sqlite
 from sqlalchemy.orm import Session
 
-from ..models import Decision, Episode, FleetSettings, HistoryFold, LearnerModel, Sample, User
+from ..models import Decision, Episode, FleetSettings, HistoryFold, JournalEntry, LearnerModel, User
 from ._rows import columns, conn, record, table
-from .models import SampleRow
 
 __all__ = [
     "FoldRow",
     "delete_episodes",
-    "delete_samples",
     "doc",
     "first_kept_created",
     "first_kept_version",
@@ -27,10 +25,8 @@ __all__ = [
     "fold",
     "kept_from",
     "leftovers",
-    "move_base",
     "people",
     "put_fold",
-    "samples_between",
     "set_window",
     "upto_seq",
     "window",
@@ -52,7 +48,7 @@ _settings = table(FleetSettings)
 _users = table(User)
 _episodes = table(Episode)
 _decisions = table(Decision)
-_samples = table(Sample)
+_journal = table(JournalEntry)
 _models = table(LearnerModel)
 
 
@@ -196,57 +192,6 @@ def first_kept_created(session: Session, user_pk: int, after_seq: int) -> dt.dat
     )
 
 
-def samples_between(
-    session: Session, user_pk: int, after: int, upto: int, *, page: int
-) -> Iterator[SampleRow]:
-    """The journal of versions in (``after``, ``upto``], in the order it was taught, read
-    ``page`` rows at a time."""
-    c = conn(session)
-    last_version, last_id = after, 0
-    while True:
-        rows = c.execute(
-            select(*columns(_samples, SampleRow), _samples.c.id)
-            .where(
-                _samples.c.user_pk == user_pk,
-                _samples.c.version <= upto,
-                or_(
-                    _samples.c.version > last_version,
-                    (_samples.c.version == last_version) & (_samples.c.id > last_id),
-                ),
-            )
-            .order_by(_samples.c.version, _samples.c.id)
-            .limit(page)
-        ).all()
-        for row in rows:
-            yield SampleRow(*row[:-1])
-        if len(rows) < page:
-            return
-        last_version, last_id = rows[-1].version, rows[-1].id
-
-
-def move_base(
-    session: Session,
-    user_pk: int,
-    *,
-    expect_base_version: int,
-    base_state: dict[str, Any] | None,
-    base_version: int,
-    base_mission_version: int,
-) -> bool:
-    """Move the model's base to ``base_version`` (the learner then: ``base_state``), if it is
-    still at ``expect_base_version`` (no reset or import since): whether it moved."""
-    moved = conn(session).execute(
-        update(_models)
-        .where(_models.c.user_pk == user_pk, _models.c.base_version == expect_base_version)
-        .values(
-            base_state=base_state,
-            base_version=base_version,
-            base_mission_version=base_mission_version,
-        )
-    )
-    return bool(moved.rowcount)
-
-
 def delete_episodes(session: Session, user_pk: int, upto_seq: int, *, limit: int) -> int:
     """Remove up to ``limit`` of the person's episodes up to ``upto_seq`` (their decisions and
     feedback go with them): how many."""
@@ -261,19 +206,6 @@ def delete_episodes(session: Session, user_pk: int, upto_seq: int, *, limit: int
     return int(c.execute(delete(_episodes).where(_episodes.c.id.in_(ids))).rowcount or 0)
 
 
-def delete_samples(session: Session, user_pk: int, upto_version: int, *, limit: int) -> int:
-    """Remove up to ``limit`` of the journal's entries of versions up to ``upto_version``."""
-    c = conn(session)
-    ids = (
-        select(_samples.c.id)
-        .where(_samples.c.user_pk == user_pk, _samples.c.version <= upto_version)
-        .order_by(_samples.c.id)
-        .limit(limit)
-        .scalar_subquery()
-    )
-    return int(c.execute(delete(_samples).where(_samples.c.id.in_(ids))).rowcount or 0)
-
-
 def leftovers(session: Session, user_pk: int) -> bool:
     """Whether the person still has episodes or journal entries a past run folded."""
     c = conn(session)
@@ -285,10 +217,14 @@ def leftovers(session: Session, user_pk: int) -> bool:
     ).first()
     if old_episode is not None:
         return True
-    old_sample = c.execute(
-        select(_samples.c.id)
-        .join(_folds, _folds.c.user_pk == _samples.c.user_pk)
-        .where(_samples.c.user_pk == user_pk, _samples.c.version <= _folds.c.upto_version)
+    old_entry = c.execute(
+        select(_journal.c.id)
+        .join(_folds, _folds.c.user_pk == _journal.c.user_pk)
+        .where(
+            _journal.c.user_pk == user_pk,
+            _journal.c.version <= _folds.c.upto_version,
+            _journal.c.kind != "fold",
+        )
         .limit(1)
     ).first()
-    return old_sample is not None
+    return old_entry is not None

@@ -18,6 +18,7 @@ from ._rows import Prepared, columns, conn, record, table
 __all__ = [
     "UserRow",
     "all_ids",
+    "by_pk",
     "create",
     "delete_user",
     "fleet_counts",
@@ -78,6 +79,13 @@ _SAVE_COUNTERS = Prepared(update(_users).where(_users.c.id == bindparam("b_id"))
 def get(session: Session, fleet: str, user_id: str) -> UserRow | None:
     return record(
         UserRow, conn(session).execute(_GET, {"fleet": fleet, "user_id": user_id}).first()
+    )
+
+
+def by_pk(session: Session, user_pk: int) -> UserRow | None:
+    """The user of number ``user_pk``."""
+    return record(
+        UserRow, conn(session).execute(select(*_COLS).where(_users.c.id == user_pk)).first()
     )
 
 

@@ -18,10 +18,9 @@ from sqlalchemy.orm import Session
 
 from app.db.repositories import batch
 from app.db.repositories import episodes as episodes_repo
-from app.db.repositories import models as models_repo
 from app.db.repositories import users as users_repo
 from app.db.repositories.episodes import DecisionRow, EpisodeRow, FeedbackRow
-from app.db.repositories.models import ModelRow, SampleRow
+from app.db.repositories.models import ModelRow
 from app.db.repositories.users import UserRow
 from app.db.session import NOWAIT, LockBusy
 from app.db.types import utcnow
@@ -36,13 +35,12 @@ from app.learning import (
     Polarity,
     Transition,
 )
-from app.learning.learners import TabularLearner
 from app.learning.negotiation import Tally, feedback_reward, outcome
 from app.schemas.episodes import EpisodeIn, FeedbackIn, OutcomeIn
 
 from .. import missions
 from ..context import Principal, ServiceContext, body_hash, rng_for
-from ..learners import load_learner, save_learner, transition_samples
+from ..person_model import PersonModel
 from ..users import create_user, fleet_of, no_user
 from . import validate
 from .render import brief, decision_out, state_name
@@ -85,14 +83,13 @@ class _Negotiation:
         space: NegotiationSpace,
         user: UserRow,
         episode: EpisodeRow,
-        learner: TabularLearner[Any],
-        model_version: int,
+        model: PersonModel,
         *,
         position: int,
     ) -> None:
         self.ctx, self.space = ctx, space
         self.user, self.episode = user, episode
-        self.learner, self.model_version = learner, model_version
+        self.model, self.model_version = model, model.version
         self.transitions: list[Transition] = []
         self.new_rows: list[DecisionRow] = []
         self._position = position  # of the next decision row in the episode
@@ -109,7 +106,7 @@ class _Negotiation:
         rng = rng_for(self.ctx.settings.seed, self.user.seed_key, draw)
         self.user.draws = draw + 1
         obs = Observation(self.episode.context, state, self.episode.learner_episode)
-        return self.learner.select_action(obs, rng), draw
+        return self.model.learner.select_action(obs, rng), draw
 
     def _row(
         self,
@@ -244,19 +241,13 @@ class _Negotiation:
         ep.initiated, ep.interaction_class = t.initiated, t.interaction.value
 
 
-def _store(session: Session, ctx: ServiceContext, step: _Negotiation, model: ModelRow) -> None:
-    """The write's new decisions and the user's counters, and the model taught the
-    transitions (journal, version, snapshot when due)."""
+def _store(session: Session, step: _Negotiation) -> None:
+    """The write's new decisions and the user's counters, and the model's change (journal,
+    version, snapshot when due). Writes only: the model was taught before (it may have had to
+    read its learner), so that on PostgreSQL they all go in one round trip."""
     episodes_repo.insert_decisions(session, step.new_rows)
     users_repo.save_counters(session, step.user)
-    save_learner(
-        session,
-        ctx,
-        step.user.id,
-        model,
-        step.learner,
-        transition_samples(step.user.id, step.transitions, model.mission_version),
-    )
+    step.model.save()
 
 
 def _lock_or_create(
@@ -326,22 +317,19 @@ def start_episode(
             raise Conflict(f"event_id {body.event_id!r} was already used with another body.")
         return Written(response, 200, True, fleet=user.fleet)
 
-    model = models_repo.head(session, user.id)
-    if model is None:  # every user is created with its model; only a broken database lacks it
-        raise RuntimeError(f"user {user.fleet}/{user_id} has no model row")
+    model = PersonModel.open(session, ctx, user, write=True)
     layout = ctx.missions.get(session, user.fleet, model.mission_version)
     mission, space = layout.mission, layout.space
     validate.check_episode(mission, body)
     slot = mission.slot_at(body.occurred_at.timetz().replace(tzinfo=None))
     context = mission.context_index(slot, body.situation)
-    learner = load_learner(session, ctx, user.fleet, user.id, model, for_write=True)
     user.episode_count += 1
     request = body.request
     episode = EpisodeRow(
         id=_new_id("ep_"),
         user_pk=user.id,
         seq=user.episode_count,
-        learner_episode=user.episode_count + model.episode_offset,
+        learner_episode=user.episode_count + model.head.episode_offset,
         event_id=body.event_id,
         robot_id=body.robot_id,
         occurred_at=body.occurred_at.astimezone(dt.UTC),
@@ -365,7 +353,7 @@ def start_episode(
         mission_version=model.mission_version,
         utc_offset=_offset_minutes(body.occurred_at),
     )
-    step = _Negotiation(ctx, space, user, episode, learner, model.version, position=0)
+    step = _Negotiation(ctx, space, user, episode, model, position=0)
     if body.initiator == "human":
         service = request.service if request else None
         detail = request.detail if request else None
@@ -385,9 +373,10 @@ def start_episode(
         "mission_version": model.mission_version,
     }
     episode.response = out
+    model.teach(step.transitions)
     with batch(session):  # writes only: one round trip on PostgreSQL
         episodes_repo.insert_episode(session, episode)  # before its decisions, which refer to it
-        _store(session, ctx, step, model)
+        _store(session, step)
     return Written(out, 201, False, fleet=user.fleet)
 
 
@@ -396,7 +385,7 @@ def report_outcome(
 ) -> Written:
     """What the person did after the robot's action: reward, learning, the next decision."""
     digest = body_hash(body)
-    user, episode, model, current = _locked_owner(session, principal, episode_id)
+    user, episode, head, current = _locked_owner(session, principal, episode_id)
     row = (
         current
         if current is not None and current.id == body.decision_id
@@ -421,10 +410,8 @@ def report_outcome(
     # An open episode is always of the model's mission version: a change interrupts them.
     space = ctx.missions.get(session, user.fleet, episode.mission_version).space
     validate.check_outcome(space, row.action, body)
-    learner = load_learner(session, ctx, user.fleet, user.id, model, for_write=True)
-    step = _Negotiation(
-        ctx, space, user, episode, learner, model.version, position=row.position + 1
-    )
+    model = PersonModel.open(session, ctx, user, write=True, head=head)
+    step = _Negotiation(ctx, space, user, episode, model, position=row.position + 1)
     named = body.response in ("human_request", "answered")
     reward = step.answer(
         row,
@@ -450,10 +437,11 @@ def report_outcome(
         "decision": decision_out(space, decision) if decision is not None else None,
     }
     row.outcome_hash, row.outcome_response = digest, out
+    model.teach(step.transitions)
     with batch(session):  # writes only: one round trip on PostgreSQL
         episodes_repo.save_answer(session, row)
         episodes_repo.save_episode(session, episode)
-        _store(session, ctx, step, model)
+        _store(session, step)
     return Written(out, 200, False, space.actions[row.action].kind.value, user.fleet)
 
 
@@ -463,7 +451,7 @@ def add_feedback(
     """Explicit feedback on an episode, during or after it: it rewards the episode's last
     answered step, in history and (if the model still holds that step) in the model."""
     digest = body_hash(body)
-    user, episode, model, _ = _locked_owner(session, principal, episode_id)
+    user, episode, head, _ = _locked_owner(session, principal, episode_id)
     earlier = episodes_repo.feedback(session, episode_id, body.feedback_id)
     if earlier is not None:
         if earlier.request_hash != digest:
@@ -478,37 +466,24 @@ def add_feedback(
             "the outcome (its feedback field) or after it."
         )
     target = answered[-1]
-    layout = ctx.missions.get(session, user.fleet, model.mission_version)
-    reward = feedback_reward(layout.mission.rewards, body.feedback)
+    model = PersonModel.open(session, ctx, user, write=True, head=head)
+    reward = feedback_reward(model.mission.rewards, body.feedback)
     # The model takes it if it learned the step (not if it was reset or replaced since) and,
     # after a mission change, if the step still exists (carried to the model's layout).
     place = _carried(session, ctx, user.fleet, episode, target, model.mission_version)
-    if place is not None and models_repo.has_transition(
-        session,
-        user.id,
-        episode=episode.learner_episode,
-        action=target.action,
-        after_version=model.base_version,
+    if place is not None and model.holds_step(
+        episode=episode.learner_episode, action=target.action
     ):
-        learner = load_learner(session, ctx, user.fleet, user.id, model, for_write=True)
         context, state, action = place
-        sample = SampleRow(
-            user.id,
-            0,
-            "feedback",
-            episode.learner_episode,
-            context,
-            state,
-            action,
-            reward,
-            None,
-            0,
-            model.mission_version,
+        # A learner that no longer holds the step refuses it: history keeps the feedback.
+        model.feedback(
+            episode=episode.learner_episode,
+            context=context,
+            state=state,
+            action=action,
+            reward=reward,
         )
-        try:
-            save_learner(session, ctx, user.id, model, learner, [sample])
-        except ValueError:  # the learner no longer holds the sample: history keeps it
-            save_learner(session, ctx, user.id, model, learner, [])
+        model.save()
     episode.total_reward += reward
     space = ctx.missions.get(session, user.fleet, episode.mission_version).space
     out = {"reward": reward, "episode": brief(space, episode)}
