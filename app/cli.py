@@ -20,6 +20,7 @@ from app.commands import fleet as fleet_commands
 from app.commands import keys as keys_commands
 from app.commands import missions as missions_commands
 from app.commands import models as models_commands
+from app.commands import people as people_commands
 from app.commands import retention as retention_commands
 from app.commands import serve as serve_command
 from app.commands._help import MAX_WIDTH, Typer
@@ -77,6 +78,7 @@ app.add_typer(models_commands.models, name="models")
 app.add_typer(missions_commands.missions, name="missions")
 app.add_typer(fleet_commands.fleet, name="fleet")
 app.add_typer(retention_commands.retention, name="retention")
+app.add_typer(people_commands.people, name="people")
 
 
 def main() -> None:

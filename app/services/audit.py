@@ -27,6 +27,7 @@ ACTIONS = (
     "user.learner",
     "user.prior",
     "user.export",
+    "user.import",
     "model.reset",
     "model.export",
     "model.import",
