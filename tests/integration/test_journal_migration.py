@@ -39,20 +39,6 @@ pytestmark = [pytest.mark.slow]
 MIGRATION = "migrations/versions/2026-12-04-2300_typed_model_journal.py"
 BEFORE = "9c4e7a2b6d15"
 USERS = ("lin", "chen", "ana")
-SAMPLE_COLUMNS = (
-    "id",
-    "user_pk",
-    "version",
-    "kind",
-    "episode",
-    "context",
-    "state",
-    "action",
-    "reward",
-    "next_state",
-    "signal",
-    "mission_version",
-)
 
 
 @pytest.fixture(scope="module")
