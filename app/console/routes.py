@@ -11,6 +11,7 @@ definitions as ``/stats``). A correction made on a person's profile is the same 
 
 from __future__ import annotations
 
+import datetime as dt
 import re
 import secrets
 from collections.abc import Callable, Coroutine
@@ -35,6 +36,7 @@ from app.schemas.common import CLIENT_ID_PATTERN, MAX_POSITION
 from app.schemas.profile import CorrectionIn
 from app.schemas.users import UserOut
 from app.services import admin as admin_service
+from app.services import changes as changes_service
 from app.services import console as console_service
 from app.services import corrections as corrections_service
 from app.services import episodes as episodes_service
@@ -359,6 +361,9 @@ def _profile_page(
             ),
             None,
         )
+    changed = changes_service.person_changes(
+        session, ctx, principal, user.user_id, limit=CHANGES_SHOWN, cursor=None, fleet=user.fleet
+    ).items
     in_force = {c.correction_id: c for c in profile.corrections}
     here = []
     if selected is not None and selected.context is not None:
@@ -385,6 +390,8 @@ def _profile_page(
         key_names=console_service.key_names(session, [c.author for c in profile.corrections]),
         looked=looked,
         history_from=console_service.history_from(session, user),
+        changes=changed,
+        evidence=console_service.evidence_episodes(session, user.fleet, changed),
     )
 
 
@@ -1030,6 +1037,50 @@ def change_mission(
         return again(422, *field_of(exc.detail, mission_doc))
     return _mission_page(
         request, session, ctx, admin, name, form=typed, change_id=change_id, preview=preview
+    )
+
+
+# -- what changed in what the fleet's people want ----------------------------------------------
+CHANGES_SHOWN = 5  # a person's latest changes on their profile page
+CHANGES_DAYS = (7, 30, 365)  # the periods the fleet's page offers
+
+
+@router.get("/changes")
+@writes  # each person the page names is recorded as looked at
+def changes_page(
+    request: Request,
+    session: RequestSession,
+    ctx: ServiceContext,
+    admin: AdminDep,
+    fleet: FleetQuery = None,
+    days: Annotated[int, Query(ge=1, le=366)] = 7,
+) -> HTMLResponse:
+    """What changed this week (or the last ``days`` days) in what the fleet's people want,
+    newest first, in words, with the episodes that showed it (staff: their fleet; admins:
+    ``?fleet=``)."""
+    name = fleet or admin.principal.fleet
+    since = dt.datetime.now(dt.UTC) - dt.timedelta(days=days)
+    listed = changes_service.fleet_changes(
+        session, ctx, admin.principal, name, since=since, limit=200, cursor=None, via="console"
+    )  # may 403; each person named is recorded as looked at
+    zone = console_service.time_zones(session, ctx, {name})[name]
+    mission = ctx.missions.display(
+        session, name, missions_service.current_version(session, ctx, name)
+    )
+    return _page(
+        request,
+        "changes.html",
+        admin,
+        nav="changes",
+        fleet=name,
+        fleets=_fleet_choice(session, admin, name),
+        changes=listed.items,
+        more=listed.next_cursor is not None,
+        evidence=console_service.evidence_episodes(session, name, listed.items),
+        days=days,
+        periods=CHANGES_DAYS,
+        zone=zone,
+        mission=mission,
     )
 
 

@@ -26,6 +26,8 @@ from .types import LearnerStateType, UTCDateTime, utcnow
 __all__ = [
     "ApiKey",
     "AuditEntry",
+    "ChangeEvent",
+    "ContextBelief",
     "Correction",
     "DataView",
     "Decision",
@@ -410,3 +412,56 @@ class Lease(Base):
     holder: Mapped[str] = mapped_column(String(200))  # host:pid:random, one per taking
     acquired_at: Mapped[dt.datetime] = mapped_column(UTCDateTime())
     expires_at: Mapped[dt.datetime] = mapped_column(UTCDateTime())
+
+
+class ContextBelief(Base):
+    """What a person is believed to want in one context (``time_slot``, ``situation``: by
+    name, so a mission change keeps it), from their own answers: the profile's walk over the
+    context's episodes as they ended (:class:`app.learning.beliefs.BeliefFold`'s document),
+    up to episode ``upto_seq``. Kept so that each ending episode is weighed at once against
+    what came before (a change is news for staff), not when someone reads the profile. Part of
+    the person's data: erased with them; a retention run leaves it (it holds no episode)."""
+
+    __tablename__ = "context_beliefs"
+
+    user_pk: Mapped[int] = mapped_column(
+        ForeignKey("users.id", ondelete="CASCADE"), primary_key=True
+    )
+    time_slot: Mapped[str] = mapped_column(String(64), primary_key=True)
+    situation: Mapped[str] = mapped_column(String(64), primary_key=True)
+    upto_seq: Mapped[int] = mapped_column(Integer)
+    doc: Mapped[dict[str, Any]] = mapped_column(JSON)
+
+
+class ChangeEvent(Base):
+    """A change in what a person wants in one context, as Attune decided it (``source``:
+    ``profile``, what the profile says changed, for every learner; ``learner``, the learner's
+    own change test): before, ``before_service``/``before_detail``; from episode ``seq`` on
+    (which happened ``at``, local time ``utc_offset``), ``now_service``/``now_detail`` (no
+    service: they turn it down and chose nothing else yet); decided when episode
+    ``detected_seq`` ended (``detected_at``), on ``evidence`` (the episodes that showed it:
+    what the person chose and turned down). Part of the person's history: it stays through a
+    rebuild, a mission change and a retention run, and goes when they are erased."""
+
+    __tablename__ = "change_events"
+    __table_args__ = (
+        Index("ix_change_events_user_id", "user_pk", "id"),
+        Index("ix_change_events_fleet_detected", "fleet", "detected_at"),
+    )
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)
+    user_pk: Mapped[int] = mapped_column(ForeignKey("users.id", ondelete="CASCADE"))
+    fleet: Mapped[str] = mapped_column(String(CLIENT_ID))  # the person's
+    source: Mapped[str] = mapped_column(String(16))
+    time_slot: Mapped[str] = mapped_column(String(64))
+    situation: Mapped[str] = mapped_column(String(64))
+    seq: Mapped[int] = mapped_column(Integer)
+    at: Mapped[dt.datetime] = mapped_column(UTCDateTime())
+    utc_offset: Mapped[int | None] = mapped_column(Integer)
+    detected_seq: Mapped[int] = mapped_column(Integer)
+    detected_at: Mapped[dt.datetime] = mapped_column(UTCDateTime(), default=utcnow)
+    before_service: Mapped[str | None] = mapped_column(String(64))
+    before_detail: Mapped[str | None] = mapped_column(String(64))
+    now_service: Mapped[str | None] = mapped_column(String(64))
+    now_detail: Mapped[str | None] = mapped_column(String(64))
+    evidence: Mapped[list[dict[str, Any]]] = mapped_column(JSON)

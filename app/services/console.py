@@ -23,6 +23,7 @@ from app.db.repositories import users as users_repo
 from app.db.repositories.users import UserRow
 from app.errors import ValidationFailed
 from app.learning import Mission
+from app.schemas.changes import ChangeEventOut
 from app.schemas.episodes import EpisodeTrace
 from app.schemas.users import UserOut
 
@@ -31,6 +32,7 @@ from .episodes import get_trace
 from .users import user_out, visible_user
 
 __all__ = [
+    "evidence_episodes",
     "RECENT_EPISODES",
     "UserActivity",
     "UserPage",
@@ -110,6 +112,24 @@ def find_users(
             )
         )
     return UserPage(items=items, total=total, page=page, per_page=per_page)
+
+
+def evidence_episodes(
+    session: Session, fleet: str, changes: Sequence[ChangeEventOut]
+) -> dict[tuple[str, int], str]:
+    """(user id, episode index) -> episode id, for the episodes the changes name as evidence
+    that are still stored (a retention run may have removed older ones)."""
+    wanted: dict[str, set[int]] = {}
+    for c in changes:
+        wanted.setdefault(c.user_id, set()).update(e.episode for e in c.evidence)
+    out: dict[tuple[str, int], str] = {}
+    for user_id, seqs in wanted.items():
+        found = users_repo.get(session, fleet, user_id)
+        if found is None:
+            continue
+        for seq, episode_id in repo.episode_ids_by_seq(session, found.id, sorted(seqs)).items():
+            out[(user_id, seq)] = episode_id
+    return out
 
 
 def _pk(session: Session, user: UserOut | UserRow) -> int:

@@ -36,7 +36,7 @@ from .person_model import PersonModel
 from .prior import started_from
 from .users import visible_user
 
-__all__ = ["profile_view", "words"]
+__all__ = ["profile_view", "thing", "when_where", "words"]
 
 
 def profile_view(
@@ -250,6 +250,17 @@ def _word(mission: Mission, name: str | None) -> str:
     if not name:
         return ""
     return _labelled(mission, name) or words(name)
+
+
+def thing(mission: Mission, item: Item | Wanted) -> str:
+    """A service, or its detail when known, as a sentence says it ("tea")."""
+    return _thing(mission, item)
+
+
+def when_where(mission: Mission, slot: str, situation: str) -> str:
+    """A context as the middle of a sentence says it ("in the afternoon, while stretching")."""
+    when = _when(mission, slot)
+    return f"{when[:1].lower()}{when[1:]}, {_where(mission, situation)}"
 
 
 def _thing(mission: Mission, item: Item | Wanted) -> str:

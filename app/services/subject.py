@@ -21,6 +21,7 @@ from pydantic_core import to_jsonable_python
 from sqlalchemy.orm import Session
 
 from app.db.repositories import audit as audit_repo
+from app.db.repositories import changes as changes_repo
 from app.db.repositories import episodes as episodes_repo
 from app.db.repositories import retention as folds_repo
 from app.db.repositories import views as views_repo
@@ -30,6 +31,7 @@ from app.db.types import utcnow
 
 from . import audit, views
 from .auth import require_manager
+from .changes import person_changes
 from .context import Principal, ServiceContext
 from .corrections import list_corrections
 from .episodes import get_trace
@@ -135,6 +137,9 @@ def begin_export(
                 session, fleet=user.fleet, user_id=user_id, before_id=None, limit=1_000_000
             )
         ],
+        "changes": person_changes(
+            session, ctx, principal, user_id, limit=1_000_000, cursor=None, fleet=user.fleet
+        ).items,
         "episode_count": user.episode_count,
         "restore": restore_part(session, ctx, user.fleet, user.id, model, user.draws),
     }
@@ -177,6 +182,10 @@ def restore_part(
         "history_fold": None
         if fold is None
         else {"upto_seq": fold.upto_seq, "kept_from": fold.kept_from, "doc": fold.doc},
+        "context_beliefs": [
+            {"time_slot": slot, "situation": situation, "upto_seq": upto, "doc": doc}
+            for slot, situation, upto, doc in changes_repo.beliefs(session, user_pk)
+        ],
     }
 
 

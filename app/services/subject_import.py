@@ -34,11 +34,13 @@ import ijson
 from pydantic import ValidationError
 from sqlalchemy.orm import Session
 
+from app.db.repositories import changes as changes_repo
 from app.db.repositories import corrections as corrections_repo
 from app.db.repositories import episodes as episodes_repo
 from app.db.repositories import missions as missions_repo
 from app.db.repositories import retention as folds_repo
 from app.db.repositories import users as users_repo
+from app.db.repositories.changes import ChangeRow
 from app.db.repositories.corrections import CorrectionRow
 from app.db.repositories.episodes import DecisionRow, EpisodeRow, FeedbackRow
 from app.db.types import utcnow
@@ -269,6 +271,18 @@ def import_subject(
             doc=_get(fold, "doc"),
         )
 
+    for item in restore.get("context_beliefs") or []:
+        changes_repo.put_belief(
+            session,
+            user.id,
+            str(_get(item, "time_slot")),
+            str(_get(item, "situation")),
+            upto_seq=int(_get(item, "upto_seq")),
+            doc=_get(item, "doc"),
+        )
+    for item in head.get("changes") or []:
+        changes_repo.add(session, _change(user.id, into, item))
+
     counts = {"episodes": 0, "decisions": 0, "feedback": 0}
     page: list[dict[str, Any]] = []
     for item in _episodes(events):
@@ -299,6 +313,31 @@ def import_subject(
         counts["feedback"],
         corrections,
         model.version,
+    )
+
+
+def _change(user_pk: int, fleet: str, item: Any) -> ChangeRow:
+    """A change of the export, as stored (``since.at`` keeps its local offset)."""
+    since = _time(_get(item, "since", "at"), "a change's since.at")
+    offset = since.utcoffset()
+    before, now = item.get("before") or {}, item.get("now") or {}
+    return ChangeRow(
+        id=None,
+        user_pk=user_pk,
+        fleet=fleet,
+        source=str(_get(item, "source")),
+        time_slot=str(_get(item, "time_slot")),
+        situation=str(_get(item, "situation")),
+        seq=int(_get(item, "since", "episode")),
+        at=since,
+        utc_offset=None if offset is None else int(offset.total_seconds() // 60),
+        detected_seq=int(_get(item, "decided", "episode")),
+        detected_at=_time(_get(item, "decided", "at"), "a change's decided.at"),
+        before_service=before.get("service"),
+        before_detail=before.get("detail"),
+        now_service=now.get("service"),
+        now_detail=now.get("detail"),
+        evidence=list(_get(item, "evidence")),
     )
 
 

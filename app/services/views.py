@@ -38,6 +38,7 @@ READS = (
     "episode",
     "export",
     "subject",
+    "changes",
     "console.profile",
     "console.details",
     "console.why",

@@ -92,6 +92,18 @@ def _fill(robot: TestClient, staff: TestClient, admin: TestClient) -> None:
     )
     assert r.status_code == 200, r.text
     _history(robot, ADA, "zw", 2, n=6)
+    # Her wish in one context changes: told to staff (a change, and the context's walk).
+    wishes = [("ProvideDrink", "tea")] * 4 + [("ProvideDrink", "coffee")] * 3
+    for i, need in enumerate(wishes, start=20):
+        play(
+            robot,
+            ADA,
+            f"zw-evt-{i}",
+            person(need=need),
+            robot_id="zw-robot",
+            situation="stretching",
+        )
+    assert staff.get(f"/v1/users/{ADA}/changes").json()["items"], "her wish changed"
     start(robot, ADA, "zw-evt-open", situation="stretching", robot_id="zw-robot")
 
 

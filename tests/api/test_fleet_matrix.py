@@ -164,6 +164,7 @@ MATRIX: list[Row] = [
     Row("GET", U + "/profile{q}", (401, 401, 200, 200, 200, 200, 200)),
     Row("GET", U + "/corrections{q}", (401, 401, 200, 200, 200, 200, 200)),
     Row("GET", U + "/views{q}", (401, 401, 403, 403, 200, 200, 200)),
+    Row("GET", U + "/changes{q}", (401, 401, 403, 403, 200, 200, 200)),
     Row("GET", U + "/export{q}", (401, 401, 403, 403, 200, 200, 200)),
     Row(
         "POST",
@@ -242,6 +243,12 @@ MATRIX: list[Row] = [
         json={"history_days": 3650},
         route="/v1/admin/fleets/{fleet}/history",
     ),
+    Row(
+        "GET",
+        f"/v1/admin/fleets/{A}/changes",
+        (401, 401, 403, 403, 200, 403, 200),
+        route="/v1/admin/fleets/{fleet}/changes",
+    ),
     # The console: a cookie holding the key (staff and admin get it by signing in; robot and
     # revoked keys, refused there, send one made by hand). "none": no cookie, so the pages
     # send the browser to the login form (303).
@@ -281,6 +288,7 @@ MATRIX: list[Row] = [
         "POST", "/admin/mission{q}", (303, 401, 403, 403, 303, 303, 303), form=MISSION, writes=True
     ),
     Row("GET", "/admin/retention{q}", (303, 401, 403, 403, 200, 200, 200)),
+    Row("GET", "/admin/changes{q}", (303, 401, 403, 403, 200, 200, 200)),
     Row("POST", "/admin/retention{q}", (303, 401, 403, 403, 303, 303, 303), form=RETENTION),
     Row("GET", "/admin/nowhere", (404, 404, 404, 404, 404, 404, 404), route="/admin/{rest:path}"),
 ]
@@ -580,7 +588,7 @@ def _check_console(r: httpx.Response, row: Row, who: str, status: int) -> None:
     if status == 303:
         location = r.headers["location"]
         if who == "none" and row.path.startswith(
-            ("/admin/users", "/admin/mission", "/admin/retention")
+            ("/admin/users", "/admin/mission", "/admin/retention", "/admin/changes")
         ):
             # Back to the page asked for, once signed in (the path's first words, before ids).
             path = row.path.split("{")[0]

@@ -64,6 +64,8 @@ DOCS_SHOTS = {
     ("tablet", "profile"): "console-user-tablet.png",
     ("tablet", "profile-evidence"): "console-evidence-tablet.png",
     ("desktop", "retention"): "console-retention.png",
+    ("desktop", "changes"): "console-changes.png",
+    ("desktop", "profile-changes"): "console-profile-changes.png",
 }
 DOCS_IMG = REPO / "docs" / "img"
 

@@ -1,12 +1,13 @@
 from __future__ import annotations
 
+import datetime as dt
 from typing import Annotated
 
 from fastapi import APIRouter, Path, Query, Response
 from fastapi.responses import JSONResponse
 from sqlalchemy.orm import Session
 
-from app.api.deps import CurrentPrincipal, TransactionalRoute
+from app.api.deps import CurrentPrincipal, TransactionalRoute, writes
 from app.api.errors import responses
 from app.schemas.admin import (
     FleetHistoryIn,
@@ -19,9 +20,10 @@ from app.schemas.admin import (
     KeyList,
 )
 from app.schemas.audit import AuditList, ViewList
+from app.schemas.changes import ChangeList
 from app.schemas.common import CLIENT_ID_PATTERN
 from app.schemas.models import MissionChanged, MissionChangeIn, MissionVersionList
-from app.services import admin, missions, prior, retention, views
+from app.services import admin, changes, missions, prior, retention, views
 from app.services import audit as service
 from app.services.context import ServiceContext
 
@@ -192,4 +194,28 @@ def set_fleet_history(
     it. Audit entry ``fleet.history`` when it changes."""
     return FleetHistoryOut.model_validate(
         retention.set_history(session, ctx, principal, fleet, days=body.history_days)
+    )
+
+
+@router.get("/fleets/{fleet}/changes", response_model=ChangeList, responses=responses(403, 422))
+@writes  # each person it names is recorded as looked at
+def list_fleet_changes(
+    fleet: FleetName,
+    session: Session,
+    ctx: ServiceContext,
+    principal: CurrentPrincipal,
+    since: Annotated[
+        dt.datetime | None,
+        Query(
+            description="Only the changes decided at or after this time (RFC 3339, with an "
+            "offset), e.g. a week ago for 'what changed this week'."
+        ),
+    ] = None,
+    limit: Limit = 50,
+    cursor: SeqCursor = None,
+) -> ChangeList:
+    """What changed in what the fleet's people want, newest first (the fleet's staff,
+    admins)."""
+    return changes.fleet_changes(
+        session, ctx, principal, fleet, since=since, limit=limit, cursor=cursor
     )

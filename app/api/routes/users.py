@@ -10,9 +10,10 @@ from app.api.deps import CurrentPrincipal, TransactionalRoute, writes
 from app.api.errors import responses
 from app.api.links import USER_LINKS
 from app.schemas.audit import ViewList
+from app.schemas.changes import ChangeList
 from app.schemas.common import CLIENT_ID_PATTERN
 from app.schemas.users import UserIn, UserList, UserOut
-from app.services import subject, views
+from app.services import changes, subject, views
 from app.services import users as service
 from app.services.context import ServiceContext
 
@@ -133,6 +134,26 @@ def list_user_views(
     return views.list_views(
         session, principal, limit=limit, cursor=cursor, user_id=user_id, fleet=fleet
     )
+
+
+@router.get("/{user_id}/changes", response_model=ChangeList, responses=responses(403, 404))
+def list_person_changes(
+    user_id: UserId,
+    session: Session,
+    ctx: ServiceContext,
+    principal: CurrentPrincipal,
+    request: Request,
+    limit: Limit = 50,
+    cursor: SeqCursor = None,
+    fleet: Fleet = None,
+) -> ChangeList:
+    """What changed in what the person wants, newest first: when, in which context, what
+    they wanted before and what now, on what evidence, in words (staff of the fleet, admin)."""
+    out = changes.person_changes(
+        session, ctx, principal, user_id, limit=limit, cursor=cursor, fleet=fleet
+    )
+    record_read(request, principal, user_id, fleet, "changes")
+    return out
 
 
 @router.get(

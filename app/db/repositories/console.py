@@ -152,3 +152,15 @@ def episode_offsets(session: Session, episode_ids: Sequence[str]) -> dict[str, i
         .all()
     )
     return {episode_id: offset for episode_id, offset in rows}
+
+
+def episode_ids_by_seq(session: Session, user_pk: int, seqs: Sequence[int]) -> dict[int, str]:
+    """Per episode index of the person: its episode's id (the ones still stored)."""
+    if not seqs:
+        return {}
+    rows = conn(session).execute(
+        select(Episode.seq, Episode.id).where(
+            Episode.user_pk == user_pk, Episode.seq.in_(sorted(set(seqs)))
+        )
+    )
+    return {int(seq): episode_id for seq, episode_id in rows}

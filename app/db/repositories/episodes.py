@@ -22,6 +22,7 @@ __all__ = [
     "MetricRow",
     "add_feedback",
     "by_event",
+    "by_seq",
     "decision",
     "decisions",
     "decisions_for_rebuild",
@@ -304,6 +305,20 @@ def interrupt_open(session: Session, user_pk: int, *, at: dt.datetime) -> int:
         .values(status="interrupted", closed_at=at)
     )
     return int(result.rowcount or 0)
+
+
+def by_seq(session: Session, user_pk: int, seq: int) -> tuple[dt.datetime, int | None] | None:
+    """When the user's episode ``seq`` happened, and the offset it came with."""
+    row = (
+        conn(session)
+        .execute(
+            select(_episodes.c.occurred_at, _episodes.c.utc_offset).where(
+                _episodes.c.user_pk == user_pk, _episodes.c.seq == seq
+            )
+        )
+        .first()
+    )
+    return None if row is None else (row[0], row[1])
 
 
 def mission_versions(session: Session, user_pk: int) -> list[int]:

@@ -38,7 +38,7 @@ from app.learning import (
 from app.learning.negotiation import Tally, feedback_reward, outcome
 from app.schemas.episodes import EpisodeIn, FeedbackIn, OutcomeIn
 
-from .. import missions
+from .. import changes, missions
 from ..context import Principal, ServiceContext, body_hash, rng_for
 from ..person_model import PersonModel
 from ..users import create_user, fleet_of, no_user
@@ -438,10 +438,16 @@ def report_outcome(
     }
     row.outcome_hash, row.outcome_response = digest, out
     model.teach(step.transitions)
+    weighed = None
+    if episode.status == "closed":  # news for staff if it changed what the person wants
+        earlier = [d for d in episodes_repo.decisions(session, episode_id) if d.id != row.id]
+        weighed = changes.weigh_ended(session, user, episode, [*earlier, row], space)
     with batch(session):  # writes only: one round trip on PostgreSQL
         episodes_repo.save_answer(session, row)
         episodes_repo.save_episode(session, episode)
         _store(session, step)
+        if weighed is not None:
+            weighed.store(session)
     return Written(out, 200, False, space.actions[row.action].kind.value, user.fleet)
 
 

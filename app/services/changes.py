@@ -1,0 +1,259 @@
+"""Changes in what a person wants, told to the people who care for them.
+
+A change is news for staff (a resident who stops wanting tea in the afternoon may be unwell).
+Each time one of a person's episodes ends, it is weighed against what came before in its
+context, as the profile weighs it (:class:`app.learning.beliefs.BeliefFold`: the last choice
+the later episodes keep supporting, replaced after :data:`~app.learning.beliefs.CHANGE_RUN`
+episodes in a row that contradict it), from the context's walk so far (``context_beliefs``).
+When the walk decides that the person's wish changed, the change is recorded
+(``change_events``, ``source`` ``profile``): when it began, which context, what the person
+wanted before and what now, on what evidence. This holds for every learner. A learner with a
+change test of its own reports what it decided too (``source`` ``learner``).
+
+Episodes are weighed in the order they end (a context rarely has two open at once). What is
+recorded stays: a rebuild, a mission change (contexts are kept by name) and a retention run do
+not touch it; an erasure removes it with the person.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from sqlalchemy.orm import Session
+
+from app.db.repositories import changes as repo
+from app.db.repositories import episodes as episodes_repo
+from app.db.repositories.changes import ChangeRow
+from app.db.repositories.episodes import DecisionRow, EpisodeRow
+from app.db.repositories.users import UserRow
+from app.db.types import utcnow
+from app.errors import Forbidden, ValidationFailed
+from app.learning import Mission, NegotiationSpace
+from app.learning.beliefs import Answer, BeliefFold, EpisodeEvidence, Item, episode_evidence
+from app.schemas.changes import ChangeEventOut, ChangeList, EvidenceItem, Moment
+from app.schemas.profile import Wanted
+
+from . import views
+from .auth import require_manager
+from .context import Principal, ServiceContext
+from .missions import current_version
+from .profile import thing, when_where
+from .users import visible_user
+
+__all__ = ["Weighed", "change_out", "fleet_changes", "person_changes", "summary", "weigh_ended"]
+
+
+@dataclass(slots=True)
+class Weighed:
+    """What an ended episode did to its context's walk: the walk to store, and the change it
+    decided (if any). Computed before a write's batch of statements (it reads), stored in it."""
+
+    user_pk: int
+    time_slot: str
+    situation: str
+    upto_seq: int
+    doc: dict[str, Any]
+    change: ChangeRow | None
+
+    def store(self, session: Session) -> None:
+        repo.put_belief(
+            session,
+            self.user_pk,
+            self.time_slot,
+            self.situation,
+            upto_seq=self.upto_seq,
+            doc=self.doc,
+        )
+        if self.change is not None:
+            repo.add(session, self.change)
+
+
+def weigh_ended(
+    session: Session,
+    user: UserRow,
+    episode: EpisodeRow,
+    decisions: Sequence[DecisionRow],
+    space: NegotiationSpace,
+) -> Weighed:
+    """Weigh an episode that just ended (``decisions``: all of its decisions, with this
+    write's answers) against its context's walk."""
+    stored = repo.belief(session, user.id, episode.time_slot, episode.situation)
+    fold = BeliefFold() if stored is None else BeliefFold.from_doc(stored[1])
+    answers = [
+        Answer(d.action, d.response, d.service, d.detail)
+        for d in sorted(decisions, key=lambda d: d.position)
+        if d.response is not None and not d.forced
+    ]
+    request = (
+        Item(episode.request_service, episode.request_detail) if episode.request_service else None
+    )
+    before = fold.change
+    fold.add(episode_evidence(space, episode.seq, answers, request=request))
+    found = fold.change
+    change = None
+    if found is not None and found != before:
+        at, offset = episode.occurred_at, episode.utc_offset
+        if found.seq != episode.seq:
+            began = episodes_repo.by_seq(session, user.id, found.seq)
+            if began is not None:
+                at, offset = began
+        shown = [e for _, e in fold.tail if e.seq >= found.seq]
+        change = ChangeRow(
+            id=None,
+            user_pk=user.id,
+            fleet=user.fleet,
+            source="profile",
+            time_slot=episode.time_slot,
+            situation=episode.situation,
+            seq=found.seq,
+            at=at,
+            utc_offset=offset,
+            detected_seq=episode.seq,
+            detected_at=utcnow(),
+            before_service=found.before.service,
+            before_detail=found.before.detail,
+            now_service=None if found.now is None else found.now.service,
+            now_detail=None if found.now is None else found.now.detail,
+            evidence=[_evidence_doc(e) for e in shown],
+        )
+    return Weighed(
+        user.id,
+        episode.time_slot,
+        episode.situation,
+        max(episode.seq, 0 if stored is None else stored[0]),
+        fold.to_doc(),
+        change,
+    )
+
+
+def _evidence_doc(ev: EpisodeEvidence) -> dict[str, Any]:
+    def item(i: Item | None) -> dict[str, str | None] | None:
+        return None if i is None else {"service": i.service, "detail": i.detail}
+
+    return {
+        "episode": ev.seq,
+        "chose": item(ev.chose),
+        "turned_down": [item(r) for r in ev.refused],
+        "turned_down_offer": ev.refused_offer,
+    }
+
+
+def _wanted(service: str | None, detail: str | None) -> Wanted | None:
+    return None if service is None else Wanted(service=service, detail=detail)
+
+
+def _local(at: dt.datetime, offset: int | None) -> dt.datetime:
+    if offset is None:
+        return at
+    return at.astimezone(dt.timezone(dt.timedelta(minutes=offset)))
+
+
+def summary(mission: Mission, name: str | None, row: ChangeRow) -> str:
+    """The change in words, for staff: "Since 3 December, Mrs. Lin no longer wants tea in the
+    afternoon, while stretching", "... wants coffee instead of tea ..."."""
+    who = name or "this person"
+    day = _local(row.at, row.utc_offset)
+    since = f"Since {day.day} {day:%B}"
+    where = when_where(mission, row.time_slot, row.situation)
+    if row.before_service is None:
+        if row.now_service is None:
+            return f"{since}, {who} turns down what the robot offers {where}."
+        return (
+            f"{since}, {who} wants {thing(mission, Item(row.now_service, row.now_detail))} {where}."
+        )
+    before = thing(mission, Item(row.before_service, row.before_detail))
+    if row.now_service is None or (
+        row.now_detail is None and row.now_service == row.before_service
+    ):  # turned it down, and chose nothing else yet (or only "another drink")
+        return f"{since}, {who} no longer wants {before} {where}."
+    now = thing(mission, Item(row.now_service, row.now_detail))
+    return f"{since}, {who} wants {now} instead of {before} {where}."
+
+
+def change_out(row: ChangeRow, user_id: str, mission: Mission, name: str | None) -> ChangeEventOut:
+    return ChangeEventOut(
+        change_id=str(row.id),
+        user_id=user_id,
+        fleet=row.fleet,
+        source=row.source,  # type: ignore[arg-type]
+        time_slot=row.time_slot,
+        situation=row.situation,
+        since=Moment(episode=row.seq, at=_local(row.at, row.utc_offset)),
+        decided=Moment(episode=row.detected_seq, at=row.detected_at),
+        before=_wanted(row.before_service, row.before_detail),
+        now=_wanted(row.now_service, row.now_detail),
+        evidence=[EvidenceItem.model_validate(e) for e in row.evidence],
+        summary=summary(mission, name, row),
+    )
+
+
+def _position(cursor: str | None) -> int | None:
+    if cursor is None:
+        return None
+    if not cursor.isdigit():
+        raise ValidationFailed("cursor is not one this API returned.")
+    return int(cursor)
+
+
+def person_changes(
+    session: Session,
+    ctx: ServiceContext,
+    principal: Principal,
+    user_id: str,
+    *,
+    limit: int,
+    cursor: str | None,
+    fleet: str | None = None,
+) -> ChangeList:
+    """``GET /v1/users/{user_id}/changes``: the person's changes, newest first (staff of the
+    fleet, admins)."""
+    require_manager(principal)
+    user = visible_user(session, principal, user_id, fleet=fleet)
+    rows = repo.for_user(session, user.id, before_id=_position(cursor), limit=limit + 1)
+    mission = ctx.missions.display(session, user.fleet, current_version(session, ctx, user.fleet))
+    return _page(rows, limit, mission, {user.id: user.display_name})
+
+
+def fleet_changes(
+    session: Session,
+    ctx: ServiceContext,
+    principal: Principal,
+    fleet: str,
+    *,
+    since: dt.datetime | None,
+    limit: int,
+    cursor: str | None,
+    via: str = "api",
+) -> ChangeList:
+    """``GET /v1/admin/fleets/{fleet}/changes``: the fleet's changes decided since ``since``,
+    newest first (the fleet's staff, admins). Each person it names is recorded as looked at
+    (``changes``), in ``session``'s write transaction."""
+    require_manager(principal)
+    if not principal.sees(fleet):
+        raise Forbidden("Staff keys read their own fleet's changes only.")
+    if since is not None and since.tzinfo is None:
+        raise ValidationFailed("since must carry an offset (RFC 3339).")
+    rows = repo.for_fleet(session, fleet, since=since, before_id=_position(cursor), limit=limit + 1)
+    mission = ctx.missions.display(session, fleet, current_version(session, ctx, fleet))
+    names = repo.display_names(session, {r.user_pk for r, _ in rows})
+    for user_id in sorted({uid for _, uid in rows[:limit]}):
+        views.add(
+            session, ctx.settings, principal, fleet=fleet, user_id=user_id, what="changes", via=via
+        )
+    return _page(rows, limit, mission, names)
+
+
+def _page(
+    rows: list[tuple[ChangeRow, str]],
+    limit: int,
+    mission: Mission,
+    names: dict[int, str | None],
+) -> ChangeList:
+    """A page of changes in words; their contexts are named as the fleet's mission in force
+    names them (a context a later mission dropped keeps its own names)."""
+    more = len(rows) > limit
+    items = [change_out(r, uid, mission, names.get(r.user_pk)) for r, uid in rows[:limit]]
+    return ChangeList(items=items, next_cursor=str(rows[limit - 1][0].id) if more else None)
