@@ -35,8 +35,8 @@ its report counts, and checks that count against the database.
 **Filling fast.** Twenty people (``--template-people``) play ``--template-episodes`` episodes
 through the real API, with explicit feedback on some and staff corrections (one lifted) on two
 of them. Their timestamps are then aged: every date and time column of every table that holds a
-person's data is moved back, the whole play (a minute or so) stretched over the age range, so
-each person's history is spread over those days in the order it was played. Then they are
+person's data is moved back, each value to its rank among all of them, so that the play (a
+minute or so) is spread evenly over the age range, in the order it was played. Then they are
 cloned in SQL (``INSERT ... SELECT`` in the database itself) under new people until the target
 is reached. The clone reads the schema (``app.db.base.Base.metadata``): the tables that refer to
 a person are those with a foreign key to ``users``, and those that refer to those tables, and so
@@ -62,6 +62,7 @@ to interrupt) and the output says so.
 from __future__ import annotations
 
 import argparse
+import bisect
 import contextlib
 import datetime as dt
 import json
@@ -395,29 +396,32 @@ class Cloner:
         )
 
 
-def age(
-    conn: Connection, schema: Schema, t0: dt.datetime, t1: dt.datetime, ages: tuple[float, float]
-) -> int:
-    """Move every date and time of every person table back: [t0, t1] (the template's play)
-    stretched over ``ages`` days before now, oldest first. The rows changed."""
+def age(conn: Connection, schema: Schema, ages: tuple[float, float]) -> int:
+    """Move every date and time of every person table back, spread evenly over ``ages`` days
+    before now: each value goes to its rank among all of them (the template's play, whatever
+    its pace), the oldest to ``ages[1]`` days ago, the newest to ``ages[0]``. The order of any
+    two values is kept. The rows changed."""
     now = dt.datetime.now(dt.UTC)
     oldest, newest = now - dt.timedelta(days=ages[1]), now - dt.timedelta(days=ages[0])
-    span = max((t1 - t0).total_seconds(), 1e-3)
-    scale = (newest - oldest).total_seconds() / span
+    found: list[tuple[Table, list[Column[Any]], list[Column[Any]], list[Any]]] = []
+    for table in [schema.users, *schema.tables]:
+        stamps = [c for c in table.columns if _is_datetime(c)]
+        if stamps:
+            keys = list(table.primary_key.columns)
+            found.append((table, keys, stamps, list(conn.execute(select(*keys, *stamps)))))
+    points = sorted(
+        v for _, keys, _, rows in found for row in rows for v in row[len(keys) :] if v is not None
+    )
+    last = max(len(points) - 1, 1)
 
     def moved(value: dt.datetime | None) -> dt.datetime | None:
         if value is None:
             return None
-        seconds = min(max((value - t0).total_seconds(), 0.0), span)
-        return oldest + dt.timedelta(seconds=seconds * scale)
+        rank = (bisect.bisect_left(points, value) + bisect.bisect_right(points, value) - 1) / 2
+        return oldest + (newest - oldest) * (min(max(rank, 0.0), last) / last)
 
     changed = 0
-    for table in [schema.users, *schema.tables]:
-        stamps = [c for c in table.columns if _is_datetime(c)]
-        if not stamps:
-            continue
-        keys = list(table.primary_key.columns)
-        rows = conn.execute(select(*keys, *stamps)).all()
+    for table, keys, stamps, rows in found:
         if not rows:
             continue
         stmt = (
@@ -449,8 +453,6 @@ class Template:
     episodes: int
     requests: int
     seconds: float
-    t0: dt.datetime
-    t1: dt.datetime
     corrections: int
     feedback: int
 
@@ -466,7 +468,6 @@ def play_template(
     counts = {"requests": 0, "feedback": 0, "corrections": 0}
     lock = threading.Lock()
     errors: list[BaseException] = []
-    t0 = dt.datetime.now(dt.UTC)
     began = time.monotonic()
 
     def staff_corrections(client: httpx.Client, person: str) -> None:
@@ -569,8 +570,6 @@ def play_template(
         episodes=episodes,
         requests=counts["requests"],
         seconds=time.monotonic() - began,
-        t0=t0,
-        t1=dt.datetime.now(dt.UTC),
         corrections=counts["corrections"],
         feedback=counts["feedback"],
     )
@@ -648,7 +647,7 @@ def fill(
     began = time.monotonic()
     try:
         with db.engine.connect() as conn:
-            aged = age(conn, schema, tpl.t0, tpl.t1, ages)
+            aged = age(conn, schema, ages)
             conn.commit()
             say(f"  aged {aged:,} rows over {ages[0]:g} to {ages[1]:g} days ago")
             cloner = Cloner(conn, schema)
@@ -794,6 +793,8 @@ def vacuum(engine: str, url: str, full: bool = False) -> None:
         return
     with _autocommit(url) as conn:
         conn.execute("VACUUM FULL ANALYZE" if full else "VACUUM ANALYZE")
+        # The fill's gigabytes are written out now, not by a checkpoint in a measured window.
+        conn.execute("CHECKPOINT")
 
 
 def count_episodes(url: str, before: dt.datetime | None = None) -> int:
@@ -1147,7 +1148,8 @@ def robots_latency(engine: str, args: argparse.Namespace, folder: Path) -> dict[
             done = fill(args, service, where.direct_url, args.episodes, ages)
             sizes = size(engine, where.direct_url)
             if engine == "postgresql":
-                vacuum(engine, where.direct_url)  # what autovacuum would do after the fill
+                # What autovacuum would do after the fill, then a checkpoint (in vacuum()).
+                vacuum(engine, where.direct_url)
             staff_key = make_keys(where.direct_url, 1, "staff", FLEET)[0]
             rng = random.Random(args.seed)
             sample = sorted(
