@@ -35,8 +35,9 @@ its report counts, and checks that count against the database.
 **Filling fast.** Twenty people (``--template-people``) play ``--template-episodes`` episodes
 through the real API, with explicit feedback on some and staff corrections (one lifted) on two
 of them. Their timestamps are then aged: every date and time column of every table that holds a
-person's data is moved back, each value to its rank among all of them, so that the play (a
-minute or so) is spread evenly over the age range, in the order it was played. Then they are
+person's data is moved back, each value to its rank among the times of the rows that hang
+on a person directly (episodes, mostly), so that the play (a minute or so) is spread evenly
+over the age range, in the order it was played. Then they are
 cloned in SQL (``INSERT ... SELECT`` in the database itself) under new people until the target
 is reached. The clone reads the schema (``app.db.base.Base.metadata``): the tables that refer to
 a person are those with a foreign key to ``users``, and those that refer to those tables, and so
@@ -398,9 +399,9 @@ class Cloner:
 
 def age(conn: Connection, schema: Schema, ages: tuple[float, float]) -> int:
     """Move every date and time of every person table back, spread evenly over ``ages`` days
-    before now: each value goes to its rank among all of them (the template's play, whatever
-    its pace), the oldest to ``ages[1]`` days ago, the newest to ``ages[0]``. The order of any
-    two values is kept. The rows changed."""
+    before now: each value goes to its rank among those of the tables that refer to ``users``
+    directly (the template's play, whatever its pace), the oldest to ``ages[1]`` days ago, the
+    newest to ``ages[0]``. The order of any two values is kept. The rows changed."""
     now = dt.datetime.now(dt.UTC)
     oldest, newest = now - dt.timedelta(days=ages[1]), now - dt.timedelta(days=ages[0])
     found: list[tuple[Table, list[Column[Any]], list[Column[Any]], list[Any]]] = []
@@ -409,8 +410,11 @@ def age(conn: Connection, schema: Schema, ages: tuple[float, float]) -> int:
         if stamps:
             keys = list(table.primary_key.columns)
             found.append((table, keys, stamps, list(conn.execute(select(*keys, *stamps)))))
+    # Evenly by the rows that hang on a person directly (episodes, mostly): a table further
+    # down (a decision) has as many rows per episode as the negotiation took.
+    direct = [f for f in found if len(schema.paths.get(f[0].name, [])) == 1] or found
     points = sorted(
-        v for _, keys, _, rows in found for row in rows for v in row[len(keys) :] if v is not None
+        v for _, keys, _, rows in direct for row in rows for v in row[len(keys) :] if v is not None
     )
     last = max(len(points) - 1, 1)
 

@@ -142,11 +142,14 @@ def test_the_clone_follows_the_schema_it_reads(bench: Any, tmp_path: Path) -> No
         assert (
             conn.execute(select(t["ledger_v2"].c.amount).where(t["ledger_v2"].c.owner == clone.id))
         ).scalar_one() == 1
-        # Six times, spread by rank over 10 to 20 days ago, in order (the people's first): the
-        # clone's visits are copies of h1's, the 3rd and 4th.
+        # The visits' four times (the rows on a person directly) spread by rank over 10 to 20
+        # days ago, in order; the clone's visits are copies of h1's, the first two; the
+        # people's times, before them all, the oldest.
         now = dt.datetime.now(dt.UTC)
         days = sorted(round((now - v.at).total_seconds() / 86400, 3) for v in visits)
-        assert days == [14.0, 16.0]
+        assert days == [16.667, 20.0]
+        since = round((now - clone.since).total_seconds() / 86400, 3)
+        assert since == 20.0
 
 
 @pytest.mark.live
