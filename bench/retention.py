@@ -55,9 +55,9 @@ retention run, through the delaying TCP proxy of ``bench/remote_db.py`` (``bench
 ``--pooler pgbouncer`` puts Debian's PgBouncer in transaction pooling between them and
 PostgreSQL. The fill and the measurements go to the database directly.
 
-Bounded: every request times out after 30 s, each robot stops after ``MAX_REQUESTS`` requests or
-at the end of its phase; a retention run longer than ``--max-run-minutes`` is stopped (it is safe
-to interrupt) and the output says so.
+Bounded: every request times out after 30 s, each robot stops after 2,000,000 requests
+(``MAX_REQUESTS``) or at the end of its phase; a retention run longer than
+``--max-run-minutes`` is stopped (it is safe to interrupt) and the output says so.
 """
 
 from __future__ import annotations
@@ -1492,7 +1492,12 @@ def main(argv: list[str] | None = None) -> int:
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    parser.add_argument("--engine", choices=("sqlite", "postgresql", "both"), default="both")
+    parser.add_argument(
+        "--engine",
+        choices=("sqlite", "postgresql", "both"),
+        default="both",
+        help="the database engine (default both, one after the other)",
+    )
     parser.add_argument(
         "--episodes",
         type=int,
@@ -1579,7 +1584,9 @@ def main(argv: list[str] | None = None) -> int:
         default=30.0,
         help="a progress line this often during the run (default 30)",
     )
-    parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument(
+        "--seed", type=int, default=1, help="the people's and robots' draws (default 1)"
+    )
     parser.add_argument(
         "--json", action="store_true", help="print one JSON document instead of the text"
     )
