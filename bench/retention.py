@@ -103,6 +103,7 @@ from sqlalchemy import (  # noqa: E402
     func,
     insert,
     select,
+    text,
     true,
     update,
 )
@@ -193,6 +194,9 @@ class Schema:
     tables: list[Table]
     paths: dict[str, list[tuple[str, Column[Any]]]]  # table -> [(its column, the parent's column)]
     string_ids: list[Column[Any]]  # string primary keys that get a per-clone suffix
+    # integer keys the database assigns that another person table refers to: a clone's rows
+    # get the template's id moved by a per-table stride times the clone's number
+    int_ids: list[Column[Any]] = field(default_factory=list)
 
     @classmethod
     def read(cls, metadata: MetaData, users: Table, key: str) -> Schema:
@@ -228,6 +232,18 @@ class Schema:
             for column in table.primary_key.columns:
                 if schema._refers(column) is None and _is_string(column):
                     schema.string_ids.append(column)
+        for table in tables:
+            for column in table.columns:
+                ref = schema._refers(column)
+                if (
+                    ref is not None
+                    and ref.table is not users
+                    and not _is_string(ref)
+                    and ref is ref.table.autoincrement_column
+                    and all(ref is not c for c in schema.int_ids)
+                ):
+                    schema.int_ids.append(ref)
+        for table in tables:
             schema.check(table)
         return schema
 
@@ -242,7 +258,12 @@ class Schema:
     def check(self, table: Table) -> None:
         for column in table.columns:
             ref = self._refers(column)
-            if ref is not None and ref.table is not self.users and not _is_string(ref):
+            if (
+                ref is not None
+                and ref.table is not self.users
+                and not _is_string(ref)
+                and all(ref is not c for c in self.int_ids)
+            ):
                 raise CloneRefused(
                     f"{table.name}.{column.name} refers to {ref.table.name}.{ref.name}, an "
                     "integer id the database assigns: a clone cannot know the new value"
@@ -290,6 +311,11 @@ class Cloner:
             longest = conn.execute(select(func.max(func.length(column)))).scalar() or 0
             length = getattr(column.type, "length", None) or (longest + 6)
             self.widths[self._name(column)] = min(6, length - int(longest))
+        # an integer id referred to: clone n's rows take the template's id + stride * n
+        self.strides: dict[str, int] = {
+            self._name(c): int(conn.execute(select(func.max(c))).scalar() or 0) + 1
+            for c in schema.int_ids
+        }
         self.clones = Table(
             "bench_clones",
             MetaData(),
@@ -346,6 +372,15 @@ class Cloner:
         for table in s.tables:
             self._table(table, people)
         self.conn.execute(delete(self.clones))
+        if self.conn.dialect.name == "postgresql":  # ids given explicitly: move the sequences
+            for column in s.int_ids:
+                name = column.table.name
+                self.conn.execute(
+                    text(
+                        f"SELECT setval(pg_get_serial_sequence('{name}', '{column.name}'), "
+                        f"COALESCE((SELECT MAX({column.name}) FROM {name}), 0) + 1, false)"
+                    )
+                )
 
     def _table(self, table: Table, people: list[int]) -> None:
         s, clones = self.schema, self.clones
@@ -375,12 +410,17 @@ class Cloner:
             )
         cols, values = [], []
         for column in table.columns:
-            if column is table.autoincrement_column:
+            moved = self.strides.get(self._name(column))
+            if column is table.autoincrement_column and moved is None:
                 continue
             ref = s._refers(column)
             value: ColumnElement[Any]
-            if ref is not None and ref.table is s.users:
+            if moved is not None:  # an integer id that other rows refer to
+                value = table.c[column.name] + moved * clones.c.n
+            elif ref is not None and ref.table is s.users:
                 value = new.c[ref.name]
+            elif ref is not None and self._name(ref) in self.strides:
+                value = table.c[column.name] + self.strides[self._name(ref)] * clones.c.n
             elif ref is not None:
                 value = table.c[column.name] + self._suffix_of(ref)
             elif column.primary_key:
@@ -390,9 +430,16 @@ class Cloner:
             cols.append(column.name)
             values.append(value)
         pk = s.users.primary_key.columns.values()[0]
+        # In the template's order: rows a version holds several of (a journal's steps) are
+        # replayed in the order of their ids, which the database gives in this order.
+        order = [clones.c.n, *table.primary_key.columns]
         self.conn.execute(
             insert(table).from_select(
-                cols, select(*values).select_from(joined).where(tpl.c[pk.name].in_(people))
+                cols,
+                select(*values)
+                .select_from(joined)
+                .where(tpl.c[pk.name].in_(people))
+                .order_by(*order),
             )
         )
 
@@ -401,11 +448,16 @@ def age(conn: Connection, schema: Schema, ages: tuple[float, float]) -> int:
     """Move every date and time of every person table back, spread evenly over ``ages`` days
     before now: each value goes to its rank among those of the tables that refer to ``users``
     directly (the template's play, whatever its pace), the oldest to ``ages[1]`` days ago, the
-    newest to ``ages[0]``. The order of any two values is kept. The rows changed."""
+    newest to ``ages[0]``. The order of any two values is kept. A table whose rows the model's
+    journal refers to (a staff correction) is left as it was: a replay reads its times (a
+    correction's rule keeps when it was made). The rows changed."""
     now = dt.datetime.now(dt.UTC)
     oldest, newest = now - dt.timedelta(days=ages[1]), now - dt.timedelta(days=ages[0])
     found: list[tuple[Table, list[Column[Any]], list[Column[Any]], list[Any]]] = []
+    replayed = {c.table.name for c in schema.int_ids}
     for table in [schema.users, *schema.tables]:
+        if table.name in replayed:
+            continue
         stamps = [c for c in table.columns if _is_datetime(c)]
         if stamps:
             keys = list(table.primary_key.columns)
