@@ -73,6 +73,7 @@ PRIOR_TABLES: Mapping[str, PriorSpec] = {
     "rmax": PriorSpec(counts="ns", sums="r"),
     "dts": PriorSpec(counts="dns", sums="dr", derived=("dn",), pooled=("answered",)),
     "dts-adapt": PriorSpec(counts="dns", sums="dr", derived=("dn",), pooled=("answered",)),
+    "dts-routine": PriorSpec(counts="dns", sums="dr", derived=("dn",), pooled=("answered",)),
     "qlearning": PriorSpec(values=("q",)),
 }
 
