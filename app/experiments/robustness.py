@@ -473,7 +473,9 @@ def detection_rows(summary: Mapping[str, Any]) -> list[list[str]]:
                     ""
                     if det["median_events_late"] is None
                     else f"{det['median_events_late']:g} / {det['median_visits']:g}",
-                    f"{det['false_alarms']} ({det['false_alarms_per_person_month']:.2f})",
+                    ""
+                    if det["false_alarms_per_person_month"] is None
+                    else f"{det['false_alarms']} ({det['false_alarms_per_person_month']:.2f})",
                 ]
             )
     return rows
