@@ -14,7 +14,8 @@ import pytest
 from app.learning import DtsAdaptParams, DtsRoutineParams, Observation, Transition, make_learner
 from app.learning.changes import ContextChange, item_doc
 from app.learning.learners import DtsRoutineLearner, learner_from_state
-from app.learning.population import FAMILIES, run_family
+from app.learning.population import FAMILIES, people, run_family, run_learner
+from app.learning.prior import population_prior
 from app.learning.space import ActionKind
 from app.learning.state import StateFormatError
 from tests.support.office import (
@@ -280,3 +281,37 @@ def test_it_keeps_the_lead_where_nothing_changes() -> None:
 
 def family_run(name: str, seed: int, methods: list[tuple[str, str, dict[str, Any]]]) -> Any:
     return run_family(FAMILIES[name], seed, methods, MISSION, n_persons=3, n_events=120)
+
+
+def test_the_prior_shares_the_routines_a_home_agrees_on_and_leaves_offers_fresh() -> None:
+    def contributors(name: str) -> tuple[list[DtsRoutineLearner], list[Any]]:
+        persons, flips = people(FAMILIES[name], MISSION, 2, 5, 100)
+        out = []
+        for i, (person, u) in enumerate(zip(persons, flips, strict=True)):
+            learner = routine()
+            run_learner(learner, person, u, np.random.default_rng(i))
+            out.append(learner)
+        return out, list(persons)
+
+    home, residents = contributors("home")
+    prior = population_prior("dts-routine", None, MISSION, home)
+    assert isinstance(prior, DtsRoutineLearner)
+    shared = set(residents[0].profiles[0].needs)
+    for person in residents[1:]:
+        shared &= set(person.profiles[0].needs)
+    seeded = [(c, prior.held(c)) for c in range(MISSION.n_contexts) if prior.held(c) is not None]
+    assert seeded
+    for c, held in seeded:
+        assert held is not None
+        need = next(n for n in shared if n.context == c)  # only routines all residents share
+        act_ = S.actions[held[0]]
+        assert act_.service == MISSION.services[need.service].name
+        assert act_.detail == MISSION.services[need.service].details[need.detail]
+        assert held[1] == 1.0
+    root = list(S.root_actions)
+    assert not prior.dns[:, root].any()  # whether to offer is the newcomer's own
+    assert not prior.offers.any()
+    strangers, _ = contributors("individual")
+    alone = population_prior("dts-routine", None, MISSION, strangers)
+    assert isinstance(alone, DtsRoutineLearner)
+    assert sum(alone.held(c) is not None for c in range(MISSION.n_contexts)) <= 1
