@@ -576,7 +576,7 @@ class DtsRoutineLearner(DtsLearner):
                 now=self._item(tr.action),
                 source="routine",
                 evidence=(*refused, *episode_steps, step_of(self.space, tr)),
-                figures={"refused": max(-trust, 0.0), "taken_before": max(trust, 0.0)},
+                figures={"refused": max(-trust, 0.0)},
             )
         )
 
