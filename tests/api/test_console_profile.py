@@ -463,7 +463,7 @@ def test_why_explains_the_learner_in_use(console: Console) -> None:
     assert made.json()["learner"]["algorithm"] == "dts-routine"  # the service's default
     page = console.page("/admin/users/kim/why?time_slot=morning&situation=arriving").text
     words = _staff_text(page)
-    assert "draws its choice from those estimates" in words
+    assert "asks which service and which detail before guessing there again" in words
     assert "sets aside old answers" not in words  # that is HRI
     assert "has not met the robot here yet" in words
     legend = html.unescape(page.split('id="p-explained"')[1].split("</dd>")[0])
