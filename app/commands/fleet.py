@@ -152,9 +152,10 @@ def simulate(
     learner: Annotated[
         str,
         typer.Option(
-            help="The learner the people are created with: dts-adapt, hri, dts, rmax or qlearning."
+            help="The learner the people are created with: dts-routine, dts-adapt, hri, dts, rmax "
+            "or qlearning."
         ),
-    ] = "dts-adapt",
+    ] = "dts-routine",
     prefix: Annotated[
         str | None,
         typer.Option(

@@ -133,6 +133,7 @@ _KEY_PARAM = {
     "hri": ("tau", "τ"),
     "dts": ("forgetting", "λ"),
     "dts-adapt": ("forgetting", "λ"),
+    "dts-routine": ("forgetting", "λ"),
     "rmax": ("m", "m"),
     "qlearning": ("exploration", ""),
 }
@@ -649,6 +650,13 @@ _LEARNERS = {
         "person's reactions start to differ from what it expected, so a changed wish is "
         "followed quickly."
     ),
+    "dts-routine": (
+        "It learns, in each situation, the service and detail the person last took there, and "
+        "brings them when it offers help; once the person turns them down, it asks which "
+        "service and which detail before guessing there again, and where it knows nothing yet "
+        "it asks rather than guesses. Where it holds no routine, it draws its choice from "
+        "running estimates of how often the person welcomes each action."
+    ),
     "rmax": (
         "It assumes untried actions are excellent until it has tried each a few times, then "
         "plans with what it learned of the person."
@@ -720,6 +728,11 @@ _P_WORDS = {
     "dts-adapt": "dts-adapt, like DTS, draws models of the person from its discounted counts "
     "(λ) and solves each; P is the share of the drawn models in which this action is the best "
     "(docs/method.md §8). Q, M and t do not enter it.",
+    "dts-routine": "dts-routine follows the person's routine in this context where it trusts "
+    "it (P = 1 for its offer, service and detail) and asks where the routine was refused or none "
+    "is held (P = 1 for the question); elsewhere, like DTS, it draws models of the person from "
+    "its discounted counts (λ) and solves each, and P is the share of the drawn models in which "
+    "this action is the best (docs/method.md §8). Q, M and t do not enter it.",
     "rmax": "R-max takes the action of the highest optimistic Q, ties shared equally.",
     "qlearning": "Q-learning explores around its Q values (ε-greedy or Boltzmann).",
 }

@@ -3,7 +3,15 @@
 Pure by design: the standard library and numpy only (an import-linter contract enforces it).
 """
 
-from .config import DtsAdaptParams, DtsParams, HriParams, Params, QLearningParams, RmaxParams
+from .config import (
+    DtsAdaptParams,
+    DtsParams,
+    DtsRoutineParams,
+    HriParams,
+    Params,
+    QLearningParams,
+    RmaxParams,
+)
 from .learners import ALGORITHMS, learner_from_state, make_learner
 from .mission import Mission, MissionError, Rewards, Service, TimeSlot, load_mission, office_mission
 from .protocols import Learner
@@ -38,6 +46,7 @@ __all__ = [
     "Decision",
     "DtsAdaptParams",
     "DtsParams",
+    "DtsRoutineParams",
     "HriParams",
     "Interaction",
     "Learner",

@@ -15,6 +15,7 @@ from typing import Any, ClassVar, Self, TypeVar
 __all__ = [
     "DtsAdaptParams",
     "DtsParams",
+    "DtsRoutineParams",
     "HriParams",
     "Params",
     "QLearningParams",
@@ -275,7 +276,43 @@ class DtsAdaptParams(DtsParams):
     trust_answers: bool = True
 
 
+@dataclass(frozen=True)
+class DtsRoutineParams(DtsParams):
+    """DTS with the person's routine per context (docs/method.md §8, "``dts-routine``"): the
+    defaults of ``dts-adapt`` (slower forgetting, trusted answers) without its change test, and
+    a routine per context, learned from the person's own answers, that steers the negotiation.
+
+    routine: follow a trusted routine (the service and detail the person last took in the
+        context, not refused since): infer its service and detail instead of drawing.
+    ask_in_doubt: once the routine of a context was refused, ask (which service, then which
+        detail) before guessing there again, until the person takes a service again.
+    ask_unknown: where no routine is held yet, ask rather than guess.
+    routine_offers: offer service where a trusted routine is held and the latest offer there
+        was not turned down (elsewhere the posterior draws decide, as in DTS).
+    offer_alpha: the routine of a context is dropped (the person no longer wants anything there)
+        when the run of offers turned down there since the last one taken is less likely than
+        offer_alpha given the context's earlier answers to offers (0: never dropped).
+    """
+
+    algorithm: ClassVar[str] = "dts-routine"
+    forgetting: float = 0.95
+    trust_answers: bool = True
+    routine: bool = True
+    ask_in_doubt: bool = True
+    ask_unknown: bool = True
+    routine_offers: bool = True
+    offer_alpha: float = 0.01
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        _flag("routine", self.routine)
+        _flag("ask_in_doubt", self.ask_in_doubt)
+        _flag("ask_unknown", self.ask_unknown)
+        _flag("routine_offers", self.routine_offers)
+        _in_range("offer_alpha", self.offer_alpha, 0.0, 0.5)
+
+
 PARAMS: dict[str, type[Params]] = {
     cls.algorithm: cls
-    for cls in (HriParams, RmaxParams, QLearningParams, DtsParams, DtsAdaptParams)
+    for cls in (HriParams, RmaxParams, QLearningParams, DtsParams, DtsAdaptParams, DtsRoutineParams)
 }

@@ -13,6 +13,16 @@ person is available, and passes otherwise (:func:`oracle_action`). It plays thro
 negotiation rules (:func:`app.learning.negotiation.outcome`) and the same person's responses as
 the learners do; the suite reports each learner's reward as a share of the oracle's.
 
+The *one-miss oracle* (:func:`run_one_miss`) is the best a learner can do without foreseeing a
+change: it is the oracle, except at the first visit of each changed context after a change,
+where it still acts on the old routine (performs it and is refused, or offers where nothing is
+wanted any more); from then on it knows the new one. The suite reports the share of it in the
+events after the change too.
+
+*True changes* (:func:`true_changes`) are the contexts whose routine a change replaced or ended;
+:func:`match_changes` counts the changes a learner decided (``app.learning.changes``) against
+them: caught, how late, and false alarms.
+
 Pure: the standard library and numpy only.
 """
 
@@ -27,6 +37,7 @@ from typing import Any
 
 import numpy as np
 
+from .changes import ChangeWatch, ContextChange
 from .learners import make_learner
 from .learners.base import TabularLearner
 from .mission import Mission
@@ -37,16 +48,22 @@ from .types import FloatArray, IntArray, Observation, Transition
 
 __all__ = [
     "DEFAULT_EVENTS",
+    "DEFAULT_FAMILIES",
     "FAMILIES",
     "NOISE_RANGE",
+    "Detection",
     "Family",
     "FamilyRun",
     "Person",
+    "TrueChange",
     "change_event",
+    "match_changes",
     "oracle_action",
     "run_family",
     "run_learner",
+    "run_one_miss",
     "run_oracle",
+    "true_changes",
     "uniforms_for",
 ]
 
@@ -72,7 +89,9 @@ class Person:
     ``profiles[schedule[e]]`` holds the routines (need rules) and response parameters in force
     at event ``e``; ``contexts[e]`` is that event's context. ``p_random`` is the share of answers
     (to an offer, a question or a service) given at random. ``change_at`` is the first event of
-    a change of routines, or None when the routines never change.
+    the change of routines the suite's windows are about, or None when the routines never
+    change; ``change_points`` are the first events of every change (by default ``change_at``
+    alone).
     """
 
     profiles: tuple[UserProfile, ...]
@@ -80,12 +99,19 @@ class Person:
     contexts: IntArray
     p_random: float = 0.0
     change_at: int | None = None
+    change_points: tuple[int, ...] = ()
 
     def __post_init__(self) -> None:
         if len(self.schedule) != len(self.contexts):
             raise ValueError("schedule and contexts must have one entry per event.")
         if not 0.0 <= self.p_random <= 1.0:
             raise ValueError(f"p_random must be in [0, 1], got {self.p_random!r}.")
+        if not self.change_points and self.change_at is not None:
+            object.__setattr__(self, "change_points", (self.change_at,))
+        if list(self.change_points) != sorted(set(self.change_points)) or any(
+            not 0 < p < len(self.contexts) for p in self.change_points
+        ):
+            raise ValueError("change_points must be increasing events after the first.")
 
     @property
     def n_events(self) -> int:
@@ -186,12 +212,55 @@ def run_oracle(space: NegotiationSpace, person: Person, uniforms: np.ndarray) ->
     return out
 
 
+def run_one_miss(space: NegotiationSpace, person: Person, uniforms: np.ndarray) -> FloatArray:
+    """The one-miss oracle's reward per episode: the oracle, except at the first visit of each
+    changed context after each change point, where it acts on the need the context had just
+    before the change (it performs the old routine and is refused, or offers where nothing is
+    wanted any more, or waits where a new routine begins); from then on it knows every need.
+    For a person whose routines never change it is the oracle."""
+    mission = space.mission
+    points = person.change_points
+    out = np.zeros(person.n_events, dtype=np.float64)
+    missed: set[tuple[int, int]] = set()
+    for e in range(person.n_events):
+        context = int(person.contexts[e])
+        need = person.profile_at(e).need_at(context)
+        regime = sum(1 for p in points if p <= e)
+        if regime:
+            old = person.profile_at(points[regime - 1] - 1).need_at(context)
+            if old != need and (regime, context) not in missed:
+                missed.add((regime, context))
+                need = old
+        available = mission.context_names(context)[1] not in mission.unavailable_situations
+        state, step, total = space.OBSERVE, 0, 0.0
+        while state != space.END:
+            action = oracle_action(space, need, available, state)
+            if space.silent[action]:
+                total += float(space.silent_reward[action])
+                state = int(space.silent_next[action])
+                continue
+            cols = uniforms[e, STEP_UNIFORMS * step : STEP_UNIFORMS * (step + 1)]
+            reaction, _ = person.respond(space, e, state, action, cols)
+            total += reaction.reward
+            state, step = reaction.next_state, step + 1
+        out[e] = total
+    return out
+
+
 def run_learner(
-    learner: TabularLearner[Any], person: Person, uniforms: np.ndarray, rng: np.random.Generator
+    learner: TabularLearner[Any],
+    person: Person,
+    uniforms: np.ndarray,
+    rng: np.random.Generator,
+    *,
+    changes: list[tuple[int, ContextChange]] | None = None,
 ) -> FloatArray:
     """A fresh learner through ``person``'s events; its reward per episode (as the paper's
-    experiments count it: silent steps included)."""
+    experiments count it: silent steps included). With ``changes``, the changes decided for
+    the person after each update (``app.learning.changes.ChangeWatch``: the learner's own, or
+    the profile's for a learner without a mechanism) are appended to it as (event, change)."""
     space = learner.space
+    watch = ChangeWatch(learner) if changes is not None else None
     out = np.zeros(person.n_events, dtype=np.float64)
     for e in range(person.n_events):
         context, episode = int(person.contexts[e]), e + 1
@@ -215,10 +284,98 @@ def run_learner(
                 )
             )
             learner.update(batch)
+            if watch is not None and changes is not None:
+                changes.extend((e, change) for change in watch.observe(batch))
             for t in batch:
                 tally.step(space, t.state, t.action, t.reward, t.next_state, t.signal)
             state, step = reaction.next_state, step + 1
         out[e] = tally.reward
+    return out
+
+
+@dataclass(frozen=True)
+class TrueChange:
+    """A change of a person's routine in one context: from ``start`` (the change point) until
+    ``stop`` (the next change point, or the end), the routine ``before`` is replaced by
+    ``after`` (None: nothing is wanted there any more). A gradual drift's ``after`` is the
+    routine it ends at."""
+
+    context: int
+    start: int
+    stop: int
+    before: Need
+    after: Need | None
+
+
+def true_changes(person: Person) -> list[TrueChange]:
+    """The contexts whose routine each change point replaced or ended (a context that gains a
+    routine where it had none is a new routine to learn, not a change to detect)."""
+    out = []
+    points = person.change_points
+    for i, start in enumerate(points):
+        stop = points[i + 1] if i + 1 < len(points) else person.n_events
+        before = person.profile_at(start - 1)
+        after = person.profile_at(stop - 1)
+        for need in before.needs:
+            now = after.need_at(need.context)
+            if now != need:
+                out.append(TrueChange(need.context, start, stop, need, now))
+    return out
+
+
+@dataclass
+class Detection:
+    """Changes decided for persons, counted against their true changes (:func:`match_changes`).
+
+    ``caught``: per true change caught, (events after its change point, visits of its context
+    from the change point up to and including the one whose update decided it); ``missed``:
+    true changes not caught before the next change point or the end; ``false_alarms``: decided
+    changes that match no true change; ``events``: the persons' events in all.
+    """
+
+    caught: list[tuple[int, int]] = field(default_factory=list)
+    missed: int = 0
+    false_alarms: int = 0
+    events: int = 0
+    persons: int = 0
+    source: str = ""  # "learner" (its own mechanism) or "profile"
+
+    @property
+    def true(self) -> int:
+        return len(self.caught) + self.missed
+
+    def add(self, other: Detection) -> None:
+        self.caught += other.caught
+        self.missed += other.missed
+        self.false_alarms += other.false_alarms
+        self.events += other.events
+        self.persons += other.persons
+        self.source = self.source or other.source
+
+
+def match_changes(person: Person, decided: Sequence[tuple[int, ContextChange]]) -> Detection:
+    """Count the changes decided for ``person`` ((event, change), in order) against its true
+    changes: a true change is caught by the first change decided in its context from its change
+    point until the next one; every other decided change is a false alarm."""
+    out = Detection(events=person.n_events, persons=1)
+    used: set[int] = set()
+    for true in true_changes(person):
+        hit = next(
+            (
+                i
+                for i, (e, ch) in enumerate(decided)
+                if i not in used and ch.context == true.context and true.start <= e < true.stop
+            ),
+            None,
+        )
+        if hit is None:
+            out.missed += 1
+            continue
+        used.add(hit)
+        e = decided[hit][0]
+        visits = int(np.count_nonzero(person.contexts[true.start : e + 1] == true.context))
+        out.caught.append((e - true.start, visits))
+    out.false_alarms = len(decided) - len(used)
     return out
 
 
@@ -237,13 +394,18 @@ class Family:
     """A kind of simulated person: ``generate(mission, rng, n_persons, n_events)`` draws them.
 
     ``changes``: the family's routines change at :func:`change_event`, so the windows before
-    and after the change apply to it.
+    and after the change apply to it. ``held_out``: kept for evaluation only (nothing was
+    chosen on it) and not in the suite's default families. ``gradual``: its change is a drift
+    rather than a switch. ``random_answers``: some of its answers are given at random.
     """
 
     name: str
     description: str
     generate: Generator = field(repr=False)
     changes: bool = False
+    held_out: bool = False
+    gradual: bool = False
+    random_answers: bool = False
 
     @property
     def key(self) -> int:
@@ -385,6 +547,55 @@ def _gradual(
     return tuple(out)
 
 
+def restless_points(n_events: int) -> tuple[int, ...]:
+    """The change points of ``restless``: 3/8, 5/8 (the suite's change event) and 7/8 of the
+    way (events 60, 100 and 140 of 160, 0-based)."""
+    return tuple(sorted({(3 * n_events) // 8, change_event(n_events), (7 * n_events) // 8}))
+
+
+def _restless(
+    mission: Mission, rng: np.random.Generator, n: int, n_events: int
+) -> tuple[Person, ...]:
+    """Held out (docs/method.md §12): more routines, their own answering habits, and three
+    changes, each of two routines, mostly to another service in the same context."""
+    points = tuple(p for p in restless_points(n_events) if 0 < p < n_events)
+    out = []
+    for _ in range(n):
+        profile = random_profile(mission, rng, n_needs=(5, 6, 7, 8))
+        profile = replace(
+            profile,
+            p_acc=float(rng.uniform(0.85, 1.0)),
+            p_self=float(rng.uniform(0.2, 0.6)),
+            eps_fb=float(rng.uniform(0.0, 0.08)),
+        )
+        profiles = [profile]
+        for _ in points:
+            needs = list(profiles[-1].needs)
+            for i in rng.choice(len(needs), size=min(2, len(needs)), replace=False):
+                need = needs[int(i)]
+                others = [k for k in range(len(mission.services)) if k != need.service]
+                if others and rng.random() < 0.7:
+                    k = int(rng.choice(others))
+                    d = int(rng.integers(len(mission.services[k].details)))
+                    needs[int(i)] = replace(need, service=k, detail=d)
+                else:
+                    needs[int(i)] = _changed(need, mission, rng)
+            profiles.append(replace(profile, needs=tuple(needs)))
+        schedule = np.searchsorted(np.asarray(points), np.arange(n_events), side="right")
+        contexts = event_stream(profiles, [0, *points], mission, n_events, rng, p_need=P_NEED)
+        at = change_event(n_events)
+        out.append(
+            Person(
+                tuple(profiles),
+                schedule.astype(np.int64),
+                contexts,
+                change_at=at if at in points else None,
+                change_points=points,
+            )
+        )
+    return tuple(out)
+
+
 def _with(
     params: Callable[[np.random.Generator], Mapping[str, float]],
     n_needs: Sequence[int] = (3, 4, 5),
@@ -445,12 +656,14 @@ FAMILIES: Mapping[str, Family] = MappingProxyType(
                 "(j+1)/40), then always",
                 _gradual,
                 changes=True,
+                gradual=True,
             ),
             Family(
                 "noisy",
                 "3–5 routines; 10–20 % of their answers (to offers, questions and "
                 "services) are random; no change",
                 _with(lambda rng: {}, p_random=lambda rng: float(rng.uniform(*NOISE_RANGE))),
+                random_answers=True,
             ),
             Family(
                 "shy",
@@ -468,10 +681,22 @@ FAMILIES: Mapping[str, Family] = MappingProxyType(
                 "6–9 routines (in as many contexts, when the mission has them); no change",
                 _with(lambda rng: {}, n_needs=(6, 7, 8, 9)),
             ),
+            Family(
+                "restless",
+                "held out: 5–8 routines and their own answering habits (accepts offers "
+                "85–100 %, speaks first 20–60 %, refuses the right service 0–8 %); three "
+                "changes (3/8, 5/8 and 7/8 of the way), each of two routines, to another "
+                "service (70 %) or detail in the same context",
+                _restless,
+                changes=True,
+                held_out=True,
+            ),
         )
     }
 )
 """The families of the robustness suite, by name (docs/method.md §12, "Robustness")."""
+DEFAULT_FAMILIES = tuple(name for name, f in FAMILIES.items() if not f.held_out)
+"""The families the suite runs by default: all but the held-out ones."""
 
 
 # -- one run ----------------------------------------------------------------------------------
@@ -479,13 +704,17 @@ FAMILIES: Mapping[str, Family] = MappingProxyType(
 
 @dataclass
 class FamilyRun:
-    """Rewards per episode, shape (persons, events): the oracle's and each learner's."""
+    """Rewards per episode, shape (persons, events): the oracle's, the one-miss oracle's
+    (``bound``) and each learner's; and per learner the changes decided for the persons,
+    counted against their true changes (``detection``)."""
 
     family: str
     seed: int
     oracle: FloatArray
     learners: dict[str, FloatArray]
     change_at: int | None
+    bound: FloatArray | None = None
+    detection: dict[str, Detection] = field(default_factory=dict)
 
 
 def _seq(*words: int) -> np.random.Generator:
@@ -518,13 +747,21 @@ def run_family(
     space = space_for(mission)
     persons, flips = people(family, mission, seed, n_persons, n_events)
     oracle = np.stack([run_oracle(space, p, u) for p, u in zip(persons, flips, strict=True)])
+    bound = np.stack([run_one_miss(space, p, u) for p, u in zip(persons, flips, strict=True)])
     learners: dict[str, FloatArray] = {}
+    detection: dict[str, Detection] = {}
     for label, algorithm, params in methods:
         key = zlib.crc32(label.encode())
         rows = []
+        counted = Detection()
         for i, (person, u) in enumerate(zip(persons, flips, strict=True)):
             learner = make_learner(algorithm, params, mission)
-            rows.append(run_learner(learner, person, u, _seq(seed, family.key, 2, i, key)))
+            decided: list[tuple[int, ContextChange]] = []
+            rng = _seq(seed, family.key, 2, i, key)
+            rows.append(run_learner(learner, person, u, rng, changes=decided))
+            counted.add(match_changes(person, decided))
+            counted.source = "learner" if learner.decides_changes else "profile"
         learners[label] = np.stack(rows)
+        detection[label] = counted
     change = change_event(n_events) if family.changes else None
-    return FamilyRun(family.name, seed, oracle, learners, change)
+    return FamilyRun(family.name, seed, oracle, learners, change, bound, detection)

@@ -22,7 +22,11 @@ Which tables are averaged, per algorithm (:data:`PRIOR_TABLES`):
 - ``values``: a value table (C, P), averaged where the contributors have visited the pair,
   and never below a fresh learner's initial value (a learner without a posterior, greedy
   once its exploration decays, would never try again a pair that others found bad);
-- ``pooled``: a (count, reward sum) pair of one number each, averaged as a rate.
+- ``pooled``: a (count, reward sum) pair of one number each, averaged as a rate;
+- ``routines`` (``dts-routine``): the routine per context: the newcomer starts trusting the
+  routine that nearly all the contributors holding one there trust (:func:`_routines`);
+- ``fresh_offers``: the offers' pairs (initiate, pass) start fresh: whether the person wants
+  service in a context at all is theirs; what they want where the home agrees is shared.
 
 Pure: the standard library and numpy only.
 """
@@ -55,6 +59,9 @@ MIN_SUPPORT = 3  # the fewest contributors with evidence on a pair for it to ent
 # from it but loses later (after event 100 of a home, docs/method.md §16), its exclusion rule
 # keeping too few samples per pair for the prior's to fade.
 FRESH_ONLY = frozenset({"hri"})
+# A routine the newcomer starts trusting: held and trusted by at least this share of the
+# contributors that hold a routine in the context (and by at least min_support of them).
+ROUTINE_AGREEMENT = 0.875
 
 
 @dataclass(frozen=True)
@@ -66,6 +73,8 @@ class PriorSpec:
     derived: tuple[str, ...] = ()
     values: tuple[str, ...] = ()
     pooled: tuple[str, ...] = ()
+    routines: str | None = None
+    fresh_offers: bool = False
 
 
 PRIOR_TABLES: Mapping[str, PriorSpec] = {
@@ -73,6 +82,14 @@ PRIOR_TABLES: Mapping[str, PriorSpec] = {
     "rmax": PriorSpec(counts="ns", sums="r"),
     "dts": PriorSpec(counts="dns", sums="dr", derived=("dn",), pooled=("answered",)),
     "dts-adapt": PriorSpec(counts="dns", sums="dr", derived=("dn",), pooled=("answered",)),
+    "dts-routine": PriorSpec(
+        counts="dns",
+        sums="dr",
+        derived=("dn",),
+        pooled=("answered",),
+        routines="routine",
+        fresh_offers=True,
+    ),
     "qlearning": PriorSpec(values=("q",)),
 }
 
@@ -109,6 +126,12 @@ def population_prior(
             strength=strength,
             min_support=min_support,
         )
+        if spec.fresh_offers:
+            # Whether to offer is the newcomer's own: its offers' pairs start fresh.
+            root = list(learner.space.root_actions)
+            counts[:, root] = 0.0
+            if sums is not None:
+                sums[:, root] = 0.0
         getattr(learner, spec.counts)[...] = counts
         if spec.sums is not None and sums is not None:
             getattr(learner, spec.sums)[...] = sums
@@ -126,8 +149,26 @@ def population_prior(
         getattr(learner, name)[...] = _pooled(
             [getattr(o, name) for o in contributors], strength=strength, min_support=min_support
         )
+    if spec.routines is not None:
+        getattr(learner, spec.routines)[...] = _routines(
+            [getattr(o, spec.routines) for o in contributors], min_support=min_support
+        )
     learner._cache.clear()
     return learner
+
+
+def _routines(tables: Sequence[FloatArray], *, min_support: int) -> FloatArray:
+    """(C, P) routine tables (``dts-routine``: one non-zero entry per context at most, > 0
+    when trusted): the newcomer starts trusting, as if taken once, the routine that at least
+    ``min_support`` contributors trust in a context and at least :data:`ROUTINE_AGREEMENT` of
+    the contributors that hold one there; no routine elsewhere."""
+    r = np.stack([np.asarray(t, dtype=np.float64) for t in tables])  # (K, C, P)
+    trusted = (r > 0.0).sum(axis=0)  # (C, P)
+    holding = (r != 0.0).any(axis=2).sum(axis=0)  # (C,)
+    agree = (trusted >= min_support) & (trusted >= ROUTINE_AGREEMENT * holding[:, None])
+    out = np.zeros(r.shape[1:], dtype=np.float64)
+    out[agree] = 1.0
+    return out
 
 
 def _counts_and_sums(

@@ -14,9 +14,9 @@ class LearnerSpec(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     algorithm: str = Field(
-        default="dts-adapt",
-        description="dts-adapt (the default), hri, rmax, qlearning or dts.",
-        examples=["dts-adapt"],
+        default="dts-routine",
+        description="dts-routine (the default), dts-adapt, hri, rmax, qlearning or dts.",
+        examples=["dts-routine"],
     )
     params: dict[str, Any] = Field(
         default_factory=dict,

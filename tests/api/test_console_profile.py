@@ -461,10 +461,10 @@ def test_a_new_person_and_an_unknown_box(console: Console) -> None:
 def test_why_explains_the_learner_in_use(console: Console) -> None:
     made = console.robot.put("/v1/users/kim", json={"display_name": "Mr. Kim"})
     assert made.status_code == 201, made.text
-    assert made.json()["learner"]["algorithm"] == "dts-adapt"  # the service's default
+    assert made.json()["learner"]["algorithm"] == "dts-routine"  # the service's default
     page = console.page("/admin/users/kim/why?time_slot=morning&situation=arriving").text
     words = _staff_text(page)
-    assert "draws its choice from those estimates" in words
+    assert "asks which service and which detail before guessing there again" in words
     assert "sets aside old answers" not in words  # that is HRI
     assert "has not met the robot here yet" in words
     legend = html.unescape(page.split('id="p-explained"')[1].split("</dd>")[0])

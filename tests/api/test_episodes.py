@@ -152,7 +152,7 @@ class TestStartEpisode:
         start(robot, "newbie", "e1")
         user = robot.get("/v1/users/newbie").json()
         assert user["fleet"] == "default"
-        assert user["learner"]["algorithm"] == "dts-adapt"
+        assert user["learner"]["algorithm"] == "dts-routine"
         assert user["learner"]["params"]["forgetting"] == pytest.approx(0.95)
         assert user["episodes"] == 1
 

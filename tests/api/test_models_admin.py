@@ -74,7 +74,7 @@ class TestGetModel:
         robot.put("/v1/users/lin")
         view = model(robot, "lin")
         assert set(view) >= {"user_id", "algorithm", "params", "version", "episodes", "contexts"}
-        assert (view["user_id"], view["algorithm"], view["episodes"]) == ("lin", "dts-adapt", 0)
+        assert (view["user_id"], view["algorithm"], view["episodes"]) == ("lin", "dts-routine", 0)
         assert view["started_from"] == {"kind": "fresh", "contributors": None}
         assert view["params"]["forgetting"] == pytest.approx(0.95)
         assert isinstance(view["version"], int)
@@ -327,7 +327,7 @@ class TestExportImport:
         assert r.status_code == 200
         doc = r.json()
         assert set(doc) >= {"format", "format_version", "algorithm", "params", "arrays", "mission"}
-        assert doc["algorithm"] == "dts-adapt"
+        assert doc["algorithm"] == "dts-routine"
         assert doc["params"]["forgetting"] == pytest.approx(0.95)
         assert doc["mission"]["name"] == "office"
 
@@ -346,7 +346,7 @@ class TestExportImport:
         assert (copy["algorithm"], copy["params"]) == (source["algorithm"], source["params"])
         assert copy["contexts"] == source["contexts"]
         assert robot.get("/v1/users/twin").json()["learner"] == {
-            "algorithm": "dts-adapt",
+            "algorithm": "dts-routine",
             "params": source["params"],
         }
 

@@ -199,7 +199,7 @@ class TestEveryChangeIsRecorded:
         entry = self._entry(keys, "user.learner")
         assert entry["detail"] == {
             "algorithm": "rmax",
-            "was": "dts-adapt",
+            "was": "dts-routine",
             "episodes": 1,
             "version": version + 1,
             "corrections_lifted": 1,

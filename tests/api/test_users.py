@@ -7,7 +7,7 @@ from typing import Any
 import pytest
 from fastapi.testclient import TestClient
 
-from app.learning import DtsAdaptParams
+from app.learning import DtsRoutineParams
 from tests.support.contract import assert_error
 from tests.support.episodes import report, start
 
@@ -32,18 +32,18 @@ class TestPutUser:
         assert isinstance(body["created_at"], str)
         assert body["created_at"]
 
-    def test_default_learner_is_dts_adapt_with_its_defaults(self, robot: TestClient) -> None:
+    def test_default_learner_is_dts_routine_with_its_defaults(self, robot: TestClient) -> None:
         # The learner the robustness suite's rule picks (docs/method.md §12, Robustness).
         r = robot.put("/v1/users/lin")
         assert r.status_code == 201, r.text
         learner = r.json()["learner"]
-        assert learner["algorithm"] == "dts-adapt"
-        assert learner["params"] == DtsAdaptParams().to_dict()
+        assert learner["algorithm"] == "dts-routine"
+        assert learner["params"] == DtsRoutineParams().to_dict()
 
     def test_empty_object_body_creates_with_defaults(self, robot: TestClient) -> None:
         r = robot.put("/v1/users/lin", json={})
         assert r.status_code == 201, r.text
-        assert r.json()["learner"]["algorithm"] == "dts-adapt"
+        assert r.json()["learner"]["algorithm"] == "dts-routine"
         assert r.json()["display_name"] is None
 
     def test_update_is_200(self, robot: TestClient, staff: TestClient) -> None:
@@ -166,7 +166,7 @@ class TestPutUser:
         start(robot, "lin", "e1")  # created with the default learner
         r = robot.put(
             "/v1/users/lin",
-            json={"learner": {"algorithm": "dts-adapt", "params": {"forgetting": 0.95}}},
+            json={"learner": {"algorithm": "dts-routine", "params": {"forgetting": 0.95}}},
         )
         assert r.status_code == 200, r.text
 

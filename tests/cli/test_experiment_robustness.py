@@ -17,7 +17,7 @@ from app.cli import app
 pytestmark = pytest.mark.xdist_group("experiment-robustness")
 
 FAMILIES = ("abrupt", "shy")
-LEARNERS = ("R-MAX", "Q-learning", "HRI τ=0.01", "DTS", "DTS-adapt")
+LEARNERS = ("R-MAX", "Q-learning", "HRI τ=0.01", "DTS", "DTS-adapt", "DTS-routine")
 FILES = ("robustness.md", "robustness.csv", "robustness.png", "summary.json")
 
 
@@ -68,14 +68,30 @@ def test_the_table_has_every_learner_and_family(suite: tuple[Result, Path, dict[
         lines = text.splitlines()
         for family in FAMILIES:
             assert any(family in line for line in lines), family
-        for learner in LEARNERS:  # one row per family
-            rows = [line for line in lines if f" {learner} " in line and "worst" not in line]
+        for learner in LEARNERS:  # one row per family in the shares (with intervals)...
+            rows = [line for line in lines if f" {learner} " in line and "[" in line]
+            assert len(rows) == len(FAMILIES), (learner, rows)
+            # ...and one in the changes detected (decided by the learner or by the profile)
+            rows = [
+                line
+                for line in lines
+                if f" {learner} " in line and (" learner " in line or " profile " in line)
+            ]
             assert len(rows) == len(FAMILIES), (learner, rows)
     with (out / "robustness.csv").open(encoding="utf-8") as handle:
         records = list(csv.DictReader(handle))
     cells = {(r["family"], r["learner"], r["window"]): r for r in records}
     windows = {r["window"] for r in records}
-    assert windows == {"first20", "before30", "after15", "last30", "all"}
+    assert windows == {
+        "first20",
+        "before30",
+        "after15",
+        "after30",
+        "last30",
+        "all",
+        "after15_bound",
+        "after30_bound",
+    }
     assert len(cells) == len(records) == len(FAMILIES) * len(LEARNERS) * len(windows)
     for learner in LEARNERS:
         assert cells[("shy", learner, "after15")]["share_mean"] == ""  # no change: blank
@@ -150,14 +166,20 @@ def test_prints_the_rules_pick_and_the_targets_of_the_default(
     )
     assert summary["rule"]["chosen"] in LEARNERS
     assert [r["learner"] for r in summary["rule"]["ranking"]][0] == summary["rule"]["chosen"]
-    windows = {(t["family"], t["window"]) for t in summary["targets"]}
-    assert windows == {
+    windows = [(t["family"], t["window"]) for t in summary["targets"]]
+    assert windows == [
+        ("abrupt", "after15_bound"),
         ("abrupt", "before30"),
-        ("abrupt", "after15"),
         ("abrupt", "all"),
+        ("abrupt", "all"),  # no worse than the previous default
+        ("abrupt", "detection"),
         ("shy", "all"),
-    }
+        ("shy", "all"),
+        ("shy", "false_alarms"),
+    ]
     for text in (done.stdout, (out / "robustness.md").read_text(encoding="utf-8")):
         assert f"The rule picks {summary['rule']['chosen']}" in text
-        assert "15 after the change" in text
+        assert "15 after, of the one-miss oracle" in text
+        assert "Changes detected" in text
         assert "met" in text or "MISSED" in text
+        assert text.count("MISSED") == sum(not t["met"] for t in summary["targets"])

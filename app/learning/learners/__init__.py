@@ -10,7 +10,7 @@ from ..mission import Mission
 from ..protocols import Learner
 from ..state import StateFormatError
 from .base import TabularLearner
-from .dts import DtsAdaptLearner, DtsLearner
+from .dts import DtsAdaptLearner, DtsLearner, DtsRoutineLearner
 from .hri import HriLearner
 from .qlearning import QLearner
 from .rmax import RmaxLearner
@@ -18,6 +18,7 @@ from .rmax import RmaxLearner
 __all__ = [
     "ALGORITHMS",
     "DtsAdaptLearner",
+    "DtsRoutineLearner",
     "DtsLearner",
     "HriLearner",
     "QLearner",
@@ -28,7 +29,8 @@ __all__ = [
 ]
 
 ALGORITHMS: dict[str, type[TabularLearner[Any]]] = {
-    cls.algorithm: cls for cls in (HriLearner, RmaxLearner, QLearner, DtsLearner, DtsAdaptLearner)
+    cls.algorithm: cls
+    for cls in (HriLearner, RmaxLearner, QLearner, DtsLearner, DtsAdaptLearner, DtsRoutineLearner)
 }
 
 

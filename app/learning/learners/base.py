@@ -15,6 +15,7 @@ from typing import Any, ClassVar, Generic, Self, TypeVar
 
 import numpy as np
 
+from ..changes import ContextChange
 from ..config import Params
 from ..guidance import Guidance, Rule, guidance_from_state
 from ..masks import restrict
@@ -80,6 +81,9 @@ class TabularLearner(Generic[P]):
         self._pending: dict[int, list[Transition]] = {}
         self._cache: dict[int, Any] = {}
         self.guidance = Guidance()  # staff corrections in force (app.learning.guidance)
+        # The changes the latest update decided (app.learning.changes); not part of the state.
+        self.changes: tuple[ContextChange, ...] = ()
+        self._decided: list[ContextChange] = []
         for name, (dtype, code) in self._tables.items():
             setattr(self, name, np.zeros(self._shape(code), dtype=dtype))
         self._init_tables()
@@ -133,6 +137,18 @@ class TabularLearner(Generic[P]):
     def _measure(self, context: int, episode: int) -> FloatArray | None:
         return None
 
+    @property
+    def decides_changes(self) -> bool:
+        """Whether the learner has a mechanism of its own that decides a context changed (its
+        decisions are in :attr:`changes` after each update; docs/method.md §8, "Changes
+        detected"). Learners without one leave it to the profile's belief
+        (``app.learning.changes.ProfileWatch``)."""
+        return False
+
+    def _decide(self, change: ContextChange) -> None:
+        """Record a change the update under way decided (subclasses call it from their hooks)."""
+        self._decided.append(change)
+
     # -- the protocol --------------------------------------------------------------------------
     @property
     def params(self) -> P:
@@ -175,10 +191,14 @@ class TabularLearner(Generic[P]):
         """Learn from the transitions one report resolved; the version goes up by one.
 
         Every transition is checked before anything changes: a ``ValueError`` leaves the learner
-        as it was. An empty list changes nothing.
+        as it was. An empty list changes nothing. Afterwards :attr:`changes` holds the contexts
+        this update decided changed (``app.learning.changes.ContextChange``; empty for learners
+        without a mechanism of their own, and after an empty list).
         """
         for tr in transitions:
             self._check_transition(tr)
+        self._decided = []
+        self.changes = ()
         if not transitions:
             return
         root = list(self.space.root_actions)
@@ -198,6 +218,8 @@ class TabularLearner(Generic[P]):
             elif len(self._pending) > self.MAX_OPEN_EPISODES:
                 # An episode nobody closed (a robot that vanished): forget its open samples.
                 del self._pending[min(self._pending)]
+        self.changes = tuple(self._decided)
+        self._decided = []
         self.version += 1
 
     def feedback(self, episode: int, context: int, action: int, reward: float) -> None:

@@ -26,14 +26,16 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from ..config import DtsAdaptParams, DtsParams
+from ..beliefs import Item
+from ..changes import ContextChange, Step, context_names, step_of
+from ..config import DtsAdaptParams, DtsParams, DtsRoutineParams
 from ..planning import space_levels, value_iteration
-from ..space import ActionKind
+from ..space import Action, ActionKind, StateKind
 from ..state import StateFormatError
 from ..types import FloatArray, IntArray, Polarity, Transition
 from .base import TabularLearner, check_nonnegative
 
-__all__ = ["DtsAdaptLearner", "DtsLearner"]
+__all__ = ["DtsAdaptLearner", "DtsLearner", "DtsRoutineLearner"]
 
 
 class _Models:
@@ -86,6 +88,10 @@ class DtsLearner(TabularLearner[DtsParams]):
         space = self.space
         self._query_detail = np.asarray(
             [a.kind is ActionKind.QUERY_DETAIL for a in space.actions], dtype=bool
+        )
+        self._tested: Transition | None = None
+        self._perform_pairs = np.flatnonzero(
+            np.asarray([a.kind is ActionKind.PERFORM for a in space.actions], dtype=bool)
         )
         self._to_end = np.zeros((space.n_actions, space.max_succ), dtype=np.float64)
         self._to_end[np.arange(space.n_actions), space.end_column] = 1.0
@@ -203,6 +209,7 @@ class DtsLearner(TabularLearner[DtsParams]):
             )
         ):
             # Tested before the sample is learned: a restart keeps the answer that set it off.
+            self._tested = tr  # for the record of a change it decides
             self._test_change(tr.context, accepted=tr.signal == Polarity.POSITIVE)
         column = space.successor_column(tr.action, tr.next_state)
         self._add(tr.context, tr.action, tr.reward, column)
@@ -212,6 +219,25 @@ class DtsLearner(TabularLearner[DtsParams]):
         if human_initiated and self._params.i1_as_acceptance:
             accept = space.successor_column(space.INITIATE, space.ENGAGED)
             self._add(tr.context, space.INITIATE, self.mission.rewards.positive, accept)
+
+    @property
+    def decides_changes(self) -> bool:
+        return self._params.change_alpha > 0.0
+
+    def _favourite(self, c: int) -> Item | None:
+        """The service and detail the context's posterior expects to pay best when performed
+        (among those performed there), or None when none is expected to pay more than 0."""
+        perform = self._perform_pairs
+        tried = perform[self.dn[c, perform] > 0]
+        if not len(tried):
+            return None
+        mean, _ = self._reward_posterior(c)
+        best = int(tried[np.argmax(mean[tried])])
+        if mean[best] <= 0.0:
+            return None
+        act = self.space.actions[best]
+        assert act.service is not None
+        return Item(act.service, act.detail)
 
     def _test_change(self, c: int, *, accepted: bool) -> None:
         """The per-context change test (docs/method.md §8, "Adapting after a change").
@@ -234,6 +260,27 @@ class DtsLearner(TabularLearner[DtsParams]):
         row[3] = (row[3] if i > 0 else 1.0) * ((b + i) / (a + b + i))
         row[2] += 1.0
         if row[3] < self._params.change_alpha:
+            tr = self._tested
+            slot, situation = context_names(self.space, c)
+            self._decide(
+                ContextChange(
+                    episode=0 if tr is None else tr.episode,
+                    context=c,
+                    time_slot=slot,
+                    situation=situation,
+                    before=self._favourite(c),
+                    now=None,
+                    source="change_test",
+                    evidence=() if tr is None else (step_of(self.space, tr),),
+                    figures={
+                        "accepted": float(a - 1.0),
+                        "rejected_before": float(b - 1.0),
+                        "run": float(row[2]),
+                        "p": float(row[3]),
+                        "alpha": float(self._params.change_alpha),
+                    },
+                )
+            )
             keep = self._params.change_keep
             mask = self._restartable
             self.dn[c, mask] *= keep
@@ -405,3 +452,221 @@ class DtsAdaptLearner(DtsLearner):
 
     algorithm: ClassVar[str] = "dts-adapt"
     params_type = DtsAdaptParams
+
+
+class DtsRoutineLearner(DtsLearner):
+    """DTS with the person's routine per context (docs/method.md §8, "``dts-routine``").
+
+    The DTS tables learn as in ``dts-adapt``; beside them, per context, the **routine**: the
+    service and detail the person last took there (a performed service they accepted), and how
+    far it is trusted. It steers the negotiation:
+
+    - a *trusted* routine (taken, and not refused since) is followed: the robot offers (unless
+      the latest offer there was turned down), infers its service and its detail;
+    - once the routine was refused, the robot *asks* there (which service, then which detail)
+      until the person takes a service again: a refusal of something it was sure of is
+      evidence about that context only, and the person's answer settles it;
+    - where no routine is held yet, the robot asks rather than guesses.
+
+    Elsewhere (whether to offer where no routine is trusted) the posterior draws decide, as in
+    DTS. A routine replaced by another service or detail the person took, or dropped because
+    the person kept turning offers down there, is a change the learner decided (``changes``).
+
+    Tables, beside DTS's: ``routine`` (C, P): in each context at most one non-zero entry, at the
+    ``perform`` pair of the routine's service and detail: the number of times in a row it was
+    taken (> 0: trusted), or minus the number of times it was refused since (< 0: in doubt).
+    ``offers`` (C, 4): the test on offers that drops a routine (``offer_alpha``): offers taken
+    (and requests) since the routine was last dropped, those turned down before the current
+    run, the current run of offers turned down, and the run's chance if nothing changed.
+    """
+
+    algorithm: ClassVar[str] = "dts-routine"
+    params_type = DtsRoutineParams
+    _tables: ClassVar[dict[str, tuple[type, str]]] = {
+        **DtsLearner._tables,
+        "routine": (np.float64, "CP"),
+        "offers": (np.float64, "C4"),
+    }
+    routine: FloatArray
+    offers: FloatArray
+    _params: DtsRoutineParams
+
+    def _init_tables(self) -> None:
+        super()._init_tables()
+        space = self.space
+        # Per service: its infer_type pair; per perform pair: its infer_detail pair and service.
+        self._infer_type: dict[str, int] = {}
+        self._infer_detail: dict[int, int] = {}
+        for p, act in enumerate(space.actions):
+            if act.kind is ActionKind.INFER_TYPE:
+                assert act.service is not None
+                self._infer_type[act.service] = p
+        for pair in self._perform_pairs.tolist():
+            act = space.actions[pair]
+            assert act.service is not None
+            assert act.detail is not None
+            infer = space.action_index(Action(ActionKind.INFER_DETAIL, act.service, act.detail))
+            self._infer_detail[pair] = infer
+
+    @property
+    def decides_changes(self) -> bool:
+        return self._params.routine or self._params.change_alpha > 0.0
+
+    # -- the routine ---------------------------------------------------------------------------
+    def held(self, context: int) -> tuple[int, float] | None:
+        """The routine of ``context``: its ``perform`` pair and its trust (> 0: taken that many
+        times in a row; < 0: refused that many times since), or None."""
+        row = self.routine[context]
+        nz = np.flatnonzero(row)
+        if not len(nz):
+            return None
+        a = int(nz[0])
+        return a, float(row[a])
+
+    def _item(self, pair: int) -> Item:
+        act = self.space.actions[pair]
+        assert act.service is not None
+        return Item(act.service, act.detail)
+
+    def _observe(self, tr: Transition) -> None:
+        super()._observe(tr)
+        space = self.space
+        kind = space.actions[tr.action].kind
+        c = tr.context
+        if kind is ActionKind.PERFORM and tr.signal != Polarity.NEUTRAL:
+            held = self.held(c)
+            if tr.signal == Polarity.POSITIVE:
+                if held is not None and held[0] == tr.action:
+                    self.routine[c, tr.action] = max(held[1], 0.0) + 1.0
+                else:
+                    if held is not None and self._params.routine:
+                        self._switched(tr, held)
+                    self.routine[c] = 0.0
+                    self.routine[c, tr.action] = 1.0
+            elif held is not None and held[0] == tr.action:
+                self.routine[c, tr.action] = min(held[1], 0.0) - 1.0
+        elif kind is ActionKind.INITIATE or (
+            kind is ActionKind.PASS and tr.next_state != space.END
+        ):
+            self._test_offer(tr)
+
+    def _switched(self, tr: Transition, held: tuple[int, float]) -> None:
+        """The person took another service or detail where a routine was held: a change."""
+        before, trust = held
+        c = tr.context
+        episode_steps = [
+            step_of(self.space, t)
+            for t in self._pending.get(tr.episode, [])
+            if not self.space.silent[t.action]
+        ]
+        refused = []
+        if trust < 0 and self.last[c, before] > 0:
+            # The latest refusal of the routine: its pair's last execution.
+            refused.append(
+                Step(int(self.last[c, before]), self.space.action_name(before), "rejected")
+            )
+        slot, situation = context_names(self.space, c)
+        self._decide(
+            ContextChange(
+                episode=tr.episode,
+                context=c,
+                time_slot=slot,
+                situation=situation,
+                before=self._item(before),
+                now=self._item(tr.action),
+                source="routine",
+                evidence=(*refused, *episode_steps, step_of(self.space, tr)),
+                figures={"refused": max(-trust, 0.0)},
+            )
+        )
+
+    def _test_offer(self, tr: Transition) -> None:
+        """The test on offers (``offer_alpha``; the arithmetic of the change test, §8)."""
+        c = tr.context
+        row = self.offers[c]
+        if tr.next_state != self.space.END:  # an offer taken, or a request after a pass
+            row[0] += 1.0
+            row[1] += row[2]
+            row[2] = 0.0
+            row[3] = 0.0
+            return
+        a, b, i = float(row[0]) + 1.0, float(row[1]) + 1.0, float(row[2])
+        row[3] = (row[3] if i > 0 else 1.0) * ((b + i) / (a + b + i))
+        row[2] += 1.0
+        held = self.held(c)
+        if held is None or not row[3] < self._params.offer_alpha or not self._params.routine:
+            return
+        slot, situation = context_names(self.space, c)
+        self._decide(
+            ContextChange(
+                episode=tr.episode,
+                context=c,
+                time_slot=slot,
+                situation=situation,
+                before=self._item(held[0]),
+                now=None,
+                source="routine",
+                evidence=(step_of(self.space, tr),),
+                figures={
+                    "offers_taken": float(a - 1.0),
+                    "offers_refused_before": float(b - 1.0),
+                    "run": float(row[2]),
+                    "p": float(row[3]),
+                    "alpha": float(self._params.offer_alpha),
+                },
+            )
+        )
+        self.routine[c] = 0.0
+        row[:] = 0.0
+
+    # -- decisions -----------------------------------------------------------------------------
+    def _policy(self, plan: Any, context: int, state: int, episode: int) -> FloatArray:
+        steered = self._steer(context, state)
+        if steered is not None:
+            return steered
+        return super()._policy(plan, context, state, episode)
+
+    def _steer(self, context: int, state: int) -> FloatArray | None:
+        """The routine's choice in ``state`` (a one-hot distribution), or None to leave it to
+        the posterior draws."""
+        prm = self._params
+        space = self.space
+        info = space.states[state]
+        held = self.held(context)
+        service = None if held is None else space.actions[held[0]].service
+        trusted = held is not None and held[1] > 0.0
+        # Ask where the routine is in doubt (or names another service than the one settled),
+        # or where none is held yet.
+        ask = prm.ask_unknown if held is None else prm.ask_in_doubt
+        actions = space.actions_of(state)
+        choice: int | None = None
+        if info.kind is StateKind.OBSERVE:
+            if prm.routine_offers and trusted and self.offers[context, 2] == 0.0:
+                choice = space.INITIATE
+        elif info.kind is StateKind.ENGAGED:
+            if trusted and prm.routine:
+                assert service is not None
+                choice = self._infer_type[service]
+            elif ask and not trusted:
+                choice = actions.start  # query_type
+        elif info.kind is StateKind.TYPE_KNOWN:
+            if trusted and prm.routine and service == info.service:
+                assert held is not None
+                choice = self._infer_detail[held[0]]
+            elif ask and not (trusted and service == info.service):
+                choice = actions.start  # query_detail
+        if choice is None:
+            return None
+        out = np.zeros(len(actions), dtype=np.float64)
+        out[choice - actions.start] = 1.0
+        return out
+
+    def _check_tables(self) -> None:
+        super()._check_tables()
+        check_nonnegative(offers=self.offers)
+        if np.any(self.offers[:, 3] > 1.0):
+            raise StateFormatError("arrays.offers: a run's chance must not exceed 1.")
+        if np.any((self.routine != 0.0).sum(axis=1) > 1):
+            raise StateFormatError("arrays.routine: a context holds at most one routine.")
+        if np.any(self.routine[:, ~np.isin(np.arange(self.space.n_actions), self._perform_pairs)]):
+            raise StateFormatError("arrays.routine: a routine is a performed service's pair.")

@@ -10,8 +10,10 @@ import numpy as np
 import pytest
 
 from app.learning import ActionKind
+from app.learning.changes import ContextChange
 from app.learning.negotiation import EXPECTS, Response
 from app.learning.population import (
+    DEFAULT_FAMILIES,
     FAMILIES,
     NOISE_RANGE,
     RAMP,
@@ -19,13 +21,17 @@ from app.learning.population import (
     Family,
     Person,
     change_event,
+    match_changes,
     oracle_action,
     people,
     run_family,
+    run_one_miss,
     run_oracle,
+    true_changes,
     uniforms_for,
 )
 from app.learning.simulation import Need, UserProfile
+from app.learning.space import space_for
 from tests.support.office import INITIATE, MISSION, OBS, PASS, S, act
 
 N_EVENTS = 160
@@ -299,3 +305,100 @@ class TestCommonRandomNumbers:
         label = LEARNERS[2][0]
         assert np.array_equal(one.learners[label], all_.learners[label])
         assert one.change_at == all_.change_at == change_event(40)
+
+
+class TestOneMissOracle:
+    """The one-miss oracle: the oracle but for the first visit of each changed context after a
+    change, where it acts on the old routine."""
+
+    @pytest.mark.parametrize("name", ["individual", "home", "noisy", "shy", "many"])
+    def test_is_the_oracle_where_nothing_changes(self, name: str) -> None:
+        space = space_for(MISSION)
+        persons, flips = people(FAMILIES[name], MISSION, 1, 2, 80)
+        for person, u in zip(persons, flips, strict=True):
+            np.testing.assert_array_equal(
+                run_one_miss(space, person, u), run_oracle(space, person, u)
+            )
+
+    @pytest.mark.parametrize(("name", "seed"), [("abrupt", 0), ("abrupt", 1), ("paper", 2)])
+    def test_loses_exactly_the_first_visit_of_each_changed_context(
+        self, name: str, seed: int
+    ) -> None:
+        space = space_for(MISSION)
+        persons, flips = people(FAMILIES[name], MISSION, seed, 3, N_EVENTS)
+        for person, u in zip(persons, flips, strict=True):
+            oracle, bound = run_oracle(space, person, u), run_one_miss(space, person, u)
+            at = person.change_at
+            assert at is not None
+            np.testing.assert_array_equal(bound[:at], oracle[:at])
+            before, after = person.profile_at(at - 1), person.profile_at(at)
+            changed = {
+                c for c in range(MISSION.n_contexts) if before.need_at(c) != after.need_at(c)
+            }
+            first = {
+                c: at + int(np.flatnonzero(person.contexts[at:] == c)[0])
+                for c in changed
+                if np.any(person.contexts[at:] == c)
+            }
+            differs = set(np.flatnonzero(bound != oracle).tolist())
+            assert differs <= set(first.values())
+            assert bound.sum() < oracle.sum() or not first
+
+    def test_every_change_point_of_restless_costs_a_visit(self) -> None:
+        space = space_for(MISSION)
+        persons, flips = people(FAMILIES["restless"], MISSION, 0, 3, N_EVENTS)
+        for person, u in zip(persons, flips, strict=True):
+            assert len(person.change_points) == 3
+            oracle, bound = run_oracle(space, person, u), run_one_miss(space, person, u)
+            assert bound.sum() < oracle.sum()
+            np.testing.assert_array_equal(
+                bound[: person.change_points[0]], oracle[: person.change_points[0]]
+            )
+
+
+class TestTrueChanges:
+    def test_abrupt_changes_are_the_contexts_whose_routine_switched(self) -> None:
+        persons, _ = people(FAMILIES["abrupt"], MISSION, 3, 3, N_EVENTS)
+        for person in persons:
+            changes = true_changes(person)
+            assert changes
+            at = person.change_at
+            assert at is not None
+            for ch in changes:
+                assert (ch.start, ch.stop) == (at, N_EVENTS)
+                assert person.profile_at(at - 1).need_at(ch.context) == ch.before
+                assert person.profile_at(at).need_at(ch.context) == ch.after != ch.before
+            assert len(changes) == math.ceil(len(person.profiles[0].needs) / 2)
+
+    def test_steady_people_have_none(self) -> None:
+        persons, _ = people(FAMILIES["many"], MISSION, 0, 2, 60)
+        assert all(true_changes(p) == [] for p in persons)
+
+    def test_restless_people_change_two_routines_three_times(self) -> None:
+        assert FAMILIES["restless"].held_out
+        assert "restless" not in DEFAULT_FAMILIES
+        persons, _ = people(FAMILIES["restless"], MISSION, 4, 3, N_EVENTS)
+        for person in persons:
+            assert 5 <= len(person.profiles[0].needs) <= 8
+            starts = [ch.start for ch in true_changes(person)]
+            for point in person.change_points:
+                assert 1 <= starts.count(point) <= 2
+
+    def test_decided_changes_are_matched_to_the_true_ones(self) -> None:
+        persons, _ = people(FAMILIES["abrupt"], MISSION, 5, 1, N_EVENTS)
+        person = persons[0]
+        (first, *rest) = true_changes(person)
+        visits = np.flatnonzero(person.contexts == first.context)
+        after = visits[visits >= first.start]
+        early = int(visits[visits < first.start][-1])
+
+        def decided(event: int, context: int) -> tuple[int, ContextChange]:
+            return event, ContextChange(event + 1, context, "s", "t", None, None, "routine")
+
+        hits = [decided(int(after[1]), first.context), decided(early, first.context)]
+        hits += [decided(int(after[2]), first.context)]  # a second decision: a false alarm
+        counted = match_changes(person, hits)
+        assert counted.caught == [(int(after[1]) - first.start, 2)]
+        assert counted.missed == len(rest)
+        assert counted.false_alarms == 2
+        assert (counted.events, counted.persons) == (N_EVENTS, 1)

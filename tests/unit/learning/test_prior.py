@@ -170,6 +170,8 @@ class TestWeights:
         expected = np.where(
             support >= MIN_SUPPORT, DEFAULT_STRENGTH * support / len(contributors), 0.0
         )
+        if PRIOR_TABLES[algorithm].fresh_offers:  # the offers start fresh
+            expected[:, list(contributors[0].space.root_actions)] = 0.0
         np.testing.assert_allclose(
             pair_weight(population_prior(algorithm, None, office(), contributors)),
             expected,
@@ -235,7 +237,10 @@ class TestNewcomers:
 
 
 def office_pair(learner: TabularLearner[Any]) -> int:
-    """A human-facing pair: the offer at OBSERVE."""
+    """A human-facing pair the prior carries: the offer at OBSERVE, or the question "which
+    service?" for a learner whose offers start fresh."""
+    if PRIOR_TABLES[learner.algorithm].fresh_offers:
+        return int(learner.space.actions_of(learner.space.ENGAGED).start)
     return int(learner.space.INITIATE)
 
 

@@ -239,10 +239,10 @@ class FeedbackResult(_Model):
 
 # -- users ---------------------------------------------------------------------------------------
 class LearnerSpec(_Model):
-    """A learner: the algorithm (``dts-adapt``, ``hri``, ``rmax``...) and its parameters
+    """A learner: the algorithm (``dts-routine``, ``hri``, ``rmax``...) and its parameters
     (omitted ones keep the service's defaults)."""
 
-    algorithm: str = "dts-adapt"
+    algorithm: str = "dts-routine"
     params: dict[str, Any] = Field(default_factory=dict)
 
 
