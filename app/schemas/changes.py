@@ -37,9 +37,12 @@ class ChangeEventOut(BaseModel):
     change_id: str = Field(description="Opaque; changes are listed newest first.")
     user_id: str
     fleet: str
-    source: Literal["profile", "learner"] = Field(
-        description="profile: the person's own answers no longer support what they wanted "
-        "(every learner); learner: the learner's own change test decided it."
+    source: Literal["profile", "routine", "change_test"] = Field(
+        description="What decided it: routine, the learner's routine for the context (a "
+        "routine it trusted was refused and the person took something else, or turned every "
+        "offer down: dts-routine); change_test, the learner's change test (DTS with its test "
+        "on); profile, the person's own answers no longer support what they wanted (every "
+        "learner without a mechanism of its own)."
     )
     time_slot: str
     situation: str

@@ -33,6 +33,7 @@ from app.db.types import utcnow
 from app.errors import Forbidden, ValidationFailed
 from app.learning import Mission, NegotiationSpace
 from app.learning.beliefs import Answer, BeliefFold, EpisodeEvidence, Item, episode_evidence
+from app.learning.changes import ContextChange
 from app.schemas.changes import ChangeEventOut, ChangeList, EvidenceItem, Moment
 from app.schemas.profile import Wanted
 
@@ -40,44 +41,99 @@ from . import views
 from .auth import require_manager
 from .context import Principal, ServiceContext
 from .missions import current_version
+from .person_model import PersonModel
 from .profile import thing, when_where
 from .users import visible_user
 
-__all__ = ["Weighed", "change_out", "fleet_changes", "person_changes", "summary", "weigh_ended"]
+__all__ = ["Noticed", "change_out", "fleet_changes", "notice", "person_changes", "summary"]
 
 
 @dataclass(slots=True)
-class Weighed:
-    """What an ended episode did to its context's walk: the walk to store, and the change it
-    decided (if any). Computed before a write's batch of statements (it reads), stored in it."""
+class Noticed:
+    """What a write noticed: the changes to record and, for a person whose learner has no
+    change mechanism of its own, the context's walk to store. Computed before the write's batch
+    of statements (it may read), stored in it."""
 
-    user_pk: int
-    time_slot: str
-    situation: str
-    upto_seq: int
-    doc: dict[str, Any]
-    change: ChangeRow | None
+    changes: list[ChangeRow]
+    belief: tuple[int, str, str, int, dict[str, Any]] | None = None  # user, slot, sit., upto, doc
 
     def store(self, session: Session) -> None:
-        repo.put_belief(
-            session,
-            self.user_pk,
-            self.time_slot,
-            self.situation,
-            upto_seq=self.upto_seq,
-            doc=self.doc,
-        )
-        if self.change is not None:
-            repo.add(session, self.change)
+        if self.belief is not None:
+            user_pk, slot, situation, upto, doc = self.belief
+            repo.put_belief(session, user_pk, slot, situation, upto_seq=upto, doc=doc)
+        for change in self.changes:
+            repo.add(session, change)
 
 
-def weigh_ended(
+def notice(
+    session: Session,
+    user: UserRow,
+    model: PersonModel,
+    space: NegotiationSpace,
+    *,
+    ended: tuple[EpisodeRow, Sequence[DecisionRow]] | None,
+) -> Noticed | None:
+    """What a write that taught the model noticed. A learner with a change mechanism of its
+    own (``decides_changes``: ``dts-routine``'s routines, DTS's change test) says which contexts
+    the update decided changed; for every other learner, an episode that ended (``ended``: it,
+    and all of its decisions with this write's answers) is weighed against its context's walk
+    of the profile's belief."""
+    learner = model.learner
+    if learner.decides_changes:
+        rows = [_decided(session, user, model, space, c) for c in model.decided]
+        return Noticed(rows) if rows else None
+    if ended is None:
+        return None
+    return _weigh_ended(session, user, *ended, space)
+
+
+def _decided(
+    session: Session, user: UserRow, model: PersonModel, space: NegotiationSpace, c: ContextChange
+) -> ChangeRow:
+    """A change the learner decided, as recorded: its evidence (the person's answers) read as
+    the profile reads an episode's, per episode."""
+    offset = model.head.episode_offset
+    names = {space.action_name(a): a for a in range(space.n_actions)}
+    by_episode: dict[int, list[Answer]] = {}
+    for step in c.evidence:
+        if step.action in names:
+            by_episode.setdefault(step.episode, []).append(
+                Answer(names[step.action], step.response, step.service, step.detail)
+            )
+    shown = [
+        episode_evidence(space, episode - offset, answers)
+        for episode, answers in sorted(by_episode.items())
+    ]
+    since = shown[0].seq if shown else c.episode - offset
+    began = episodes_repo.by_seq(session, user.id, since)
+    at, utc_offset = began if began is not None else (utcnow(), None)
+    return ChangeRow(
+        id=None,
+        user_pk=user.id,
+        fleet=user.fleet,
+        source=c.source,
+        time_slot=c.time_slot,
+        situation=c.situation,
+        seq=since,
+        at=at,
+        utc_offset=utc_offset,
+        detected_seq=c.episode - offset,
+        detected_at=utcnow(),
+        before_service=None if c.before is None else c.before.service,
+        before_detail=None if c.before is None else c.before.detail,
+        now_service=None if c.now is None else c.now.service,
+        now_detail=None if c.now is None else c.now.detail,
+        evidence=[_evidence_doc(e) for e in shown],
+    )
+
+
+def _weigh_ended(
     session: Session,
     user: UserRow,
     episode: EpisodeRow,
     decisions: Sequence[DecisionRow],
     space: NegotiationSpace,
-) -> Weighed:
+) -> Noticed:
     """Weigh an episode that just ended (``decisions``: all of its decisions, with this
     write's answers) against its context's walk."""
     stored = repo.belief(session, user.id, episode.time_slot, episode.situation)
@@ -93,7 +149,7 @@ def weigh_ended(
     before = fold.change
     fold.add(episode_evidence(space, episode.seq, answers, request=request))
     found = fold.change
-    change = None
+    changes = []
     if found is not None and found != before:
         at, offset = episode.occurred_at, episode.utc_offset
         if found.seq != episode.seq:
@@ -101,32 +157,28 @@ def weigh_ended(
             if began is not None:
                 at, offset = began
         shown = [e for _, e in fold.tail if e.seq >= found.seq]
-        change = ChangeRow(
-            id=None,
-            user_pk=user.id,
-            fleet=user.fleet,
-            source="profile",
-            time_slot=episode.time_slot,
-            situation=episode.situation,
-            seq=found.seq,
-            at=at,
-            utc_offset=offset,
-            detected_seq=episode.seq,
-            detected_at=utcnow(),
-            before_service=found.before.service,
-            before_detail=found.before.detail,
-            now_service=None if found.now is None else found.now.service,
-            now_detail=None if found.now is None else found.now.detail,
-            evidence=[_evidence_doc(e) for e in shown],
+        changes.append(
+            ChangeRow(
+                id=None,
+                user_pk=user.id,
+                fleet=user.fleet,
+                source="profile",
+                time_slot=episode.time_slot,
+                situation=episode.situation,
+                seq=found.seq,
+                at=at,
+                utc_offset=offset,
+                detected_seq=episode.seq,
+                detected_at=utcnow(),
+                before_service=found.before.service,
+                before_detail=found.before.detail,
+                now_service=None if found.now is None else found.now.service,
+                now_detail=None if found.now is None else found.now.detail,
+                evidence=[_evidence_doc(e) for e in shown],
+            )
         )
-    return Weighed(
-        user.id,
-        episode.time_slot,
-        episode.situation,
-        max(episode.seq, 0 if stored is None else stored[0]),
-        fold.to_doc(),
-        change,
-    )
+    upto = max(episode.seq, 0 if stored is None else stored[0])
+    return Noticed(changes, (user.id, episode.time_slot, episode.situation, upto, fold.to_doc()))
 
 
 def _evidence_doc(ev: EpisodeEvidence) -> dict[str, Any]:

@@ -45,6 +45,7 @@ from app.db.types import utcnow
 from app.errors import ValidationFailed
 from app.learning import Mission, Polarity, learner_from_state, make_learner
 from app.learning import Transition as Step
+from app.learning.changes import ContextChange
 from app.learning.guidance import Rule, RuleKind
 from app.learning.learners import TabularLearner
 
@@ -184,6 +185,7 @@ class PersonModel:
         "_keep_base",
         "_origin",
         "_rules",
+        "decided",
     )
 
     def __init__(
@@ -198,6 +200,8 @@ class PersonModel:
         self._keep_base = False
         self._origin = Origin()
         self._rules: Rules | None = None
+        # The contexts the latest teach decided changed (the learner's own mechanism)
+        self.decided: tuple[ContextChange, ...] = ()
 
     # -- open and load -------------------------------------------------------------------------
     @classmethod
@@ -311,6 +315,7 @@ class PersonModel:
             self.learner, entries, layout=self.mission_version, rules=rules, move=self.mover()
         )
         self._learner = learner
+        self.decided = learner.changes if isinstance(entries[0], journal.Transition) else ()
         self.head.version += 1
         if layout != self.head.mission_version:
             self.head.mission_version, self._moved = layout, True

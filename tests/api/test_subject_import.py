@@ -52,11 +52,14 @@ CORRECTION = {
 @pytest.fixture
 def exported(app: FastAPI, robot: TestClient, staff: TestClient) -> bytes:
     """Lin's export from deployment A: 14 episodes (feedback on some), a correction in force
-    and one lifted, the oldest six episodes folded by a retention run."""
+    and one lifted, the oldest six episodes folded by a retention run, and a change of her
+    wish in the afternoon while stretching (coffee, no longer tea)."""
     assert staff.put(f"/v1/users/{LIN}", json={"display_name": "Mrs. Lin"}).status_code == 201
     who = person(picky=False, yes=0.8, asks=0.6, rng=random.Random(5))
+    then = person(need=("ProvideDrink", "coffee"))  # from the 11th on: coffee, not tea
     for i in range(14):
-        played = play(robot, LIN, f"e{i}", who, situation=("stretching", "arriving")[i % 2])
+        where = ("stretching", "arriving")[i % 2] if i < 10 else "stretching"
+        played = play(robot, LIN, f"e{i}", who if i < 10 else then, situation=where)
         if i % 4 == 1:
             r = robot.post(
                 f"/v1/episodes/{played.episode_id}/feedback",

@@ -374,9 +374,12 @@ def start_episode(
     }
     episode.response = out
     model.teach(step.transitions)
+    noticed = changes.notice(session, user, model, space, ended=None)  # news for staff
     with batch(session):  # writes only: one round trip on PostgreSQL
         episodes_repo.insert_episode(session, episode)  # before its decisions, which refer to it
         _store(session, step)
+        if noticed is not None:
+            noticed.store(session)
     return Written(out, 201, False, fleet=user.fleet)
 
 
@@ -438,16 +441,17 @@ def report_outcome(
     }
     row.outcome_hash, row.outcome_response = digest, out
     model.teach(step.transitions)
-    weighed = None
-    if episode.status == "closed":  # news for staff if it changed what the person wants
+    ended = None
+    if episode.status == "closed" and not model.learner.decides_changes:
         earlier = [d for d in episodes_repo.decisions(session, episode_id) if d.id != row.id]
-        weighed = changes.weigh_ended(session, user, episode, [*earlier, row], space)
+        ended = (episode, [*earlier, row])
+    noticed = changes.notice(session, user, model, space, ended=ended)  # news for staff
     with batch(session):  # writes only: one round trip on PostgreSQL
         episodes_repo.save_answer(session, row)
         episodes_repo.save_episode(session, episode)
         _store(session, step)
-        if weighed is not None:
-            weighed.store(session)
+        if noticed is not None:
+            noticed.store(session)
     return Written(out, 200, False, space.actions[row.action].kind.value, user.fleet)
 
 
