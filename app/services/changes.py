@@ -1,18 +1,20 @@
 """Changes in what a person wants, told to the people who care for them.
 
 A change is news for staff (a resident who stops wanting tea in the afternoon may be unwell).
-Each time one of a person's episodes ends, it is weighed against what came before in its
-context, as the profile weighs it (:class:`app.learning.beliefs.BeliefFold`: the last choice
-the later episodes keep supporting, replaced after :data:`~app.learning.beliefs.CHANGE_RUN`
-episodes in a row that contradict it), from the context's walk so far (``context_beliefs``).
-When the walk decides that the person's wish changed, the change is recorded
-(``change_events``, ``source`` ``profile``): when it began, which context, what the person
-wanted before and what now, on what evidence. This holds for every learner. A learner with a
-change test of its own reports what it decided too (``source`` ``learner``).
+A learner with a change mechanism of its own (``decides_changes``: ``dts-routine``'s routine per
+context, DTS's change test) decides at each update which contexts changed
+(:mod:`app.learning.changes`); the write that taught it records what it decided (``source``
+``routine`` or ``change_test``). For every other learner, each episode that ends is weighed
+against what came before in its context as the profile weighs it
+(:class:`app.learning.beliefs.BeliefFold`: the last choice the later episodes keep supporting,
+replaced after :data:`~app.learning.beliefs.CHANGE_RUN` episodes in a row that contradict it),
+from the context's walk so far (``context_beliefs``); a replacement is recorded with ``source``
+``profile``. Either way the record (``change_events``) says when the change began, which
+context, what the person wanted before and what now, and on what evidence.
 
-Episodes are weighed in the order they end (a context rarely has two open at once). What is
-recorded stays: a rebuild, a mission change (contexts are kept by name) and a retention run do
-not touch it; an erasure removes it with the person.
+The profile's walk weighs episodes in the order they end (a context rarely has two open at
+once). What is recorded stays: a rebuild, a mission change (contexts are kept by name) and a
+retention run do not touch it; an erasure removes it with the person.
 """
 
 from __future__ import annotations
