@@ -215,14 +215,6 @@ class Settings(BaseSettings):
         description="How many episodes (or journal entries) a retention run removes per "
         "transaction: smaller batches hold the database for less time at once.",
     )
-    retention_pause: float = Field(
-        default=1.0,
-        ge=0.0,
-        le=10.0,
-        description="After each of its writes a retention run waits this many times as long as "
-        "the write took, so that the robots' writes get their turn (on SQLite, one writer at a "
-        "time; 0: no pause, the run ends sooner and robots wait longer).",
-    )
     retention_at: Annotated[DailyTime | None, NoDecode] = Field(
         default=None,
         description="When set (HH:MM, in UTC, or HH:MM followed by an IANA time zone name: "

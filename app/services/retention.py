@@ -22,9 +22,7 @@ from __future__ import annotations
 
 import datetime as dt
 import logging
-import time
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
@@ -63,7 +61,6 @@ __all__ = [
 log = logging.getLogger("attune.retention")
 
 MAX_DAYS = 36_500
-MAX_PAUSE_S = 1.0  # the longest pause after one write of a run
 PEOPLE_PAGE = 200  # people read per transaction while a fleet is walked
 
 
@@ -183,27 +180,14 @@ class _Plan:
     doc: dict[str, Any]
 
 
-@contextmanager
-def _write(db: Database, pause: float) -> Iterator[Session]:
-    """One of the run's write transactions, then a pause of ``pause`` times as long as it took:
-    the run holds the database at most about 1 / (1 + pause) of its time, so that the robots'
-    writes, which queue behind it (on SQLite, one writer at a time), get their turn."""
-    began = time.monotonic()
-    with db.transaction() as session:
-        yield session
-    if pause > 0:
-        time.sleep(min(pause * (time.monotonic() - began), MAX_PAUSE_S))
-
-
 def _person(
     db: Database, ctx: ServiceContext, done: FleetRun, user_pk: int, user_id: str, size: int
 ) -> None:
     done.people += 1
-    pause = ctx.settings.retention_pause
     with db.transaction(write=False) as session:
         plan = _plan(session, ctx, done.fleet, user_id, done.kept_from)
     if plan is not None:
-        with _write(db, pause) as session:
+        with db.transaction() as session:
             folded = _fold(session, ctx, plan)
         if folded:
             done.folded += 1
@@ -214,13 +198,13 @@ def _person(
     if fold is None:
         return
     while True:
-        with _write(db, pause) as session:
+        with db.transaction() as session:
             n = repo.delete_episodes(session, user_pk, fold.upto_seq, limit=size)
         done.episodes_removed += n
         if n < size:
             break
     while True:
-        with _write(db, pause) as session:
+        with db.transaction() as session:
             n = journal.delete_folded(session, user_pk, fold.upto_version, limit=size)
         done.journal_removed += n
         if n < size:
