@@ -392,6 +392,7 @@ def _profile_page(
         history_from=console_service.history_from(session, user),
         changes=changed,
         evidence=console_service.evidence_episodes(session, user.fleet, changed),
+        now_of={(c.time_slot, c.situation): c for c in profile.contexts},
     )
 
 

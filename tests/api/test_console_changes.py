@@ -77,6 +77,8 @@ def test_the_fleet_page_says_what_changed_in_words(
     profile = _text(_get(client, "/admin/users/lin").text)
     assert "What changed" in profile
     assert "Since 18 November, Mrs. Lin" in profile
+    # and what the robot does there now
+    assert "Now: In the afternoon, while stretching, Mrs. Lin" in profile
 
 
 def test_staff_of_another_fleet_see_none_of_it(

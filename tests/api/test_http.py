@@ -270,6 +270,8 @@ BOUNDED = [
     ("/v1/admin/audit", "limit", 1, 500),
     ("/v1/users/lin/views", "limit", 1, 500),
     ("/v1/admin/views", "limit", 1, 500),
+    ("/v1/users/lin/changes", "limit", 1, 500),
+    ("/v1/admin/fleets/default/changes", "limit", 1, 500),
     ("/v1/users/lin/stats", "last", 1, 1_000_000),
 ]
 OUT_OF_RANGE = [
@@ -303,7 +305,10 @@ class TestIntegerQueries:
                         assert (
                             f"{ints[0]['minimum']} to {ints[0]['maximum']}" in param["description"]
                         ), param
-        expected = {(p.replace("lin", "{user_id}"), n, lo, hi) for p, n, lo, hi in BOUNDED}
+        expected = {
+            (p.replace("lin", "{user_id}").replace("fleets/default", "fleets/{fleet}"), n, lo, hi)
+            for p, n, lo, hi in BOUNDED
+        }
         assert set(found) == expected
 
     @pytest.mark.one_engine
@@ -354,6 +359,7 @@ class TestIntegerQueries:
             ("/admin/users/lin/episodes", "before", 1, 2**31 - 1),
             ("/admin/users/lin/episodes", "at", 1, 2**31 - 2),
             ("/admin/users/lin/episodes", "per_page", 5, 200),
+            ("/admin/changes", "days", 1, 366),
         ],
     )
     def test_console_pages_name_the_parameter_and_its_range(
@@ -381,7 +387,7 @@ class TestCursors:
                     assert "422" in param["description"], path
                     assert "next_cursor" in param["description"], path
                     assert "422" in op["responses"], path
-        assert seen == 5
+        assert seen == 7
 
     @pytest.mark.one_engine
     @pytest.mark.parametrize(
@@ -394,6 +400,8 @@ class TestCursors:
             ("/v1/users/lin/episodes", "2147483648"),
             ("/v1/admin/audit", "x1"),
             ("/v1/admin/audit", "9999999999"),
+            ("/v1/users/lin/changes", "x1"),
+            ("/v1/admin/fleets/default/changes", "-1"),
         ],
     )
     def test_a_cursor_never_issued_is_422(

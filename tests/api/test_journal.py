@@ -20,6 +20,7 @@ from app.db.models import Correction, Decision, Episode
 from app.db.repositories import journal
 from app.db.session import Database
 from app.learning import office_mission
+from app.schemas.users import LearnerSpec
 from app.services import audit as audit_service
 from app.services import retention
 from app.services.models import rebuild_model
@@ -168,11 +169,12 @@ def test_a_persons_journal_says_what_happened_to_their_model(
     assert lift.since == 6
     (reset,) = by_version[reset_at]
     assert isinstance(reset, journal.Reset)
-    assert (reset.cause, reset.algorithm, reset.corrections_kept) == ("reset", "dts-adapt", 0)
+    default = LearnerSpec().algorithm
+    assert (reset.cause, reset.algorithm, reset.corrections_kept) == ("reset", default, 0)
     assert reset.actor.startswith("key_")
     (imported,) = by_version[import_at]
     assert isinstance(imported, journal.Import)
-    assert (imported.algorithm, imported.episodes) == ("dts-adapt", 8)
+    assert (imported.algorithm, imported.episodes) == (default, 8)
     (move,) = by_version[moved_at]
     assert isinstance(move, journal.MissionMove)
     assert move.mission_version == 2

@@ -145,7 +145,7 @@ class TestContract:
         assert [e.event_id for e in listed] == ["e2", "e1", "e0"]
         assert all(e.status == "closed" for e in listed)
         model = await robot.get_model("lin")
-        assert model.algorithm == "dts-adapt"
+        assert model.algorithm == "dts-routine"
         assert model.episodes == 3
         assert model.version > 0
         only = await robot.get_model("lin", time_slot="afternoon", situation="stretching")
@@ -172,14 +172,14 @@ class TestContract:
         await play(robot, "lin", "e1")
         before = await robot.get_model("lin")
         document = await admin.export_model("lin")
-        assert document["algorithm"] == "dts-adapt"
+        assert document["algorithm"] == "dts-routine"
         await admin.reset_model("lin")
         reset = await robot.get_model("lin")
         assert reset.version > before.version
         imported = await admin.import_model("lin", document)
         assert isinstance(imported, a.ModelView)
         assert imported.user_id == "lin"
-        assert imported.algorithm == "dts-adapt"
+        assert imported.algorithm == "dts-routine"
         await play(robot, "mo", "e2")
         moved = await admin.import_model("mo", document)
         assert moved.user_id == "mo"

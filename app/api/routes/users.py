@@ -136,7 +136,7 @@ def list_user_views(
     )
 
 
-@router.get("/{user_id}/changes", response_model=ChangeList, responses=responses(403, 404))
+@router.get("/{user_id}/changes", response_model=ChangeList, responses=responses(403, 404, 422))
 def list_person_changes(
     user_id: UserId,
     session: Session,
