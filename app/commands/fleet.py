@@ -15,9 +15,11 @@ from ._help import Typer
 from ._output import print_json, stderr_console, stdout_console
 
 if TYPE_CHECKING:  # imported by the command when it runs (--help needs none of them)
+    from attune_client import Client
     from rich.table import Table
 
-    from app.fleet.simulate import FleetRun
+    from app.fleet.simulate import FleetRun, Person
+    from app.learning import Mission
 
 __all__ = ["fleet"]
 
@@ -114,7 +116,8 @@ def simulate(
         typer.Option(
             envvar="ATTUNE_KEY",
             show_default=False,
-            help="A robot (or staff or admin) API key (required; staff or admin with --mission).",
+            help="A robot (or staff or admin) API key (required; staff or admin with --mission, "
+            "and to count the changes told to staff).",
         ),
     ] = None,
     url: Annotated[
@@ -193,8 +196,11 @@ def simulate(
     the one in --mission FILE, which is set first. At the end the paper's metrics (interaction
     rate, success rate, queries per mission, cumulative reward) are read back from the
     service's stats endpoint, per user and overall, and checked against the robots' own
-    tally. Exit code 1 if they differ or the run failed, 2 if the service cannot be used or
-    FILE is not a mission.
+    tally. With a staff or admin key, each person's changes told to staff are read back too
+    and counted against the changes their needs really went through (caught, how late, false
+    alarms, and the two detection targets); a robot key may not read them, which is said in
+    one line. Exit code 1 if the stats differ or the run failed, 2 if the service cannot be
+    used or FILE is not a mission.
     """
     require("attune_client", "fleet", "attune fleet")
     if not key:  # checked here, after the extra: what to install comes first
@@ -319,7 +325,83 @@ def simulate(
                 p.user_id: reader.get_stats(p.user_id, last=events - change_at).model_dump()
                 for p in people
             }
-    _report(run, stats, late, change_at, events, plot, json_output, learner)
+        changes = _count_changes(reader, mission, people, changed=change_at is not None)
+    if not changes["counted"]:
+        err.print(f"Changes were not counted: {changes['why']}", markup=False)
+    _report(run, stats, late, changes, change_at, events, plot, json_output, learner)
+
+
+def _count_changes(
+    reader: Client, mission: Mission, people: list[Person], *, changed: bool
+) -> dict[str, Any]:
+    """Each person's changes told to staff, read through ``reader`` and counted against the
+    person's true changes (``app.fleet.detection``); ``counted`` False, with ``why``, when the
+    key may not read them (a robot key) or the service refuses to list them."""
+    from attune_client import APIStatusError
+
+    from app.fleet.detection import count_changes, detection_summary
+
+    try:
+        recorded = {p.user_id: list(reader.iter_changes(p.user_id, page_size=500)) for p in people}
+    except APIStatusError as exc:
+        refused = f"{exc.status_code} {exc.error}: {exc.detail}"
+        if exc.status_code == 403:
+            why = f"this key may not read them; a staff or admin key of the fleet may ({refused})"
+        else:
+            why = f"the service refused to list them ({refused})"
+        return {"counted": False, "why": why}
+    return detection_summary(count_changes(mission, people, recorded), changed=changed)
+
+
+def _percent(value: float | None) -> str:
+    return "-" if value is None else f"{100 * value:.1f}%"
+
+
+def _changes_table(changes: dict[str, Any]) -> Table:
+    """The changes counted against the true ones, then the two targets, met or missed."""
+    from rich.table import Table
+
+    table = Table(
+        title="Changes told to staff, counted against the people's true changes",
+        title_justify="left",
+    )
+    table.add_column("detection", no_wrap=True)
+    table.add_column("figure", justify="right", no_wrap=True)
+    true = changes["true_changes"]
+    late = (
+        "-"
+        if changes["median_events_late"] is None
+        else f"{changes['median_events_late']:g} / {changes['max_events_late']}"
+    )
+    rate = changes["false_alarms_per_person_month"]
+    rows = [
+        ("true changes", str(true)),
+        ("caught", f"{changes['caught']} ({_percent(changes['caught_share'])})"),
+        (
+            f"caught within {changes['within_visits']} visits of the changed context",
+            f"{changes['caught_within']} ({_percent(changes['caught_within_share'])})",
+        ),
+        ("missed", str(changes["missed"])),
+        ("events late (median / max)", late),
+        ("false alarms", str(changes["false_alarms"])),
+        (
+            f"false alarms per person per {changes['events_per_month']} events",
+            "-" if rate is None else f"{rate:.2f}",
+        ),
+        ("changes recorded", str(changes["recorded"])),
+    ]
+    for name, figure in rows:
+        table.add_row(name, figure)
+    table.add_section()
+    for target in changes["targets"]:
+        if target["met"] is None:
+            verdict = f"not checked: {target['why']}"
+        else:
+            value = target["value"]
+            shown = _percent(value) if target["name"] == "caught_within" else f"{value:.2f}"
+            verdict = f"{shown}: {'met' if target['met'] else 'MISSED'}"
+        table.add_row(f"target: {target['target']}", verdict)
+    return table
 
 
 def _mission_change_line(changed: Any, path: Path | None, fleet_name: str) -> str:
@@ -344,6 +426,7 @@ def _report(
     run: FleetRun,
     stats: dict[str, dict[str, Any]],
     late: dict[str, dict[str, Any]] | None,
+    changes: dict[str, Any],
     change_at: int | None,
     events: int,
     plot: Path | None,
@@ -366,6 +449,9 @@ def _report(
             )
         )
         document["since_change"] = {"users": late, "overall": late_rows["all"]}
+    document["changes"] = changes
+    if changes["counted"]:
+        tables.append(_changes_table(changes))
     if json_output:
         print_json(document)
     else:

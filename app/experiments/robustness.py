@@ -36,8 +36,12 @@ import numpy as np
 
 from app.learning.evaluation import Method
 from app.learning.population import (
+    CAUGHT_TARGET,
+    CAUGHT_VISITS,
     DEFAULT_EVENTS,
     DEFAULT_FAMILIES,
+    EVENTS_PER_MONTH,
+    FALSE_ALARMS_TARGET,
     FAMILIES,
     Detection,
     FamilyRun,
@@ -114,10 +118,8 @@ RULE = (
 BOUND_TARGET = 0.90  # of the one-miss oracle: 15 after a switch, 30 after a drift
 BEFORE_TARGET = 0.90  # of the oracle, the 30 events before the change
 ALL_TARGET = 0.85  # of the oracle, all events, in every family without random answers
-CAUGHT_TARGET, CAUGHT_VISITS = 0.90, 3  # abrupt changes caught within 3 visits
-FALSE_ALARMS_TARGET = 1.0  # per person per EVENTS_PER_MONTH events, families without change
-EVENTS_PER_MONTH = 500
-"""A person-month of events: the unit false alarms are counted in (about 16 events a day)."""
+# The detection targets (CAUGHT_TARGET, CAUGHT_VISITS, FALSE_ALARMS_TARGET, EVENTS_PER_MONTH)
+# are the learning core's (app.learning.population), shared with ``attune fleet simulate``.
 
 
 @dataclass(frozen=True)
@@ -303,7 +305,8 @@ def _detection(runs: Sequence[FamilyRun], label: str) -> dict[str, Any]:
     caught = total.caught
     events = [e for e, _ in caught]
     visits = [v for _, v in caught]
-    within = sum(1 for v in visits if v <= CAUGHT_VISITS)
+    within = total.caught_within(CAUGHT_VISITS)
+    rate = total.false_alarms_per(EVENTS_PER_MONTH)
     return {
         "source": total.source or None,
         "true": total.true,
@@ -318,9 +321,7 @@ def _detection(runs: Sequence[FamilyRun], label: str) -> dict[str, Any]:
         "false_alarms": total.false_alarms,
         "persons": total.persons,
         "events": total.events,
-        "false_alarms_per_person_month": (
-            rounded(EVENTS_PER_MONTH * total.false_alarms / total.events) if total.events else None
-        ),
+        "false_alarms_per_person_month": None if rate is None else rounded(rate),
     }
 
 

@@ -21,7 +21,11 @@ events after the change too.
 
 *True changes* (:func:`true_changes`) are the contexts whose routine a change replaced or ended;
 :func:`match_changes` counts the changes a learner decided (``app.learning.changes``) against
-them: caught, how late, and false alarms.
+them: caught, how late, and false alarms (:func:`match_contexts` takes the decided changes as
+events and contexts, as ``attune fleet simulate`` reads them from the service). The issue's
+targets for detection are :data:`CAUGHT_TARGET` of the abrupt changes caught within
+:data:`CAUGHT_VISITS` visits of the changed context, and at most :data:`FALSE_ALARMS_TARGET`
+false alarm per person per :data:`EVENTS_PER_MONTH` events when nothing changes.
 
 Pure: the standard library and numpy only.
 """
@@ -47,8 +51,12 @@ from .space import Action, ActionKind, NegotiationSpace, StateKind, space_for
 from .types import FloatArray, IntArray, Observation, Transition
 
 __all__ = [
+    "CAUGHT_TARGET",
+    "CAUGHT_VISITS",
     "DEFAULT_EVENTS",
     "DEFAULT_FAMILIES",
+    "EVENTS_PER_MONTH",
+    "FALSE_ALARMS_TARGET",
     "FAMILIES",
     "NOISE_RANGE",
     "Detection",
@@ -58,6 +66,7 @@ __all__ = [
     "TrueChange",
     "change_event",
     "match_changes",
+    "match_contexts",
     "oracle_action",
     "run_family",
     "run_learner",
@@ -74,6 +83,10 @@ P_NEED = 0.7  # the share of events in one of the person's need contexts (§11)
 NOISE_RANGE = (0.10, 0.20)  # noisy answerers: the share of answers given at random
 REFUSE_RANGE = (0.40, 0.60)  # people who often refuse: the chance of accepting an offer
 RAMP = 40  # gradual drift: events over which the new routines take over
+CAUGHT_TARGET, CAUGHT_VISITS = 0.90, 3  # abrupt changes caught within 3 visits
+FALSE_ALARMS_TARGET = 1.0  # per person per EVENTS_PER_MONTH events, when nothing changes
+EVENTS_PER_MONTH = 500
+"""A person-month of events: the unit false alarms are counted in (about 16 events a day)."""
 
 
 def change_event(n_events: int) -> int:
@@ -344,6 +357,15 @@ class Detection:
     def true(self) -> int:
         return len(self.caught) + self.missed
 
+    def caught_within(self, visits: int = CAUGHT_VISITS) -> int:
+        """The true changes caught within ``visits`` visits of their context from their change
+        point (the visit whose update decided it included)."""
+        return sum(1 for _, v in self.caught if v <= visits)
+
+    def false_alarms_per(self, events: int = EVENTS_PER_MONTH) -> float | None:
+        """False alarms per person per ``events`` events (None when no event was counted)."""
+        return events * self.false_alarms / self.events if self.events else None
+
     def add(self, other: Detection) -> None:
         self.caught += other.caught
         self.missed += other.missed
@@ -357,14 +379,20 @@ def match_changes(person: Person, decided: Sequence[tuple[int, ContextChange]]) 
     """Count the changes decided for ``person`` ((event, change), in order) against its true
     changes: a true change is caught by the first change decided in its context from its change
     point until the next one; every other decided change is a false alarm."""
+    return match_contexts(person, [(e, ch.context) for e, ch in decided])
+
+
+def match_contexts(person: Person, decided: Sequence[tuple[int, int]]) -> Detection:
+    """:func:`match_changes` of changes given as (event of the update that decided it, context
+    index), in order."""
     out = Detection(events=person.n_events, persons=1)
     used: set[int] = set()
     for true in true_changes(person):
         hit = next(
             (
                 i
-                for i, (e, ch) in enumerate(decided)
-                if i not in used and ch.context == true.context and true.start <= e < true.stop
+                for i, (e, context) in enumerate(decided)
+                if i not in used and context == true.context and true.start <= e < true.stop
             ),
             None,
         )

@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 
 from app.commands.fleet import _differences, _fmt
-from app.fleet import make_people, overall_stats
+from app.fleet import Person, make_people, overall_stats
 from app.fleet.simulate import METRICS, occurred_at
 from app.learning import office_mission
 from tests.support.live import ATTUNE, LiveService, fresh_database
@@ -30,7 +30,12 @@ ROBOTS, USERS, EVENTS, CHANGE_AT = 4, 6, 24, 12
 
 
 def simulate(
-    service: LiveService, key: str, out: Path, *extra: str, as_json: bool = True
+    service: LiveService,
+    key: str,
+    out: Path,
+    *extra: str,
+    as_json: bool = True,
+    change_at: int | None = CHANGE_AT,
 ) -> subprocess.CompletedProcess[str]:
     args = [
         ATTUNE,
@@ -46,8 +51,7 @@ def simulate(
         str(USERS),
         "--events",
         str(EVENTS),
-        "--change-at",
-        str(CHANGE_AT),
+        *(["--change-at", str(change_at)] if change_at is not None else []),
         "--seed",
         "5",
         "--prefix",
@@ -88,6 +92,13 @@ def test_fleet_against_a_live_service(engine: str, workers: int, tmp_path: Path)
         assert done.returncode == 0, done.stdout + done.stderr
         assert "equal the robots' own tally for every user" in done.stderr
         printed = json.loads(done.stdout)  # stdout holds the JSON document and nothing else
+        # A robot key may not read the changes told to staff: one line says so, and the run
+        # goes on.
+        (line,) = [x for x in done.stderr.splitlines() if "Changes were not counted" in x]
+        assert "this key may not read them" in line
+        assert "403" in line
+        assert printed["changes"]["counted"] is False
+        assert line.endswith(printed["changes"]["why"])
         assert (tmp_path / "reward.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
         user_ids = [f"fleet-t-u{i}" for i in range(1, USERS + 1)]
@@ -122,6 +133,8 @@ def test_fleet_against_a_live_service(engine: str, workers: int, tmp_path: Path)
         table = table_run.stdout.splitlines()
         headers = [line for line in table if "interaction" in line]
         assert len(headers) == 2  # all episodes, and since the change
+        assert not any("Changes told to staff" in line for line in table)
+        assert "Changes were not counted" in table_run.stderr
         for header in headers:
             assert [cell.strip() for cell in header.split("┃")[1:-1]] == [
                 "user",
@@ -173,6 +186,168 @@ def test_fleet_says_why_it_cannot_start(tmp_path: Path) -> None:
         assert done.returncode == 2
         assert "No service answers" in done.stderr
     assert not (tmp_path / "reward.png").exists()
+
+
+def listed_changes(service: LiveService, key: str, user_id: str) -> list[dict[str, Any]]:
+    r = httpx.get(
+        f"{service.url}/v1/users/{user_id}/changes",
+        params={"limit": 500},
+        headers={"Authorization": f"Bearer {key}"},
+        timeout=30,
+    )
+    assert r.status_code == 200, r.text
+    assert r.json()["next_cursor"] is None
+    items: list[dict[str, Any]] = r.json()["items"]
+    return items
+
+
+def counted_here(
+    people: list[Person], listed: dict[str, list[dict[str, Any]]], change_at: int
+) -> dict[str, Any]:
+    """The changes the service listed, counted against the people's true changes by the rule
+    the command documents, written out here: a need replaced or ended at the change point is a
+    true change; the first change listed in its context and decided at or after the change
+    point catches it; every other change listed is a false alarm."""
+    true = caught = within = 0
+    late: list[int] = []
+    for person in people:
+        before, after = person.profiles
+        decided = sorted(
+            (c["decided"]["episode"] - 1, MISSION.context_index(c["time_slot"], c["situation"]))
+            for c in listed[person.user_id]
+        )
+        used: set[int] = set()
+        for need in before.needs:
+            if after.need_at(need.context) == need:
+                continue
+            true += 1
+            hit = next(
+                (
+                    i
+                    for i, (event, context) in enumerate(decided)
+                    if i not in used and context == need.context and event >= change_at
+                ),
+                None,
+            )
+            if hit is None:
+                continue
+            used.add(hit)
+            event = decided[hit][0]
+            caught += 1
+            late.append(event - change_at)
+            seen = int(np.count_nonzero(person.contexts[change_at : event + 1] == need.context))
+            within += seen <= 3
+    recorded = sum(len(items) for items in listed.values())
+    return {
+        "true_changes": true,
+        "caught": caught,
+        "caught_within": within,
+        "recorded": recorded,
+        "false_alarms": recorded - caught,
+        "max_events_late": max(late) if late else None,
+    }
+
+
+@pytest.mark.live
+def test_the_changes_told_to_staff_are_counted_against_the_true_ones(tmp_path: Path) -> None:
+    """A staff key reads each person's changes told to staff: the command counts them against
+    the changes the people's needs went through, its figures agree with each other and with a
+    count made here from the service's own lists, and on this seeded run the default learner
+    catches some changes, each after the change point. A run whose needs never change checks
+    the false alarms target instead."""
+    events, change_at = 60, 30
+    with fresh_database("sqlite") as url, LiveService(url) as service:
+        key = service.create_key("staff", name="fleet-staff")
+        done = simulate(
+            service,
+            key,
+            tmp_path,
+            "--events",
+            str(events),
+            "--prefix",
+            "fleet-s",
+            change_at=change_at,
+        )
+        assert done.returncode == 0, done.stdout + done.stderr
+        assert "Changes were not counted" not in done.stderr
+        changes = json.loads(done.stdout)["changes"]
+        assert set(changes) == {
+            "counted",
+            "persons",
+            "events",
+            "recorded",
+            "true_changes",
+            "caught",
+            "caught_share",
+            "missed",
+            "within_visits",
+            "caught_within",
+            "caught_within_share",
+            "median_events_late",
+            "max_events_late",
+            "false_alarms",
+            "events_per_month",
+            "false_alarms_per_person_month",
+            "targets",
+        }
+        assert changes["counted"] is True
+        assert (changes["persons"], changes["events"]) == (USERS, USERS * events)
+        assert changes["caught"] + changes["missed"] == changes["true_changes"]
+        assert changes["recorded"] == changes["caught"] + changes["false_alarms"]
+        for share in ("caught_share", "caught_within_share"):
+            assert 0 <= changes[share] <= 1
+        assert changes["caught_share"] == changes["caught"] / changes["true_changes"]
+        assert changes["false_alarms_per_person_month"] == pytest.approx(
+            changes["events_per_month"] * changes["false_alarms"] / (USERS * events)
+        )
+
+        people = make_people(
+            MISSION, users=USERS, events=events, change_at=change_at, seed=5, prefix="fleet-s"
+        )
+        listed = {p.user_id: listed_changes(service, key, p.user_id) for p in people}
+        for name, value in counted_here(people, listed, change_at).items():
+            assert changes[name] == value, name
+
+        # This seeded run, with the default learner: changes to catch, some caught in time,
+        # none of them before the change point, all within the run.
+        assert changes["true_changes"] > 0
+        assert 0 < changes["caught_within"] <= changes["caught"] <= changes["true_changes"]
+        assert 0 <= changes["median_events_late"] <= changes["max_events_late"]
+        assert changes["max_events_late"] < events - change_at
+        caught_target, alarms_target = changes["targets"]
+        assert caught_target["met"] == (changes["caught_within_share"] >= 0.9)
+        assert caught_target["value"] == changes["caught_within_share"]
+        assert alarms_target["met"] is None
+        assert alarms_target["why"] == "needs a run without --change-at"
+
+        # Needs that never change: no true change, every recorded one a false alarm; the
+        # false alarms target is the one checked, in the table.
+        still = simulate(
+            service,
+            key,
+            tmp_path,
+            "--users",
+            "3",
+            "--events",
+            "40",
+            "--prefix",
+            "fleet-still",
+            as_json=False,
+            change_at=None,
+        )
+        assert still.returncode == 0, still.stderr
+        table = still.stdout.splitlines()
+        assert any("Changes told to staff" in line for line in table)
+        row = next(line for line in table if line.startswith("│ true changes "))
+        assert row.split("│")[2].strip() == "0"
+        caught_row = next(
+            line
+            for line in table
+            if "caught within 3 visits of the changed" in line and "target" in line
+        )
+        assert "not checked: needs a run with --change-at" in caught_row
+        alarms_row = next(line for line in table if "≤ 1 false alarm per person" in line)
+        assert alarms_row.rstrip(" │").endswith(("met", "MISSED"))
 
 
 # -- the parts, without a service ----------------------------------------------------------------

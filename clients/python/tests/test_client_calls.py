@@ -203,6 +203,36 @@ PROFILE = {
 }
 
 
+CHANGE = {
+    "change_id": "7",
+    "user_id": "lin",
+    "fleet": "default",
+    "source": "routine",
+    "time_slot": "afternoon",
+    "situation": "stretching",
+    "since": {"episode": 41, "at": "2026-12-03T15:10:00+08:00"},
+    "decided": {"episode": 42, "at": "2026-12-04T07:12:09Z"},
+    "before": {"service": "ProvideDrink", "detail": "tea"},
+    "now": {"service": "ProvideDrink", "detail": "coffee"},
+    "evidence": [
+        {
+            "episode": 41,
+            "chose": None,
+            "turned_down": [{"service": "ProvideDrink", "detail": "tea"}],
+            "turned_down_offer": False,
+        },
+        {
+            "episode": 42,
+            "chose": {"service": "ProvideDrink", "detail": "coffee"},
+            "turned_down": [],
+            "turned_down_offer": False,
+        },
+    ],
+    "summary": "Since 3 December, Mrs. Lin wants coffee instead of tea in the afternoon, "
+    "while stretching.",
+}
+
+
 class Recorder:
     """Answers ``(status, body, headers)`` for every request and keeps the requests."""
 
@@ -763,6 +793,133 @@ class TestCorrections:
         assert rec.last.url.path == "/v1/users/chen/corrections/c-1"
         await client.reset_model("chen", drop_corrections=True)
         assert rec.last.url.params["corrections"] == "drop"
+
+
+class TestChanges:
+    def test_list_changes(self, make_client: MakeClient) -> None:
+        rec = Recorder(200, {"items": [CHANGE], "next_cursor": "7"})
+        page = make_client(rec).list_changes("lin", limit=1, cursor="9")
+        assert (rec.last.method, rec.last.url.path) == ("GET", "/v1/users/lin/changes")
+        assert dict(rec.last.url.params) == {"limit": "1", "cursor": "9"}
+        assert isinstance(page, a.ChangeList)
+        assert page.next_cursor == "7"
+        (change,) = page.items
+        assert isinstance(change, a.ChangeEvent)
+        assert change.source == "routine"
+        assert (change.time_slot, change.situation) == ("afternoon", "stretching")
+        assert change.since == a.ChangeMoment(
+            episode=41,
+            at=dt.datetime(2026, 12, 3, 15, 10, tzinfo=dt.timezone(dt.timedelta(hours=8))),
+        )
+        assert change.decided.episode == 42
+        assert change.decided.at == dt.datetime(2026, 12, 4, 7, 12, 9, tzinfo=dt.UTC)
+        assert change.before == a.Wanted(service="ProvideDrink", detail="tea")
+        assert change.now == a.Wanted(service="ProvideDrink", detail="coffee")
+        first, second = change.evidence
+        assert isinstance(first, a.ChangeEvidence)
+        assert first.chose is None
+        assert first.turned_down == [a.Wanted(service="ProvideDrink", detail="tea")]
+        assert second.chose == change.now
+        assert not second.turned_down_offer
+        assert change.summary.startswith("Since 3 December")
+        assert change.model_dump(mode="json") == CHANGE
+
+    def test_a_change_given_up_has_nothing_now(self) -> None:
+        change = a.ChangeEvent.model_validate(
+            {**CHANGE, "source": "profile", "now": None, "evidence": []}
+        )
+        assert change.now is None
+        assert change.source == "profile"
+        newer = a.ChangeEvent.model_validate({**CHANGE, "source": "staff_note", "mood": "calm"})
+        source: str = newer.source  # a source a newer service adds still parses
+        assert source == "staff_note"
+        assert newer.model_extra == {"mood": "calm"}
+
+    def test_iterate_changes_page_after_page(self, make_client: MakeClient) -> None:
+        pages = {
+            None: {"items": [CHANGE], "next_cursor": "7"},
+            "7": {"items": [{**CHANGE, "change_id": "3"}], "next_cursor": None},
+        }
+        seen: list[httpx.Request] = []
+
+        def handler(request: httpx.Request) -> httpx.Response:
+            seen.append(request)
+            return httpx.Response(200, json=pages[request.url.params.get("cursor")])
+
+        client = make_client(handler)
+        assert [c.change_id for c in client.iter_changes("a/b", page_size=1)] == ["7", "3"]
+        assert [r.url.raw_path.split(b"?")[0] for r in seen] == [b"/v1/users/a%2Fb/changes"] * 2
+        assert [dict(r.url.params) for r in seen] == [
+            {"limit": "1"},
+            {"limit": "1", "cursor": "7"},
+        ]
+
+    def test_list_fleet_changes(self, make_client: MakeClient) -> None:
+        rec = Recorder(200, {"items": [CHANGE], "next_cursor": None})
+        client = make_client(rec)
+        page = client.list_fleet_changes("care-north")
+        assert (rec.last.method, rec.last.url.path) == (
+            "GET",
+            "/v1/admin/fleets/care-north/changes",
+        )
+        assert dict(rec.last.url.params) == {"limit": "50"}
+        assert page.items[0].user_id == "lin"
+        week_ago = dt.datetime(2026, 11, 27, 8, 0, tzinfo=dt.timezone(dt.timedelta(hours=8)))
+        client.list_fleet_changes("care-north", since=week_ago, limit=10, cursor="12")
+        assert dict(rec.last.url.params) == {
+            "since": "2026-11-27T08:00:00+08:00",
+            "limit": "10",
+            "cursor": "12",
+        }
+        assert b"since=2026-11-27T08%3A00%3A00%2B08%3A00" in rec.last.url.query
+        client.list_fleet_changes("care-north", since="2026-11-27T00:00:00Z")
+        assert rec.last.url.params["since"] == "2026-11-27T00:00:00Z"
+        assert [c.change_id for c in client.iter_fleet_changes("care-north", since=week_ago)] == [
+            "7"
+        ]
+        assert dict(rec.last.url.params) == {"since": "2026-11-27T08:00:00+08:00", "limit": "100"}
+
+    def test_a_naive_since_is_refused_before_sending(self, make_client: MakeClient) -> None:
+        rec = Recorder(200, {"items": [], "next_cursor": None})
+        with pytest.raises(ValueError, match="since needs a time zone"):
+            make_client(rec).list_fleet_changes("care", since=dt.datetime(2026, 11, 27))
+        assert rec.requests == []
+
+    def test_a_robot_key_is_refused(self, make_client: MakeClient) -> None:
+        rec = Recorder(403, {"error": "Forbidden", "detail": "Staff and admin keys only."})
+        client = make_client(rec)
+        with pytest.raises(a.PermissionDeniedError, match="Staff and admin keys only"):
+            client.list_changes("lin")
+        with pytest.raises(a.PermissionDeniedError):
+            list(client.iter_fleet_changes("default"))
+        assert len(rec.requests) == 2  # a 403 is not retried
+
+    @pytest.mark.anyio
+    async def test_the_async_client(self, make_async_client: MakeAsyncClient) -> None:
+        pages = {
+            None: {"items": [CHANGE], "next_cursor": "7"},
+            "7": {"items": [{**CHANGE, "change_id": "3"}], "next_cursor": None},
+        }
+        seen: list[httpx.Request] = []
+
+        def handler(request: httpx.Request) -> httpx.Response:
+            seen.append(request)
+            return httpx.Response(200, json=pages[request.url.params.get("cursor")])
+
+        client = make_async_client(handler)
+        page = await client.list_changes("lin", limit=1)
+        assert page.items[0].before == a.Wanted(service="ProvideDrink", detail="tea")
+        assert seen[-1].url.path == "/v1/users/lin/changes"
+        assert [c.change_id async for c in client.iter_changes("lin", page_size=1)] == ["7", "3"]
+        fleet_page = await client.list_fleet_changes("care", since="2026-11-27T00:00:00Z")
+        assert fleet_page.next_cursor == "7"
+        assert seen[-1].url.path == "/v1/admin/fleets/care/changes"
+        assert seen[-1].url.params["since"] == "2026-11-27T00:00:00Z"
+        got = [c.change_id async for c in client.iter_fleet_changes("care", page_size=1)]
+        assert got == ["7", "3"]
+        assert seen[-1].url.params["cursor"] == "7"
+        with pytest.raises(ValueError, match="since"):
+            await client.list_fleet_changes("care", since=dt.datetime(2026, 11, 27))
 
 
 class TestModels:

@@ -86,6 +86,11 @@ def test_the_public_api_is_there() -> None:
         "Wanted",
         "Correction",
         "CorrectionList",
+        "ChangeEvent",
+        "ChangeEvidence",
+        "ChangeList",
+        "ChangeMoment",
+        "ChangeSource",
     }
     assert expected <= set(attune_client.__all__)
     methods = {
@@ -116,6 +121,10 @@ def test_the_public_api_is_there() -> None:
         "list_corrections",
         "add_correction",
         "lift_correction",
+        "list_changes",
+        "iter_changes",
+        "list_fleet_changes",
+        "iter_fleet_changes",
     }
     for cls in (attune_client.Client, attune_client.AsyncClient):
         missing = {m for m in methods if not callable(getattr(cls, m, None))}

@@ -18,10 +18,12 @@ from app.learning.population import (
     NOISE_RANGE,
     RAMP,
     REFUSE_RANGE,
+    Detection,
     Family,
     Person,
     change_event,
     match_changes,
+    match_contexts,
     oracle_action,
     people,
     run_family,
@@ -402,3 +404,27 @@ class TestTrueChanges:
         assert counted.missed == len(rest)
         assert counted.false_alarms == 2
         assert (counted.events, counted.persons) == (N_EVENTS, 1)
+        # The same changes given as (event, context): the same count.
+        assert match_contexts(person, [(e, ch.context) for e, ch in hits]) == counted
+        assert counted.caught_within(2) == counted.caught_within() == 1
+        assert counted.caught_within(1) == 0
+        assert counted.false_alarms_per(N_EVENTS) == pytest.approx(2.0)
+        assert counted.false_alarms_per() == pytest.approx(500 * 2 / N_EVENTS)
+
+    def test_a_change_in_another_context_or_before_the_change_is_a_false_alarm(self) -> None:
+        persons, _ = people(FAMILIES["abrupt"], MISSION, 5, 1, N_EVENTS)
+        person = persons[0]
+        changed = {ch.context for ch in true_changes(person)}
+        still = next(c for c in range(MISSION.n_contexts) if c not in changed)
+        at = person.change_at
+        assert at is not None
+        first = min(changed)
+        counted = match_contexts(person, [(at - 1, first), (at, still), (N_EVENTS - 1, first)])
+        assert counted.false_alarms == 2
+        assert len(counted.caught) == 1
+        assert counted.caught[0][0] == N_EVENTS - 1 - at
+        assert counted.missed == len(changed) - 1
+        assert counted.true == len(changed)
+        nothing = Detection()
+        assert nothing.false_alarms_per() is None
+        assert nothing.caught_within() == 0

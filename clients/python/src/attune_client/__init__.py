@@ -1,5 +1,6 @@
 """Typed client for the Attune v1 API: users, episodes, outcomes, feedback, models and stats,
-the profile and staff corrections, with bounded retries and an offline outbox for robots.
+the profile, staff corrections and the changes told to staff, with bounded retries and an
+offline outbox for robots.
 
     from attune_client import Client
 
@@ -34,6 +35,11 @@ from ._models import (
     ActionBelief,
     ActionKind,
     ActionProbability,
+    ChangeEvent,
+    ChangeEvidence,
+    ChangeList,
+    ChangeMoment,
+    ChangeSource,
     Context,
     ContextBelief,
     Correction,
@@ -98,6 +104,11 @@ __all__ = [
     "AttuneError",
     "AuthenticationError",
     "BadRequestError",
+    "ChangeEvent",
+    "ChangeEvidence",
+    "ChangeList",
+    "ChangeMoment",
+    "ChangeSource",
     "Client",
     "ConflictError",
     "Context",

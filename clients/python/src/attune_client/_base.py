@@ -26,6 +26,7 @@ from ._exceptions import (
     PermissionDeniedError,
 )
 from ._models import (
+    ChangeList,
     Correction,
     CorrectionKind,
     CorrectionList,
@@ -148,6 +149,14 @@ def _timestamp(value: dt.datetime | str) -> str:
                 "occurred_at needs a time zone (the local time of its offset picks "
                 "the time slot); use an aware datetime"
             )
+        return value.isoformat()
+    return value
+
+
+def _since(value: dt.datetime | str) -> str:
+    if isinstance(value, dt.datetime):
+        if value.tzinfo is None or value.utcoffset() is None:
+            raise ValueError("since needs a time zone; use an aware datetime")
         return value.isoformat()
     return value
 
@@ -428,6 +437,31 @@ class Api:
             "DELETE",
             f"/v1/users/{_segment(user_id)}/corrections/{_segment(correction_id)}",
             _nothing,
+        )
+
+    @staticmethod
+    def list_changes(user_id: str, limit: int, cursor: str | None) -> Op[ChangeList]:
+        params: dict[str, str | int] = {"limit": limit}
+        if cursor is not None:
+            params["cursor"] = cursor
+        return Op(
+            "GET", f"/v1/users/{_segment(user_id)}/changes", _model(ChangeList), params=params
+        )
+
+    @staticmethod
+    def list_fleet_changes(
+        fleet: str, since: dt.datetime | str | None, limit: int, cursor: str | None
+    ) -> Op[ChangeList]:
+        params: dict[str, str | int] = {"limit": limit}
+        if since is not None:
+            params["since"] = _since(since)
+        if cursor is not None:
+            params["cursor"] = cursor
+        return Op(
+            "GET",
+            f"/v1/admin/fleets/{_segment(fleet)}/changes",
+            _model(ChangeList),
+            params=params,
         )
 
     @staticmethod

@@ -29,6 +29,8 @@ from ._base import (
 from ._constants import DEFAULT_MAX_RETRIES, DEFAULT_TIMEOUT
 from ._exceptions import AttuneError, make_status_error
 from ._models import (
+    ChangeEvent,
+    ChangeList,
     Correction,
     CorrectionKind,
     CorrectionList,
@@ -669,6 +671,74 @@ class Client(BaseClient):
         """
         self._call(Api.lift_correction(user_id, correction_id))
 
+    # -- changes told to staff -----------------------------------------------------------------
+    def list_changes(
+        self, user_id: str, *, limit: int = 50, cursor: str | None = None
+    ) -> ChangeList:
+        """``GET /v1/users/{user_id}/changes``: one page of the changes in what the person
+        wants, newest first (the fleet's staff, admins). Each ``ChangeEvent`` says in which
+        time slot and situation, since which episode and decided at which, what they wanted
+        before and what now, on what evidence, and in words (``summary``). Pass the page's
+        ``next_cursor`` as ``cursor`` for the next. The service records the read as a look at
+        the person's data.
+
+        Raises:
+            PermissionDeniedError: a robot key.
+            NotFoundError: no such user in your fleet.
+        """
+        return self._call(Api.list_changes(user_id, limit, cursor))
+
+    def iter_changes(self, user_id: str, *, page_size: int = 100) -> Iterator[ChangeEvent]:
+        """Every change of a user, newest first, page after page of ``page_size`` (the
+        fleet's staff, admins); see ``list_changes``."""
+        cursor: str | None = None
+        while True:
+            page = self.list_changes(user_id, limit=page_size, cursor=cursor)
+            yield from page.items
+            if page.next_cursor is None:
+                return
+            cursor = page.next_cursor
+
+    def list_fleet_changes(
+        self,
+        fleet: str,
+        *,
+        since: dt.datetime | str | None = None,
+        limit: int = 50,
+        cursor: str | None = None,
+    ) -> ChangeList:
+        """``GET /v1/admin/fleets/{fleet}/changes``: one page of the changes in what the
+        fleet's people want, newest first, each a ``ChangeEvent`` as ``list_changes`` gives it
+        (the fleet's staff, admins). Each person the page lists is recorded as looked at.
+
+        Args:
+            fleet: whose people.
+            since: only the changes decided at or after this time (an aware ``datetime`` or
+                RFC 3339 text with an offset), e.g. a week ago for what changed this week.
+            limit: changes per page, 1 to 500.
+            cursor: the ``next_cursor`` of the previous page.
+
+        Raises:
+            PermissionDeniedError: a robot key, or staff of another fleet.
+            UnprocessableEntityError: ``since`` without an offset, a bad ``limit`` or
+                ``cursor``.
+            ValueError: ``since`` is a naive ``datetime``.
+        """
+        return self._call(Api.list_fleet_changes(fleet, since, limit, cursor))
+
+    def iter_fleet_changes(
+        self, fleet: str, *, since: dt.datetime | str | None = None, page_size: int = 100
+    ) -> Iterator[ChangeEvent]:
+        """Every change of a fleet's people (decided at or after ``since``, when given), newest
+        first, page after page of ``page_size``; see ``list_fleet_changes``."""
+        cursor: str | None = None
+        while True:
+            page = self.list_fleet_changes(fleet, since=since, limit=page_size, cursor=cursor)
+            yield from page.items
+            if page.next_cursor is None:
+                return
+            cursor = page.next_cursor
+
 
 class AsyncClient(BaseClient):
     """An asynchronous client of the Attune v1 API, with the methods of ``Client`` as
@@ -1071,3 +1141,47 @@ class AsyncClient(BaseClient):
         """``DELETE /v1/users/{user_id}/corrections/{correction_id}``; see
         ``Client.lift_correction``."""
         await self._call(Api.lift_correction(user_id, correction_id))
+
+    # -- changes told to staff -----------------------------------------------------------------
+    async def list_changes(
+        self, user_id: str, *, limit: int = 50, cursor: str | None = None
+    ) -> ChangeList:
+        """``GET /v1/users/{user_id}/changes``; see ``Client.list_changes``."""
+        return await self._call(Api.list_changes(user_id, limit, cursor))
+
+    async def iter_changes(
+        self, user_id: str, *, page_size: int = 100
+    ) -> AsyncIterator[ChangeEvent]:
+        """Every change of a user, newest first; see ``Client.iter_changes``."""
+        cursor: str | None = None
+        while True:
+            page = await self.list_changes(user_id, limit=page_size, cursor=cursor)
+            for change in page.items:
+                yield change
+            if page.next_cursor is None:
+                return
+            cursor = page.next_cursor
+
+    async def list_fleet_changes(
+        self,
+        fleet: str,
+        *,
+        since: dt.datetime | str | None = None,
+        limit: int = 50,
+        cursor: str | None = None,
+    ) -> ChangeList:
+        """``GET /v1/admin/fleets/{fleet}/changes``; see ``Client.list_fleet_changes``."""
+        return await self._call(Api.list_fleet_changes(fleet, since, limit, cursor))
+
+    async def iter_fleet_changes(
+        self, fleet: str, *, since: dt.datetime | str | None = None, page_size: int = 100
+    ) -> AsyncIterator[ChangeEvent]:
+        """Every change of a fleet's people, newest first; see ``Client.iter_fleet_changes``."""
+        cursor: str | None = None
+        while True:
+            page = await self.list_fleet_changes(fleet, since=since, limit=page_size, cursor=cursor)
+            for change in page.items:
+                yield change
+            if page.next_cursor is None:
+                return
+            cursor = page.next_cursor

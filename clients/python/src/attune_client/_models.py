@@ -8,18 +8,19 @@ Strings whose values the contract fixes are ``Literal`` types, so that a type ch
 a misspelt one (``report_outcome(..., response="acepted")`` fails ``mypy --strict``): the kinds
 of action (:data:`ActionKind`), the responses (:data:`OutcomeResponse`), feedback
 (:data:`Feedback`), the initiator (:data:`Initiator`), the negotiation's states
-(:data:`NegotiationState`), an episode's status, a correction's kind. They are ``Literal``
-rather than enums because the JSON holds strings: a value compares equal to the text the
-service sends and to the text a robot's code writes, and nothing is converted on the way.
+(:data:`NegotiationState`), an episode's status, a correction's kind, what decided a change
+(:data:`ChangeSource`). They are ``Literal`` rather than enums because the JSON holds strings:
+a value compares equal to the text the service sends and to the text a robot's code writes,
+and nothing is converted on the way.
 
 What each mission defines is plain ``str``: situations, time slots, services and details are
 the names of the fleet's mission (``GET /v1/mission``), which staff may change at any time, so
 no type can list them.
 
-A kind of action, a response or a state that a newer service adds within v1 (changes there only
-add) still parses: those fields are typed with their ``Literal`` for the type checker but
-accept any string at run time, as they always did. ``status`` and the other enumerations the
-client checked before are checked as before.
+A kind of action, a response, a state or a change's source that a newer service adds within v1
+(changes there only add) still parses: those fields are typed with their ``Literal`` for the
+type checker but accept any string at run time, as they always did. ``status`` and the other
+enumerations the client checked before are checked as before.
 """
 
 from __future__ import annotations
@@ -34,6 +35,11 @@ __all__ = [
     "ActionKind",
     "ActionBelief",
     "ActionProbability",
+    "ChangeEvent",
+    "ChangeEvidence",
+    "ChangeList",
+    "ChangeMoment",
+    "ChangeSource",
     "Context",
     "ContextBelief",
     "Correction",
@@ -92,6 +98,11 @@ CorrectionKind = Literal["prefers", "avoid", "quiet"]
 answers contradict it twice in a row), ``avoid`` (a service, or a service and detail, the robot
 never chooses there), ``quiet`` (the robot never initiates there)."""
 CorrectionStatus = Literal["in_force", "overridden", "lifted", "idle"]
+ChangeSource = Literal["routine", "change_test", "profile"]
+"""What decided a change in what a person wants: ``routine`` (``dts-routine``'s routine for the
+context was refused and replaced, or given up), ``change_test`` (DTS's change test), or
+``profile`` (the person's own answers no longer support what they wanted: every learner without
+a mechanism of its own)."""
 Certainty = Literal["unknown", "tentative", "confident"]
 ActionKind = Literal[
     "initiate",
@@ -145,6 +156,7 @@ _ActionKind = Annotated[ActionKind, PlainValidator(_text)]
 _OutcomeResponse = Annotated[OutcomeResponse, PlainValidator(_text)]
 _Feedback = Annotated[Feedback, PlainValidator(_text)]
 _State = Annotated[NegotiationState, PlainValidator(_text)]
+_ChangeSource = Annotated[ChangeSource, PlainValidator(_text)]
 
 
 class _Model(BaseModel):
@@ -515,6 +527,59 @@ class Profile(_Model):
             if entry.time_slot == time_slot and entry.situation == situation:
                 return entry
         raise KeyError(f"no context ({time_slot!r}, {situation!r}) in the profile")
+
+
+# -- changes told to staff ---------------------------------------------------------------------
+class ChangeMoment(_Model):
+    """One of the person's episodes (``episode``, their episode index, from 1) and when:
+    for a change's ``since``, the episode's time as the robot reported it (its local offset);
+    for its ``decided``, when the service decided, in UTC."""
+
+    episode: int
+    at: dt.datetime
+
+
+class ChangeEvidence(_Model):
+    """One episode that showed a change: what the person chose (a service, and the detail when
+    known; None: nothing), what they turned down, and whether they turned the robot's offer
+    of help down."""
+
+    episode: int
+    chose: Wanted | None = None
+    turned_down: list[Wanted] = Field(default_factory=list)
+    turned_down_offer: bool = False
+
+
+class ChangeEvent(_Model):
+    """What a person wants in one time slot and situation changed (a change told to staff).
+
+    ``source`` (:data:`ChangeSource`) says what decided it; ``since`` is the first episode of
+    the new wish and ``decided`` the episode whose end decided it (:class:`ChangeMoment`);
+    ``before`` is what they wanted before and ``now`` what they want now (None: they turn it
+    down and chose nothing else yet); ``evidence`` lists the episodes that showed it, oldest
+    first; ``summary`` says it in words for staff. ``change_id`` is opaque.
+    """
+
+    change_id: str
+    user_id: str
+    fleet: str
+    source: _ChangeSource
+    time_slot: str
+    situation: str
+    since: ChangeMoment
+    decided: ChangeMoment
+    before: Wanted | None = None
+    now: Wanted | None = None
+    evidence: list[ChangeEvidence] = Field(default_factory=list)
+    summary: str
+
+
+class ChangeList(_Model):
+    """One page of changes, newest first; pass ``next_cursor`` back for the next (None on the
+    last page)."""
+
+    items: list[ChangeEvent]
+    next_cursor: str | None = None
 
 
 class TimeSlot(_Model):
