@@ -102,7 +102,7 @@ def test_the_contract_over_http(live: LiveService) -> None:
         document = admin.export_model("lin")
         admin.reset_model("lin")
         assert robot.get_model("lin").version == version + 1
-        assert admin.import_model("lin", document).algorithm == "dts-adapt"
+        assert admin.import_model("lin", document).algorithm == "dts-routine"
 
         # each error the service produces, as its class
         with a.Client(live.url, "att_unknown") as stranger, pytest.raises(a.AuthenticationError):

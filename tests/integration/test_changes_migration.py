@@ -54,7 +54,10 @@ def _fill(old: OldService) -> dict[str, Any]:
     with release.clients(old, keys) as (secrets, api):
         n = 0
         for uid in USERS:
-            assert api["robot"].put(f"/v1/users/{uid}", json={}).status_code == 201
+            # HRI: a learner without a change mechanism of its own, whose changes the
+            # profile's walk tells (a learner with one tells its own: tests/api/test_changes.py)
+            body = {"learner": {"algorithm": "hri"}}
+            assert api["robot"].put(f"/v1/users/{uid}", json=body).status_code == 201
             n = release.history(api["robot"], uid, 4, n)
         # Lin's wish changes under the previous release: nobody was told then.
         for i, need in enumerate([TEA] * 3 + [COFFEE] * 3):

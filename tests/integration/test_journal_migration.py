@@ -125,7 +125,8 @@ def test_the_upgrade_types_every_entry_and_changes_nothing_else(filled: Filled) 
     migrate.upgrade(url)
     assert revision(url) == migrate.head_revision()
     kept = [t for t in tables if t != "samples"]
-    assert table_names(url, as_stored=True) == sorted([*kept, "journal"])
+    assert set(table_names(url, as_stored=True)) >= {*kept, "journal"}  # and later ones
+    assert "samples" not in table_names(url, as_stored=True)
     assert table_rows(url, kept) == {t: rows_before[t] for t in kept}
     assert table_rows(url, ["samples"]) == {"samples": rows_before["samples"]}, (
         "an entry lost or changed a field"
