@@ -181,6 +181,39 @@ class TabularLearner(Generic[P]):
             chain.append(ChainStep(state, action, probs, nxt, float(space.silent_reward[action])))
             state = nxt
 
+    def distributions(
+        self, context: int, states: Sequence[int], episode: int, rng: np.random.Generator
+    ) -> list[FloatArray]:
+        """The distributions :meth:`select_action` would draw from in ``states`` of one decision
+        (its silent steps' states, then the visible one), all from one plan drawn from ``rng``,
+        each aligned with ``space.actions_of(state)``. Pure: what this learner would have done
+        at each step of a decision another learner took (off-policy evaluation, docs/method.md
+        §17)."""
+        self._check_observation(Observation(context, self.space.OBSERVE, episode))
+        plan = self._plan(context, episode, rng)
+        out: list[FloatArray] = []
+        for state in states:
+            if len(self.space.actions_of(state)) == 1:
+                out.append(_ONE)
+                continue
+            out.append(
+                restrict(
+                    self.space,
+                    self.guidance,
+                    context,
+                    state,
+                    self._policy(plan, context, state, episode),
+                )
+            )
+        return out
+
+    def action_values(self, context: int) -> FloatArray:
+        """The learner's point estimate of Q in ``context``, (P,): the value of doing each pair
+        and following the learner's model from there (the model behind a doubly robust
+        estimate)."""
+        out: FloatArray = self._q(context).copy()
+        return out
+
     @property
     def ctx_count(self) -> IntArray:
         """(C,) episodes begun per context: the visits of its root pairs."""

@@ -1,0 +1,182 @@
+"""What if another learner had served these people? Logging, replay and the truth, in simulation
+(docs/method.md §17).
+
+- :func:`log_person` runs a *logging* learner through a simulated person's events, exactly as
+  :func:`app.learning.population.run_learner` does, and keeps what the service keeps of every
+  decision: each step's state, action, reward and the whole distribution the action was drawn
+  from (silent steps too).
+- :func:`replay` feeds a *candidate* learner the logged history in order, as the service would
+  have fed it online, and asks it at every logged step what it would have done there: its
+  probability of the logged action, its mass on actions the logger never takes in that state,
+  and its own model's values (for the doubly robust estimate). It learns from what was logged,
+  not from what it would have caused: that is the approximation the validation measures.
+- :func:`steps_of` flattens logs and replays into :class:`app.learning.offpolicy.Steps`.
+
+The truth a what-if estimate is compared with is the candidate's own on-policy value on the same
+persons, events and coin flips: :func:`app.learning.population.run_learner`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from .learners.base import TabularLearner
+from .offpolicy import Steps
+from .population import STEP_UNIFORMS, Person
+from .types import FloatArray, Observation, Transition
+
+__all__ = ["Decided", "PersonLog", "Replayed", "log_person", "replay", "steps_of"]
+
+
+@dataclass(frozen=True, slots=True)
+class Decided:
+    """One logged decision: the silent steps and the visible action of one ``select_action``,
+    with the distribution each was drawn from (aligned with ``space.actions_of(state)``)."""
+
+    event: int
+    transitions: tuple[Transition, ...]
+    distributions: tuple[FloatArray, ...]
+
+
+@dataclass
+class PersonLog:
+    """A person's logged history: decisions in order, and each episode's total reward."""
+
+    decisions: list[Decided] = field(default_factory=list)
+    returns: list[float] = field(default_factory=list)
+
+    @property
+    def n_steps(self) -> int:
+        return sum(len(d.transitions) for d in self.decisions)
+
+
+@dataclass(frozen=True)
+class Replayed:
+    """A candidate's answers at every logged step of one person, in the log's order, shape
+    (steps,) each: its probability of the logged action (``target``), of actions the logger
+    gave probability 0 (``unsupported``), its model's value of the logged action
+    (``q_hat``) and of the state under its own policy (``v_hat``)."""
+
+    target: FloatArray
+    unsupported: FloatArray
+    q_hat: FloatArray
+    v_hat: FloatArray
+
+
+def log_person(
+    learner: TabularLearner[Any], person: Person, uniforms: np.ndarray, rng: np.random.Generator
+) -> PersonLog:
+    """``learner`` through ``person``'s events (the rewards are those of ``run_learner``)."""
+    space = learner.space
+    log = PersonLog()
+    for e in range(person.n_events):
+        context, episode = int(person.contexts[e]), e + 1
+        state, step, total = space.OBSERVE, 0, 0.0
+        while state != space.END:
+            assert STEP_UNIFORMS * (step + 1) <= uniforms.shape[1], "too long an episode"
+            decision = learner.select_action(Observation(context, state, episode), rng)
+            batch = decision.chain_transitions(episode)
+            cols = uniforms[e, STEP_UNIFORMS * step : STEP_UNIFORMS * (step + 1)]
+            reaction, _ = person.respond(space, e, decision.state, decision.action, cols)
+            batch.append(
+                Transition(
+                    episode,
+                    context,
+                    decision.state,
+                    decision.action,
+                    reaction.reward,
+                    reaction.next_state,
+                    reaction.signal,
+                )
+            )
+            learner.update(batch)
+            dists = (*(c.probabilities for c in decision.chain), decision.probabilities)
+            log.decisions.append(Decided(e, tuple(batch), dists))
+            total += sum(t.reward for t in batch)
+            state, step = reaction.next_state, step + 1
+        log.returns.append(total)
+    return log
+
+
+def replay(log: PersonLog, candidate: TabularLearner[Any], rng: np.random.Generator) -> Replayed:
+    """``candidate`` (fresh, or as the person's model stood before the log) through ``log``:
+    before each logged decision it is asked what it would have done at each of its steps, then
+    it learns the decision's transitions."""
+    space = candidate.space
+    n = log.n_steps
+    target = np.empty(n, dtype=np.float64)
+    unsupported = np.empty(n, dtype=np.float64)
+    q_hat = np.empty(n, dtype=np.float64)
+    v_hat = np.empty(n, dtype=np.float64)
+    i = 0
+    for d in log.decisions:
+        first = d.transitions[0]
+        states = [t.state for t in d.transitions]
+        mine = candidate.distributions(first.context, states, first.episode, rng)
+        q = candidate.action_values(first.context)
+        for t, theirs, ours in zip(d.transitions, d.distributions, mine, strict=True):
+            actions = space.actions_of(t.state)
+            target[i] = ours[t.action - actions.start]
+            unsupported[i] = float(ours[theirs <= 0.0].sum())
+            q_hat[i] = q[t.action]
+            v_hat[i] = float(ours @ q[actions.start : actions.stop])
+            i += 1
+        candidate.update(list(d.transitions))
+    return Replayed(target, unsupported, q_hat, v_hat)
+
+
+def logged_probabilities(log: PersonLog, space_actions: Any) -> FloatArray:
+    """The logger's probability of each logged action, in the log's order."""
+    out = [
+        float(dist[t.action - space_actions(t.state).start])
+        for d in log.decisions
+        for t, dist in zip(d.transitions, d.distributions, strict=True)
+    ]
+    return np.asarray(out, dtype=np.float64)
+
+
+def steps_of(
+    logs: Sequence[PersonLog],
+    replays: Sequence[Replayed],
+    space_actions: Any,
+    *,
+    events: int | None = None,
+) -> Steps:
+    """The logged steps of every person (person i is cluster i), their episodes in order; with
+    ``events``, only each person's first ``events`` episodes."""
+    cluster: list[int] = []
+    lengths: list[int] = []
+    cols: dict[str, list[FloatArray]] = {k: [] for k in ("logged", "reward", *_REPLAYED)}
+    for p, (log, rep) in enumerate(zip(logs, replays, strict=True)):
+        step_event = np.asarray(
+            [d.event for d in log.decisions for _ in d.transitions], dtype=np.int64
+        )
+        keep = step_event < (events if events is not None else np.iinfo(np.int64).max)
+        kept = step_event[keep]
+        if not len(kept):
+            continue
+        counts = np.bincount(kept)
+        counts = counts[counts > 0]
+        cluster += [p] * len(counts)
+        lengths += counts.tolist()
+        cols["logged"].append(logged_probabilities(log, space_actions)[keep])
+        cols["reward"].append(
+            np.asarray([t.reward for d in log.decisions for t in d.transitions], dtype=np.float64)[
+                keep
+            ]
+        )
+        for name in _REPLAYED:
+            cols[name].append(getattr(rep, name)[keep])
+    offsets = np.concatenate([[0], np.cumsum(lengths)]).astype(np.int64)
+    return Steps(
+        cluster=np.asarray(cluster, dtype=np.int64),
+        offsets=offsets,
+        **{k: np.concatenate(v) if v else np.zeros(0) for k, v in cols.items()},
+    )
+
+
+_REPLAYED = ("target", "unsupported", "q_hat", "v_hat")

@@ -1,0 +1,152 @@
+"""``attune experiment what-if`` on a tiny run: the files it writes, a cell per setting, arm,
+estimator and interval whose numbers hang together, the logger's own value covered by its logs,
+the targets printed met or missed, --json, and bad options refused with a usage error."""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+from typing import Any
+
+import pytest
+from typer.testing import CliRunner, Result
+
+from app.cli import app
+from app.experiments.whatif import CSV_COLUMNS, INTERVALS
+from app.learning.offpolicy import ESTIMATORS
+
+# The module's shared run is made once: every test of the module on one worker.
+pytestmark = pytest.mark.xdist_group("experiment-whatif")
+
+FILES = ("whatif.md", "whatif.csv", "whatif.png", "summary.json")
+SIZES = (20, 60)
+CANDIDATES = ("HRI τ=0.02", "DTS")
+
+
+def run(out: Path, *extra: str) -> Result:
+    return CliRunner(env={"COLUMNS": "60"}).invoke(
+        app,
+        [
+            "experiment",
+            "what-if",
+            "--trials",
+            "3",
+            "--persons",
+            "4",
+            "--sizes",
+            ",".join(str(k) for k in SIZES),
+            "--candidates",
+            "hri-0.02,dts",
+            "--truth-runs",
+            "1",
+            "--jobs",
+            "1",
+            "--out",
+            str(out),
+            "--no-progress",
+            *extra,
+        ],
+    )
+
+
+@pytest.fixture(scope="module")
+def study(tmp_path_factory: pytest.TempPathFactory) -> tuple[Result, Path, dict[str, Any]]:
+    out = tmp_path_factory.mktemp("what-if")
+    done = run(out)
+    assert done.exit_code == 0, done.output
+    return done, out, json.loads((out / "summary.json").read_text(encoding="utf-8"))
+
+
+@pytest.mark.slow
+def test_writes_the_files_and_a_cell_for_everything(
+    study: tuple[Result, Path, dict[str, Any]],
+) -> None:
+    done, out, summary = study
+    for name in FILES:
+        assert (out / name).stat().st_size > 0, name
+    assert (out / "whatif.png").read_bytes().startswith(b"\x89PNG")
+    assert f"Wrote {len(FILES)} files" in done.stderr
+    assert summary["logger"] == "HRI τ=0.01"
+    assert summary["candidates"] == list(CANDIDATES)
+    assert summary["sizes"] == list(SIZES)
+    keys = {(c["episodes"], c["arm"], c["estimator"], c["interval"]) for c in summary["cells"]}
+    expected = {
+        (k, arm, estimator, interval)
+        for k in SIZES
+        for arm, estimators in (("HRI τ=0.01", ("logged",)), *((c, ESTIMATORS) for c in CANDIDATES))
+        for estimator in estimators
+        for interval in INTERVALS
+    }
+    assert keys == expected
+    with (out / "whatif.csv").open(encoding="utf-8") as handle:
+        records = list(csv.DictReader(handle))
+    assert len(records) == len(expected)
+    assert tuple(records[0]) == CSV_COLUMNS
+
+
+@pytest.mark.slow
+def test_the_numbers_hang_together(study: tuple[Result, Path, dict[str, Any]]) -> None:
+    _, _, summary = study
+    for c in summary["cells"]:
+        assert c["trials"] == 3
+        assert 0 <= c["answered"] <= c["trials"]
+        if c["answered"]:
+            assert 0.0 <= c["coverage"] <= c["coverage_or_silent"] <= 1.0
+            assert c["rmse"] >= abs(c["bias"]) - 1e-4
+            assert c["width"] > 0
+        if c["logger"]:
+            # the logger's own value read from its logs: every weight 1
+            assert c["ess"] == c["episodes"]
+            assert c["unsupported"] == 0
+    # a bigger fleet, narrower bootstrap intervals for the logger's own value
+    widths = {
+        c["episodes"]: c["width"]
+        for c in summary["cells"]
+        if c["logger"] and c["interval"] == "bootstrap"
+    }
+    assert widths[SIZES[1]] < widths[SIZES[0]]
+
+
+@pytest.mark.slow
+def test_prints_the_targets_met_or_missed(study: tuple[Result, Path, dict[str, Any]]) -> None:
+    done, out, summary = study
+    targets = summary["targets"]
+    # coverage per setting, and a ranking per pair of arms apart in expectation
+    assert len(targets) == len(SIZES) + len(summary["ranking"]["pairs"])
+    for t in targets:
+        verdict = "met" if t["met"] else "MISSED"
+        assert f"{verdict}: {t['target']}" in done.stdout
+        assert f"{verdict}: {t['target']}" in (out / "whatif.md").read_text(encoding="utf-8")
+    assert "Elapsed:" in done.stdout
+    assert "not the default run" in done.stdout
+    assert summary["ranking"]["episodes"] == max(SIZES)
+    for pair in summary["ranking"]["pairs"]:
+        assert pair["gap"] >= 0.1
+        for estimator in ESTIMATORS:
+            assert pair[estimator]["trials"] + pair[estimator]["silent"] == 3
+
+
+@pytest.mark.slow
+def test_json_prints_the_summary(tmp_path: Path) -> None:
+    done = run(tmp_path, "--json", "--trials", "1")
+    assert done.exit_code == 0, done.output
+    summary = json.loads(done.stdout)
+    assert summary["study"] == "what-if"
+    assert summary["run"]["trials"] == 1
+
+
+@pytest.mark.parametrize(
+    ("option", "value", "words"),
+    [
+        ("--sizes", "10,x", "numbers separated by commas"),
+        ("--sizes", "30", "multiple of --persons"),
+        ("--logger", "nobody", "one of"),
+        ("--candidates", "hri,nobody", "'nobody'"),
+        ("--families", "nowhere", "'nowhere'"),
+    ],
+)
+def test_refuses_bad_options(tmp_path: Path, option: str, value: str, words: str) -> None:
+    done = run(tmp_path, option, value)
+    assert done.exit_code == 2, done.output
+    assert words in " ".join(done.output.split())
