@@ -580,13 +580,15 @@ def plot_coverage(summary: Mapping[str, Any], path: Path) -> None:
             }
             style = "-" if estimator == summary["default_estimator"] else ":"
             name = f"{label}, {estimator}"
-            left.plot(sizes, [cells[k]["coverage"] for k in sizes], style, marker="o", label=name)
-            right.plot(sizes, [cells[k]["rmse"] for k in sizes], style, marker="o", label=name)
+            for ax, key in ((left, "coverage"), (right, "rmse")):
+                ys = [np.nan if cells[k][key] is None else cells[k][key] for k in sizes]
+                ax.plot(sizes, ys, style, marker="o", label=name)
     left.axhline(COVERAGE_TARGET, color="grey", linestyle="--", linewidth=1)
     left.set_title("coverage of the 95 % interval")
     right.set_title("RMSE (reward per episode)")
     for ax in (left, right):
         ax.set_xscale("log")
+        ax.set_xlim(min(sizes) / 1.25, max(sizes) * 1.25)  # also when no candidate had a value
         ax.set_xlabel("episodes per fleet")
         ax.set_xticks(sizes, [str(k) for k in sizes])
     left.set_ylim(0, 1.02)

@@ -46,7 +46,8 @@ noisier. With ``q_hat = v_hat = 0`` it is pdis.
 The unbiasedness claims need every action the candidate may take to have been possible under the
 logger. ``unsupported`` is the candidate's probability, in each logged state, of actions the
 logger gave probability exactly 0; no estimator can see what those actions would have earned.
-Its mean and maximum are reported: when they are not near 0, every estimate is suspect.
+Its mean and maximum are reported; above a mean of ``UNSUPPORTED_LIMIT`` (0.1: a tenth of the
+candidate's choices are actions the logs cannot show) no value is given.
 
 How much to believe an estimate
 -------------------------------
@@ -177,6 +178,7 @@ DEFAULT_MIN_ESS = 10.0
 # With fewer people than this the bootstrap resamples episodes instead (``bootstrap-episodes``).
 MIN_CLUSTERS = 5
 WEIGHT_TOLERANCE = 0.25
+UNSUPPORTED_LIMIT = 0.1
 
 _STEP_FIELDS: tuple[str, ...] = (
     "logged",
@@ -755,6 +757,17 @@ def _weight_mean(steps: Steps) -> tuple[float, float]:
     return float(np.mean(final)), se
 
 
+def _unsupported(share: float) -> str:
+    """The reason to give no value when the candidate puts more than UNSUPPORTED_LIMIT of its
+    probability, on average over the logged steps, on actions the logger never takes."""
+    if share <= UNSUPPORTED_LIMIT:
+        return ""
+    return (
+        "not enough evidence: this learner would often do what the logs never show "
+        f"({share:.0%} of its choices, on average, are actions the robots never take there)"
+    )
+
+
 def _unrepresented(weight_mean: float, weight_se: float) -> str:
     """The reason to give no value when the weights' mean plus twice its standard error is below
     1 - WEIGHT_TOLERANCE; "" otherwise."""
@@ -838,8 +851,11 @@ def estimate(
     weighted = _weighted(steps, clip)
     ess = _ess(weighted.final)
     weight_mean, weight_se = _weight_mean(steps)
-    reason = _not_enough(n_episodes, ess, min_episodes, min_ess) or _unrepresented(
-        weight_mean, weight_se
+    unsupported = float(np.mean(steps.unsupported))
+    reason = (
+        _not_enough(n_episodes, ess, min_episodes, min_ess)
+        or _unsupported(unsupported)
+        or _unrepresented(weight_mean, weight_se)
     )
     value: float | None = None
     bounds: Interval | None = None
@@ -868,7 +884,7 @@ def estimate(
         ess=ess,
         clip=float(clip),
         clipped_share=weighted.clipped_share,
-        unsupported_mean=float(np.mean(steps.unsupported)),
+        unsupported_mean=unsupported,
         unsupported_max=float(np.max(steps.unsupported)),
         enough=not reason,
         reason=reason,

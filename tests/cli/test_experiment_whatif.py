@@ -150,3 +150,18 @@ def test_refuses_bad_options(tmp_path: Path, option: str, value: str, words: str
     done = run(tmp_path, option, value)
     assert done.exit_code == 2, done.output
     assert words in " ".join(done.output.split())
+
+
+def test_a_run_where_every_candidate_is_refused_still_reports(tmp_path: Path) -> None:
+    """Logged under dts-routine, which leaves little to chance, R-MAX (which never draws) is
+    refused in every fleet: the table says so, the plot is drawn without its lines, and nothing
+    fails."""
+    done = run(tmp_path, "--logger", "dts-routine", "--candidates", "hri,rmax", "--sizes", "40")
+    assert done.exit_code == 0, done.output
+    summary = json.loads((tmp_path / "summary.json").read_text(encoding="utf-8"))
+    cells = [c for c in summary["cells"] if not c["logger"] and c["interval"] == "bootstrap"]
+    refused = [c for c in cells if c["answered"] == 0]
+    assert {c["arm"] for c in refused} >= {"R-MAX"}
+    assert all(c["coverage"] is None and c["bias"] is None for c in refused)
+    assert (tmp_path / "whatif.png").read_bytes().startswith(b"\x89PNG")
+    assert "no answer" in done.stdout

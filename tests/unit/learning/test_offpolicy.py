@@ -562,6 +562,31 @@ def test_unsupported_mass_is_reported() -> None:
     assert result.unsupported_mean == pytest.approx((15 * 0.2 + 15 * 0.6) / 45)
     assert result.unsupported_max == pytest.approx(0.6)
     assert result.to_dict()["unsupported_max"] == pytest.approx(0.6)
+    # a fifth of the candidate's choices are actions the logs cannot show: no value
+    assert not result.enough
+    assert result.value is None
+    assert "would often do what the logs never show (27% of its choices" in result.reason
+
+
+def test_a_little_unsupported_mass_still_gets_a_value() -> None:
+    episodes = [
+        {"logged": [0.5] * 2, "target": [0.5] * 2, "reward": [1.0] * 2, "unsupported": [0.0, 0.1]}
+    ] * 30
+    result = estimate(Steps.from_episodes(episodes, list(range(30))), "pdis")
+    assert result.unsupported_mean == pytest.approx(0.05)
+    assert result.enough
+    assert result.value == pytest.approx(2.0)  # weights 1: the mean return
+
+
+def test_weights_averaging_far_below_one_are_not_enough_evidence() -> None:
+    """The candidate does, half of the time, what the logger does one time in a hundred: in
+    these logs that choice never came up, so the weights average 0.5 instead of 1."""
+    seen = {"logged": [0.99], "target": [0.5], "reward": [1.0]}
+    result = estimate(Steps.from_episodes([seen] * 200, list(range(200))), "wpdis")
+    assert result.weight_mean == pytest.approx(0.5 / 0.99)
+    assert not result.enough
+    assert "rarely show what this learner would do" in result.reason
+    assert "average 0.51" in result.reason
 
 
 def test_too_few_episodes_is_not_enough_evidence() -> None:
