@@ -5,7 +5,8 @@ experiment ...`` reproduces the paper's experiments and runs the studies built o
 (``experiment``); ``attune serve``, ``attune db ...``, ``attune keys ...``, ``attune models
 ...`` and ``attune missions ...`` run and administer the service (``serve``, ``db``, ``keys``,
 ``models``, ``missions``); ``attune fleet simulate`` plays simulated robots and people against a
-running service (``fleet``).
+running service (``fleet``); ``attune evaluate`` estimates, from a fleet's stored logs, what
+other learners would have earned (``evaluate``).
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ from typing import Annotated
 import typer
 
 from app.commands import db as db_commands
+from app.commands import evaluate as evaluate_command
 from app.commands import experiment as experiment_commands
 from app.commands import fleet as fleet_commands
 from app.commands import keys as keys_commands
@@ -72,6 +74,7 @@ def _options(
 
 app.add_typer(experiment_commands.experiment, name="experiment")
 app.command("serve")(serve_command.serve)
+app.command("evaluate")(evaluate_command.evaluate)
 app.add_typer(db_commands.db, name="db")
 app.add_typer(keys_commands.keys, name="keys")
 app.add_typer(models_commands.models, name="models")

@@ -156,13 +156,17 @@ __all__ = [
     "ESTIMATORS",
     "INTERVALS",
     "MIN_CLUSTERS",
+    "UNSUPPORTED_LIMIT",
+    "WEIGHT_TOLERANCE",
     "Estimate",
     "Interval",
     "Steps",
     "estimate",
+    "expanded_level",
     "on_policy",
     "per_cluster",
     "point",
+    "resampled",
 ]
 
 BoolArray = NDArray[np.bool_]
@@ -632,7 +636,7 @@ def _bootstrap(
         size = min(block, n_boot - start)
         counts = rng.multinomial(n_groups, probabilities, size=size).astype(np.float64)
         out[start : start + size] = _values(numerator, denominator, counts)
-    level = _expanded_level(confidence, n_groups)
+    level = expanded_level(confidence, n_groups)
     low, high = np.quantile(out, [1.0 - level, level])
     return float(low), float(high)
 
@@ -679,7 +683,7 @@ def _t_quantile(p: float, df: int) -> float:
     return (low + high) / 2.0
 
 
-def _expanded_level(confidence: float, n: int) -> float:
+def expanded_level(confidence: float, n: int) -> float:
     """The upper quantile level of Hesterberg's (2015) expanded percentile interval: the level
     whose normal quantile is sqrt(n / (n - 1)) times Student's t quantile on n - 1 degrees of
     freedom, widening the percentile interval for few resampled units."""
@@ -779,9 +783,10 @@ def _unrepresented(weight_mean: float, weight_se: float) -> str:
     )
 
 
-def _resampled(steps: Steps, estimator: str, clip: float, counts: FloatArray) -> FloatArray:
+def resampled(steps: Steps, estimator: str, clip: float, counts: FloatArray) -> FloatArray:
     """The estimator on resamples of the people: ``counts[b, g]`` copies of the g-th person (in
-    the order of ``np.unique(steps.cluster)``) in resample b. The bootstrap's computation."""
+    the order of ``np.unique(steps.cluster)``) in resample b. The bootstrap's computation, for
+    callers that resample two estimates with the same people (a difference between learners)."""
     _check_estimator(estimator)
     _check_clip(clip)
     labels, group = np.unique(steps.cluster, return_inverse=True)

@@ -28,14 +28,14 @@ from app.learning.offpolicy import (
     MIN_CLUSTERS,
     Estimate,
     Steps,
-    _expanded_level,
-    _resampled,
     _t_quantile,
     _value_bounds,
     estimate,
+    expanded_level,
     on_policy,
     per_cluster,
     point,
+    resampled,
 )
 from app.learning.types import FloatArray, IntArray
 
@@ -404,9 +404,9 @@ def test_students_t_and_the_expanded_levels() -> None:
         (0.995, 120, 2.6174),
     ):
         assert _t_quantile(p, df) == pytest.approx(quantile, abs=1e-4)
-    assert _expanded_level(0.95, 20) == pytest.approx(0.9841, abs=1e-4)
-    assert 0.975 < _expanded_level(0.95, 10_000) < 0.9751
-    assert _expanded_level(0.9, 5) > _expanded_level(0.9, 10) > _expanded_level(0.9, 100) > 0.95
+    assert expanded_level(0.95, 20) == pytest.approx(0.9841, abs=1e-4)
+    assert 0.975 < expanded_level(0.95, 10_000) < 0.9751
+    assert expanded_level(0.9, 5) > expanded_level(0.9, 10) > expanded_level(0.9, 100) > 0.95
 
 
 def test_intervals_shrink_with_more_data() -> None:
@@ -444,7 +444,7 @@ def test_the_bootstrap_recomputes_the_estimator_on_resampled_people() -> None:
     steps = steps_of(logs, 0, FAR, average_model(FAR))
     counts = np.random.default_rng(8).multinomial(6, np.full(6, 1 / 6), size=5).astype(float)
     for estimator in ESTIMATORS:
-        fast = _resampled(steps, estimator, 5.0, counts)
+        fast = resampled(steps, estimator, 5.0, counts)
         for row, value in zip(counts, fast, strict=True):
             chosen = np.repeat(np.arange(6), row.astype(int))
             episodes = np.concatenate([np.flatnonzero(steps.cluster == c) for c in chosen])

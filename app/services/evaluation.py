@@ -1,0 +1,930 @@
+"""What another learner would have earned with a fleet's people, read from the fleet's stored logs
+(``attune evaluate``; the method: :mod:`app.learning.offpolicy`, docs/method.md §17).
+
+For each person of the fleet (a page of people at a time; each person's rows read in one read
+transaction of their own, then worked on with the database let go), the logged history is
+rebuilt from what the service stores, and each *candidate* (an algorithm and its parameters,
+:class:`CandidateSpec`) is replayed through it, as :func:`app.learning.whatif.replay` does in
+simulation:
+
+- **The candidate's start.** The model's journal is walked from the model's base (its
+  ``base_version``). A fresh base (a new person, a reset that dropped the corrections) makes a
+  fresh candidate. A *stored* base (the fleet's prior, an imported model, a retention run's
+  fold, a reset that kept the staff corrections) holds what the logging learner knew there: a
+  candidate of the same algorithm starts from it, with its own parameters (a learner's tables do
+  not depend on its parameters); a candidate of another algorithm cannot read it and starts
+  fresh there, with the base's staff corrections in force. Such a candidate is judged as a
+  newcomer from that point, which favours the logger when the base holds much. The history
+  before the base (before a reset, an import, or folded by retention) is not evaluated.
+- **Teaching.** Every version group of the journal is taught to the candidate with
+  :func:`app.services.person_model.apply`, exactly as the person's model was taught: an
+  outcome's transitions, explicit feedback, staff corrections and lifts (they bind every
+  learner), mission moves (the candidate is carried to the new mission version by names, as the
+  model was). A group the candidate refuses (``ValueError``) is left out and counted
+  (``entries_refused``).
+- **Asking.** A decision row was drawn from the model at its ``model_version``: just before a
+  decision, the candidate is taught the journal up to that version and asked, for the states of
+  the decision's drawn silent steps and its visible step, the distributions it would have drawn
+  from (``distributions``, one plan for the decision, from a generator seeded by the person,
+  the candidate and the decision, so that a rerun gives the same numbers) and its Q values
+  (``action_values``; the doubly robust estimate's model). Its probability of the logged action
+  is the *target*; its mass on actions the logging distribution gave 0 is *unsupported*.
+- **The logged probability** of a step is read from the decision row of the episode and step:
+  for the visible step, ``probabilities[action - actions_of(state).start]``; for a silent step,
+  the ``p`` its entry of ``chain`` recorded. The service keeps only the drawn action's
+  probability of a silent step, so ``unsupported`` is exact at the visible steps and at the
+  silent steps drawn with probability 1, and counts nothing at the other silent steps (the
+  logging distribution's other actions are not known there). A *forced* step, chosen by the
+  person (the robot's passive root of an episode the person began, the response to their
+  request, the detail they named), is not the learner's choice under any candidate: it is not
+  weighted (logged = target = 1, nothing unsupported; its model terms are 0, which leaves the
+  doubly robust estimate's term the step's reward times the weight so far).
+- **Rewards.** A step's reward is the decision's (explicit feedback given with the outcome
+  included) or the silent step's; explicit feedback given later (``POST .../feedback``) is added
+  to the step it was about: the episode's last answered step when it came. An episode's rewards
+  sum to its ``total_reward``.
+- **Which episodes count.** Episodes *closed* (not open, not interrupted by a mission change)
+  whose ``occurred_at`` is in [``since``, ``until``), all of whose decisions were drawn since
+  the model's base, under the mission version the model was laid out for. The candidate still
+  learns from every earlier part of the history (and from the episodes that do not count).
+
+The episodes of all the people (a person is a cluster) make one
+:class:`app.learning.offpolicy.Steps`; per candidate: the estimate (``estimator``, bootstrap
+interval over people), the logging learners' own value (``on_policy``: what the robots earn
+now), and the *difference* candidate - logged, its interval from the same bootstrap resamples
+of people for both (so that what the people have in common cancels); the same per person. A
+candidate gets words ("would likely earn more", "less", "about the same") only when the
+estimate has the evidence :func:`app.learning.offpolicy.estimate` asks for and an interval no
+wider than the range of the logged episodes' returns (:func:`evidence`); else "not enough
+evidence", with why. Nothing is written; the same logs give the same numbers.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import datetime as dt
+import hashlib
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from dataclasses import dataclass, field
+from itertools import groupby
+from typing import Any
+
+import numpy as np
+from sqlalchemy.orm import Session
+
+from app.db.repositories import episodes as episodes_repo
+from app.db.repositories import journal
+from app.db.repositories import models as models_repo
+from app.db.repositories import users as users_repo
+from app.db.repositories.episodes import DecisionRow, EpisodeRow
+from app.db.repositories.users import UserRow
+from app.db.session import Database
+from app.errors import NotFound
+from app.learning import learner_from_state, make_learner
+from app.learning.config import PARAMS
+from app.learning.guidance import Rule, guidance_from_state
+from app.learning.learners import ALGORITHMS, TabularLearner
+from app.learning.offpolicy import (
+    DEFAULT_CLIP,
+    DEFAULT_ESTIMATOR,
+    ESTIMATORS,
+    MIN_CLUSTERS,
+    Estimate,
+    Steps,
+    estimate,
+    expanded_level,
+    on_policy,
+    per_cluster,
+    resampled,
+)
+from app.learning.remap import remap_learner
+from app.learning.state import StateFormatError
+from app.learning.types import FloatArray
+
+from .context import ServiceContext
+from .mission_book import Stored
+from .person_model import JOURNAL_PAGE, PersonModel, apply
+
+__all__ = [
+    "CONFIDENCE",
+    "N_BOOT",
+    "CandidateResult",
+    "CandidateSpec",
+    "Difference",
+    "FleetEvaluation",
+    "PersonResult",
+    "candidate_spec",
+    "evaluate_fleet",
+    "evidence",
+    "parse_candidate",
+    "verdict",
+]
+
+PEOPLE_PAGE = 100  # people read per transaction while the fleet is listed
+EPISODE_PAGE = 1_000  # a person's episodes read at a time
+N_BOOT = 1_000  # bootstrap resamples of every interval
+CONFIDENCE = 0.95
+_BLOCK = 1 << 21  # the difference's bootstrap draws its count matrix in blocks of this many
+_TOLERANCE = 1e-6  # rewards that sum to an episode's total_reward up to this (absolute)
+
+_NAMES: Mapping[str, str] = {
+    "hri": "HRI",
+    "rmax": "R-MAX",
+    "qlearning": "Q-learning",
+    "dts": "DTS",
+    "dts-adapt": "DTS-adapt",
+    "dts-routine": "DTS-routine",
+}
+_SYMBOLS: Mapping[str, str] = {"tau": "τ"}
+_TRUE = frozenset({"true", "yes", "on", "1"})
+_FALSE = frozenset({"false", "no", "off", "0"})
+_EXAMPLES = "hri, hri:tau=0.005, dts-routine:samples=32,ask_unknown=false"
+
+
+# ---------------------------------------------------------------------------------------------
+# Candidates
+
+
+@dataclass(frozen=True)
+class CandidateSpec:
+    """A learner to evaluate: ``algorithm`` with ``params`` (the ones given; the others keep
+    their defaults). Made by :func:`candidate_spec` or :func:`parse_candidate`, which validate
+    both as the API validates a person's learner."""
+
+    algorithm: str
+    params: Mapping[str, Any] = field(default_factory=dict)
+
+    @property
+    def full_params(self) -> dict[str, Any]:
+        """Every parameter, the defaults filled in."""
+        return PARAMS[self.algorithm].from_dict(dict(self.params)).to_dict()
+
+    @property
+    def key(self) -> str:
+        """The candidate as ``parse_candidate`` reads it: ``hri:tau=0.005``."""
+        if not self.params:
+            return self.algorithm
+        given = ",".join(f"{k}={_text(v)}" for k, v in sorted(self.params.items()))
+        return f"{self.algorithm}:{given}"
+
+    @property
+    def label(self) -> str:
+        """For people: ``HRI τ=0.005``."""
+        name = _NAMES.get(self.algorithm, self.algorithm)
+        given = " ".join(f"{_SYMBOLS.get(k, k)}={_text(v)}" for k, v in sorted(self.params.items()))
+        return f"{name} {given}" if given else name
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "key": self.key,
+            "label": self.label,
+            "algorithm": self.algorithm,
+            "params": dict(self.params),
+        }
+
+
+def _text(value: Any) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    return f"{value:g}" if isinstance(value, float) else str(value)
+
+
+def candidate_spec(algorithm: str, params: Mapping[str, Any] | None = None) -> CandidateSpec:
+    """A validated candidate: ``ValueError`` with the sentence the API gives for a person's
+    learner (an unknown algorithm, an unknown or bad parameter)."""
+    if not isinstance(algorithm, str) or algorithm not in ALGORITHMS:
+        raise ValueError(
+            f"algorithm must be one of {', '.join(sorted(ALGORITHMS))}; got {algorithm!r}."
+        )
+    given = dict(params or {})
+    checked = PARAMS[algorithm].from_dict(given)  # ValueError naming the parameter
+    return CandidateSpec(algorithm, {k: getattr(checked, k) for k in given})
+
+
+def parse_candidate(text: str) -> CandidateSpec:
+    """``ALGORITHM[:NAME=VALUE[,NAME=VALUE...]]`` (``dts``, ``hri:tau=0.005``,
+    ``dts-routine:samples=32,ask_unknown=false``) as a validated :class:`CandidateSpec`;
+    ``ValueError`` with a sentence naming what is wrong."""
+    spelled = text.strip()
+    algorithm, colon, rest = spelled.partition(":")
+    algorithm = algorithm.strip()
+    try:
+        if not algorithm:
+            raise ValueError(f"it names no algorithm (for example {_EXAMPLES}).")
+        if algorithm not in ALGORITHMS:
+            raise ValueError(
+                f"the algorithm must be one of {', '.join(sorted(ALGORITHMS))}; got {algorithm!r}."
+            )
+        params: dict[str, Any] = {}
+        if colon:
+            if not rest.strip():
+                raise ValueError("no parameters after ':' (NAME=VALUE, separated by commas).")
+            types = {f.name: str(f.type) for f in dataclasses.fields(PARAMS[algorithm])}
+            for item in rest.split(","):
+                name, equals, value = (part.strip() for part in item.partition("="))
+                if not equals or not name or not value:
+                    raise ValueError(
+                        f"{item.strip()!r} is not NAME=VALUE (parameters are NAME=VALUE, "
+                        "separated by commas)."
+                    )
+                if name in params:
+                    raise ValueError(f"{name} is given twice.")
+                params[name] = _value(name, value, types.get(name))
+        return candidate_spec(algorithm, params)
+    except ValueError as exc:
+        raise ValueError(f"candidate {text!r}: {exc}") from None
+
+
+def _value(name: str, value: str, kind: str | None) -> Any:
+    """A parameter's value from its text, by the parameter's type (an unknown parameter keeps
+    its text: the parameters' own check names it)."""
+    if kind == "bool":
+        if value.lower() in _TRUE:
+            return True
+        if value.lower() in _FALSE:
+            return False
+        raise ValueError(f"{name} must be true or false, got {value!r}.")
+    if kind == "int":
+        try:
+            return int(value)
+        except ValueError:
+            raise ValueError(f"{name} must be a whole number, got {value!r}.") from None
+    if kind == "float":
+        try:
+            return float(value)
+        except ValueError:
+            raise ValueError(f"{name} must be a number, got {value!r}.") from None
+    return value
+
+
+# ---------------------------------------------------------------------------------------------
+# Results
+
+
+@dataclass(frozen=True)
+class Difference:
+    """Candidate minus the logging learners, per encounter: ``value`` and its ``confidence``
+    interval, from the same bootstrap resamples for both (``method`` as an
+    :class:`app.learning.offpolicy.Interval`'s)."""
+
+    value: float
+    low: float
+    high: float
+    method: str
+    confidence: float
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "value": self.value,
+            "low": self.low,
+            "high": self.high,
+            "method": self.method,
+            "confidence": self.confidence,
+        }
+
+
+@dataclass(frozen=True)
+class CandidateResult:
+    """One candidate over the fleet: its estimate, the difference with what the robots earn
+    now (None without enough evidence), why there is not enough evidence ("" when there is:
+    :func:`evidence`), the words for it, and how many journal groups it refused."""
+
+    spec: CandidateSpec
+    estimate: Estimate
+    difference: Difference | None
+    reason: str
+    verdict: str
+    entries_refused: int = 0
+
+    @property
+    def enough(self) -> bool:
+        return not self.reason and self.difference is not None
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            **self.spec.to_dict(),
+            "enough": self.enough,
+            "reason": self.reason,
+            "estimate": self.estimate.to_dict(),
+            "difference": None if self.difference is None else self.difference.to_dict(),
+            "verdict": self.verdict,
+            "entries_refused": self.entries_refused,
+        }
+
+
+@dataclass(frozen=True)
+class PersonResult:
+    """One person's episodes counted, the logging learner's value for them and each
+    candidate's estimate from their episodes alone (in the order of the candidates)."""
+
+    user_id: str
+    algorithm: str
+    episodes: int
+    mean_return: float  # the mean total reward of their episodes counted
+    logged: Estimate
+    candidates: tuple[Estimate, ...]
+
+    def to_dict(self, specs: Sequence[CandidateSpec]) -> dict[str, Any]:
+        return {
+            "user_id": self.user_id,
+            "algorithm": self.algorithm,
+            "episodes": self.episodes,
+            "mean_return": self.mean_return,
+            "logged": self.logged.to_dict(),
+            "candidates": {
+                spec.key: e.to_dict() for spec, e in zip(specs, self.candidates, strict=True)
+            },
+        }
+
+
+@dataclass(frozen=True)
+class FleetEvaluation:
+    """What ``evaluate_fleet`` found: the logging learners' value (``logged``), each
+    candidate's, and per person; what was counted and what was not (``skipped``: episodes by
+    reason; ``people_skipped``: people whose history could not be replayed, with why)."""
+
+    fleet: str
+    since: dt.datetime | None
+    until: dt.datetime | None
+    estimator: str
+    people: int
+    people_counted: int
+    episodes: int
+    learners: dict[str, int]  # the fleet's people per algorithm (the logging learners)
+    logged: Estimate
+    candidates: tuple[CandidateResult, ...]
+    persons: tuple[PersonResult, ...]
+    skipped: dict[str, int]
+    people_skipped: tuple[tuple[str, str], ...] = ()
+
+    def to_dict(self) -> dict[str, Any]:
+        specs = [c.spec for c in self.candidates]
+        return {
+            "fleet": self.fleet,
+            "since": None if self.since is None else self.since.isoformat(),
+            "until": None if self.until is None else self.until.isoformat(),
+            "estimator": self.estimator,
+            "confidence": CONFIDENCE,
+            "people": self.people,
+            "people_counted": self.people_counted,
+            "episodes": self.episodes,
+            "learners": dict(self.learners),
+            "logged": self.logged.to_dict(),
+            "candidates": [c.to_dict() for c in self.candidates],
+            "persons": [p.to_dict(specs) for p in self.persons],
+            "skipped": dict(self.skipped),
+            "people_skipped": [{"user_id": u, "reason": r} for u, r in self.people_skipped],
+        }
+
+
+def _signed(value: float) -> str:
+    return f"{value:+.2f}".replace("-", "−")
+
+
+def evidence(estimate: Estimate, observed: tuple[float, float] | None) -> str:
+    """Why ``estimate`` says nothing ("" when it says something): the estimate's own reason
+    (too few episodes, too small an effective size, weights that rarely show the candidate), or
+    an interval wider than the whole range of the logged episodes' returns (``observed``): such
+    an interval cannot place the candidate anywhere within what the robots were seen to earn
+    (a candidate whose model is far off makes the doubly robust estimate that noisy)."""
+    if not estimate.enough:
+        return estimate.reason
+    interval = estimate.interval
+    if interval is None or observed is None:
+        return ""
+    lowest, highest = observed
+    if interval.high - interval.low > (highest - lowest) + 1e-9:
+        return (
+            f"not enough evidence: its interval ({_signed(interval.low)} to "
+            f"{_signed(interval.high)}) is wider than the range of the logged episodes' "
+            f"returns ({_signed(lowest)} to {_signed(highest)})"
+        )
+    return ""
+
+
+def verdict(label: str, difference: Difference | None, reason: str = "") -> str:
+    """A candidate's estimate in words, against what the robots earn now (the logging
+    learners): ``reason`` when it says nothing (:func:`evidence`)."""
+    if reason:
+        return reason
+    if difference is None:  # the logging learners' value itself lacks evidence
+        return "not enough evidence: too few episodes to tell what the robots earn now"
+    span = (
+        f"{_signed(difference.value)} per encounter, between {_signed(difference.low)} and "
+        f"{_signed(difference.high)}"
+    )
+    if difference.low > 0.0:
+        return f"{label} would likely earn more than what the robots do now: {span}"
+    if difference.high < 0.0:
+        return f"{label} would likely earn less than what the robots do now: {span}"
+    return f"{label} would earn about the same as what the robots do now: {span}"
+
+
+# ---------------------------------------------------------------------------------------------
+# A person's history, as read
+
+
+@dataclass(frozen=True, slots=True)
+class _Asked:
+    """One decision the candidates are asked about: its drawn steps' states and actions, the
+    rows of the person's steps they fill, and the logging distribution of each (None: only the
+    drawn action's probability was kept)."""
+
+    model_version: int
+    context: int
+    episode: int  # the learner's episode index
+    position: int
+    states: tuple[int, ...]
+    actions: tuple[int, ...]
+    rows: tuple[int, ...]
+    theirs: tuple[FloatArray | None, ...]
+
+
+@dataclass
+class _History:
+    """What a person's replay needs, read in one transaction."""
+
+    user_id: str
+    algorithm: str
+    base_doc: dict[str, Any] | None
+    base_layout: int
+    layouts: dict[int, Stored]
+    groups: list[list[journal.Entry]]
+    rules: dict[int, Rule]
+    asked: list[_Asked]
+    lengths: list[int]  # of the episodes counted, in the order of their steps
+    logged: list[float]
+    reward: list[float]
+    skipped: dict[str, int] = field(default_factory=dict)  # episodes not counted, by reason
+
+
+def _by_version(entries: Iterable[journal.Entry]) -> Iterator[list[journal.Entry]]:
+    for _, group in groupby(entries, key=lambda e: e.version):
+        yield list(group)
+
+
+def _aware(at: dt.datetime | None) -> dt.datetime | None:
+    if at is None or at.tzinfo is not None:
+        return at
+    return at.replace(tzinfo=dt.UTC)
+
+
+def _utc(at: dt.datetime) -> dt.datetime:
+    return at if at.tzinfo is not None else at.replace(tzinfo=dt.UTC)
+
+
+def _layout_at(moves: Sequence[tuple[int, int]], base_layout: int, version: int) -> int:
+    """The mission version the model was laid out for at model ``version``."""
+    layout = base_layout
+    for at, to in moves:
+        if at > version:
+            break
+        layout = to
+    return layout
+
+
+def _read_person(
+    session: Session,
+    ctx: ServiceContext,
+    user: UserRow,
+    since: dt.datetime | None,
+    until: dt.datetime | None,
+) -> _History:
+    """The person's history since their model's base, and their episodes that count (the
+    others counted by reason in ``skipped``)."""
+    model = PersonModel.open(session, ctx, user)
+    head = model.head
+    fleet = user.fleet
+    layouts = {
+        v: ctx.missions.get(session, fleet, v)
+        for v in range(head.base_mission_version, head.mission_version + 1)
+    }
+    groups = [
+        g
+        for g in _by_version(
+            journal.entries_between(
+                session, user.id, head.base_version, head.version, page=JOURNAL_PAGE
+            )
+        )
+        if g[0].kind not in journal.BASE_KINDS
+    ]
+    rules: dict[int, Rule] = {}
+    moves: list[tuple[int, int]] = []
+    for g in groups:
+        first = g[0]
+        if isinstance(first, journal.Correction | journal.Lift):
+            rules[first.version] = model.rules(first)
+        elif isinstance(first, journal.MissionMove):
+            moves.append((first.version, first.mission_version))
+    history = _History(
+        user_id=user.user_id,
+        algorithm=user.algorithm,
+        base_doc=models_repo.base_state(session, user.id),
+        base_layout=head.base_mission_version,
+        layouts=layouts,
+        groups=groups,
+        rules=rules,
+        asked=[],
+        lengths=[],
+        logged=[],
+        reward=[],
+    )
+    skipped = history.skipped
+
+    episodes: list[EpisodeRow] = []
+    before: int | None = None
+    while True:
+        page = episodes_repo.list_page(session, user.id, before_seq=before, limit=EPISODE_PAGE)
+        episodes.extend(page)
+        if len(page) < EPISODE_PAGE:
+            break
+        before = page[-1].seq
+    episodes.sort(key=lambda e: e.seq)
+    drawn = episodes_repo.decisions_for_rebuild(session, user.id, head.base_version)
+    by_episode: dict[str, list[DecisionRow]] = {}
+    for decision, _, _ in drawn:
+        by_episode.setdefault(decision.episode_id, []).append(decision)
+
+    asked_of: dict[str, _Asked] = {}
+    for episode in episodes:
+        if episode.status != "closed":
+            reason = "open" if episode.status == "open" else "interrupted"
+            skipped[reason] = skipped.get(reason, 0) + 1
+            continue
+        at = _utc(episode.occurred_at)
+        if (since is not None and at < since) or (until is not None and at >= until):
+            skipped["outside the window"] = skipped.get("outside the window", 0) + 1
+            continue
+        decisions = sorted(by_episode.get(episode.id, []), key=lambda d: d.position)
+        if [d.position for d in decisions] != list(range(len(decisions))) or not decisions:
+            skipped["before the model's base"] = skipped.get("before the model's base", 0) + 1
+            continue
+        if any(
+            _layout_at(moves, head.base_mission_version, d.model_version) != episode.mission_version
+            for d in decisions
+        ) or not all(d.reward is not None for d in decisions):
+            skipped["unusable"] = skipped.get("unusable", 0) + 1
+            continue
+        made = _episode_steps(session, history, episode, decisions)
+        if made is None:
+            skipped["unusable"] = skipped.get("unusable", 0) + 1
+            continue
+        asked_of.update(made)
+    # In the order the decisions were drawn (the models' versions go up in it).
+    history.asked = [asked_of[d.id] for d, _, _ in drawn if d.id in asked_of]
+    return history
+
+
+def _episode_steps(
+    session: Session, history: _History, episode: EpisodeRow, decisions: list[DecisionRow]
+) -> dict[str, _Asked] | None:
+    """Append one episode's steps to the person's (logged probability, reward), and return the
+    decisions its candidates are asked about; None (nothing appended) when a stored
+    probability cannot be a drawn action's."""
+    space = history.layouts[episode.mission_version].space
+    start = len(history.logged)
+    logged: list[float] = []
+    reward: list[float] = []
+    visible_row: dict[str, int] = {}
+    asked: dict[str, _Asked] = {}
+    for d in decisions:
+        states: list[int] = []
+        actions: list[int] = []
+        rows: list[int] = []
+        theirs: list[FloatArray | None] = []
+        for step in d.chain:
+            forced = bool(step.get("forced"))
+            p = 1.0 if forced else float(step["p"])
+            if not forced:
+                states.append(int(step["state"]))
+                actions.append(int(step["action"]))
+                rows.append(start + len(logged))
+                theirs.append(None)
+            logged.append(p)
+            reward.append(float(step["reward"]))
+        actions_of = space.actions_of(d.state)
+        distribution = np.asarray(d.probabilities, dtype=np.float64)
+        if distribution.shape != (len(actions_of),) or d.action not in actions_of:
+            return None
+        p = 1.0 if d.forced else float(distribution[d.action - actions_of.start])
+        if not d.forced:
+            states.append(d.state)
+            actions.append(d.action)
+            rows.append(start + len(logged))
+            theirs.append(distribution)
+        visible_row[d.id] = len(logged)
+        logged.append(p)
+        assert d.reward is not None
+        reward.append(float(d.reward))
+        if states:
+            asked[d.id] = _Asked(
+                model_version=d.model_version,
+                context=episode.context,
+                episode=episode.learner_episode,
+                position=d.position,
+                states=tuple(states),
+                actions=tuple(actions),
+                rows=tuple(rows),
+                theirs=tuple(theirs),
+            )
+    if any(not 0.0 < p <= 1.0 + _TOLERANCE for p in logged):
+        return None
+    logged = [min(p, 1.0) for p in logged]
+    scale = max(1.0, abs(episode.total_reward))
+    if abs(sum(reward) - episode.total_reward) > _TOLERANCE * scale:
+        # Explicit feedback given after an outcome: on the last step answered when it came.
+        answered = [(_utc(d.answered_at), d) for d in decisions if d.answered_at is not None]
+        for fb in episodes_repo.feedback_list(session, episode.id):
+            came = _utc(fb.received_at)
+            earlier = [d for at, d in answered if at <= came]
+            about = (earlier or [d for _, d in answered] or decisions)[-1]
+            reward[visible_row[about.id]] += float(fb.reward)
+    history.logged.extend(logged)
+    history.reward.extend(reward)
+    history.lengths.append(len(logged))
+    return asked
+
+
+# ---------------------------------------------------------------------------------------------
+# A candidate through a person's history
+
+
+@dataclass
+class _Replayed:
+    target: FloatArray
+    unsupported: FloatArray
+    q_hat: FloatArray
+    v_hat: FloatArray
+    refused: int = 0
+
+
+def _seed(fleet: str, user_id: str, spec: CandidateSpec) -> list[int]:
+    digest = hashlib.sha256(f"{fleet}\x00{user_id}\x00{spec.key}".encode()).digest()
+    return [int(w) for w in np.frombuffer(digest[:16], dtype="<u4")]
+
+
+def _start(spec: CandidateSpec, history: _History) -> TabularLearner[Any]:
+    """The candidate at the model's base (see the module's docstring)."""
+    mission = history.layouts[history.base_layout].mission
+    doc = history.base_doc
+    if doc is not None and doc.get("algorithm") == spec.algorithm:
+        try:
+            return learner_from_state({**doc, "params": spec.full_params}, mission)
+        except StateFormatError:
+            pass
+    learner = make_learner(spec.algorithm, dict(spec.params), mission)
+    if doc is not None:  # staff corrections bind every learner
+        learner.guidance = guidance_from_state(doc.get("guidance"))
+    return learner
+
+
+def _replay(fleet: str, history: _History, spec: CandidateSpec) -> _Replayed:
+    n = len(history.logged)
+    out = _Replayed(
+        target=np.ones(n), unsupported=np.zeros(n), q_hat=np.zeros(n), v_hat=np.zeros(n)
+    )
+    learner = _start(spec, history)
+    layout = history.base_layout
+    layouts, rules = history.layouts, history.rules
+
+    def move(current: TabularLearner[Any], old: int, new: int) -> TabularLearner[Any]:
+        for version in range(old + 1, new + 1):
+            current = remap_learner(current, layouts[version].mission, layouts[version].renames)
+        return current
+
+    def rule(entry: journal.Correction | journal.Lift) -> Rule:
+        return rules[entry.version]
+
+    seed = _seed(fleet, history.user_id, spec)
+    logged = history.logged
+    groups = iter(history.groups)
+    pending = next(groups, None)
+    for asked in history.asked:
+        while pending is not None and pending[0].version <= asked.model_version:
+            try:
+                learner, layout = apply(learner, pending, layout=layout, rules=rule, move=move)
+            except (ValueError, KeyError):
+                out.refused += 1
+            pending = next(groups, None)
+        rng = np.random.default_rng([*seed, asked.episode, asked.position])
+        mine = learner.distributions(asked.context, asked.states, asked.episode, rng)
+        q = learner.action_values(asked.context)
+        space = learner.space
+        for state, action, row, ours, theirs in zip(
+            asked.states, asked.actions, asked.rows, mine, asked.theirs, strict=True
+        ):
+            actions = space.actions_of(state)
+            out.target[row] = min(1.0, max(0.0, float(ours[action - actions.start])))
+            out.q_hat[row] = float(q[action])
+            out.v_hat[row] = float(ours @ q[actions.start : actions.stop])
+            if theirs is not None:
+                out.unsupported[row] = min(1.0 - out.target[row], float(ours[theirs <= 0.0].sum()))
+            elif logged[row] >= 1.0:  # a silent step the logger was sure of: nothing else
+                out.unsupported[row] = 1.0 - out.target[row]
+    return out
+
+
+# ---------------------------------------------------------------------------------------------
+# The fleet
+
+
+def _rng(fleet: str, what: str) -> np.random.Generator:
+    digest = hashlib.sha256(f"{fleet}\x00{what}".encode()).digest()
+    return np.random.default_rng([int(w) for w in np.frombuffer(digest[:16], dtype="<u4")])
+
+
+def _difference(steps: Steps, value: float, estimator: str, rng: np.random.Generator) -> Difference:
+    """Candidate minus logged (``value``), with the expanded percentile interval of the
+    difference over bootstrap resamples of the people (the episodes, with fewer than
+    ``MIN_CLUSTERS`` people), the same resample for both."""
+    if steps.n_clusters >= MIN_CLUSTERS:
+        grouped, method = steps, "bootstrap"
+    else:
+        grouped = dataclasses.replace(steps, cluster=np.arange(steps.n_episodes, dtype=np.int64))
+        method = "bootstrap-episodes"
+    _, group = np.unique(grouped.cluster, return_inverse=True)
+    n = int(group.max()) + 1
+    returns = grouped.returns()
+    top = np.bincount(group, weights=returns, minlength=n)
+    bottom = np.bincount(group, minlength=n).astype(np.float64)
+    probabilities = np.full(n, 1.0 / n)
+    block = max(1, _BLOCK // n)
+    out = np.empty(N_BOOT)
+    for first in range(0, N_BOOT, block):
+        size = min(block, N_BOOT - first)
+        counts = rng.multinomial(n, probabilities, size=size).astype(np.float64)
+        candidate = resampled(grouped, estimator, DEFAULT_CLIP, counts)
+        logged = (counts @ top) / (counts @ bottom)
+        out[first : first + size] = candidate - logged
+    level = expanded_level(CONFIDENCE, n)
+    low, high = np.quantile(out, [1.0 - level, level])
+    return Difference(float(value), float(low), float(high), method, CONFIDENCE)
+
+
+def _steps(cluster: list[int], lengths: list[int], columns: Mapping[str, list[Any]]) -> Steps:
+    """The people's episodes as :class:`Steps`; a column not given is the logging learner's
+    own (target 1, no model, nothing unsupported)."""
+    offsets = np.concatenate(([0], np.cumsum(np.asarray(lengths, dtype=np.int64)))).astype(np.int64)
+    n = int(offsets[-1])
+
+    def column(name: str, absent: float = 0.0) -> FloatArray:
+        parts = columns.get(name)
+        if parts is None:
+            return np.full(n, absent)
+        return np.concatenate(parts) if parts else np.zeros(0)
+
+    return Steps(
+        cluster=np.asarray(cluster, dtype=np.int64),
+        offsets=offsets,
+        logged=column("logged"),
+        target=column("target", 1.0),
+        reward=column("reward"),
+        q_hat=column("q_hat"),
+        v_hat=column("v_hat"),
+        unsupported=column("unsupported"),
+    )
+
+
+def _people(database: Database, fleet: str) -> Iterator[list[UserRow]]:
+    after: tuple[str, str] | None = None
+    while True:
+        with database.transaction(write=False) as session:
+            page = users_repo.list_page(session, fleet=fleet, after=after, limit=PEOPLE_PAGE)
+        if page:
+            yield page
+        if len(page) < PEOPLE_PAGE:
+            return
+        after = (page[-1].fleet, page[-1].user_id)
+
+
+def evaluate_fleet(
+    database: Database,
+    ctx: ServiceContext,
+    fleet: str,
+    candidates: Sequence[CandidateSpec],
+    *,
+    since: dt.datetime | None = None,
+    until: dt.datetime | None = None,
+    estimator: str = DEFAULT_ESTIMATOR,
+    progress: Callable[[int, int], None] | None = None,
+) -> FleetEvaluation:
+    """Each candidate's value per encounter with ``fleet``'s people, estimated from the fleet's
+    stored logs (see the module's docstring), beside what the robots earn now; ``progress(done,
+    total)`` after each person. Naive times are UTC. :class:`NotFound` for a fleet without
+    people; ``ValueError`` for an unknown estimator or no candidate."""
+    if estimator not in ESTIMATORS:
+        raise ValueError(f"unknown estimator {estimator!r}: one of {', '.join(ESTIMATORS)}.")
+    if not candidates:
+        raise ValueError("no candidate to evaluate.")
+    since, until = _aware(since), _aware(until)
+    with database.transaction(write=False) as session:
+        counts = users_repo.fleet_counts(session)
+    if fleet not in counts:
+        raise NotFound(f"No fleet {fleet!r}: no person of this database is in it.")
+    total = counts[fleet][0]
+    skipped: dict[str, int] = {}
+    people_skipped: list[tuple[str, str]] = []
+    learners: dict[str, int] = {}
+    cluster: list[int] = []
+    lengths: list[int] = []
+    logged_columns: dict[str, list[Any]] = {"logged": [], "reward": []}
+    candidate_columns: list[dict[str, list[Any]]] = [
+        {"target": [], "unsupported": [], "q_hat": [], "v_hat": []} for _ in candidates
+    ]
+    refused = [0] * len(candidates)
+    counted: list[tuple[str, str, int]] = []  # (user id, algorithm, episodes)
+    done = 0
+    for page in _people(database, fleet):
+        for user in page:
+            learners[user.algorithm] = learners.get(user.algorithm, 0) + 1
+            try:
+                with database.transaction(write=False) as session:
+                    history = _read_person(session, ctx, user, since, until)
+                replays = (
+                    [_replay(fleet, history, spec) for spec in candidates]
+                    if history.lengths
+                    else []
+                )
+            except (ValueError, KeyError, LookupError, StateFormatError) as exc:
+                # A history that cannot be replayed (a broken database): said, not hidden.
+                people_skipped.append((user.user_id, str(exc)))
+                history = None
+            if history is not None:
+                for why, n in history.skipped.items():
+                    skipped[why] = skipped.get(why, 0) + n
+            if history is not None and history.lengths:
+                label = len(counted)
+                counted.append((history.user_id, history.algorithm, len(history.lengths)))
+                cluster.extend([label] * len(history.lengths))
+                lengths.extend(history.lengths)
+                logged_columns["logged"].append(np.asarray(history.logged))
+                logged_columns["reward"].append(np.asarray(history.reward))
+                for i, replayed in enumerate(replays):
+                    for name in ("target", "unsupported", "q_hat", "v_hat"):
+                        candidate_columns[i][name].append(getattr(replayed, name))
+                    refused[i] += replayed.refused
+            done += 1
+            if progress is not None:
+                progress(done, max(total, done))
+
+    logged_steps = _steps(cluster, lengths, logged_columns)
+    logged = on_policy(logged_steps, n_boot=N_BOOT, rng=_rng(fleet, "logged"))
+    returns = logged_steps.returns()
+    observed = (float(returns.min()), float(returns.max())) if returns.size else None
+    results: list[CandidateResult] = []
+    per_person: list[list[Estimate]] = []
+    for i, spec in enumerate(candidates):
+        steps = _steps(cluster, lengths, {**logged_columns, **candidate_columns[i]})
+        found = estimate(steps, estimator, n_boot=N_BOOT, rng=_rng(fleet, spec.key))
+        reason = evidence(found, observed)
+        difference = None
+        if not reason and logged.enough:
+            assert found.value is not None
+            assert logged.value is not None
+            difference = _difference(
+                steps, found.value - logged.value, estimator, _rng(fleet, f"{spec.key}/diff")
+            )
+        results.append(
+            CandidateResult(
+                spec,
+                found,
+                difference,
+                reason,
+                verdict(spec.label, difference, reason),
+                refused[i],
+            )
+        )
+        per_person.append(
+            per_cluster(steps, estimator, n_boot=N_BOOT, rng=_rng(fleet, f"{spec.key}/people"))
+            if steps.n_episodes
+            else []
+        )
+    persons = []
+    people_rng = _rng(fleet, "logged/people")
+    for label, (user_id, algorithm, n_episodes) in enumerate(counted):
+        mine = logged_steps.select(logged_steps.cluster == label)
+        persons.append(
+            PersonResult(
+                user_id=user_id,
+                algorithm=algorithm,
+                episodes=n_episodes,
+                mean_return=float(np.mean(mine.returns())),
+                logged=on_policy(mine, n_boot=N_BOOT, rng=people_rng),
+                candidates=tuple(rows[label] for rows in per_person),
+            )
+        )
+    return FleetEvaluation(
+        fleet=fleet,
+        since=since,
+        until=until,
+        estimator=estimator,
+        people=done,
+        people_counted=len(counted),
+        episodes=logged_steps.n_episodes,
+        learners=dict(sorted(learners.items())),
+        logged=logged,
+        candidates=tuple(results),
+        persons=tuple(persons),
+        skipped=dict(sorted(skipped.items())),
+        people_skipped=tuple(people_skipped),
+    )
