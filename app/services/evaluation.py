@@ -64,9 +64,8 @@ from __future__ import annotations
 import dataclasses
 import datetime as dt
 import hashlib
-from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
-from itertools import groupby
 from typing import Any
 
 import numpy as np
@@ -74,7 +73,6 @@ from sqlalchemy.orm import Session
 
 from app.db.repositories import episodes as episodes_repo
 from app.db.repositories import journal
-from app.db.repositories import models as models_repo
 from app.db.repositories import users as users_repo
 from app.db.repositories.episodes import DecisionRow, EpisodeRow
 from app.db.repositories.users import UserRow
@@ -103,7 +101,7 @@ from app.learning.types import FloatArray
 
 from .context import ServiceContext
 from .mission_book import Stored
-from .person_model import JOURNAL_PAGE, PersonModel, apply
+from .person_model import PersonModel, apply
 
 __all__ = [
     "CONFIDENCE",
@@ -458,11 +456,6 @@ class _History:
     skipped: dict[str, int] = field(default_factory=dict)  # episodes not counted, by reason
 
 
-def _by_version(entries: Iterable[journal.Entry]) -> Iterator[list[journal.Entry]]:
-    for _, group in groupby(entries, key=lambda e: e.version):
-        yield list(group)
-
-
 def _aware(at: dt.datetime | None) -> dt.datetime | None:
     if at is None or at.tzinfo is not None:
         return at
@@ -499,15 +492,7 @@ def _read_person(
         v: ctx.missions.get(session, fleet, v)
         for v in range(head.base_mission_version, head.mission_version + 1)
     }
-    groups = [
-        g
-        for g in _by_version(
-            journal.entries_between(
-                session, user.id, head.base_version, head.version, page=JOURNAL_PAGE
-            )
-        )
-        if g[0].kind not in journal.BASE_KINDS
-    ]
+    groups = list(model.history())
     rules: dict[int, Rule] = {}
     moves: list[tuple[int, int]] = []
     for g in groups:
@@ -519,7 +504,7 @@ def _read_person(
     history = _History(
         user_id=user.user_id,
         algorithm=user.algorithm,
-        base_doc=models_repo.base_state(session, user.id),
+        base_doc=model.base_document(),
         base_layout=head.base_mission_version,
         layouts=layouts,
         groups=groups,

@@ -627,13 +627,26 @@ class PersonModel:
         """The learner a rebuild starts from, at ``head.base_version``, laid out for
         ``head.base_mission_version``: the stored base (an import, the fleet's prior, a
         retention run's fold), or a fresh learner."""
-        base = repo.base_state(self.session, self.user.id)
+        base = self.base_document()
         mission = self.ctx.missions.get(
             self.session, self.user.fleet, self.head.base_mission_version
         ).mission
         if base:
             return learner_from_state(base, mission)
         return fresh_learner(self.user.algorithm, dict(self.user.params), mission)
+
+    def base_document(self) -> dict[str, Any] | None:
+        """The stored base's learner document (an import, the fleet's prior, a fold), or None
+        when the base is a fresh learner."""
+        return repo.base_state(self.session, self.user.id)
+
+    def history(self) -> Iterator[list[journal.Entry]]:
+        """The journal since the base, one version's entries at a time, in order, without the
+        bases themselves (what a replay teaches), read a page at a time."""
+        entries = journal.entries_between(
+            self.session, self.user.id, self.head.base_version, self.head.version, page=JOURNAL_PAGE
+        )
+        return (g for g in _by_version(entries) if g[0].kind not in journal.BASE_KINDS)
 
     def replay(self, *, upto: int | None = None) -> Replay:
         """The model's base, ready to be taught its journal up to ``upto`` (the head's version
