@@ -48,7 +48,7 @@ from .mission import Mission
 from .negotiation import EXPECTS, Response, Tally, outcome
 from .simulation import Need, Reaction, UserProfile, drift, event_stream, random_profile, respond
 from .space import Action, ActionKind, NegotiationSpace, StateKind, space_for
-from .types import FloatArray, IntArray, Observation, Transition
+from .types import Decision, FloatArray, IntArray, Observation, Transition
 
 __all__ = [
     "CAUGHT_TARGET",
@@ -267,11 +267,14 @@ def run_learner(
     rng: np.random.Generator,
     *,
     changes: list[tuple[int, ContextChange]] | None = None,
+    on_decision: Callable[[int, Decision, list[Transition]], None] | None = None,
 ) -> FloatArray:
     """A fresh learner through ``person``'s events; its reward per episode (as the paper's
     experiments count it: silent steps included). With ``changes``, the changes decided for
     the person after each update (``app.learning.changes.ChangeWatch``: the learner's own, or
-    the profile's for a learner without a mechanism) are appended to it as (event, change)."""
+    the profile's for a learner without a mechanism) are appended to it as (event, change).
+    ``on_decision(event, decision, transitions)`` is told each decision once the learner has
+    learned its transitions (a log of the run: ``app.learning.whatif.log_person``)."""
     space = learner.space
     watch = ChangeWatch(learner) if changes is not None else None
     out = np.zeros(person.n_events, dtype=np.float64)
@@ -297,6 +300,8 @@ def run_learner(
                 )
             )
             learner.update(batch)
+            if on_decision is not None:
+                on_decision(e, decision, batch)
             if watch is not None and changes is not None:
                 changes.extend((e, change) for change in watch.observe(batch))
             for t in batch:

@@ -26,8 +26,8 @@ import numpy as np
 
 from .learners.base import TabularLearner
 from .offpolicy import Steps
-from .population import STEP_UNIFORMS, Person
-from .types import FloatArray, Observation, Transition
+from .population import Person, run_learner
+from .types import Decision, FloatArray, Transition
 
 __all__ = ["Decided", "PersonLog", "Replayed", "log_person", "replay", "steps_of"]
 
@@ -70,35 +70,15 @@ class Replayed:
 def log_person(
     learner: TabularLearner[Any], person: Person, uniforms: np.ndarray, rng: np.random.Generator
 ) -> PersonLog:
-    """``learner`` through ``person``'s events (the rewards are those of ``run_learner``)."""
-    space = learner.space
+    """``learner`` through ``person``'s events, as :func:`app.learning.population.run_learner`
+    runs it (the same rewards), keeping every decision."""
     log = PersonLog()
-    for e in range(person.n_events):
-        context, episode = int(person.contexts[e]), e + 1
-        state, step, total = space.OBSERVE, 0, 0.0
-        while state != space.END:
-            assert STEP_UNIFORMS * (step + 1) <= uniforms.shape[1], "too long an episode"
-            decision = learner.select_action(Observation(context, state, episode), rng)
-            batch = decision.chain_transitions(episode)
-            cols = uniforms[e, STEP_UNIFORMS * step : STEP_UNIFORMS * (step + 1)]
-            reaction, _ = person.respond(space, e, decision.state, decision.action, cols)
-            batch.append(
-                Transition(
-                    episode,
-                    context,
-                    decision.state,
-                    decision.action,
-                    reaction.reward,
-                    reaction.next_state,
-                    reaction.signal,
-                )
-            )
-            learner.update(batch)
-            dists = (*(c.probabilities for c in decision.chain), decision.probabilities)
-            log.decisions.append(Decided(e, tuple(batch), dists))
-            total += sum(t.reward for t in batch)
-            state, step = reaction.next_state, step + 1
-        log.returns.append(total)
+
+    def keep(event: int, decision: Decision, transitions: list[Transition]) -> None:
+        dists = (*(c.probabilities for c in decision.chain), decision.probabilities)
+        log.decisions.append(Decided(event, tuple(transitions), dists))
+
+    log.returns = run_learner(learner, person, uniforms, rng, on_decision=keep).tolist()
     return log
 
 
