@@ -28,10 +28,11 @@ from app.api.middleware import (
     RequestContextMiddleware,
     TrustedProxies,
 )
-from app.api.routes import admin, episodes, meta, models, profile, users
+from app.api.routes import admin, episodes, evaluations, meta, models, profile, users
 from app.console import mount_console
 from app.db.session import Database
 from app.services.context import ServiceContext
+from app.services.evaluation_jobs import EvaluationRunner
 from app.services.retention_runs import DailyRetention
 from app.settings import Settings, get_settings, mask_url
 
@@ -103,6 +104,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             # first request, then every few seconds.
             await asyncio.to_thread(db.probe_round_trip)
             tasks.append(asyncio.create_task(db.watch_round_trip(), name="attune-round-trip"))
+        runner = app.state.evaluations  # started by the first evaluation it is given
         daily = None
         if settings.retention_at is not None:
             # The retention run at the set time, in a thread of its own (ATTUNE_RETENTION_AT):
@@ -120,6 +122,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         finally:
             if daily is not None:
                 await asyncio.to_thread(daily.stop)
+            await asyncio.to_thread(runner.stop)
             for task in tasks:
                 task.cancel()
             for task in tasks:
@@ -141,12 +144,17 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.ctx = ServiceContext.from_settings(settings)
     app.state.metrics = Metrics()
     app.state.drain = Drain()
+    # Evaluations of candidate learners that this worker runs, one at a time, in a thread.
+    app.state.evaluations = EvaluationRunner(
+        db, app.state.ctx, stopping=lambda: app.state.drain.draining
+    )
     app.state.metrics.attach(db=db, cache=app.state.ctx.cache, drain=app.state.drain)
     app.state.limiter = KeyRateLimiter(settings.rate_limit_per_s, settings.rate_limit_burst)
     install_error_handlers(app)
     for module in (users, episodes, models, profile, meta):
         app.include_router(module.router)
     app.include_router(admin.router)
+    app.include_router(evaluations.router)
     install_docs(app)
     mount_console(app)
     # The last added is the outermost: every response, whoever answers it, gets its request id

@@ -223,6 +223,14 @@ class Settings(BaseSettings):
         "lets one process of the deployment run it at a time. Unset or empty: the service runs "
         "none (cron may run attune retention run).",
     )
+    evaluation_max_minutes: float = Field(
+        default=60.0,
+        gt=0,
+        le=24 * 60,
+        description="An evaluation of candidate learners (POST /v1/admin/fleets/{fleet}/"
+        "evaluations) that runs longer than this many minutes is stopped and marked failed; "
+        "each worker runs one evaluation at a time, beside the robots' requests.",
+    )
     prior_min_contributors: int = Field(
         default=5,
         ge=3,

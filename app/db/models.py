@@ -17,6 +17,7 @@ from sqlalchemy import (
     Integer,
     String,
     UniqueConstraint,
+    text,
 )
 from sqlalchemy.orm import Mapped, mapped_column
 
@@ -32,6 +33,7 @@ __all__ = [
     "DataView",
     "Decision",
     "Episode",
+    "Evaluation",
     "Feedback",
     "FleetMission",
     "FleetSettings",
@@ -465,3 +467,49 @@ class ChangeEvent(Base):
     now_service: Mapped[str | None] = mapped_column(String(64))
     now_detail: Mapped[str | None] = mapped_column(String(64))
     evidence: Mapped[list[dict[str, Any]]] = mapped_column(JSON)
+
+
+class Evaluation(Base):
+    """An evaluation of candidate learners on a fleet's logged decisions, run as a background
+    job (``POST /v1/admin/fleets/{fleet}/evaluations``; :mod:`app.services.evaluation_jobs`):
+    what was asked (``request``: the candidates, the period, the estimator), by whom, its
+    ``status`` (``queued``, ``running``, ``done``, ``failed``, ``cancelled``), how far it got
+    (``done_people`` of ``total_people``) and, once done, its ``result`` (the estimates, per
+    candidate and per person). A job is idempotent on the fleet's ``request_id``. At most one
+    job of a fleet is queued or running: the partial unique index ``ux_evaluations_active``
+    says so to every process of the deployment. The process that runs a job writes
+    ``heartbeat_at`` as it goes; a queued or running job whose heartbeat is older than the
+    stale limit was left by a process that stopped, and counts as failed. The result names
+    people: an erased person's row is removed from it."""
+
+    __tablename__ = "evaluations"
+    __table_args__ = (
+        UniqueConstraint("fleet", "request_id", name="uq_evaluations_fleet_request"),
+        Index("ix_evaluations_fleet_created", "fleet", "created_at"),
+        Index(
+            "ux_evaluations_active",
+            "fleet",
+            unique=True,
+            sqlite_where=text("status IN ('queued', 'running')"),
+            postgresql_where=text("status IN ('queued', 'running')"),
+        ),
+    )
+
+    id: Mapped[str] = mapped_column(String(ID), primary_key=True)  # ev_ and 32 hex digits
+    fleet: Mapped[str] = mapped_column(String(CLIENT_ID))
+    request_id: Mapped[str] = mapped_column(String(CLIENT_ID))
+    request_hash: Mapped[str] = mapped_column(String(64))
+    request: Mapped[dict[str, Any]] = mapped_column(JSON)
+    status: Mapped[str] = mapped_column(String(16))
+    actor_key_id: Mapped[str] = mapped_column(String(ID))
+    actor_role: Mapped[str] = mapped_column(String(16))
+    created_at: Mapped[dt.datetime] = mapped_column(UTCDateTime(), default=utcnow)
+    started_at: Mapped[dt.datetime | None] = mapped_column(UTCDateTime())
+    finished_at: Mapped[dt.datetime | None] = mapped_column(UTCDateTime())
+    heartbeat_at: Mapped[dt.datetime] = mapped_column(UTCDateTime(), default=utcnow)
+    holder: Mapped[str | None] = mapped_column(String(200))  # host:pid:random of its runner
+    done_people: Mapped[int] = mapped_column(Integer, default=0)
+    total_people: Mapped[int | None] = mapped_column(Integer)
+    cancel_requested: Mapped[bool] = mapped_column(Boolean, default=False)
+    error: Mapped[str | None] = mapped_column(String(2000))
+    result: Mapped[dict[str, Any] | None] = mapped_column(JSON)

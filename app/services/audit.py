@@ -40,6 +40,8 @@ ACTIONS = (
     "fleet.prior",
     "fleet.history",
     "fleet.retention",
+    "evaluation.start",
+    "evaluation.cancel",
 )
 # The actions whose target is a user: their entries' details are blanked when the user is erased.
 ABOUT_A_USER = ("user.", "model.", "correction.")

@@ -17,6 +17,7 @@ from typing import Any
 from sqlalchemy.orm import Session
 
 from app.db.repositories import audit as audit_repo
+from app.db.repositories import evaluations as evaluations_repo
 from app.db.repositories import users as repo
 from app.db.repositories.users import UserRow
 from app.db.types import utcnow
@@ -327,13 +328,16 @@ def delete_user(
 ) -> None:
     """Erase a person: their row and every row that refers to it (the model, its journal and
     snapshots, episodes, decisions, answers, feedback, corrections and their notes: the
-    foreign keys cascade), and, in the audit log, the details of the entries about them
-    (``{"erased": true}``: who did what to which id, and when, stay). The erasure's own entry
+    foreign keys cascade), their rows in the fleet's evaluation results, and, in the audit log,
+    the details of the entries about them (``{"erased": true}``: who did what to which id, and
+    when, stay). The erasure's own entry
     holds nothing of the person either. The learner leaves this process's cache; the other
     workers' never find it again (a user's number is never reused)."""
     require_manager(principal)
     user = visible_user(session, principal, user_id, fleet=fleet, lock=True)
     repo.delete_user(session, user)
+    # The per-person rows of the fleet's evaluation results name them: removed.
+    evaluations_repo.forget_person(session, user.fleet, user_id)
     redacted = audit_repo.redact_erased(
         session, fleet=user.fleet, user_id=user_id, prefixes=audit.ABOUT_A_USER
     )

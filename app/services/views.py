@@ -39,6 +39,7 @@ READS = (
     "export",
     "subject",
     "changes",
+    "evaluation",
     "console.profile",
     "console.details",
     "console.why",
