@@ -35,7 +35,7 @@ WAIT_S = 120.0  # a bound on how long a test waits for a job of this small fleet
 
 def _fill(robot: TestClient) -> list[str]:
     users = [f"person-{p}" for p in range(PEOPLE)]
-    for p, user in enumerate(users):
+    for user in users:
         r = robot.put(f"/v1/users/{user}", json={"learner": {"algorithm": "hri"}})
         assert r.status_code == 201, r.text
     for e in range(EPISODES):
@@ -242,9 +242,7 @@ def test_cancelled_while_running_and_stopped_when_too_long(
     job = staff.post(
         "/v1/admin/fleets/default/evaluations", json={**BODY, "request_id": "r3"}
     ).json()
-    status = jobs.run_job(
-        app.state.db, app.state.ctx, job["evaluation_id"], stopping=lambda: True
-    )
+    status = jobs.run_job(app.state.db, app.state.ctx, job["evaluation_id"], stopping=lambda: True)
     assert status == "failed"
     ended = staff.get(f"/v1/admin/fleets/default/evaluations/{job['evaluation_id']}").json()
     assert "service stopped" in ended["error"]
