@@ -28,12 +28,22 @@ from app.api.middleware import (
     RequestContextMiddleware,
     TrustedProxies,
 )
-from app.api.routes import admin, episodes, evaluations, meta, models, profile, users
+from app.api.routes import (
+    admin,
+    episodes,
+    evaluations,
+    meta,
+    models,
+    profile,
+    rollouts,
+    users,
+)
 from app.console import mount_console
 from app.db.session import Database
 from app.services.context import ServiceContext
 from app.services.evaluation_jobs import EvaluationRunner
 from app.services.retention_runs import DailyRetention
+from app.services.rollouts import RolloutGuard
 from app.settings import Settings, get_settings, mask_url
 
 __all__ = ["app", "create_app", "package_version"]
@@ -105,6 +115,16 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             await asyncio.to_thread(db.probe_round_trip)
             tasks.append(asyncio.create_task(db.watch_round_trip(), name="attune-round-trip"))
         runner = app.state.evaluations  # started by the first evaluation it is given
+        guard = None
+        if settings.rollout_guard_minutes > 0:
+            # Every running rollout looked at, and rolled back when its candidate is worse.
+            guard = RolloutGuard(
+                db,
+                app.state.ctx,
+                settings.rollout_guard_minutes,
+                stopping=lambda: app.state.drain.draining,
+            )
+            guard.start()
         daily = None
         if settings.retention_at is not None:
             # The retention run at the set time, in a thread of its own (ATTUNE_RETENTION_AT):
@@ -123,6 +143,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             if daily is not None:
                 await asyncio.to_thread(daily.stop)
             await asyncio.to_thread(runner.stop)
+            if guard is not None:
+                await asyncio.to_thread(guard.stop)
             for task in tasks:
                 task.cancel()
             for task in tasks:
@@ -155,6 +177,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         app.include_router(module.router)
     app.include_router(admin.router)
     app.include_router(evaluations.router)
+    app.include_router(rollouts.router)
     install_docs(app)
     mount_console(app)
     # The last added is the outermost: every response, whoever answers it, gets its request id

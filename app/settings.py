@@ -231,6 +231,14 @@ class Settings(BaseSettings):
         "evaluations) that runs longer than this many minutes is stopped and marked failed; "
         "each worker runs one evaluation at a time, beside the robots' requests.",
     )
+    rollout_guard_minutes: float = Field(
+        default=60.0,
+        ge=0,
+        le=24 * 60,
+        description="How often the service looks at every running rollout of a candidate "
+        "learner and rolls back one whose candidate is worse with the comparison's confidence "
+        "(one process of the deployment at a time); 0: never (staff roll back by hand).",
+    )
     prior_min_contributors: int = Field(
         default=5,
         ge=3,

@@ -41,6 +41,8 @@ __all__ = [
     "JournalEntry",
     "LearnerModel",
     "Lease",
+    "Rollout",
+    "RolloutArm",
     "User",
 ]
 
@@ -513,3 +515,59 @@ class Evaluation(Base):
     cancel_requested: Mapped[bool] = mapped_column(Boolean, default=False)
     error: Mapped[str | None] = mapped_column(String(2000))
     result: Mapped[dict[str, Any] | None] = mapped_column(JSON)
+
+
+class Rollout(Base):
+    """A fleet's rollout of a candidate learner (``PUT /v1/admin/fleets/{fleet}/rollout``;
+    :mod:`app.services.rollouts`): the candidate (``algorithm``, ``params``), the ``share`` of
+    the fleet's people it serves, the ``salt`` of the stable hash that chose them, and how it
+    ended (``status``: ``running``, ``promoted``, ``rolled_back``; by whom, when, why). At most
+    one rollout of a fleet runs at a time (the partial unique index
+    ``ux_rollouts_running``)."""
+
+    __tablename__ = "rollouts"
+    __table_args__ = (
+        Index("ix_rollouts_fleet_started", "fleet", "started_at"),
+        Index(
+            "ux_rollouts_running",
+            "fleet",
+            unique=True,
+            sqlite_where=text("status = 'running'"),
+            postgresql_where=text("status = 'running'"),
+        ),
+    )
+
+    id: Mapped[str] = mapped_column(String(ID), primary_key=True)  # ro_ and 32 hex digits
+    fleet: Mapped[str] = mapped_column(String(CLIENT_ID))
+    algorithm: Mapped[str] = mapped_column(String(32))
+    params: Mapped[dict[str, Any]] = mapped_column(JSON)
+    share: Mapped[float] = mapped_column(Float)
+    salt: Mapped[str] = mapped_column(String(32))
+    status: Mapped[str] = mapped_column(String(16))
+    started_at: Mapped[dt.datetime] = mapped_column(UTCDateTime(), default=utcnow)
+    started_by: Mapped[str] = mapped_column(String(ID))
+    ended_at: Mapped[dt.datetime | None] = mapped_column(UTCDateTime())
+    ended_by: Mapped[str | None] = mapped_column(String(ID))  # a key id, or "guard"
+    end_reason: Mapped[str | None] = mapped_column(String(500))
+
+
+class RolloutArm(Base):
+    """A person's arm in a rollout, stored when they were assigned (``candidate``: served by the
+    rollout's candidate; ``control``: by the learner they had), so that a lower share, a
+    mission change or a restart never moves them: only staff (a higher share, promote, roll
+    back) do. ``previous_algorithm``/``previous_params``: the learner a candidate-arm person had
+    before, which a roll back gives them back. Part of the person's data: erased with them."""
+
+    __tablename__ = "rollout_arms"
+    __table_args__ = (Index("ix_rollout_arms_user", "user_pk"),)
+
+    rollout_id: Mapped[str] = mapped_column(
+        ForeignKey("rollouts.id", ondelete="CASCADE"), primary_key=True
+    )
+    user_pk: Mapped[int] = mapped_column(
+        ForeignKey("users.id", ondelete="CASCADE"), primary_key=True
+    )
+    arm: Mapped[str] = mapped_column(String(16))
+    assigned_at: Mapped[dt.datetime] = mapped_column(UTCDateTime(), default=utcnow)
+    previous_algorithm: Mapped[str] = mapped_column(String(32))
+    previous_params: Mapped[dict[str, Any]] = mapped_column(JSON)

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import datetime as dt
-from typing import Literal
+from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -146,6 +146,19 @@ class CorrectionList(BaseModel):
     items: list[CorrectionOut]
 
 
+class RolloutArmOut(BaseModel):
+    """A person's arm in a fleet's rollout of a candidate learner."""
+
+    rollout_id: str
+    arm: Literal["candidate", "control"] = Field(
+        description="candidate: served by the rollout's candidate; control: by the learner "
+        "they had."
+    )
+    assigned_at: dt.datetime
+    candidate: dict[str, Any] = Field(description="The rollout's candidate: key, label, ...")
+    rollout_status: Literal["running", "promoted", "rolled_back"]
+
+
 class ProfileOut(BaseModel):
     user_id: str
     display_name: str | None
@@ -161,4 +174,9 @@ class ProfileOut(BaseModel):
     contexts: list[ProfileContext]
     corrections: list[CorrectionOut] = Field(
         description="The corrections in force or overridden (lifted ones: GET .../corrections)."
+    )
+    rollout: RolloutArmOut | None = Field(
+        default=None,
+        description="The person's arm in the newest rollout of a learner that gave them one "
+        "(null: none did).",
     )

@@ -42,6 +42,10 @@ ACTIONS = (
     "fleet.retention",
     "evaluation.start",
     "evaluation.cancel",
+    "rollout.start",
+    "rollout.share",
+    "rollout.promote",
+    "rollout.rollback",
 )
 # The actions whose target is a user: their entries' details are blanked when the user is erased.
 ABOUT_A_USER = ("user.", "model.", "correction.")

@@ -115,6 +115,7 @@ __all__ = [
     "evaluate_fleet",
     "evidence",
     "parse_candidate",
+    "relearned",
     "verdict",
 ]
 
@@ -707,6 +708,58 @@ def _replay(fleet: str, history: _History, spec: CandidateSpec) -> _Replayed:
             elif logged[row] >= 1.0:  # a silent step the logger was sure of: nothing else
                 out.unsupported[row] = 1.0 - out.target[row]
     return out
+
+
+def relearned(
+    session: Session, ctx: ServiceContext, user: UserRow, spec: CandidateSpec
+) -> tuple[TabularLearner[Any], int]:
+    """The learner ``spec`` as it would be now had it served the person from their model's
+    base: started as a candidate starts (:func:`_start`), then taught every version group of
+    the person's journal in order, as the evaluation's replay teaches it; with the number of
+    groups it refused. A rollout moves a person between learners with it, so that what was
+    learned about them is learned again by the learner they move to, not forgotten."""
+    model = PersonModel.open(session, ctx, user)
+    head = model.head
+    layouts = {
+        v: ctx.missions.get(session, user.fleet, v)
+        for v in range(head.base_mission_version, head.mission_version + 1)
+    }
+    groups = list(model.history())
+    rules = {
+        g[0].version: model.rules(g[0])
+        for g in groups
+        if isinstance(g[0], journal.Correction | journal.Lift)
+    }
+    history = _History(
+        user_id=user.user_id,
+        algorithm=user.algorithm,
+        base_doc=model.base_document(),
+        base_layout=head.base_mission_version,
+        layouts=layouts,
+        groups=groups,
+        rules=rules,
+        asked=[],
+        lengths=[],
+        logged=[],
+        reward=[],
+    )
+    learner = _start(spec, history)
+    layout = history.base_layout
+
+    def move(current: TabularLearner[Any], old: int, new: int) -> TabularLearner[Any]:
+        for version in range(old + 1, new + 1):
+            current = remap_learner(current, layouts[version].mission, layouts[version].renames)
+        return current
+
+    refused = 0
+    for group in groups:
+        try:
+            learner, layout = apply(
+                learner, group, layout=layout, rules=lambda e: rules[e.version], move=move
+            )
+        except (ValueError, KeyError):
+            refused += 1
+    return learner, refused
 
 
 # ---------------------------------------------------------------------------------------------

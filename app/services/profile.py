@@ -26,9 +26,11 @@ from app.schemas.profile import (
     ProfileContext,
     ProfileOut,
     RobotWill,
+    RolloutArmOut,
     Wanted,
 )
 
+from . import rollouts
 from .context import Principal, ServiceContext
 from .corrections import correction_views
 from .folds import ContextHistory, History, Moment
@@ -91,6 +93,7 @@ def profile_view(
                 display,
             )
         )
+    arm = rollouts.person_arm(session, user.id)
     return ProfileOut(
         user_id=user.user_id,
         display_name=user.display_name,
@@ -100,6 +103,7 @@ def profile_view(
         started_from=StartedFrom(**started_from(session, user.id)),
         contexts=contexts,
         corrections=corrections,
+        rollout=None if arm is None else RolloutArmOut.model_validate(arm),
     )
 
 

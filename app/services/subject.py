@@ -29,7 +29,7 @@ from app.db.repositories.episodes import EpisodeRow
 from app.db.session import Database
 from app.db.types import utcnow
 
-from . import audit, views
+from . import audit, rollouts, views
 from .auth import require_manager
 from .changes import person_changes
 from .context import Principal, ServiceContext
@@ -140,6 +140,7 @@ def begin_export(
         "changes": person_changes(
             session, ctx, principal, user_id, limit=1_000_000, cursor=None, fleet=user.fleet
         ).items,
+        "rollout_arms": rollouts.person_arms(session, user.id),
         "episode_count": user.episode_count,
         "restore": restore_part(session, ctx, user.fleet, user.id, model, user.draws),
     }

@@ -22,11 +22,12 @@ from app.db.repositories import users as repo
 from app.db.repositories.users import UserRow
 from app.db.types import utcnow
 from app.errors import Conflict, Forbidden, NotFound, ValidationFailed
+from app.learning.config import PARAMS
 from app.learning.learners import TabularLearner
 from app.schemas.common import CLIENT_ID_PATTERN
 from app.schemas.users import LearnerSpec, UserIn, UserList, UserOut
 
-from . import audit
+from . import audit, rollouts
 from .auth import ROLES, require_manager
 from .context import Principal, ServiceContext
 from .missions import current_version
@@ -106,18 +107,25 @@ def create_user(
     """Create the user in ``fleet`` unless the fleet has that id; True when created. (Two
     requests creating the same user at once: one creates it, both go on.) The model starts from
     the fleet's prior when it is in force for the user (``app.services.prior``), else fresh."""
+    default = spec is None
     spec = spec or LearnerSpec()
+    # A fleet's rollout gives a newcomer whose learner nobody chose an arm (and, in the
+    # candidate's arm or once it was promoted, the candidate as their learner).
+    arm = rollouts.arm_for_newcomer(session, fleet, user_id) if default else None
+    algorithm, params = spec.algorithm, spec.params
+    if arm is not None and arm[2] is not None:
+        algorithm, params = arm[2].algorithm, dict(arm[2].params)
     takes_part = fleet_prior is not False
     version = current_version(session, ctx, fleet, for_new_user=True)
     learner, origin = starting_learner(
-        session, ctx, fleet, spec.algorithm, spec.params, version, takes_part=takes_part
+        session, ctx, fleet, algorithm, params, version, takes_part=takes_part
     )
     state = learner.to_state()
-    return repo.create(
+    created = repo.create(
         session,
         user_id=user_id,
         fleet=fleet,
-        algorithm=spec.algorithm,
+        algorithm=algorithm,
         params=learner.params.to_dict(),
         display_name=display_name,
         state=state,
@@ -126,6 +134,10 @@ def create_user(
         fleet_prior=takes_part,
         base=(state, origin.contributors or 0) if origin.kind == "fleet_prior" else None,
     )
+    if created and arm is not None and arm[1]:
+        default_params = PARAMS[spec.algorithm].from_dict(dict(spec.params)).to_dict()
+        rollouts.record_newcomer(session, arm[0], arm[1], user_id, (spec.algorithm, default_params))
+    return created
 
 
 @dataclass(frozen=True, slots=True)

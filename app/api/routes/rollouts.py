@@ -1,0 +1,90 @@
+"""Rolling a candidate learner out to a share of a fleet's people, comparing the arms while it
+runs, and promoting or rolling it back (the fleet's staff, admins): :mod:`app.services.rollouts`.
+"""
+
+from __future__ import annotations
+
+from fastapi import APIRouter
+from fastapi.responses import JSONResponse
+from sqlalchemy.orm import Session
+
+from app.api.deps import CurrentPrincipal, TransactionalRoute
+from app.api.errors import responses
+from app.schemas.rollouts import RollbackIn, RolloutIn, RolloutOut
+from app.services import rollouts
+from app.services.context import ServiceContext
+
+from ._common import FleetName
+
+router = APIRouter(prefix="/v1/admin", tags=["rollouts"], route_class=TransactionalRoute)
+
+
+@router.get("/fleets/{fleet}/rollout", response_model=RolloutOut, responses=responses(403, 404))
+def get_rollout(
+    fleet: FleetName, session: Session, ctx: ServiceContext, principal: CurrentPrincipal
+) -> RolloutOut:
+    """The fleet's newest rollout and a look at its arms: candidate minus control in mean
+    return per encounter, with an interval that holds at every look, and what it says in
+    words. 404 when the fleet never had one."""
+    return RolloutOut.of(rollouts.rollout_view(session, ctx, principal, fleet))
+
+
+@router.put(
+    "/fleets/{fleet}/rollout",
+    response_model=RolloutOut,
+    status_code=200,
+    responses={**responses(403, 409, 415), 201: {"description": "A rollout started."}},
+)
+def put_rollout(
+    fleet: FleetName,
+    body: RolloutIn,
+    session: Session,
+    ctx: ServiceContext,
+    principal: CurrentPrincipal,
+) -> JSONResponse:
+    """Roll ``candidate`` out to ``share`` of the fleet's people (201 when it starts one), or
+    change the share of the one running (200; the same candidate, else 409). Each person's arm
+    is chosen by a salted stable hash of their id and stored: a lower share, a mission change or
+    a restart moves no one. A person moved keeps what was learned (their history is taught to
+    the learner they move to). Audit entries ``rollout.start``, ``rollout.share``, and
+    ``user.learner`` per person moved."""
+    found, started = rollouts.put_rollout(
+        session,
+        ctx,
+        principal,
+        fleet,
+        algorithm=body.candidate.algorithm,
+        params=body.candidate.params,
+        share=body.share,
+    )
+    out = RolloutOut.of(found).model_dump(mode="json")
+    return JSONResponse(out, status_code=201 if started else 200)
+
+
+@router.post(
+    "/fleets/{fleet}/rollout/promote", response_model=RolloutOut, responses=responses(403, 409)
+)
+def promote_rollout(
+    fleet: FleetName, session: Session, ctx: ServiceContext, principal: CurrentPrincipal
+) -> RolloutOut:
+    """Give the running rollout's candidate to everyone it assigned (the control people move,
+    keeping what was learned) and to the fleet's newcomers from now on. 409 when no rollout
+    runs. Audit entry ``rollout.promote``."""
+    return RolloutOut.of(rollouts.promote(session, ctx, principal, fleet))
+
+
+@router.post(
+    "/fleets/{fleet}/rollout/rollback", response_model=RolloutOut, responses=responses(403, 409)
+)
+def roll_back_rollout(
+    fleet: FleetName,
+    session: Session,
+    ctx: ServiceContext,
+    principal: CurrentPrincipal,
+    body: RollbackIn | None = None,
+) -> RolloutOut:
+    """Give every candidate person back the learner they had (taught their whole history,
+    what the candidate learned with them included); newcomers get the fleet's default again.
+    409 when no rollout runs. Audit entry ``rollout.rollback``."""
+    reason = body.reason if body is not None else None
+    return RolloutOut.of(rollouts.roll_back(session, ctx, principal, fleet, reason=reason))
