@@ -40,10 +40,12 @@ from app.api.routes import (
 )
 from app.console import mount_console
 from app.db.session import Database
+from app.services import rollouts as rollout_service
+from app.services import shadows as shadow_service
 from app.services.context import ServiceContext
 from app.services.evaluation_jobs import EvaluationRunner
+from app.services.periodic import Periodic
 from app.services.retention_runs import DailyRetention
-from app.services.rollouts import RolloutGuard
 from app.settings import Settings, get_settings, mask_url
 
 __all__ = ["app", "create_app", "package_version"]
@@ -118,13 +120,25 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         guard = None
         if settings.rollout_guard_minutes > 0:
             # Every running rollout looked at, and rolled back when its candidate is worse.
-            guard = RolloutGuard(
+            guard = Periodic(
                 db,
-                app.state.ctx,
-                settings.rollout_guard_minutes,
+                rollout_service.LEASE,
+                settings.rollout_guard_minutes * 60.0,
+                lambda: rollout_service.check_guard(db, app.state.ctx),
                 stopping=lambda: app.state.drain.draining,
             )
             guard.start()
+        shadows = None
+        if settings.shadow_seconds > 0:
+            # The shadows' candidates decide at the decisions of the episodes that ended.
+            shadows = Periodic(
+                db,
+                shadow_service.LEASE,
+                settings.shadow_seconds,
+                lambda: shadow_service.shadow_pass(db, app.state.ctx),
+                stopping=lambda: app.state.drain.draining,
+            )
+            shadows.start()
         daily = None
         if settings.retention_at is not None:
             # The retention run at the set time, in a thread of its own (ATTUNE_RETENTION_AT):
@@ -145,6 +159,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             await asyncio.to_thread(runner.stop)
             if guard is not None:
                 await asyncio.to_thread(guard.stop)
+            if shadows is not None:
+                await asyncio.to_thread(shadows.stop)
             for task in tasks:
                 task.cancel()
             for task in tasks:

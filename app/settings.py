@@ -239,6 +239,21 @@ class Settings(BaseSettings):
         "learner and rolls back one whose candidate is worse with the comparison's confidence "
         "(one process of the deployment at a time); 0: never (staff roll back by hand).",
     )
+    shadow_seconds: float = Field(
+        default=30.0,
+        ge=0,
+        le=3600,
+        description="How often the service lets each running shadow's candidate decide at the "
+        "decisions of the episodes that ended since (one process of the deployment at a time); "
+        "0: never.",
+    )
+    shadow_estimate_minutes: float = Field(
+        default=60.0,
+        gt=0,
+        le=7 * 24 * 60,
+        description="How often a running shadow's off-policy estimate (over the fleet's "
+        "episodes since it started) is made again.",
+    )
     prior_min_contributors: int = Field(
         default=5,
         ge=3,

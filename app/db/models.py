@@ -43,6 +43,8 @@ __all__ = [
     "Lease",
     "Rollout",
     "RolloutArm",
+    "Shadow",
+    "ShadowDecision",
     "User",
 ]
 
@@ -571,3 +573,65 @@ class RolloutArm(Base):
     assigned_at: Mapped[dt.datetime] = mapped_column(UTCDateTime(), default=utcnow)
     previous_algorithm: Mapped[str] = mapped_column(String(32))
     previous_params: Mapped[dict[str, Any]] = mapped_column(JSON)
+
+
+class Shadow(Base):
+    """A candidate learner that decides beside a fleet's learners without acting
+    (``PUT /v1/admin/fleets/{fleet}/shadow``; :mod:`app.services.shadows`): for the ``share``
+    of the fleet's people whose salted hash falls below it, each decision the robots were told
+    is also decided by the candidate, after the episode ends, and stored
+    (``shadow_decisions``). ``checked_until``: the episodes closed before it were looked at;
+    ``estimate``: the newest off-policy estimate of the candidate over the episodes since the
+    shadow started (``estimated_at``). At most one shadow of a fleet runs at a time."""
+
+    __tablename__ = "shadows"
+    __table_args__ = (
+        Index("ix_shadows_fleet_started", "fleet", "started_at"),
+        Index(
+            "ux_shadows_running",
+            "fleet",
+            unique=True,
+            sqlite_where=text("status = 'running'"),
+            postgresql_where=text("status = 'running'"),
+        ),
+    )
+
+    id: Mapped[str] = mapped_column(String(ID), primary_key=True)  # sh_ and 32 hex digits
+    fleet: Mapped[str] = mapped_column(String(CLIENT_ID))
+    algorithm: Mapped[str] = mapped_column(String(32))
+    params: Mapped[dict[str, Any]] = mapped_column(JSON)
+    share: Mapped[float] = mapped_column(Float)
+    salt: Mapped[str] = mapped_column(String(32))
+    status: Mapped[str] = mapped_column(String(16))  # running, stopped
+    started_at: Mapped[dt.datetime] = mapped_column(UTCDateTime(), default=utcnow)
+    started_by: Mapped[str] = mapped_column(String(ID))
+    stopped_at: Mapped[dt.datetime | None] = mapped_column(UTCDateTime())
+    stopped_by: Mapped[str | None] = mapped_column(String(ID))
+    checked_until: Mapped[dt.datetime] = mapped_column(UTCDateTime())
+    estimate: Mapped[dict[str, Any] | None] = mapped_column(JSON)
+    estimated_at: Mapped[dt.datetime | None] = mapped_column(UTCDateTime())
+
+
+class ShadowDecision(Base):
+    """What a shadow's candidate would have decided at one of the robots' decisions: the action
+    it drew, its distribution over the decision's actions, and its probability of the robot's
+    action. Part of the person's history: it goes with the decision (a retention run) and with
+    the person (an erasure)."""
+
+    __tablename__ = "shadow_decisions"
+    __table_args__ = (Index("ix_shadow_decisions_shadow_at", "shadow_id", "decided_at"),)
+
+    decision_id: Mapped[str] = mapped_column(
+        ForeignKey("decisions.id", ondelete="CASCADE"), primary_key=True
+    )
+    shadow_id: Mapped[str] = mapped_column(
+        ForeignKey("shadows.id", ondelete="CASCADE"), primary_key=True
+    )
+    user_pk: Mapped[int] = mapped_column(ForeignKey("users.id", ondelete="CASCADE"))
+    decided_at: Mapped[dt.datetime] = mapped_column(UTCDateTime())
+    state: Mapped[int] = mapped_column(Integer)
+    action: Mapped[int] = mapped_column(Integer)
+    probabilities: Mapped[list[float]] = mapped_column(JSON)
+    logged_action: Mapped[int] = mapped_column(Integer)
+    logged_probability: Mapped[float] = mapped_column(Float)
+    agrees: Mapped[bool] = mapped_column(Boolean)

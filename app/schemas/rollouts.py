@@ -10,7 +10,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from .evaluations import CandidateIn, CandidateOut
 
-__all__ = ["RollbackIn", "RolloutIn", "RolloutOut"]
+__all__ = ["RollbackIn", "RolloutIn", "RolloutOut", "ShadowIn", "ShadowOut"]
 
 
 class RolloutIn(BaseModel):
@@ -85,3 +85,47 @@ class RolloutOut(BaseModel):
     @classmethod
     def of(cls, found: dict[str, Any]) -> RolloutOut:
         return cls.model_validate(found)
+
+
+class ShadowIn(BaseModel):
+    model_config = ConfigDict(
+        extra="forbid",
+        json_schema_extra={"examples": [{"candidate": {"algorithm": "dts"}, "share": 1.0}]},
+    )
+
+    candidate: CandidateIn
+    share: float = Field(
+        default=1.0,
+        gt=0,
+        le=1,
+        description="The share of the fleet's people whose decisions the candidate also makes "
+        "(above 0, at most 1; all of them by default).",
+    )
+
+
+class ShadowOut(BaseModel):
+    shadow_id: str
+    fleet: str
+    candidate: CandidateOut
+    share: float
+    status: Literal["running", "stopped"]
+    started_at: dt.datetime
+    started_by: str
+    stopped_at: dt.datetime | None
+    stopped_by: str | None
+    checked_until: dt.datetime = Field(
+        description="The episodes closed before this time have been looked at."
+    )
+    decisions: int = Field(description="Decisions the candidate made beside the robots'.")
+    agreeing: int = Field(description="Those where it drew the action the robot was told.")
+    agreement: float | None = Field(description="agreeing / decisions.")
+    expected_agreement: float | None = Field(
+        description="The mean of the candidate's probability of the robot's action."
+    )
+    people: int
+    estimate: dict[str, Any] | None = Field(
+        description="The newest off-policy estimate of the candidate over the fleet's episodes "
+        "since the shadow started: as an evaluation's result, without per-person rows."
+    )
+    estimated_at: dt.datetime | None
+    summary: str = Field(description="What it found, in words.")

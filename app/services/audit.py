@@ -46,6 +46,9 @@ ACTIONS = (
     "rollout.share",
     "rollout.promote",
     "rollout.rollback",
+    "shadow.start",
+    "shadow.share",
+    "shadow.stop",
 )
 # The actions whose target is a user: their entries' details are blanked when the user is erased.
 ABOUT_A_USER = ("user.", "model.", "correction.")

@@ -116,6 +116,8 @@ __all__ = [
     "evidence",
     "parse_candidate",
     "relearned",
+    "shadow_decisions",
+    "ShadowDecision",
     "verdict",
 ]
 
@@ -437,6 +439,9 @@ class _Asked:
     actions: tuple[int, ...]
     rows: tuple[int, ...]
     theirs: tuple[FloatArray | None, ...]
+    decision_id: str = ""
+    decided_at: dt.datetime | None = None
+    visible: bool = False  # its last state is the decision's own, the learner's choice
 
 
 @dataclass
@@ -612,6 +617,9 @@ def _episode_steps(
                 actions=tuple(actions),
                 rows=tuple(rows),
                 theirs=tuple(theirs),
+                decision_id=d.id,
+                decided_at=d.decided_at,
+                visible=not d.forced,
             )
     if any(not 0.0 < p <= 1.0 + _TOLERANCE for p in logged):
         return None
@@ -664,7 +672,12 @@ def _start(spec: CandidateSpec, history: _History) -> TabularLearner[Any]:
     return learner
 
 
-def _replay(fleet: str, history: _History, spec: CandidateSpec) -> _Replayed:
+def _replay(
+    fleet: str,
+    history: _History,
+    spec: CandidateSpec,
+    on_asked: Callable[[_Asked, list[FloatArray], Any], None] | None = None,
+) -> _Replayed:
     n = len(history.logged)
     out = _Replayed(
         target=np.ones(n), unsupported=np.zeros(n), q_hat=np.zeros(n), v_hat=np.zeros(n)
@@ -694,6 +707,8 @@ def _replay(fleet: str, history: _History, spec: CandidateSpec) -> _Replayed:
             pending = next(groups, None)
         rng = np.random.default_rng([*seed, asked.episode, asked.position])
         mine = learner.distributions(asked.context, asked.states, asked.episode, rng)
+        if on_asked is not None:
+            on_asked(asked, mine, learner.space)
         q = learner.action_values(asked.context)
         space = learner.space
         for state, action, row, ours, theirs in zip(
@@ -708,6 +723,73 @@ def _replay(fleet: str, history: _History, spec: CandidateSpec) -> _Replayed:
             elif logged[row] >= 1.0:  # a silent step the logger was sure of: nothing else
                 out.unsupported[row] = 1.0 - out.target[row]
     return out
+
+
+@dataclass(frozen=True)
+class ShadowDecision:
+    """What a candidate would have decided at one of the person's decisions: its distribution
+    over the decision's actions (``probabilities``, in the order of the state's actions), the
+    action it draws from it (``action``), and its probability of the robot's action
+    (``logged_probability``)."""
+
+    decision_id: str
+    decided_at: dt.datetime
+    state: int
+    action: int
+    probabilities: list[float]
+    logged_action: int
+    logged_probability: float
+
+    @property
+    def agrees(self) -> bool:
+        return self.action == self.logged_action
+
+
+def shadow_decisions(
+    session: Session,
+    ctx: ServiceContext,
+    user: UserRow,
+    spec: CandidateSpec,
+    *,
+    since: dt.datetime,
+    done: set[str],
+) -> list[ShadowDecision]:
+    """The candidate's decisions at the person's decisions drawn at or after ``since`` (and not
+    in ``done``) of their closed episodes: the candidate replayed through their history as the
+    evaluation replays it (so it knows what the robot's learner knew at each), asked at each
+    decision the robot's learner chose (the forced ones are the person's). Its action is drawn
+    from a generator seeded by the person, the candidate and the decision: the same logs give
+    the same decisions."""
+    history = _read_person(session, ctx, user, None, None)
+    found: list[ShadowDecision] = []
+    seed = _seed(user.fleet, user.user_id, spec)
+
+    def asked_at(asked: _Asked, mine: list[FloatArray], space: Any) -> None:
+        at = asked.decided_at
+        if not asked.visible or at is None or asked.decision_id in done or _utc(at) < since:
+            return
+        ours = np.asarray(mine[-1], dtype=np.float64)
+        state, logged = asked.states[-1], asked.actions[-1]
+        first = space.actions_of(state).start
+        rng = np.random.default_rng([*seed, 0x5AD0, asked.episode, asked.position])
+        total = float(ours.sum())
+        weights = ours / total if total > 0 else np.full(ours.shape, 1.0 / ours.size)
+        drawn = first + int(rng.choice(ours.size, p=weights))
+        found.append(
+            ShadowDecision(
+                decision_id=asked.decision_id,
+                decided_at=_utc(at),
+                state=state,
+                action=drawn,
+                probabilities=[float(p) for p in ours],
+                logged_action=logged,
+                logged_probability=float(ours[logged - first]),
+            )
+        )
+
+    if history.asked:
+        _replay(user.fleet, history, spec, on_asked=asked_at)
+    return found
 
 
 def relearned(

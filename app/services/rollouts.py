@@ -30,8 +30,6 @@ import datetime as dt
 import hashlib
 import logging
 import secrets
-import threading
-from collections.abc import Callable
 from typing import Any
 
 from sqlalchemy.orm import Session
@@ -46,7 +44,7 @@ from app.errors import Conflict, Forbidden, NotFound, ValidationFailed
 from app.learning.sequential import BETTER, CANDIDATE, CONTROL, WORSE, Comparison, compare, guard
 from app.logs import FIELDS
 
-from . import audit, leases
+from . import audit
 from .auth import require_manager
 from .context import Principal, ServiceContext
 from .evaluation import CandidateSpec, candidate_spec, relearned
@@ -54,9 +52,9 @@ from .person_model import PersonModel
 
 __all__ = [
     "GUARD",
-    "RolloutGuard",
     "arm_for_newcomer",
     "check_guard",
+    "hash_place",
     "person_arm",
     "person_arms",
     "promote",
@@ -70,9 +68,10 @@ log = logging.getLogger("attune.rollouts")
 GUARD = "guard"
 """The key id the automatic roll back is recorded with."""
 LEASE = "rollout-guard"
+"""The lease of the guard's check (:class:`app.services.periodic.Periodic`)."""
 
 
-def _fraction(salt: str, user_id: str) -> float:
+def hash_place(salt: str, user_id: str) -> float:
     """The person's place in [0, 1) for this rollout: a salted SHA-256 of their id."""
     digest = hashlib.sha256(f"{salt}\x00{user_id}".encode()).digest()
     return int.from_bytes(digest[:8], "big") / 2.0**64
@@ -302,7 +301,7 @@ def put_rollout(
     repo.add(session, row)
     moved = 0
     for user in _fleet_people(session, fleet):
-        arm = CANDIDATE if _fraction(row.salt, user.user_id) < share else CONTROL
+        arm = CANDIDATE if hash_place(row.salt, user.user_id) < share else CONTROL
         repo.add_arm(
             session,
             ArmRow(row.id, user.id, arm, now, user.algorithm, dict(user.params)),
@@ -344,7 +343,7 @@ def _reshare(
     if share > row.share:
         spec = _spec_of(row)
         for arm, user_id in repo.arms(session, row.id):
-            if arm.arm != CONTROL or _fraction(row.salt, user_id) >= share:
+            if arm.arm != CONTROL or hash_place(row.salt, user_id) >= share:
                 continue
             user = users_repo.by_pk(session, arm.user_pk)
             if user is None:
@@ -444,7 +443,7 @@ def arm_for_newcomer(
         return None
     if row.status == "promoted":
         return row, "", _spec_of(row)
-    arm = CANDIDATE if _fraction(row.salt, user_id) < row.share else CONTROL
+    arm = CANDIDATE if hash_place(row.salt, user_id) < row.share else CONTROL
     return row, arm, _spec_of(row) if arm == CANDIDATE else None
 
 
@@ -493,42 +492,3 @@ def check_guard(db: Database, ctx: ServiceContext) -> list[str]:
         )
         rolled.append(fleet)
     return rolled
-
-
-class RolloutGuard:
-    """Each worker's guard: every ``minutes``, take the lease ``rollout-guard`` (one process of
-    the deployment at a time) and :func:`check_guard`."""
-
-    def __init__(
-        self,
-        db: Database,
-        ctx: ServiceContext,
-        minutes: float,
-        *,
-        stopping: Callable[[], bool] = lambda: False,
-    ) -> None:
-        self.db, self.ctx, self.seconds = db, ctx, minutes * 60.0
-        self.stopping = stopping
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
-
-    def start(self) -> None:
-        self._thread = threading.Thread(target=self._loop, name="attune-rollout-guard", daemon=True)
-        self._thread.start()
-
-    def stop(self, timeout: float = 5.0) -> None:
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout)
-
-    def _loop(self) -> None:
-        while not self._stop.wait(self.seconds):
-            if self.stopping():
-                return
-            try:
-                with leases.held(self.db, LEASE):
-                    check_guard(self.db, self.ctx)
-            except leases.LeaseHeld:
-                continue
-            except Exception:
-                log.exception("The rollout guard's check failed; it tries again later.")

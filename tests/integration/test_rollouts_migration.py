@@ -33,7 +33,7 @@ from tests.support.release import (
 
 pytestmark = [pytest.mark.slow]
 
-MIGRATION = "migrations/versions/2026-12-07-0400_rollouts_with_stored_arms.py"
+MIGRATION = "migrations/versions/2026-12-07-0400_shadows_rollouts_and_stored_arms.py"
 BEFORE = "8b4f2e6a1c90"
 USERS = tuple(f"p{i}" for i in range(8))
 WAIT_S = 120.0
@@ -83,7 +83,12 @@ def test_the_upgrade_keeps_everything_and_a_rollout_then_runs(filled: Filled) ->
     url, names, before, tables, rows_before = filled
     migrate.upgrade(url)
     assert revision(url) == migrate.head_revision()
-    assert set(table_names(url)) - set(tables) == {"rollouts", "rollout_arms"}
+    assert set(table_names(url)) - set(tables) == {
+        "rollouts",
+        "rollout_arms",
+        "shadows",
+        "shadow_decisions",
+    }
     assert table_rows(url, tables) == rows_before
     assert scalars(url, "SELECT count(*) FROM rollout_arms") == [0]
     app = create_app(Settings(database_url=url, seed=0, _env_file=None))  # type: ignore[call-arg]

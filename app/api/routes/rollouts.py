@@ -10,8 +10,8 @@ from sqlalchemy.orm import Session
 
 from app.api.deps import CurrentPrincipal, TransactionalRoute
 from app.api.errors import responses
-from app.schemas.rollouts import RollbackIn, RolloutIn, RolloutOut
-from app.services import rollouts
+from app.schemas.rollouts import RollbackIn, RolloutIn, RolloutOut, ShadowIn, ShadowOut
+from app.services import rollouts, shadows
 from app.services.context import ServiceContext
 
 from ._common import FleetName
@@ -88,3 +88,49 @@ def roll_back_rollout(
     409 when no rollout runs. Audit entry ``rollout.rollback``."""
     reason = body.reason if body is not None else None
     return RolloutOut.of(rollouts.roll_back(session, ctx, principal, fleet, reason=reason))
+
+
+@router.get("/fleets/{fleet}/shadow", response_model=ShadowOut, responses=responses(403, 404))
+def get_shadow(
+    fleet: FleetName, session: Session, ctx: ServiceContext, principal: CurrentPrincipal
+) -> ShadowOut:
+    """The fleet's newest shadow: how often its candidate would have done what the robots did,
+    and its off-policy estimate. 404 when the fleet never had one."""
+    return ShadowOut.model_validate(shadows.shadow_view(session, ctx, principal, fleet))
+
+
+@router.put(
+    "/fleets/{fleet}/shadow",
+    response_model=ShadowOut,
+    responses={**responses(403, 409, 415), 201: {"description": "A shadow started."}},
+)
+def put_shadow(
+    fleet: FleetName,
+    body: ShadowIn,
+    session: Session,
+    ctx: ServiceContext,
+    principal: CurrentPrincipal,
+) -> JSONResponse:
+    """Let ``candidate`` decide beside the fleet's learners, without acting, for ``share`` of
+    the fleet's people (201 when it starts one; 200 when it changes the running one's share;
+    another candidate while one runs: 409). Audit entries ``shadow.start``, ``shadow.share``."""
+    found, started = shadows.put_shadow(
+        session,
+        ctx,
+        principal,
+        fleet,
+        algorithm=body.candidate.algorithm,
+        params=body.candidate.params,
+        share=body.share,
+    )
+    out = ShadowOut.model_validate(found).model_dump(mode="json")
+    return JSONResponse(out, status_code=201 if started else 200)
+
+
+@router.delete("/fleets/{fleet}/shadow", response_model=ShadowOut, responses=responses(403, 409))
+def stop_shadow(
+    fleet: FleetName, session: Session, ctx: ServiceContext, principal: CurrentPrincipal
+) -> ShadowOut:
+    """Stop the fleet's running shadow; what it decided stays. 409 when none runs. Audit entry
+    ``shadow.stop``."""
+    return ShadowOut.model_validate(shadows.stop_shadow(session, ctx, principal, fleet))

@@ -1,0 +1,150 @@
+"""Shadows of a candidate learner (``shadows``) and the decisions they would have made
+(``shadow_decisions``)."""
+
+from __future__ import annotations
+
+import datetime as dt
+from dataclasses import dataclass
+from typing import Any
+
+from sqlalchemy import case, func, insert, select, update
+from sqlalchemy.orm import Session
+
+from ..models import Episode, Shadow, ShadowDecision, User
+from ._rows import columns, conn, names, record, table, values
+
+__all__ = [
+    "ShadowRow",
+    "add",
+    "add_decisions",
+    "agreement",
+    "checked",
+    "done_for",
+    "latest",
+    "people_with_closed",
+    "running",
+    "running_of",
+    "set_estimate",
+    "set_share",
+    "stop",
+]
+
+
+@dataclass(slots=True)
+class ShadowRow:
+    id: str
+    fleet: str
+    algorithm: str
+    params: dict[str, Any]
+    share: float
+    salt: str
+    status: str
+    started_at: dt.datetime
+    started_by: str
+    stopped_at: dt.datetime | None
+    stopped_by: str | None
+    checked_until: dt.datetime
+    estimate: dict[str, Any] | None
+    estimated_at: dt.datetime | None
+
+
+_shadows = table(Shadow)
+_decisions = table(ShadowDecision)
+_episodes = table(Episode)
+_users = table(User)
+_COLS = columns(_shadows, ShadowRow)
+
+
+def add(session: Session, row: ShadowRow) -> None:
+    conn(session).execute(insert(_shadows).values(**values(row, names(ShadowRow))))
+
+
+def latest(session: Session, fleet: str) -> ShadowRow | None:
+    s = _shadows.c
+    stmt = select(*_COLS).where(s.fleet == fleet).order_by(s.started_at.desc(), s.id.desc())
+    return record(ShadowRow, conn(session).execute(stmt.limit(1)).first())
+
+
+def running(session: Session) -> list[ShadowRow]:
+    stmt = select(*_COLS).where(_shadows.c.status == "running").order_by(_shadows.c.fleet)
+    return [ShadowRow(*r) for r in conn(session).execute(stmt)]
+
+
+def running_of(session: Session, fleet: str) -> ShadowRow | None:
+    s = _shadows.c
+    stmt = select(*_COLS).where(s.fleet == fleet, s.status == "running")
+    return record(ShadowRow, conn(session).execute(stmt).first())
+
+
+def set_share(session: Session, shadow_id: str, share: float) -> None:
+    conn(session).execute(update(_shadows).where(_shadows.c.id == shadow_id).values(share=share))
+
+
+def stop(session: Session, shadow_id: str, *, by: str, now: dt.datetime) -> bool:
+    s = _shadows.c
+    done = conn(session).execute(
+        update(_shadows)
+        .where(s.id == shadow_id, s.status == "running")
+        .values(status="stopped", stopped_at=now, stopped_by=by)
+    )
+    return bool(done.rowcount)
+
+
+def checked(session: Session, shadow_id: str, until: dt.datetime) -> None:
+    conn(session).execute(
+        update(_shadows).where(_shadows.c.id == shadow_id).values(checked_until=until)
+    )
+
+
+def set_estimate(
+    session: Session, shadow_id: str, estimate: dict[str, Any], *, at: dt.datetime
+) -> None:
+    conn(session).execute(
+        update(_shadows)
+        .where(_shadows.c.id == shadow_id)
+        .values(estimate=estimate, estimated_at=at)
+    )
+
+
+def people_with_closed(
+    session: Session, fleet: str, *, after: dt.datetime, upto: dt.datetime
+) -> list[int]:
+    """The fleet's people with an episode closed in (``after``, ``upto``]."""
+    e, u = _episodes.c, _users.c
+    stmt = (
+        select(e.user_pk)
+        .join(_users, u.id == e.user_pk)
+        .where(u.fleet == fleet, e.status == "closed", e.closed_at > after, e.closed_at <= upto)
+        .distinct()
+    )
+    return sorted(int(r[0]) for r in conn(session).execute(stmt))
+
+
+def done_for(session: Session, shadow_id: str, user_pk: int) -> set[str]:
+    d = _decisions.c
+    stmt = select(d.decision_id).where(d.shadow_id == shadow_id, d.user_pk == user_pk)
+    return {r[0] for r in conn(session).execute(stmt)}
+
+
+def add_decisions(session: Session, rows: list[dict[str, Any]]) -> None:
+    if rows:
+        conn(session).execute(insert(_decisions), rows)
+
+
+def agreement(session: Session, shadow_id: str) -> tuple[int, int, float, int]:
+    """(decisions, those where the candidate drew the robot's action, the mean of its
+    probability of the robot's action, people)."""
+    d = _decisions.c
+    row = (
+        conn(session)
+        .execute(
+            select(
+                func.count(),
+                func.coalesce(func.sum(case((d.agrees, 1), else_=0)), 0),
+                func.coalesce(func.avg(d.logged_probability), 0.0),
+                func.count(func.distinct(d.user_pk)),
+            ).where(d.shadow_id == shadow_id)
+        )
+        .one()
+    )
+    return int(row[0]), int(row[1]), float(row[2]), int(row[3])

@@ -1,0 +1,180 @@
+"""Shadows (``/v1/admin/fleets/{fleet}/shadow``), on both engines: a candidate decides beside
+the fleet's learners without acting, after each episode ends; what it decided is stored with its
+distribution and its probability of the robot's action; how often it agrees and its off-policy
+estimate are read back in words; only the shadow's share of people, only since it started, and
+nothing after it stopped."""
+
+from __future__ import annotations
+
+import datetime as dt
+from typing import Any
+
+import pytest
+from fastapi import FastAPI
+from fastapi.testclient import TestClient
+from sqlalchemy import select
+
+from app.db.models import Decision, ShadowDecision
+from app.services import shadows
+from app.services.rollouts import hash_place
+from tests.support import people
+from tests.support.episodes import play, start
+
+URL = "/v1/admin/fleets/default/shadow"
+TEA = ("ProvideDrink", "tea")
+
+
+def _later() -> dt.datetime:
+    return dt.datetime.now(dt.UTC) + dt.timedelta(seconds=10)
+
+
+def _fill(robot: TestClient, users: list[str], episodes: int, tag: str, **kw: Any) -> None:
+    for e in range(episodes):
+        for user in users:
+            play(robot, user, f"{user}-{tag}{e}", people.person(need=TEA), **kw)
+
+
+def _now() -> str:
+    """An event's time after the shadow started (the estimate counts those)."""
+    return (dt.datetime.now(dt.UTC) + dt.timedelta(minutes=1)).isoformat()
+
+
+def _stored(app: FastAPI) -> list[tuple[Any, ...]]:
+    with app.state.db.transaction(write=False) as session:
+        return list(
+            session.execute(
+                select(
+                    ShadowDecision.decision_id,
+                    ShadowDecision.probabilities,
+                    ShadowDecision.logged_action,
+                    ShadowDecision.logged_probability,
+                    ShadowDecision.state,
+                    Decision.action,
+                    Decision.probabilities,
+                    Decision.forced,
+                ).join(Decision, Decision.id == ShadowDecision.decision_id)
+            ).all()
+        )
+
+
+def test_a_shadow_decides_beside_the_robots_and_says_how_often_it_agrees(
+    app: FastAPI, robot: TestClient, staff: TestClient
+) -> None:
+    users = [f"p{i}" for i in range(6)]
+    for user in users:
+        assert (
+            robot.put(f"/v1/users/{user}", json={"learner": {"algorithm": "hri"}}).status_code
+            == 201
+        )
+    _fill(robot, users, 2, "before")
+    r = staff.put(URL, json={"candidate": {"algorithm": "hri"}})
+    assert r.status_code == 201, r.text
+    assert r.json()["decisions"] == 0
+    assert "has not decided yet" in r.json()["summary"]
+    _fill(robot, users, 3, "after", occurred_at=_now())
+    opened = start(robot, users[0], "left-open")  # not decided by the shadow until it ends
+    assert opened["decision"] is not None
+
+    added = shadows.shadow_pass(app.state.db, app.state.ctx, now=_later())
+    stored = _stored(app)
+    assert added == {"default": len(stored)}
+    assert stored
+    with app.state.db.transaction(write=False) as session:
+        before_start = session.execute(
+            select(Decision.id).where(Decision.decided_at < dt.datetime.now(dt.UTC))
+        ).all()
+    assert len(before_start) > len(stored)  # the decisions before the start were left
+    assert opened["decision"]["decision_id"] not in {row[0] for row in stored}
+    # The same HRI as the robots', taught the same history: its distribution at each decision
+    # is the one the robot's decision was drawn from.
+    space = app.state.ctx.space
+    for _, mine, logged_action, p_logged, state, action, theirs, forced in stored:
+        assert not forced
+        assert logged_action == action
+        assert mine == pytest.approx(theirs, abs=1e-9)
+        first = space.actions_of(state).start
+        assert p_logged == pytest.approx(theirs[action - first], abs=1e-9)
+
+    # A second pass adds nothing; the look says it in words, with the estimate.
+    assert shadows.shadow_pass(app.state.db, app.state.ctx, now=_later()) == {"default": 0}
+    look = staff.get(URL).json()
+    assert look["decisions"] == len(stored)
+    assert 0 < look["agreeing"] <= look["decisions"]
+    assert look["agreement"] == pytest.approx(look["agreeing"] / look["decisions"])
+    assert 0 < look["expected_agreement"] <= 1
+    assert look["people"] == len(users)
+    assert "would have done what the robots did in" in look["summary"]
+    assert look["estimate"] is not None
+    (candidate,) = look["estimate"]["candidates"]
+    assert candidate["verdict"] in look["summary"]
+    assert look["estimate"]["episodes"] == 3 * len(users)  # those since the shadow started
+
+    # Stopped: nothing more is decided.
+    r = staff.delete(URL)
+    assert r.status_code == 200
+    assert r.json()["status"] == "stopped"
+    _fill(robot, users, 1, "stopped")
+    assert shadows.shadow_pass(app.state.db, app.state.ctx, now=_later()) == {}
+    assert staff.delete(URL).status_code == 409
+    actions = [e["action"] for e in staff.get("/v1/admin/audit").json()["items"]]
+    assert actions.count("shadow.start") == 1
+    assert actions.count("shadow.stop") == 1
+
+
+def test_a_share_shadows_only_the_people_below_it(
+    app: FastAPI, robot: TestClient, staff: TestClient
+) -> None:
+    users = [f"q{i:02d}" for i in range(12)]
+    for user in users:
+        assert robot.put(f"/v1/users/{user}", json={}).status_code == 201
+    r = staff.put(URL, json={"candidate": {"algorithm": "dts"}, "share": 0.5})
+    assert r.status_code == 201
+    salt = _salt(app)
+    _fill(robot, users, 1, "e")
+    shadows.shadow_pass(app.state.db, app.state.ctx, now=_later(), estimate=False)
+    with app.state.db.transaction(write=False) as session:
+        pks = {r[0] for r in session.execute(select(ShadowDecision.user_pk)).all()}
+    from app.db.repositories import users as users_repo
+
+    with app.state.db.transaction(write=False) as session:
+        shadowed = {users_repo.by_pk(session, pk).user_id for pk in pks}  # type: ignore[union-attr]
+    assert shadowed == {u for u in users if hash_place(salt, u) < 0.5}
+    assert 0 < len(shadowed) < len(users)
+    # Another candidate while one runs: 409; the same one with another share: 200.
+    assert staff.put(URL, json={"candidate": {"algorithm": "hri"}}).status_code == 409
+    r = staff.put(URL, json={"candidate": {"algorithm": "dts"}, "share": 1.0})
+    assert r.status_code == 200
+    assert r.json()["share"] == 1.0
+
+
+def _salt(app: FastAPI) -> str:
+    from app.db.models import Shadow
+
+    with app.state.db.transaction(write=False) as session:
+        return str(session.execute(select(Shadow.salt)).scalar_one())
+
+
+@pytest.mark.parametrize(
+    "body",
+    [
+        {"candidate": {"algorithm": "nope"}},
+        {"candidate": {"algorithm": "dts"}, "share": 0},
+        {"candidate": {"algorithm": "dts"}, "share": 2},
+        {"share": 0.5},
+        {"candidate": {"algorithm": "dts"}, "extra": True},
+    ],
+)
+def test_bad_shadows_get_422(app: FastAPI, staff: TestClient, body: dict[str, Any]) -> None:
+    assert staff.put(URL, json=body).status_code == 422
+
+
+def test_who_may_shadow(
+    app: FastAPI, robot: TestClient, staff: TestClient, other_staff: TestClient
+) -> None:
+    body = {"candidate": {"algorithm": "dts"}}
+    assert staff.get(URL).status_code == 404
+    assert robot.put(URL, json=body).status_code == 403
+    assert other_staff.put(URL, json=body).status_code == 403
+    assert staff.put(URL, json=body).status_code == 201
+    assert other_staff.get(URL).status_code == 403
+    assert robot.delete(URL).status_code == 403
