@@ -24,6 +24,7 @@ from app.db.repositories import audit as audit_repo
 from app.db.repositories import changes as changes_repo
 from app.db.repositories import episodes as episodes_repo
 from app.db.repositories import retention as folds_repo
+from app.db.repositories import shadows as shadows_repo
 from app.db.repositories import views as views_repo
 from app.db.repositories.episodes import EpisodeRow
 from app.db.session import Database
@@ -79,10 +80,12 @@ class Export:
         while True:
             with db.transaction(write=False) as session:
                 rows = episodes_repo.list_page(session, self.user_pk, before_seq=before, limit=PAGE)
+                shadowed = shadows_repo.for_episodes(session, [row.id for row in rows])
                 traces = [
                     {
                         **get_trace(session, ctx, self.principal, row.id).model_dump(mode="json"),
                         "stored": stored_episode(session, row),
+                        "shadow_decisions": shadowed.get(row.id, []),
                     }
                     for row in rows
                 ]

@@ -249,6 +249,78 @@ MATRIX: list[Row] = [
         (401, 401, 403, 403, 200, 403, 200),
         route="/v1/admin/fleets/{fleet}/changes",
     ),
+    # What if: an evaluation is a job of the fleet's staff and admins; it changes no one.
+    Row(
+        "POST",
+        f"/v1/admin/fleets/{A}/evaluations",
+        (401, 401, 403, 403, 202, 403, 202),
+        json={"request_id": "matrix-e", "candidates": [{"algorithm": "dts"}]},
+        route="/v1/admin/fleets/{fleet}/evaluations",
+    ),
+    Row(
+        "GET",
+        f"/v1/admin/fleets/{A}/evaluations",
+        (401, 401, 403, 403, 200, 403, 200),
+        route="/v1/admin/fleets/{fleet}/evaluations",
+    ),
+    Row(
+        "GET",
+        f"/v1/admin/fleets/{A}/evaluations/ev_{'0' * 32}",
+        (401, 401, 403, 403, 404, 403, 404),
+        route="/v1/admin/fleets/{fleet}/evaluations/{evaluation_id}",
+    ),
+    Row(
+        "POST",
+        f"/v1/admin/fleets/{A}/evaluations/ev_{'0' * 32}/cancel",
+        (401, 401, 403, 403, 404, 403, 404),
+        route="/v1/admin/fleets/{fleet}/evaluations/{evaluation_id}/cancel",
+    ),
+    # A rollout to everyone moves lin to the candidate; a shadow changes no one.
+    Row(
+        "GET",
+        f"/v1/admin/fleets/{A}/rollout",
+        (401, 401, 403, 403, 404, 403, 404),
+        route="/v1/admin/fleets/{fleet}/rollout",
+    ),
+    Row(
+        "PUT",
+        f"/v1/admin/fleets/{A}/rollout",
+        (401, 401, 403, 403, 201, 403, 201),
+        json={"candidate": {"algorithm": "hri", "params": {"tau": 0.005}}, "share": 1.0},
+        writes=True,
+        route="/v1/admin/fleets/{fleet}/rollout",
+    ),
+    Row(
+        "POST",
+        f"/v1/admin/fleets/{A}/rollout/promote",
+        (401, 401, 403, 403, 409, 403, 409),
+        route="/v1/admin/fleets/{fleet}/rollout/promote",
+    ),
+    Row(
+        "POST",
+        f"/v1/admin/fleets/{A}/rollout/rollback",
+        (401, 401, 403, 403, 409, 403, 409),
+        route="/v1/admin/fleets/{fleet}/rollout/rollback",
+    ),
+    Row(
+        "GET",
+        f"/v1/admin/fleets/{A}/shadow",
+        (401, 401, 403, 403, 404, 403, 404),
+        route="/v1/admin/fleets/{fleet}/shadow",
+    ),
+    Row(
+        "PUT",
+        f"/v1/admin/fleets/{A}/shadow",
+        (401, 401, 403, 403, 201, 403, 201),
+        json={"candidate": {"algorithm": "dts"}},
+        route="/v1/admin/fleets/{fleet}/shadow",
+    ),
+    Row(
+        "DELETE",
+        f"/v1/admin/fleets/{A}/shadow",
+        (401, 401, 403, 403, 409, 403, 409),
+        route="/v1/admin/fleets/{fleet}/shadow",
+    ),
     # The console: a cookie holding the key (staff and admin get it by signing in; robot and
     # revoked keys, refused there, send one made by hand). "none": no cookie, so the pages
     # send the browser to the login form (303).

@@ -95,6 +95,15 @@ def test_a_shadow_decides_beside_the_robots_and_says_how_often_it_agrees(
         first = space.actions_of(state).start
         assert p_logged == pytest.approx(theirs[action - first], abs=1e-9)
 
+    # The person's export holds what the shadow decided at their decisions, per episode.
+    export = staff.get(f"/v1/users/{users[0]}/export").json()
+    theirs = [d for e in export["episodes"] for d in e["shadow_decisions"]]
+    mine_ids = {row[0] for row in stored}
+    assert theirs
+    assert len(theirs) == sum(
+        1 for e in export["episodes"] for d in e["decisions"] if d["decision_id"] in mine_ids
+    )
+
     # A second pass adds nothing; the look says it in words, with the estimate.
     assert shadows.shadow_pass(app.state.db, app.state.ctx, now=_later()) == {"default": 0}
     look = staff.get(URL).json()

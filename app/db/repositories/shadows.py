@@ -10,7 +10,7 @@ from typing import Any
 from sqlalchemy import case, func, insert, select, update
 from sqlalchemy.orm import Session
 
-from ..models import Episode, Shadow, ShadowDecision, User
+from ..models import Decision, Episode, Shadow, ShadowDecision, User
 from ._rows import columns, conn, names, record, table, values
 
 __all__ = [
@@ -20,6 +20,7 @@ __all__ = [
     "agreement",
     "checked",
     "done_for",
+    "for_episodes",
     "latest",
     "people_with_closed",
     "running",
@@ -148,3 +149,40 @@ def agreement(session: Session, shadow_id: str) -> tuple[int, int, float, int]:
         .one()
     )
     return int(row[0]), int(row[1]), float(row[2]), int(row[3])
+
+
+def for_episodes(session: Session, episode_ids: list[str]) -> dict[str, list[dict[str, Any]]]:
+    """The shadow decisions made at the decisions of these episodes, by episode (a person's
+    export)."""
+    if not episode_ids:
+        return {}
+    d, x = _decisions.c, table(Decision).c
+    stmt = (
+        select(
+            x.episode_id,
+            x.position,
+            d.shadow_id,
+            d.decided_at,
+            d.action,
+            d.probabilities,
+            d.logged_probability,
+            d.agrees,
+        )
+        .join(table(Decision), x.id == d.decision_id)
+        .where(x.episode_id.in_(episode_ids))
+        .order_by(x.episode_id, x.position, d.shadow_id)
+    )
+    out: dict[str, list[dict[str, Any]]] = {}
+    for row in conn(session).execute(stmt):
+        out.setdefault(row[0], []).append(
+            {
+                "position": row[1],
+                "shadow_id": row[2],
+                "decided_at": row[3],
+                "action": row[4],
+                "probabilities": row[5],
+                "logged_probability": row[6],
+                "agrees": bool(row[7]),
+            }
+        )
+    return out
