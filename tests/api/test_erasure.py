@@ -2,8 +2,9 @@
 table and column of the database is read (``tests/support/erasure``), after a history with
 feedback, staff corrections with notes, a lifted correction, an export, an import, a change of
 their prior, a mission change, an episode left open and a retention run that folded
-their oldest episodes. Their audit entries keep who did what,
-when and to which id, and nothing else; the database refuses to blank anyone else's. Their
+their oldest episodes, a shadow that decided at her decisions, a rollout that moved her to
+another learner, and an evaluation whose result has a row for her. Their audit entries keep who
+did what, when and to which id, and nothing else; the database refuses to blank anyone else's. Their
 number is never given to a newcomer. And the check finds a table that keeps something of them.
 """
 
@@ -23,7 +24,8 @@ from sqlalchemy.exc import DBAPIError
 from app.db.models import Episode
 from app.db.session import Database
 from app.learning import office_mission
-from app.services import retention
+from app.services import evaluation_jobs as jobs
+from app.services import retention, shadows
 from tests.support.episodes import play, start
 from tests.support.erasure import Subject, remains
 from tests.support.people import person
@@ -92,6 +94,12 @@ def _fill(robot: TestClient, staff: TestClient, admin: TestClient) -> None:
     )
     assert r.status_code == 200, r.text
     _history(robot, ADA, "zw", 2, n=6)
+    # A shadow decides beside the robots; a rollout moves everyone to a candidate (her arm).
+    r = staff.put("/v1/admin/fleets/default/shadow", json={"candidate": {"algorithm": "dts"}})
+    assert r.status_code == 201, r.text
+    rollout = {"candidate": {"algorithm": "hri", "params": {"tau": 0.005}}, "share": 1.0}
+    r = staff.put("/v1/admin/fleets/default/rollout", json=rollout)
+    assert r.status_code == 201, r.text
     # Her wish in one context changes: told to staff (a change, and the context's walk).
     wishes = [("ProvideDrink", "tea")] * 4 + [("ProvideDrink", "coffee")] * 3
     for i, need in enumerate(wishes, start=20):
@@ -105,6 +113,19 @@ def _fill(robot: TestClient, staff: TestClient, admin: TestClient) -> None:
         )
     assert staff.get(f"/v1/users/{ADA}/changes").json()["items"], "her wish changed"
     start(robot, ADA, "zw-evt-open", situation="stretching", robot_id="zw-robot")
+
+
+def _what_if(app: FastAPI, staff: TestClient) -> None:
+    """The shadow's candidate decides at her decisions, and an evaluation's result has a row
+    for her."""
+    later = dt.datetime.now(dt.UTC) + dt.timedelta(seconds=10)
+    assert shadows.shadow_pass(app.state.db, app.state.ctx, now=later, estimate=False)["default"]
+    app.state.evaluations = None  # run here, not by the worker's runner
+    body = {"request_id": "zw-review", "candidates": [{"algorithm": "dts"}]}
+    job = staff.post("/v1/admin/fleets/default/evaluations", json=body).json()
+    assert jobs.run_job(app.state.db, app.state.ctx, job["evaluation_id"]) == "done"
+    found = staff.get(f"/v1/admin/fleets/default/evaluations/{job['evaluation_id']}").json()
+    assert ADA in {p["user_id"] for p in found["result"]["persons"]}
 
 
 def _retention_run(app: FastAPI, staff: TestClient, db: Database) -> None:
@@ -128,6 +149,7 @@ def erased(
     """ADA, filled, her oldest history folded by a retention run, and then erased by her
     fleet's staff."""
     _fill(robot, staff, admin)
+    _what_if(app, staff)
     _retention_run(app, staff, db)
     with db.transaction() as session:
         pk = user_pk(session, ADA)
@@ -157,6 +179,7 @@ def test_the_audit_log_keeps_who_did_what_and_nothing_of_the_person(
     about = [e for e in items if e["target"] == ADA]
     assert [e["action"] for e in about] == [
         "user.delete",
+        "user.learner",  # the rollout moved her
         "user.prior",
         "model.import",
         "model.export",
