@@ -14,6 +14,7 @@ from __future__ import annotations
 import datetime as dt
 import re
 import secrets
+import zoneinfo
 from collections.abc import Callable, Coroutine
 from pathlib import Path
 from typing import Annotated, Any
@@ -32,6 +33,7 @@ from app.api.middleware import HEAD_KEY
 from app.api.routes._common import export_response
 from app.errors import AppError, Conflict, NotFound, ValidationFailed
 from app.learning import Mission
+from app.learning.offpolicy import ESTIMATORS
 from app.schemas.common import CLIENT_ID_PATTERN, MAX_POSITION
 from app.schemas.profile import CorrectionIn
 from app.schemas.users import UserOut
@@ -40,6 +42,7 @@ from app.services import changes as changes_service
 from app.services import console as console_service
 from app.services import corrections as corrections_service
 from app.services import episodes as episodes_service
+from app.services import evaluation_jobs as evaluation_service
 from app.services import missions as missions_service
 from app.services import models as models_service
 from app.services import profile as profile_service
@@ -48,6 +51,7 @@ from app.services import subject as subject_service
 from app.services import users as users_service
 from app.services import views as data_views
 from app.services.context import ServiceContext
+from app.services.evaluation import CandidateSpec, parse_candidate
 
 from . import views
 from .auth import (
@@ -292,11 +296,15 @@ def _counts(session: RequestSession, user: UserOut) -> dict[str, int]:
 
 
 def _looked(
-    request: Request, session: RequestSession, admin: Admin, user: UserOut, page: str
+    request: Request,
+    session: RequestSession,
+    admin: Admin,
+    user: UserOut,
+    page: str | None,
 ) -> list[Any]:
     """Record that this staff member or admin opens ``page`` of the person (who looked:
     ``app.services.views``), and the few who looked before them, newest first, for the
-    page's header."""
+    page's header. ``page`` None: the page records its own look (or none), only list them."""
     before = data_views.list_views(
         session,
         admin.principal,
@@ -305,7 +313,7 @@ def _looked(
         user_id=user.user_id,
         fleet=user.fleet,
     ).items
-    if request.scope.get(HEAD_KEY):  # a HEAD sends no data: nothing looked at
+    if page is None or request.scope.get(HEAD_KEY):  # a HEAD sends no data: nothing looked at
         return before
     data_views.record(
         request.app.state.db,
@@ -1181,6 +1189,366 @@ def set_retention(
             f"{retention_service.MAX_DAYS:,} (a hundred years)."
         )
     return _redirect(request, _fleet_url("/retention", name, done="saved"))
+
+
+# -- what if: candidate learners estimated from the fleet's logs (evaluations) ------------------
+_EVALUATION_ID = re.compile(r"^ev_[0-9a-f]{32}$")
+_DATE_TEXT = re.compile(r"^[0-9]{4}-[0-9]{2}-[0-9]{2}$")
+EVALUATIONS_SHOWN = 20  # the fleet's newest evaluations on its page
+_FORM_TEXT = ("other", "since", "until", "estimator")
+
+
+def _check_evaluation_id(evaluation_id: str) -> None:
+    if not _EVALUATION_ID.match(evaluation_id):
+        raise PageError(404, "Not found", "There is no such evaluation.")
+
+
+def _requested_by(job: dict[str, Any], names: dict[str, str]) -> str:
+    """Who started an evaluation: the key's name, or the kind of key with its id's start."""
+    who = job["requested_by"]
+    name = names.get(who["key_id"])
+    if name:
+        return name
+    return f"an {who['role']} key" if who["role"] == "admin" else f"key {who['key_id'][:12]}"
+
+
+def _evaluations_page(
+    request: Request,
+    session: RequestSession,
+    ctx: ServiceContext,
+    admin: Admin,
+    fleet: str,
+    *,
+    typed: dict[str, Any] | None = None,
+    errors: dict[str, str] | None = None,
+    request_id: str | None = None,
+    done: str | None = None,
+    status: int = 200,
+) -> HTMLResponse:
+    listed = evaluation_service.list_for_fleet(
+        session, admin.principal, fleet, limit=EVALUATIONS_SHOWN, cursor=None
+    )  # may 403
+    jobs = listed["items"]
+    names = console_service.key_names(session, [j["requested_by"]["key_id"] for j in jobs])
+    return _page(
+        request,
+        "evaluations.html",
+        admin,
+        status,
+        nav="evaluations",
+        fleet=fleet,
+        fleets=_fleet_choice(session, admin, fleet),
+        jobs=jobs,
+        by={j["evaluation_id"]: _requested_by(j, names) for j in jobs},
+        more=listed["next_cursor"] is not None,
+        active=any(views.job_active(j) for j in jobs),
+        zone=console_service.time_zones(session, ctx, {fleet})[fleet],
+        typed=typed or {"picks": [], "other": "", "since": "", "until": "", "estimator": ""},
+        errors=errors or {},
+        request_id=request_id or secrets.token_hex(16),
+        choices=views.CANDIDATE_CHOICES,
+        estimators=ESTIMATORS,
+        max_candidates=evaluation_service.MAX_CANDIDATES,
+        done=done,
+        action=console_url(request, _fleet_url("/evaluations", fleet)),
+        here=console_url(request, _fleet_url("/evaluations", fleet)),
+    )
+
+
+@router.get("/evaluations")
+def evaluations_page(
+    request: Request,
+    session: RequestSession,
+    ctx: ServiceContext,
+    admin: AdminDep,
+    fleet: FleetQuery = None,
+    done: Annotated[str | None, Query(max_length=16)] = None,
+) -> HTMLResponse:
+    """What if the robots used another learner: the form that starts an evaluation of
+    candidate learners on the fleet's logs, and the fleet's evaluations, newest first, with
+    their progress (staff: their fleet; admins: ``?fleet=``)."""
+    name = fleet or admin.principal.fleet
+    return _evaluations_page(
+        request, session, ctx, admin, name, done="cancelled" if done == "cancelled" else None
+    )
+
+
+def _day(text: str, zone: str) -> dt.datetime:
+    """A day typed on the form (YYYY-MM-DD) as its first moment in the fleet's time zone;
+    ``ValueError`` when it is no date."""
+    if not _DATE_TEXT.match(text):
+        raise ValueError(text)
+    return dt.datetime.combine(dt.date.fromisoformat(text), dt.time(0), zoneinfo.ZoneInfo(zone))
+
+
+def _busy_words(job: dict[str, Any], names: dict[str, str], zone: str) -> str:
+    state = "running" if job["status"] == "running" else "waiting to start"
+    return (
+        f"Another evaluation of this fleet is {state} (started "
+        f"{views.fmt_zone(job['created_at'], zone)} by {_requested_by(job, names)}): one "
+        "evaluation of a fleet runs at a time. Wait for it to finish, or cancel it in the list "
+        "below; what you chose is kept here."
+    )
+
+
+@router.post("/evaluations")
+def start_evaluation(
+    request: Request,
+    session: RequestSession,
+    ctx: ServiceContext,
+    admin: AdminDep,
+    form: FormDep,
+    fleet: FleetQuery = None,
+) -> Response:
+    """Start an evaluation of the chosen learners on the fleet's logs (as POST
+    /v1/admin/fleets/{fleet}/evaluations, through the same service: validated, one at a time
+    per fleet, idempotent on the form's request id, audited there), then its page. A mistake,
+    or another evaluation under way, comes back on the form in words, with what was chosen."""
+    check_post(request, admin, form)
+    name = fleet or admin.principal.fleet
+    principal = admin.principal
+    evaluation_service.list_for_fleet(session, principal, name, limit=1, cursor=None)  # may 403
+    zone = console_service.time_zones(session, ctx, {name})[name]
+    typed: dict[str, Any] = {
+        "picks": [key for field, key, _ in views.CANDIDATE_CHOICES if form.get(field)],
+        **{k: form.get(k, "").strip() for k in _FORM_TEXT},
+    }
+    request_id = form.get("request_id", "")
+    errors: dict[str, str] = {}
+
+    def again(status: int, *, new_id: bool = False) -> HTMLResponse:
+        return _evaluations_page(
+            request,
+            session,
+            ctx,
+            admin,
+            name,
+            typed=typed,
+            errors=errors,
+            request_id=None if new_id else request_id,
+            status=status,
+        )
+
+    if not _USER_ID.match(request_id):
+        errors["general"] = (
+            "The form is incomplete (its number is missing): reload the page and try again."
+        )
+        return again(400, new_id=True)
+    specs: list[CandidateSpec] = [parse_candidate(key) for key in typed["picks"]]
+    for line in typed["other"].splitlines():
+        if not line.strip():
+            continue
+        try:
+            specs.append(parse_candidate(line))
+        except ValueError as exc:
+            errors["other"] = views.sentence(str(exc))
+            break
+    seen: set[str] = set()
+    for spec in specs:
+        if spec.key in seen:
+            errors["candidates"] = (
+                f"{spec.label} is chosen twice: choose each learner once (among the choices, or "
+                "under other learners)."
+            )
+        seen.add(spec.key)
+    if not specs and "other" not in errors:
+        errors["candidates"] = "Choose at least one learner to compare with what the robots do now."
+    elif len(specs) > evaluation_service.MAX_CANDIDATES:
+        errors["candidates"] = (
+            f"Choose at most {evaluation_service.MAX_CANDIDATES} learners at a time "
+            f"({len(specs)} are chosen)."
+        )
+    since = until = None
+    for field in ("since", "until"):
+        if not typed[field]:
+            continue
+        try:
+            day = _day(typed[field], zone)
+        except ValueError:
+            errors[field] = "Write the date as year-month-day (2026-11-01), or leave it empty."
+            continue
+        if field == "since":
+            since = day
+        else:
+            until = day + dt.timedelta(days=1)  # the last day counts whole
+    if since is not None and until is not None and until <= since:
+        errors["until"] = "The period ends before it starts: choose an end on or after its start."
+    if typed["estimator"] and typed["estimator"] not in ESTIMATORS:
+        errors["estimator"] = f"Choose the way of estimating among {', '.join(ESTIMATORS)}."
+    if errors:
+        return again(422)
+    try:
+        wanted = evaluation_service.asked(
+            request_id,
+            [{"algorithm": s.algorithm, "params": dict(s.params)} for s in specs],
+            since=since,
+            until=until,
+            estimator=typed["estimator"] or None,
+        )
+    except ValidationFailed as exc:  # the form's own checks above say it first, in words
+        errors["general"] = views.sentence(exc.detail)
+        return again(422)
+    try:
+        job, _ = evaluation_service.start(
+            session,
+            ctx,
+            principal,
+            name,
+            wanted,
+            runner=getattr(request.app.state, "evaluations", None),
+        )
+    except Conflict as exc:
+        if exc.detail.startswith("request_id"):
+            errors["general"] = (
+                "This form was already used to start another evaluation. Check the list below, "
+                "then choose again."
+            )
+            return again(409, new_id=True)
+        newest = evaluation_service.list_for_fleet(session, principal, name, limit=1, cursor=None)
+        busy = [j for j in newest["items"] if views.job_active(j)]
+        if busy:
+            names = console_service.key_names(session, [busy[0]["requested_by"]["key_id"]])
+            errors["general"] = _busy_words(busy[0], names, zone)
+        else:
+            errors["general"] = views.sentence(exc.detail)
+        return again(409)
+    except NotFound:
+        errors["general"] = (
+            f"Nobody in fleet {name} yet: there is nothing to evaluate until its robots have met "
+            "someone."
+        )
+        return again(404)
+    return _redirect(request, _fleet_url(f"/evaluations/{job['evaluation_id']}", name))
+
+
+@router.get("/evaluations/{evaluation_id}")
+@writes  # each person the result names is recorded as looked at
+def evaluation_page(
+    request: Request,
+    evaluation_id: str,
+    session: RequestSession,
+    ctx: ServiceContext,
+    admin: AdminDep,
+    fleet: FleetQuery = None,
+) -> HTMLResponse:
+    """One evaluation: while it runs, its progress (the page follows it); once done, what it
+    found in words, per learner, beside what the robots earn now, a plot, and per person (each
+    person named is recorded as looked at)."""
+    _check_evaluation_id(evaluation_id)
+    name = fleet or admin.principal.fleet
+    job = evaluation_service.get(
+        session,
+        ctx,
+        admin.principal,
+        name,
+        evaluation_id,
+        persons=not request.scope.get(HEAD_KEY),
+        via="console",
+    )
+    result = job["result"]
+    names = console_service.key_names(session, [job["requested_by"]["key_id"]])
+    persons = []
+    if result is not None:
+        for row in result.get("persons") or []:
+            words = [views.person_words(row["user_id"], c, row) for c in result["candidates"]]
+            persons.append((row, words))
+    return _page(
+        request,
+        "evaluation.html",
+        admin,
+        nav="evaluations",
+        fleet=name,
+        job=job,
+        result=result,
+        by=_requested_by(job, names),
+        plot=views.evaluation_plot(result) if result is not None else None,
+        persons=persons,
+        zone=console_service.time_zones(session, ctx, {name})[name],
+    )
+
+
+@router.get("/evaluations/{evaluation_id}/progress")
+def evaluation_progress(
+    request: Request,
+    evaluation_id: str,
+    session: RequestSession,
+    ctx: ServiceContext,
+    admin: AdminDep,
+    fleet: FleetQuery = None,
+) -> HTMLResponse:
+    """An evaluation's state and progress, as an HTML fragment its page follows while it runs
+    (nobody's row: no look)."""
+    _check_evaluation_id(evaluation_id)
+    name = fleet or admin.principal.fleet
+    job = evaluation_service.get(
+        session, ctx, admin.principal, name, evaluation_id, persons=False, via="console"
+    )
+    zone = console_service.time_zones(session, ctx, {name})[name]
+    return _page(request, "_evaluation_status.html", admin, fleet=name, job=job, zone=zone)
+
+
+@router.post("/evaluations/{evaluation_id}/cancel")
+def cancel_evaluation(
+    request: Request,
+    evaluation_id: str,
+    session: RequestSession,
+    ctx: ServiceContext,
+    admin: AdminDep,
+    form: FormDep,
+    fleet: FleetQuery = None,
+) -> RedirectResponse:
+    """Cancel an evaluation (as POST .../evaluations/{id}/cancel: audited there), then back to
+    the list or to the evaluation's page, whichever the button was on."""
+    _check_evaluation_id(evaluation_id)
+    check_post(request, admin, form)
+    name = fleet or admin.principal.fleet
+    evaluation_service.cancel(session, ctx, admin.principal, name, evaluation_id)
+    if form.get("back") == "list":
+        return _redirect(request, _fleet_url("/evaluations", name, done="cancelled"))
+    return _redirect(request, _fleet_url(f"/evaluations/{evaluation_id}", name))
+
+
+@router.get("/users/{user_id}/whatif")
+@writes  # the person's row of an evaluation is recorded as looked at
+def whatif_page(
+    request: Request,
+    user_id: str,
+    session: RequestSession,
+    ctx: ServiceContext,
+    admin: AdminDep,
+    fleet: FleetQuery = None,
+) -> HTMLResponse:
+    """What the newest finished evaluation of the fleet found for this person, from their own
+    episodes, in words (recorded as a look at the person); nothing when none names them."""
+    _check_user_id(user_id)
+    principal = admin.principal
+    user = users_service.get_user(session, principal, user_id, fleet=fleet)
+    looked = _looked(request, session, admin, user, None)  # the row's look is recorded below
+    found = None
+    if not request.scope.get(HEAD_KEY):
+        found = evaluation_service.person_rows(session, ctx, principal, user.fleet, user_id)
+    mission = console_service.user_mission(session, ctx, user)
+    who = user.display_name or user.user_id
+    job = row = None
+    words: list[tuple[dict[str, Any], views.PersonWords]] = []
+    if found is not None:
+        job, row = found
+        words = [(c, views.person_words(who, c, row)) for c in job["result"]["candidates"]]
+    return _page(
+        request,
+        "whatif.html",
+        admin,
+        looked=looked,
+        user=user,
+        tab="whatif",
+        job=job,
+        row=row,
+        words=words,
+        mission=mission,
+        zone=mission.time_zone,
+        counts=_counts(session, user),
+        history_from=console_service.history_from(session, user),
+    )
 
 
 @router.get("/{rest:path}")

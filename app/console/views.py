@@ -15,7 +15,7 @@ import re
 import zoneinfo
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import Any, NamedTuple
 from urllib.parse import quote, urlencode
 
 from app.daily import DailyTime
@@ -26,6 +26,7 @@ from app.schemas.common import ActionOut
 from app.schemas.models import ActionBelief, ContextModel, ModelOut, StartedFrom, StateModel
 from app.schemas.profile import CorrectionOut, ProfileContext, ProfileOut, RobotWill, Wanted
 from app.schemas.users import UserOut
+from app.services.evaluation import CandidateSpec
 
 __all__ = [
     "CERTAINTY",
@@ -703,6 +704,7 @@ _PAGE_WORDS = {
     "console.episodes": "the episodes",
     "console.trace": "an episode",
     "export": "the export",
+    "evaluation": "a what-if evaluation",
 }
 
 
@@ -792,4 +794,325 @@ def retention_words(days: int | None, runs_at: DailyTime | None) -> str:
     return (
         f"Episodes older than {days_words(days)} are removed {when}; what the robot learned "
         "from them is kept."
+    )
+
+
+# -- what if: evaluations of other learners, in words -------------------------------------------
+# Everything below reads an evaluation as GET /v1/admin/fleets/{fleet}/evaluations/{id} gives it
+# (``app.services.evaluation_jobs.out``): plain dicts, the result's numbers untouched.
+
+CANDIDATE_CHOICES: tuple[tuple[str, str, str], ...] = (
+    # (form field, candidate as ``attune evaluate --candidate`` reads it, the words staff read)
+    ("pick-dts", "dts", "DTS"),
+    ("pick-hri-less", "hri:tau=0.005", "HRI, explores less (τ = 0.005)"),
+    ("pick-hri-more", "hri:tau=0.1", "HRI, explores more (τ = 0.1)"),
+    ("pick-qlearning", "qlearning", "Q-learning"),
+    ("pick-rmax", "rmax", "R-MAX"),
+    ("pick-dts-adapt", "dts-adapt", "DTS-adapt, follows a changed wish quickly"),
+    ("pick-dts-routine", "dts-routine", "DTS-routine, follows each person's routine"),
+)
+"""The learners the console's form offers to compare, in the order it lists them."""
+
+_JOB_STATUS = {
+    "queued": "Waiting to start",
+    "running": "Running",
+    "done": "Done",
+    "failed": "Did not finish",
+    "cancelled": "Cancelled",
+}
+_ESTIMATOR_WORDS = {
+    "wpdis": "weighted per-decision importance sampling (wpdis)",
+    "pdis": "per-decision importance sampling (pdis)",
+    "dr": "doubly robust (dr)",
+}
+_FEW = re.compile(r"not enough evidence: ([0-9]+) episodes, effective size ([0-9.]+)")
+
+
+def signed(value: float) -> str:
+    """A difference as the verdicts write it: "+0.39", "−0.40" (a true minus sign); a tiny
+    difference either way is "+0.00"."""
+    return f"{round(value, 2) + 0.0:+.2f}".replace("-", "−")
+
+
+def per_encounter(value: float | None) -> str:
+    """An amount earned per encounter: "2.17", "−0.40"."""
+    return DASH if value is None else f"{round(value, 2) + 0.0:.2f}".replace("-", "−")
+
+
+def job_active(job: dict[str, Any]) -> bool:
+    """The evaluation is still to run or running (the page keeps refreshing)."""
+    return job["status"] in ("queued", "running")
+
+
+def job_status(job: dict[str, Any]) -> str:
+    """An evaluation's state in words: "Running: 3 of 40 people", "Cancelled"."""
+    status = str(job["status"])
+    done, total = job["progress"]["people_done"], job["progress"]["people_total"]
+    if status == "running" and job["cancel_requested"]:
+        return "Stopping: cancel was asked, it stops after the person in hand"
+    if status == "running":
+        return f"Running: {done} of {total} people" if total else "Running"
+    if status == "queued" and job["cancel_requested"]:
+        return "Cancelled"
+    return _JOB_STATUS.get(status, status)
+
+
+def period_words(since: str | None, until: str | None, zone: str) -> str:
+    """The period an evaluation counted, in the fleet's time zone: "all the history kept", "the
+    episodes from 2026-11-01 00:00 until 2026-12-01 00:00"."""
+    if since is None and until is None:
+        return "all the history kept"
+    parts = []
+    if since is not None:
+        parts.append(f"from {fmt_zone(dt.datetime.fromisoformat(since), zone)}")
+    if until is not None:
+        parts.append(f"until {fmt_zone(dt.datetime.fromisoformat(until), zone)}")
+    return "the episodes " + " ".join(parts)
+
+
+def verdict_kind(candidate: dict[str, Any]) -> str:
+    """``more``, ``less``, ``same`` (the difference's interval holds 0) or ``unknown`` (not
+    enough evidence): the look of a candidate's sentence."""
+    difference = candidate.get("difference")
+    if not candidate.get("enough") or difference is None:
+        return "unknown"
+    if difference["low"] > 0.0:
+        return "more"
+    if difference["high"] < 0.0:
+        return "less"
+    return "same"
+
+
+def sentence(text: str) -> str:
+    """The service's words as a sentence: a capital first, a full stop last."""
+    text = cap(text.strip())
+    return text if text.endswith((".", "!", "?")) else text + "."
+
+
+def evidence_why(label: str, reason: str) -> str:
+    """Why there is not enough evidence for ``label``, in staff words (the estimator's own
+    reason, with its figures, is under "How this was estimated")."""
+    if _FEW.match(reason):
+        return (
+            f"too few of the robots' encounters show what {label} would have done to say what "
+            "it would earn"
+        )
+    if "rarely show" in reason:
+        return (
+            f"the robots seldom did what {label} would do, so their logs cannot say what it "
+            "would earn"
+        )
+    if "never show" in reason:
+        return f"{label} would often do what the robots never do there, which the logs cannot show"
+    if "wider than the range" in reason:
+        return f"the estimate for {label} is too uncertain to place it anywhere"
+    if "what the robots earn now" in reason:
+        return "too few episodes to tell what the robots earn now"
+    return reason.removeprefix("not enough evidence: ")
+
+
+def not_enough_words(candidate: dict[str, Any]) -> str:
+    """ "DTS: not enough evidence: 125 episodes, effective size 44." """
+    estimate = candidate["estimate"]
+    ess = estimate.get("ess")
+    size = DASH if ess is None else f"{ess:.1f}"
+    return (
+        f"{candidate['label']}: not enough evidence: {estimate['n_episodes']:,} episodes, "
+        f"effective size {size}."
+    )
+
+
+@dataclass(frozen=True, slots=True)
+class PersonWords:
+    """One candidate for one person: ``kind`` as :func:`verdict_kind`, the difference with what
+    the robots earned with them (None: not enough evidence), and the sentence."""
+
+    kind: str
+    difference: float | None
+    words: str
+
+
+def person_words(who: str, candidate: dict[str, Any], row: dict[str, Any]) -> PersonWords:
+    """What ``candidate`` would have earned with one person, from that person's episodes alone
+    (their row of the result), in words. Only their own episodes speak here, each candidate's
+    interval against the robots' own with them: "likely more" when the two do not overlap."""
+    label = candidate["label"]
+    n = row["episodes"]
+    mine = row["candidates"].get(candidate["key"])
+    logged = row["logged"]
+    encounters = f"from {n:,} of {who}'s encounters"
+    if (
+        mine is None
+        or not mine["enough"]
+        or not logged["enough"]
+        or mine["value"] is None
+        or logged["value"] is None
+        or mine["interval"] is None
+        or logged["interval"] is None
+    ):
+        return PersonWords(
+            "unknown",
+            None,
+            f"For {who}, {label}: not enough evidence from {who}'s encounters alone "
+            f"({n:,} counted).",
+        )
+    difference = mine["value"] - logged["value"]
+    span = f"{signed(difference)} per encounter ({encounters})"
+    if mine["interval"]["low"] > logged["interval"]["high"]:
+        return PersonWords(
+            "more",
+            difference,
+            f"For {who}, {label} would likely earn more than what the robots do now: {span}.",
+        )
+    if mine["interval"]["high"] < logged["interval"]["low"]:
+        return PersonWords(
+            "less",
+            difference,
+            f"For {who}, {label} would likely earn less than what the robots do now: {span}.",
+        )
+    return PersonWords(
+        "same",
+        difference,
+        f"For {who}, {label} would earn about the same as what the robots do now, as far as "
+        f"{who}'s encounters alone can tell: {span}.",
+    )
+
+
+def learners_words(learners: dict[str, int]) -> str:
+    """The learners the robots use now, by how many people: "HRI with 38 people, DTS with 2"."""
+    parts = []
+    for i, (algorithm, n) in enumerate(sorted(learners.items(), key=lambda kv: -kv[1])):
+        name = CandidateSpec(algorithm).label
+        who = ("1 person" if n == 1 else f"{n:,} people") if i == 0 else f"{n:,}"
+        parts.append(f"{name} with {who}")
+    return ", ".join(parts)
+
+
+def estimator_words(estimator: str) -> str:
+    return _ESTIMATOR_WORDS.get(estimator, estimator)
+
+
+# The plot: each learner's amount per encounter (a dot) and its interval (a bar), one row each,
+# beside a line at what the robots earn now. Drawn on the server as SVG (no script, no style
+# attribute: the pages' CSP), in a 720-wide box the page scales.
+PLOT_WIDTH = 720
+_PLOT_LEFT = 230  # the labels' column
+_PLOT_RIGHT = 700
+_PLOT_TOP = 28
+_PLOT_ROW = 40
+
+
+@dataclass(frozen=True, slots=True)
+class PlotRow:
+    label: str
+    kind: str  # "now" | "more" | "less" | "same" | "unknown"
+    y: float
+    x: float | None
+    low: float | None
+    high: float | None
+    value: float | None  # what it says (per encounter)
+
+
+@dataclass(frozen=True, slots=True)
+class PlotTick:
+    x: float
+    text: str
+
+
+@dataclass(frozen=True, slots=True)
+class Plot:
+    width: int
+    height: int
+    left: int
+    right: int
+    top: int
+    bottom: int
+    now_x: float | None
+    now_anchor: str  # where the line's label sits: "middle", or "end"/"start" near an edge
+    rows: tuple[PlotRow, ...]
+    ticks: tuple[PlotTick, ...]
+
+
+def _step(span: float) -> float:
+    raw = span / 5.0
+    power = 10.0 ** math.floor(math.log10(raw)) if raw > 0 else 1.0
+    for m in (1.0, 2.0, 2.5, 5.0, 10.0):
+        if raw <= m * power:
+            return m * power
+    return 10.0 * power
+
+
+def evaluation_plot(result: dict[str, Any]) -> Plot:
+    """The plot of a finished evaluation: what the robots earn now (a dot, and the dashed line
+    the others are read against), then each learner: a dot at what it would earn, and a bar
+    that is what the robots earn now plus the interval of the difference, so that a bar that
+    stays on one side of the line is exactly a "likely more" or "likely less" of the words (the
+    difference's interval is narrower than either estimate's own: the same people count for
+    both)."""
+    logged = result["logged"]
+    now = logged["value"]
+    entries: list[tuple[str, str, float | None, float | None, float | None]] = [
+        ("What the robots do now", "now", now, None, None)
+    ]
+    for c in result["candidates"]:
+        kind = verdict_kind(c)
+        value, difference = c["estimate"]["value"], c["difference"]
+        if kind == "unknown" or value is None or now is None or difference is None:
+            entries.append((c["label"], "unknown", None, None, None))
+        else:
+            entries.append(
+                (c["label"], kind, value, now + difference["low"], now + difference["high"])
+            )
+    numbers = [v for _, _, *vs in entries for v in vs if v is not None]
+    lo, hi = (min(numbers), max(numbers)) if numbers else (0.0, 1.0)
+    if hi - lo < 0.2:  # a scale of at least a fifth of a reward
+        middle = (hi + lo) / 2
+        lo, hi = middle - 0.1, middle + 0.1
+    pad = (hi - lo) * 0.08
+    lo, hi = lo - pad, hi + pad
+    step = _step(hi - lo)
+    first = math.ceil(lo / step) * step
+    left, right = _PLOT_LEFT, _PLOT_RIGHT
+
+    def x_of(v: float) -> float:
+        return round(left + (v - lo) / (hi - lo) * (right - left), 1)
+
+    ticks = []
+    t = first
+    while t <= hi + 1e-9:
+        ticks.append(PlotTick(x_of(t), per_encounter(t)))
+        t += step
+    rows = []
+    for i, (label, kind, value, low, high) in enumerate(entries):
+        y = _PLOT_TOP + _PLOT_ROW * i + _PLOT_ROW / 2
+        rows.append(
+            PlotRow(
+                label,
+                kind,
+                y,
+                None if value is None else x_of(value),
+                None if low is None else x_of(low),
+                None if high is None else x_of(high),
+                value,
+            )
+        )
+    bottom = _PLOT_TOP + _PLOT_ROW * len(entries)
+    now_x = None if now is None else x_of(now)
+    return Plot(
+        width=PLOT_WIDTH,
+        height=bottom + 36,
+        left=left,
+        right=right,
+        top=_PLOT_TOP,
+        bottom=bottom,
+        now_x=now_x,
+        now_anchor=(
+            "end"
+            if now_x is not None and now_x > right - 80
+            else "start"
+            if now_x is not None and now_x < left + 80
+            else "middle"
+        ),
+        rows=tuple(rows),
+        ticks=tuple(ticks),
     )

@@ -149,6 +149,43 @@ function evidenceFocus() {
   if (evidence && window.location.hash === "#evidence") evidence.focus({ preventScroll: false });
 }
 
+// What if: a page that follows an evaluation under way (an element with data-poll-url and
+// data-active="true") fetches that element again every two seconds (the page itself, or the
+// fragment its address names) and puts it in place; once the evaluation has ended, a page that
+// shows its result (data-reload-when-done) reloads to show it. Without a script, the pages say
+// to reload them.
+const POLL_MS = 2000;
+
+async function poll(box) {
+  let fresh = null;
+  try {
+    const response = await fetch(box.dataset.pollUrl, {
+      credentials: "same-origin", headers: { Accept: "text/html" },
+    });
+    if (response.status >= 400 && response.status < 500) return;  // signed out, not allowed
+    if (!response.ok) throw new Error(`${response.status} ${response.statusText}`);
+    const doc = new DOMParser().parseFromString(await response.text(), "text/html");
+    fresh = doc.getElementById(box.id);
+  } catch (err) {
+    setTimeout(() => poll(box), POLL_MS * 3);  // the service busy or restarting: later
+    return;
+  }
+  if (!fresh) return;
+  if (fresh.dataset.active !== "true" && box.dataset.reloadWhenDone) {
+    window.location.reload();
+    return;
+  }
+  const adopted = document.importNode(fresh, true);
+  box.replaceWith(adopted);
+  if (adopted.dataset.active === "true") setTimeout(() => poll(adopted), POLL_MS);
+}
+
+function followEvaluations() {
+  document.querySelectorAll("[data-poll-url]").forEach((box) => {
+    if (box.dataset.active === "true") setTimeout(() => poll(box), POLL_MS);
+  });
+}
+
 document.addEventListener("DOMContentLoaded", () => {
   autosubmit();
   windowForm();
@@ -157,4 +194,5 @@ document.addEventListener("DOMContentLoaded", () => {
   correctionForm();
   profileSummaries();
   evidenceFocus();
+  followEvaluations();
 });
