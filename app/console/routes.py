@@ -1250,6 +1250,7 @@ def _evaluations_page(
         estimators=ESTIMATORS,
         max_candidates=evaluation_service.MAX_CANDIDATES,
         done=done,
+        form_status=status,
         action=console_url(request, _fleet_url("/evaluations", fleet)),
         here=console_url(request, _fleet_url("/evaluations", fleet)),
     )

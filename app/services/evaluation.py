@@ -379,7 +379,8 @@ class FleetEvaluation:
 
 
 def _signed(value: float) -> str:
-    return f"{value:+.2f}".replace("-", "−")
+    shown = round(value, 2) + 0.0  # -0.004 shows as +0.00, not −0.00
+    return f"{shown:+.2f}".replace("-", "−")
 
 
 def evidence(estimate: Estimate, observed: tuple[float, float] | None) -> str:

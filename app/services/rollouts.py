@@ -140,7 +140,8 @@ def _fleet_people(session: Session, fleet: str) -> list[UserRow]:
 
 
 def _number(value: float) -> str:
-    return f"{value:+.2f}".replace("-", "−")
+    shown = round(value, 2) + 0.0  # -0.004 shows as +0.00, not −0.00
+    return f"{shown:+.2f}".replace("-", "−")
 
 
 def words(comparison: Comparison, label: str, status: str) -> str:

@@ -362,6 +362,29 @@ MATRIX: list[Row] = [
     Row("GET", "/admin/retention{q}", (303, 401, 403, 403, 200, 200, 200)),
     Row("GET", "/admin/changes{q}", (303, 401, 403, 403, 200, 200, 200)),
     Row("POST", "/admin/retention{q}", (303, 401, 403, 403, 303, 303, 303), form=RETENTION),
+    Row("GET", "/admin/evaluations{q}", (303, 401, 403, 403, 200, 200, 200)),
+    # A form without its number (the page gives each form one): refused in words.
+    Row("POST", "/admin/evaluations{q}", (303, 401, 403, 403, 400, 400, 400), form=CSRF),
+    Row(
+        "GET",
+        f"/admin/evaluations/ev_{'0' * 32}{{q}}",
+        (303, 401, 403, 403, 404, 404, 404),
+        route="/admin/evaluations/{evaluation_id}",
+    ),
+    Row(
+        "GET",
+        f"/admin/evaluations/ev_{'0' * 32}/progress{{q}}",
+        (303, 401, 403, 403, 404, 404, 404),
+        route="/admin/evaluations/{evaluation_id}/progress",
+    ),
+    Row(
+        "POST",
+        f"/admin/evaluations/ev_{'0' * 32}/cancel{{q}}",
+        (303, 401, 403, 403, 404, 404, 404),
+        form=CSRF,
+        route="/admin/evaluations/{evaluation_id}/cancel",
+    ),
+    Row("GET", C + "/whatif{q}", (303, 401, 403, 403, 200, 200, 200)),
     Row("GET", "/admin/nowhere", (404, 404, 404, 404, 404, 404, 404), route="/admin/{rest:path}"),
 ]
 # Served to anyone, key or not: the schema, its two pages and the static files.
@@ -660,7 +683,13 @@ def _check_console(r: httpx.Response, row: Row, who: str, status: int) -> None:
     if status == 303:
         location = r.headers["location"]
         if who == "none" and row.path.startswith(
-            ("/admin/users", "/admin/mission", "/admin/retention", "/admin/changes")
+            (
+                "/admin/users",
+                "/admin/mission",
+                "/admin/retention",
+                "/admin/changes",
+                "/admin/evaluations",
+            )
         ):
             # Back to the page asked for, once signed in (the path's first words, before ids).
             path = row.path.split("{")[0]
