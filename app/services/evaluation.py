@@ -678,6 +678,8 @@ def _replay(
     history: _History,
     spec: CandidateSpec,
     on_asked: Callable[[_Asked, list[FloatArray], Any], None] | None = None,
+    *,
+    model: bool = True,
 ) -> _Replayed:
     n = len(history.logged)
     out = _Replayed(
@@ -710,15 +712,18 @@ def _replay(
         mine = learner.distributions(asked.context, asked.states, asked.episode, rng)
         if on_asked is not None:
             on_asked(asked, mine, learner.space)
-        q = learner.action_values(asked.context)
+        # The candidate's Q values: the doubly robust estimate's model (``model``), left at 0
+        # for the estimators that do not use them.
+        q = learner.action_values(asked.context) if model else None
         space = learner.space
         for state, action, row, ours, theirs in zip(
             asked.states, asked.actions, asked.rows, mine, asked.theirs, strict=True
         ):
             actions = space.actions_of(state)
             out.target[row] = min(1.0, max(0.0, float(ours[action - actions.start])))
-            out.q_hat[row] = float(q[action])
-            out.v_hat[row] = float(ours @ q[actions.start : actions.stop])
+            if q is not None:
+                out.q_hat[row] = float(q[action])
+                out.v_hat[row] = float(ours @ q[actions.start : actions.stop])
             if theirs is not None:
                 out.unsupported[row] = min(1.0 - out.target[row], float(ours[theirs <= 0.0].sum()))
             elif logged[row] >= 1.0:  # a silent step the logger was sure of: nothing else
@@ -789,7 +794,7 @@ def shadow_decisions(
         )
 
     if history.asked:
-        _replay(user.fleet, history, spec, on_asked=asked_at)
+        _replay(user.fleet, history, spec, on_asked=asked_at, model=False)
     return found
 
 
@@ -962,7 +967,7 @@ def evaluate_fleet(
                 with database.transaction(write=False) as session:
                     history = _read_person(session, ctx, user, since, until)
                 replays = (
-                    [_replay(fleet, history, spec) for spec in candidates]
+                    [_replay(fleet, history, spec, model=estimator == "dr") for spec in candidates]
                     if history.lengths
                     else []
                 )
