@@ -199,6 +199,7 @@ def evaluate(
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
     from app.errors import AppError
+    from app.services import audit
     from app.services.context import ServiceContext
     from app.services.evaluation import evaluate_fleet
 
@@ -233,6 +234,22 @@ def evaluate(
         except AppError as exc:
             tell(exc.detail, "red")
             raise typer.Exit(2) from None
+        # The operator read every person's history: in the audit log, as the API's are.
+        with database.transaction() as session:
+            audit.record(
+                session,
+                audit.CLI,
+                "evaluation.run",
+                target=fleet,
+                fleet=fleet,
+                detail={
+                    "candidates": [s.key for s in specs],
+                    "since": None if start is None else start.isoformat(),
+                    "until": None if end is None else end.isoformat(),
+                    "estimator": chosen,
+                    "people": found.people_counted,
+                },
+            )
     if as_json:
         print_json(found.to_dict())
         return

@@ -42,6 +42,7 @@ ACTIONS = (
     "fleet.retention",
     "evaluation.start",
     "evaluation.cancel",
+    "evaluation.run",
     "rollout.start",
     "rollout.share",
     "rollout.promote",

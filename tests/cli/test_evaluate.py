@@ -25,7 +25,7 @@ from fastapi import FastAPI
 from fastapi.testclient import TestClient
 from sqlalchemy import select
 
-from app.db.models import Episode, JournalEntry, User
+from app.db.models import AuditEntry, Episode, JournalEntry, User
 from app.db.session import Database
 from app.learning.offpolicy import DEFAULT_ESTIMATOR, ESTIMATORS
 from app.services.evaluation import CandidateSpec, parse_candidate
@@ -286,6 +286,15 @@ def test_json_has_every_candidate_and_every_person(
     assert "HRI τ=0.005" in table.stdout
     assert all(f"person-{p}" in table.stdout for p in range(PEOPLE))
     assert "people of default" not in table.stdout  # the progress bar: on stderr
+    # Each run is in the audit log, as the operator's.
+    with app.state.db.transaction(write=False) as session:
+        runs = session.execute(
+            select(AuditEntry.actor_key_id, AuditEntry.target, AuditEntry.detail).where(
+                AuditEntry.action == "evaluation.run"
+            )
+        ).all()
+    assert [(who, target) for who, target, _ in runs] == [("cli", "default")] * 2
+    assert runs[0][2]["candidates"] == ["dts", "hri:tau=0.005"]
 
 
 def test_bad_candidates_and_unknown_fleets_are_refused(
