@@ -117,6 +117,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             await asyncio.to_thread(db.probe_round_trip)
             tasks.append(asyncio.create_task(db.watch_round_trip(), name="attune-round-trip"))
         runner = app.state.evaluations  # started by the first evaluation it is given
+        mover = app.state.rollout_mover
+        mover.kick()  # the moves a stopped process left, if any
         guard = None
         if settings.rollout_guard_minutes > 0:
             # Every running rollout looked at, and rolled back when its candidate is worse.
@@ -157,6 +159,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             if daily is not None:
                 await asyncio.to_thread(daily.stop)
             await asyncio.to_thread(runner.stop)
+            await asyncio.to_thread(mover.join)
             if guard is not None:
                 await asyncio.to_thread(guard.stop)
             if shadows is not None:
@@ -184,6 +187,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.drain = Drain()
     # Evaluations of candidate learners that this worker runs, one at a time, in a thread.
     app.state.evaluations = EvaluationRunner(
+        db, app.state.ctx, stopping=lambda: app.state.drain.draining
+    )
+    # The moves a rollout owes, a person at a time, in a thread (kicked after each change).
+    app.state.rollout_mover = rollout_service.Mover(
         db, app.state.ctx, stopping=lambda: app.state.drain.draining
     )
     app.state.metrics.attach(db=db, cache=app.state.ctx.cache, drain=app.state.drain)

@@ -561,7 +561,10 @@ class RolloutArm(Base):
     before, which a roll back gives them back. Part of the person's data: erased with them."""
 
     __tablename__ = "rollout_arms"
-    __table_args__ = (Index("ix_rollout_arms_user", "user_pk"),)
+    __table_args__ = (
+        Index("ix_rollout_arms_user", "user_pk"),
+        Index("ix_rollout_arms_pending", "pending"),
+    )
 
     rollout_id: Mapped[str] = mapped_column(
         ForeignKey("rollouts.id", ondelete="CASCADE"), primary_key=True
@@ -573,6 +576,11 @@ class RolloutArm(Base):
     assigned_at: Mapped[dt.datetime] = mapped_column(UTCDateTime(), default=utcnow)
     previous_algorithm: Mapped[str] = mapped_column(String(32))
     previous_params: Mapped[dict[str, Any]] = mapped_column(JSON)
+    # A move to the learner their arm gives them is owed (done a person at a time, in the
+    # background); ``served_since``: since when their arm's learner serves them (the episodes
+    # compared are those begun since; None until the first move is done).
+    pending: Mapped[bool] = mapped_column(Boolean, default=False)
+    served_since: Mapped[dt.datetime | None] = mapped_column(UTCDateTime())
 
 
 class Shadow(Base):

@@ -157,6 +157,9 @@ class RolloutArmOut(BaseModel):
     assigned_at: dt.datetime
     candidate: dict[str, Any] = Field(description="The rollout's candidate: key, label, ...")
     rollout_status: Literal["running", "promoted", "rolled_back"]
+    moving: bool = Field(
+        default=False, description="Their move to the learner their arm gives them is under way."
+    )
 
 
 class ProfileOut(BaseModel):

@@ -78,6 +78,10 @@ class RolloutOut(BaseModel):
     ended_by: str | None = Field(description="A key id, or guard for the automatic roll back.")
     end_reason: str | None
     people: dict[str, int] = Field(description="People per arm (candidate, control).")
+    moving: int = Field(
+        description="People still to move to the learner their arm gives them (done a person "
+        "at a time, in the background, within seconds)."
+    )
     comparison: ComparisonOut
     summary: str = Field(description="The comparison in a sentence.")
     guard: bool = Field(description="Whether the guard's condition holds (the candidate worse).")

@@ -30,6 +30,7 @@ import datetime as dt
 import hashlib
 import logging
 import secrets
+import threading
 from typing import Any
 
 from sqlalchemy.orm import Session
@@ -44,9 +45,9 @@ from app.errors import Conflict, Forbidden, NotFound, ValidationFailed
 from app.learning.sequential import BETTER, CANDIDATE, CONTROL, WORSE, Comparison, compare, guard
 from app.logs import FIELDS
 
-from . import audit
+from . import audit, leases
 from .auth import require_manager
-from .context import Principal, ServiceContext
+from .context import Principal, ServiceContext, after_commit
 from .evaluation import CandidateSpec, candidate_spec, relearned
 from .person_model import PersonModel
 
@@ -54,6 +55,8 @@ __all__ = [
     "GUARD",
     "arm_for_newcomer",
     "check_guard",
+    "complete_moves",
+    "Mover",
     "hash_place",
     "person_arm",
     "person_arms",
@@ -194,6 +197,7 @@ def _view(session: Session, row: RolloutRow) -> dict[str, Any]:
             CANDIDATE: sum(1 for a, _ in people if a.arm == CANDIDATE),
             CONTROL: sum(1 for a, _ in people if a.arm == CONTROL),
         },
+        "moving": sum(1 for a, _ in people if a.pending),
         "comparison": comparison.to_dict(),
         "summary": words(comparison, spec.label, row.status),
         "guard": guard(comparison),
@@ -224,6 +228,7 @@ def person_arm(session: Session, user_pk: int) -> dict[str, Any] | None:
         "assigned_at": arm.assigned_at,
         "candidate": _spec_of(row).to_dict(),
         "rollout_status": row.status,
+        "moving": arm.pending,
     }
 
 
@@ -258,6 +263,7 @@ def put_rollout(
     algorithm: str,
     params: dict[str, Any],
     share: float,
+    mover: Mover | None = None,
 ) -> tuple[dict[str, Any], bool]:
     """Start a rollout of the candidate to ``share`` of the fleet's people, or change the share
     of the one running (the same candidate): (the view, started)."""
@@ -273,9 +279,10 @@ def put_rollout(
             "share must be above 0 and at most 1.",
             fields=[{"loc": ["body", "share"], "msg": "out of range"}],
         )
-    users_repo.lock_fleet(session, fleet)  # no write of the fleet's people runs beside it
     running = repo.lock_running(session, fleet)
     now = utcnow()
+    if mover is not None:
+        after_commit(session, mover.kick)
     if running is not None:
         if _spec_of(running).key != spec.key:
             raise Conflict(
@@ -303,13 +310,21 @@ def put_rollout(
     moved = 0
     for user in _fleet_people(session, fleet):
         arm = CANDIDATE if hash_place(row.salt, user.user_id) < share else CONTROL
+        owed = arm == CANDIDATE and not _serves(user, spec)
         repo.add_arm(
             session,
-            ArmRow(row.id, user.id, arm, now, user.algorithm, dict(user.params)),
+            ArmRow(
+                row.id,
+                user.id,
+                arm,
+                now,
+                user.algorithm,
+                dict(user.params),
+                pending=owed,
+                served_since=None if owed else now,
+            ),
         )
-        if arm == CANDIDATE:
-            _move(session, ctx, principal, user, spec, rollout_id=row.id)
-            moved += 1
+        moved += owed
     audit.record(
         session,
         principal,
@@ -319,7 +334,7 @@ def put_rollout(
         detail={"rollout": row.id, "candidate": spec.key, "share": share, "moved": moved},
     )
     log.info(
-        "Rollout %s of %s to %.0f%% of fleet %s started: %d people moved.",
+        "Rollout %s of %s to %.0f%% of fleet %s started: %d people to move.",
         row.id,
         spec.label,
         share * 100,
@@ -342,15 +357,10 @@ def _reshare(
     one moves no one (newcomers get it)."""
     moved = 0
     if share > row.share:
-        spec = _spec_of(row)
         for arm, user_id in repo.arms(session, row.id):
             if arm.arm != CONTROL or hash_place(row.salt, user_id) >= share:
                 continue
-            user = users_repo.by_pk(session, arm.user_pk)
-            if user is None:
-                continue
             repo.set_arm(session, row.id, arm.user_pk, CANDIDATE, now=now)
-            _move(session, ctx, principal, user, spec, rollout_id=row.id)
             moved += 1
     repo.set_share(session, row.id, share)
     audit.record(
@@ -371,22 +381,22 @@ def _running(session: Session, fleet: str) -> RolloutRow:
 
 
 def promote(
-    session: Session, ctx: ServiceContext, principal: Principal, fleet: str
+    session: Session,
+    ctx: ServiceContext,
+    principal: Principal,
+    fleet: str,
+    *,
+    mover: Mover | None = None,
 ) -> dict[str, Any]:
     """Give the candidate to everyone of the rollout (the control people move, keeping what was
     learned) and to the fleet's newcomers from now on."""
     _check_fleet(principal, fleet)
-    users_repo.lock_fleet(session, fleet)
     row = _running(session, fleet)
     spec = _spec_of(row)
     now = utcnow()
-    moved = 0
-    for arm, _ in repo.arms(session, row.id):
-        user = users_repo.by_pk(session, arm.user_pk)
-        if arm.arm != CONTROL or user is None:
-            continue
-        _move(session, ctx, principal, user, spec, rollout_id=row.id)
-        moved += 1
+    moved = repo.owe_moves(session, row.id, CONTROL)
+    if mover is not None:
+        after_commit(session, mover.kick)
     repo.end(session, row.id, status="promoted", by=principal.key_id, reason=None, now=now)
     audit.record(
         session,
@@ -406,21 +416,16 @@ def roll_back(
     fleet: str,
     *,
     reason: str | None = None,
+    mover: Mover | None = None,
 ) -> dict[str, Any]:
     """Give every candidate person back the learner they had (taught their whole history,
     including what the candidate learned with them); newcomers get the fleet's default again."""
     _check_fleet(principal, fleet)
-    users_repo.lock_fleet(session, fleet)
     row = _running(session, fleet)
     now = utcnow()
-    moved = 0
-    for arm, _ in repo.arms(session, row.id):
-        user = users_repo.by_pk(session, arm.user_pk)
-        if arm.arm != CANDIDATE or user is None:
-            continue
-        previous = candidate_spec(arm.previous_algorithm, arm.previous_params)
-        _move(session, ctx, principal, user, previous, rollout_id=row.id)
-        moved += 1
+    moved = repo.owe_moves(session, row.id, CANDIDATE)
+    if mover is not None:
+        after_commit(session, mover.kick)
     repo.end(session, row.id, status="rolled_back", by=principal.key_id, reason=reason, now=now)
     audit.record(
         session,
@@ -456,7 +461,103 @@ def record_newcomer(
     user = users_repo.get(session, row.fleet, user_id)
     if user is None or not arm:
         return
-    repo.add_arm(session, ArmRow(row.id, user.id, arm, utcnow(), previous[0], dict(previous[1])))
+    now = utcnow()
+    repo.add_arm(
+        session,
+        ArmRow(row.id, user.id, arm, now, previous[0], dict(previous[1]), served_since=now),
+    )
+
+
+# ---------------------------------------------------------------------------------------------
+# The moves owed
+
+
+MOVER = Principal("rollout", "admin", "default")
+"""Who the audit log says moved a person (``user.learner``): the rollout's own mover (the
+rollout's entry says who started, promoted or rolled it back)."""
+MOVES_LEASE = "rollout-moves"
+MOVES_PAGE = 50
+
+
+def complete_moves(db: Database, ctx: ServiceContext, *, stopping: Any = None) -> int:
+    """Do the moves owed, a person at a time, each in a transaction of its own that holds only
+    that person (the robots of everyone else go on): the person gets the learner their arm
+    gives them now (the candidate; their previous learner once the rollout was rolled back),
+    taught their history. How many people moved."""
+    done = 0
+    while True:
+        with db.transaction(write=False) as session:
+            owed = repo.owed(session, limit=MOVES_PAGE)
+        if not owed:
+            return done
+        for arm, row, user_id in owed:
+            if stopping is not None and stopping():
+                return done
+            with db.transaction() as session:
+                user = users_repo.lock(session, row.fleet, user_id)
+                current = repo.arm(session, row.id, arm.user_pk)
+                if user is None or current is None or not current.pending:
+                    continue
+                now_row = repo.latest_of(session, row.id) or row
+                target = (
+                    candidate_spec(current.previous_algorithm, current.previous_params)
+                    if now_row.status == "rolled_back"
+                    else _spec_of(now_row)
+                )
+                actor = Principal(MOVER.key_id, MOVER.role, row.fleet)
+                _move(session, ctx, actor, user, target, rollout_id=row.id)
+                repo.moved(session, row.id, arm.user_pk, now=utcnow())
+            done += 1
+
+
+class Mover:
+    """A worker's mover: :meth:`kick` (after a rollout's transaction committed, and at the
+    worker's start) runs :func:`complete_moves` in a thread of its own, under the lease
+    ``rollout-moves`` (one process at a time; a kick while it runs makes it go round once
+    more)."""
+
+    def __init__(self, db: Database, ctx: ServiceContext, *, stopping: Any = lambda: False) -> None:
+        self.db, self.ctx, self.stopping = db, ctx, stopping
+        self._lock = threading.Lock()
+        self._again = False
+        self._thread: threading.Thread | None = None
+
+    def kick(self) -> None:
+        with self._lock:
+            self._again = True
+            if self._thread is not None and self._thread.is_alive():
+                return
+            self._thread = threading.Thread(
+                target=self._run, name="attune-rollout-moves", daemon=True
+            )
+            self._thread.start()
+
+    def join(self, timeout: float = 5.0) -> None:
+        thread = self._thread
+        if thread is not None:
+            thread.join(timeout)
+
+    def _run(self) -> None:
+        while True:
+            with self._lock:
+                if not self._again or self.stopping():
+                    self._thread = None
+                    return
+                self._again = False
+            try:
+                with self.db.transaction(write=False) as session:
+                    if not repo.owed(session, limit=1):
+                        continue  # nothing owed: no lease taken, nothing written
+                with leases.held(self.db, MOVES_LEASE):
+                    moved = complete_moves(self.db, self.ctx, stopping=self.stopping)
+                if moved:
+                    log.info(
+                        "Rollouts: %d people moved to the learner their arm gives them.", moved
+                    )
+            except leases.LeaseHeld:
+                continue  # another process is doing them
+            except Exception:
+                log.exception("Rollouts: the moves owed failed; the next kick or check retries.")
 
 
 # ---------------------------------------------------------------------------------------------
@@ -466,6 +567,7 @@ def record_newcomer(
 def check_guard(db: Database, ctx: ServiceContext) -> list[str]:
     """Look at every running rollout; roll back those whose candidate is worse with the
     method's confidence. The fleets rolled back."""
+    complete_moves(db, ctx)  # any left by a process that stopped
     with db.transaction(write=False) as session:
         fleets = repo.running_fleets(session)
     rolled: list[str] = []
@@ -492,4 +594,6 @@ def check_guard(db: Database, ctx: ServiceContext) -> list[str]:
             extra={FIELDS: {"rollout": row.id, "fleet": fleet}},
         )
         rolled.append(fleet)
+    if rolled:
+        complete_moves(db, ctx)
     return rolled

@@ -60,6 +60,8 @@ def upgrade() -> None:
         sa.Column("assigned_at", sa.DateTime(timezone=True), nullable=False),
         sa.Column("previous_algorithm", sa.String(length=32), nullable=False),
         sa.Column("previous_params", sa.JSON(), nullable=False),
+        sa.Column("pending", sa.Boolean(), nullable=False),
+        sa.Column("served_since", sa.DateTime(timezone=True), nullable=True),
         sa.ForeignKeyConstraint(
             ["rollout_id"],
             ["rollouts.id"],
@@ -76,6 +78,7 @@ def upgrade() -> None:
     )
     with op.batch_alter_table("rollout_arms") as batch:
         batch.create_index("ix_rollout_arms_user", ["user_pk"])
+        batch.create_index("ix_rollout_arms_pending", ["pending"])
     op.create_table(
         "shadows",
         sa.Column("id", sa.String(length=40), nullable=False),
@@ -148,6 +151,7 @@ def downgrade() -> None:
         batch.drop_index("ix_shadows_fleet_started")
     op.drop_table("shadows")
     with op.batch_alter_table("rollout_arms") as batch:
+        batch.drop_index("ix_rollout_arms_pending")
         batch.drop_index("ix_rollout_arms_user")
     op.drop_table("rollout_arms")
     with op.batch_alter_table("rollouts") as batch:

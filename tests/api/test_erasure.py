@@ -25,7 +25,7 @@ from app.db.models import Episode
 from app.db.session import Database
 from app.learning import office_mission
 from app.services import evaluation_jobs as jobs
-from app.services import retention, shadows
+from app.services import retention, rollouts, shadows
 from tests.support.episodes import play, start
 from tests.support.erasure import Subject, remains
 from tests.support.people import person
@@ -118,6 +118,8 @@ def _fill(robot: TestClient, staff: TestClient, admin: TestClient) -> None:
 def _what_if(app: FastAPI, staff: TestClient) -> None:
     """The shadow's candidate decides at her decisions, and an evaluation's result has a row
     for her."""
+    app.state.rollout_mover.join()
+    rollouts.complete_moves(app.state.db, app.state.ctx)  # the rollout moved her
     later = dt.datetime.now(dt.UTC) + dt.timedelta(seconds=10)
     assert shadows.shadow_pass(app.state.db, app.state.ctx, now=later, estimate=False)["default"]
     app.state.evaluations = None  # run here, not by the worker's runner

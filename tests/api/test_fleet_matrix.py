@@ -467,7 +467,11 @@ class World:
         return self.tokens[who]
 
     def snapshot(self) -> dict[str, Any]:
-        """What each fleet's users look like (read with the admin key)."""
+        """What each fleet's users look like (read with the admin key), once the moves a
+        rollout owes are done (the worker does them in the background, after the answer)."""
+        mover = getattr(self.client.app.state, "rollout_mover", None)  # type: ignore[attr-defined]
+        if mover is not None:
+            mover.join(30)
         out: dict[str, Any] = {}
         for fleet in (A, B):
             seen: dict[str, Any] = {}

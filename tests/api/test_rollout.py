@@ -36,6 +36,16 @@ def _people(robot: TestClient, n: int, episodes: int = 1, prefix: str = "p") -> 
     return users
 
 
+def _settle(app: FastAPI) -> None:
+    """The moves the rollout owes, done (the worker's mover does them in the background)."""
+    app.state.rollout_mover.join()
+    rollouts.complete_moves(app.state.db, app.state.ctx)
+    with app.state.db.transaction(write=False) as session:
+        assert (
+            session.execute(select(RolloutArm).where(RolloutArm.pending.is_(True))).first() is None
+        )
+
+
 def _learner(api: TestClient, user: str) -> dict[str, Any]:
     learner: dict[str, Any] = api.get(f"/v1/users/{user}").json()["learner"]
     return learner
@@ -60,9 +70,10 @@ def _tables(app: FastAPI, user: str) -> dict[str, Any]:
 def test_a_rollout_assigns_stores_and_moves_keeping_what_was_learned(
     app: FastAPI, robot: TestClient, staff: TestClient
 ) -> None:
-    users = _people(robot, 20, episodes=2)
+    users = _people(robot, 24, episodes=2)
     before = {u: _tables(app, u) for u in users}
     r = staff.put(URL, json={"candidate": CANDIDATE, "share": 0.3})
+    _settle(app)
     assert r.status_code == 201, r.text
     started = r.json()
     assert started["status"] == "running"
@@ -70,8 +81,8 @@ def test_a_rollout_assigns_stores_and_moves_keeping_what_was_learned(
     arms = _arms(app)
     assert set(arms) == set(users)
     moved = sorted(u for u, a in arms.items() if a == "candidate")
-    assert started["people"] == {"candidate": len(moved), "control": 20 - len(moved)}
-    assert 0 < len(moved) < 20
+    assert started["people"] == {"candidate": len(moved), "control": 24 - len(moved)}
+    assert 0 < len(moved) < 24
     for user in users:
         learner = _learner(staff, user)
         if user in moved:
@@ -107,6 +118,7 @@ def test_a_rollout_assigns_stores_and_moves_keeping_what_was_learned(
     assert _arms(app) == arms
     # A higher share moves more people; those in the candidate's arm stay there.
     r = staff.put(URL, json={"candidate": CANDIDATE, "share": 0.8})
+    _settle(app)
     wider = _arms(app)
     assert {u for u, a in wider.items() if a == "candidate"} > set(moved)
     assert r.json()["people"]["candidate"] == sum(a == "candidate" for a in wider.values())
@@ -119,6 +131,7 @@ def test_a_rollout_assigns_stores_and_moves_keeping_what_was_learned(
 def test_the_arms_survive_a_restart(app: FastAPI, robot: TestClient, staff: TestClient) -> None:
     _people(robot, 10)
     staff.put(URL, json={"candidate": CANDIDATE, "share": 0.5})
+    _settle(app)
     arms = _arms(app)
     from app.main import create_app
 
@@ -134,6 +147,7 @@ def test_newcomers_get_an_arm_unless_their_learner_was_chosen(
 ) -> None:
     _people(robot, 3)
     staff.put(URL, json={"candidate": CANDIDATE, "share": 0.5})
+    _settle(app)
     newcomers = [f"new{i:02d}" for i in range(16)]
     for user in newcomers:
         assert robot.put(f"/v1/users/{user}", json={}).status_code == 201
@@ -157,8 +171,10 @@ def test_newcomers_get_an_arm_unless_their_learner_was_chosen(
 def test_promote_and_roll_back(app: FastAPI, robot: TestClient, staff: TestClient) -> None:
     users = _people(robot, 10, episodes=1)
     staff.put(URL, json={"candidate": CANDIDATE, "share": 0.5})
+    _settle(app)
     arms = _arms(app)
     r = staff.post(f"{URL}/promote")
+    _settle(app)
     assert r.status_code == 200, r.text
     assert r.json()["status"] == "promoted"
     assert r.json()["ended_by"] is not None
@@ -172,6 +188,7 @@ def test_promote_and_roll_back(app: FastAPI, robot: TestClient, staff: TestClien
 
     # A new rollout after it; rolled back: the candidate people get their learner back.
     r = staff.put(URL, json={"candidate": {"algorithm": "dts"}, "share": 0.5})
+    _settle(app)
     assert r.status_code == 201, r.text
     second = r.json()["rollout_id"]
     with app.state.db.transaction(write=False) as session:
@@ -180,6 +197,7 @@ def test_promote_and_roll_back(app: FastAPI, robot: TestClient, staff: TestClien
             for a, _ in [(x, y) for x, y in rollouts.repo.arms(session, second)]
         }
     r = staff.post(f"{URL}/rollback", json={"reason": "the night staff asked"})
+    _settle(app)
     assert r.status_code == 200, r.text
     assert r.json()["status"] == "rolled_back"
     assert r.json()["end_reason"] == "the night staff asked"
@@ -197,8 +215,9 @@ def test_promote_and_roll_back(app: FastAPI, robot: TestClient, staff: TestClien
 def test_the_guard_rolls_back_a_worse_candidate(
     app: FastAPI, robot: TestClient, staff: TestClient
 ) -> None:
-    users = _people(robot, 16)
+    users = _people(robot, 30)  # each arm gets 5 or more but in 1 rollout in 15,000
     staff.put(URL, json={"candidate": CANDIDATE, "share": 0.5})
+    _settle(app)
     arms = _arms(app)
     assert sum(a == "candidate" for a in arms.values()) >= 5
     assert sum(a == "control" for a in arms.values()) >= 5
@@ -275,3 +294,37 @@ def test_who_may_roll_out(
     # Erasing a person erases their arm.
     assert staff.delete(f"/v1/users/{users[0]}").status_code == 204
     assert users[0] not in _arms(app)
+
+
+def test_moves_are_owed_then_done_a_person_at_a_time_even_after_a_restart(
+    app: FastAPI, robot: TestClient, staff: TestClient
+) -> None:
+    users = _people(robot, 14, episodes=1)
+    app.state.rollout_mover = None  # this worker's mover stopped before it moved anyone
+    started = staff.put(URL, json={"candidate": CANDIDATE, "share": 0.5}).json()
+    arms = _arms(app)
+    candidates = [u for u in users if arms[u] == "candidate"]
+    assert started["moving"] == len(candidates) > 0
+    for user in candidates:
+        assert _learner(staff, user)["params"]["tau"] != 0.005  # not moved yet
+        assert staff.get(f"/v1/users/{user}/profile").json()["rollout"]["moving"] is True
+    # The episodes of a person not moved yet are not compared.
+    play(robot, candidates[0], "early", people.person(need=TEA))
+    assert staff.get(URL).json()["comparison"]["candidate"]["n_episodes"] == 0
+    # The next worker to start does the moves left owed.
+    from app.main import create_app
+
+    again = create_app(app.state.settings)
+    try:
+        with TestClient(again):
+            again.state.rollout_mover.join(30)
+    finally:
+        again.state.db.dispose()
+    assert staff.get(URL).json()["moving"] == 0
+    for user in candidates:
+        assert _learner(staff, user)["params"]["tau"] == 0.005
+        assert staff.get(f"/v1/users/{user}/profile").json()["rollout"]["moving"] is False
+    audit = staff.get("/v1/admin/audit?limit=200").json()["items"]
+    moves = [e for e in audit if e["action"] == "user.learner"]
+    assert {e["target"] for e in moves} == set(candidates)
+    assert {e["actor"]["key_id"] for e in moves} == {"rollout"}

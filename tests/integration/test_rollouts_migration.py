@@ -101,6 +101,7 @@ def test_the_upgrade_keeps_everything_and_a_rollout_then_runs(filled: Filled) ->
             body = {"candidate": {"algorithm": "hri", "params": {"tau": 0.005}}, "share": 0.5}
             r = staff.put("/v1/admin/fleets/default/rollout", json=body)
             assert r.status_code == 201, r.text
+            app.state.rollout_mover.join(60)  # the moves, done after the answer
             people = r.json()["people"]
             assert people["candidate"] + people["control"] == len(USERS)
             for uid in USERS:

@@ -4,7 +4,7 @@ runs, and promoting or rolling it back (the fleet's staff, admins): :mod:`app.se
 
 from __future__ import annotations
 
-from fastapi import APIRouter
+from fastapi import APIRouter, Request
 from fastapi.responses import JSONResponse
 from sqlalchemy.orm import Session
 
@@ -38,6 +38,7 @@ def get_rollout(
 def put_rollout(
     fleet: FleetName,
     body: RolloutIn,
+    request: Request,
     session: Session,
     ctx: ServiceContext,
     principal: CurrentPrincipal,
@@ -56,6 +57,7 @@ def put_rollout(
         algorithm=body.candidate.algorithm,
         params=body.candidate.params,
         share=body.share,
+        mover=getattr(request.app.state, "rollout_mover", None),
     )
     out = RolloutOut.of(found).model_dump(mode="json")
     return JSONResponse(out, status_code=201 if started else 200)
@@ -65,12 +67,17 @@ def put_rollout(
     "/fleets/{fleet}/rollout/promote", response_model=RolloutOut, responses=responses(403, 409)
 )
 def promote_rollout(
-    fleet: FleetName, session: Session, ctx: ServiceContext, principal: CurrentPrincipal
+    fleet: FleetName,
+    request: Request,
+    session: Session,
+    ctx: ServiceContext,
+    principal: CurrentPrincipal,
 ) -> RolloutOut:
     """Give the running rollout's candidate to everyone it assigned (the control people move,
     keeping what was learned) and to the fleet's newcomers from now on. 409 when no rollout
     runs. Audit entry ``rollout.promote``."""
-    return RolloutOut.of(rollouts.promote(session, ctx, principal, fleet))
+    mover = getattr(request.app.state, "rollout_mover", None)
+    return RolloutOut.of(rollouts.promote(session, ctx, principal, fleet, mover=mover))
 
 
 @router.post(
@@ -78,6 +85,7 @@ def promote_rollout(
 )
 def roll_back_rollout(
     fleet: FleetName,
+    request: Request,
     session: Session,
     ctx: ServiceContext,
     principal: CurrentPrincipal,
@@ -87,7 +95,10 @@ def roll_back_rollout(
     what the candidate learned with them included); newcomers get the fleet's default again.
     409 when no rollout runs. Audit entry ``rollout.rollback``."""
     reason = body.reason if body is not None else None
-    return RolloutOut.of(rollouts.roll_back(session, ctx, principal, fleet, reason=reason))
+    mover = getattr(request.app.state, "rollout_mover", None)
+    return RolloutOut.of(
+        rollouts.roll_back(session, ctx, principal, fleet, reason=reason, mover=mover)
+    )
 
 
 @router.get("/fleets/{fleet}/shadow", response_model=ShadowOut, responses=responses(403, 404))

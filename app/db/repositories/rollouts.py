@@ -7,7 +7,7 @@ import datetime as dt
 from dataclasses import dataclass
 from typing import Any
 
-from sqlalchemy import insert, select, update
+from sqlalchemy import func, insert, select, update
 from sqlalchemy.orm import Session
 
 from ..models import Episode, Rollout, RolloutArm, User
@@ -18,12 +18,17 @@ __all__ = [
     "RolloutRow",
     "add",
     "add_arm",
+    "arm",
     "arm_of",
     "arms",
     "arms_of_user",
     "end",
     "latest",
+    "latest_of",
     "lock_running",
+    "moved",
+    "owe_moves",
+    "owed",
     "returns",
     "running_fleets",
     "set_arm",
@@ -55,6 +60,8 @@ class ArmRow:
     assigned_at: dt.datetime
     previous_algorithm: str
     previous_params: dict[str, Any]
+    pending: bool = False
+    served_since: dt.datetime | None = None
 
 
 _rollouts = table(Rollout)
@@ -113,11 +120,56 @@ def add_arm(session: Session, row: ArmRow) -> None:
 
 
 def set_arm(session: Session, rollout_id: str, user_pk: int, arm: str, *, now: dt.datetime) -> None:
+    """Give the person another arm: a move to its learner is owed."""
     a = _arms.c
     conn(session).execute(
         update(_arms)
         .where(a.rollout_id == rollout_id, a.user_pk == user_pk)
-        .values(arm=arm, assigned_at=now)
+        .values(arm=arm, assigned_at=now, pending=True, served_since=None)
+    )
+
+
+def owe_moves(session: Session, rollout_id: str, arm: str) -> int:
+    """Owe every person of ``arm`` a move (a promote, a roll back): how many."""
+    a = _arms.c
+    done = conn(session).execute(
+        update(_arms).where(a.rollout_id == rollout_id, a.arm == arm).values(pending=True)
+    )
+    return int(done.rowcount or 0)
+
+
+def owed(session: Session, *, limit: int) -> list[tuple[ArmRow, RolloutRow, str]]:
+    """Arms owed a move, with their rollout and the person's id, oldest rollout first."""
+    a, r = _arms.c, _rollouts.c
+    stmt = (
+        select(*_ARM_COLS, *_COLS, _users.c.user_id)
+        .join(_rollouts, r.id == a.rollout_id)
+        .join(_users, _users.c.id == a.user_pk)
+        .where(a.pending.is_(True))
+        .order_by(r.started_at, a.user_pk)
+        .limit(limit)
+    )
+    n, m = len(_ARM_COLS), len(_COLS)
+    return [
+        (ArmRow(*row[:n]), RolloutRow(*row[n : n + m]), str(row[-1]))
+        for row in conn(session).execute(stmt)
+    ]
+
+
+def arm(session: Session, rollout_id: str, user_pk: int) -> ArmRow | None:
+    a = _arms.c
+    stmt = select(*_ARM_COLS).where(a.rollout_id == rollout_id, a.user_pk == user_pk)
+    return record(ArmRow, conn(session).execute(stmt).first())
+
+
+def moved(session: Session, rollout_id: str, user_pk: int, *, now: dt.datetime) -> None:
+    """The person's move is done: served by their arm's learner from ``now`` (or still from
+    when they first were)."""
+    a = _arms.c
+    conn(session).execute(
+        update(_arms)
+        .where(a.rollout_id == rollout_id, a.user_pk == user_pk)
+        .values(pending=False, served_since=func.coalesce(a.served_since, now))
     )
 
 
@@ -153,13 +205,18 @@ def arm_of(session: Session, user_pk: int) -> tuple[ArmRow, RolloutRow] | None:
 def returns(
     session: Session, rollout_id: str, *, until: dt.datetime | None = None
 ) -> list[tuple[int, str, float]]:
-    """(person, arm, total reward) of every closed episode begun since the person was given
-    their arm in the rollout (and before ``until``, the rollout's end)."""
+    """(person, arm, total reward) of every closed episode begun since the person's arm's
+    learner serves them (and before ``until``, the rollout's end)."""
     a, e = _arms.c, _episodes.c
     stmt = (
         select(a.user_pk, a.arm, e.total_reward)
         .join(_episodes, e.user_pk == a.user_pk)
-        .where(a.rollout_id == rollout_id, e.status == "closed", e.created_at >= a.assigned_at)
+        .where(
+            a.rollout_id == rollout_id,
+            a.served_since.is_not(None),
+            e.status == "closed",
+            e.created_at >= a.served_since,
+        )
     )
     if until is not None:
         stmt = stmt.where(e.created_at < until)
@@ -177,3 +234,9 @@ def arms_of_user(session: Session, user_pk: int) -> list[tuple[ArmRow, RolloutRo
     )
     n = len(_ARM_COLS)
     return [(ArmRow(*row[:n]), RolloutRow(*row[n:])) for row in conn(session).execute(stmt)]
+
+
+def latest_of(session: Session, rollout_id: str) -> RolloutRow | None:
+    """The rollout as it is now."""
+    stmt = select(*_COLS).where(_rollouts.c.id == rollout_id)
+    return record(RolloutRow, conn(session).execute(stmt).first())
