@@ -793,6 +793,16 @@ def shadow_decisions(
             )
         )
 
+    # Only the decisions still to shadow are asked about: the candidate is still taught the
+    # whole history in order (teaching is cheap), but asks nothing at the older decisions.
+    history.asked = [
+        a
+        for a in history.asked
+        if a.visible
+        and a.decided_at is not None
+        and a.decision_id not in done
+        and _utc(a.decided_at) >= since
+    ]
     if history.asked:
         _replay(user.fleet, history, spec, on_asked=asked_at, model=False)
     return found
