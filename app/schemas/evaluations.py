@@ -27,7 +27,8 @@ class CandidateIn(BaseModel):
     algorithm: str = Field(
         max_length=32,
         examples=["dts"],
-        description="hri, dts, dts-adapt, dts-routine, rmax, qlearning.",
+        description="hri, dts, dts-adapt, dts-routine, rmax, qlearning, or default (the "
+        "learner a person gets when nobody chooses one).",
     )
     params: dict[str, Any] = Field(
         default_factory=dict, examples=[{"tau": 0.005}], description="Only those to change."

@@ -98,6 +98,7 @@ from app.learning.offpolicy import (
 from app.learning.remap import remap_learner
 from app.learning.state import StateFormatError
 from app.learning.types import FloatArray
+from app.schemas.users import LearnerSpec
 
 from .context import ServiceContext
 from .mission_book import Stored
@@ -139,7 +140,10 @@ _NAMES: Mapping[str, str] = {
 _SYMBOLS: Mapping[str, str] = {"tau": "τ"}
 _TRUE = frozenset({"true", "yes", "on", "1"})
 _FALSE = frozenset({"false", "no", "off", "0"})
-_EXAMPLES = "hri, hri:tau=0.005, dts-routine:samples=32,ask_unknown=false"
+_EXAMPLES = "hri, hri:tau=0.005, dts-routine:samples=32,ask_unknown=false, default"
+DEFAULT = "default"
+DEFAULT_ALGORITHM = LearnerSpec.model_fields["algorithm"].default
+"""The learner a person gets when nobody chooses one: what ``default`` names."""
 
 
 # ---------------------------------------------------------------------------------------------
@@ -192,7 +196,10 @@ def _text(value: Any) -> str:
 
 def candidate_spec(algorithm: str, params: Mapping[str, Any] | None = None) -> CandidateSpec:
     """A validated candidate: ``ValueError`` with the sentence the API gives for a person's
-    learner (an unknown algorithm, an unknown or bad parameter)."""
+    learner (an unknown algorithm, an unknown or bad parameter). ``default`` names the learner
+    a person gets when nobody chooses one (``DEFAULT_ALGORITHM``)."""
+    if algorithm == DEFAULT:
+        algorithm = DEFAULT_ALGORITHM
     if not isinstance(algorithm, str) or algorithm not in ALGORITHMS:
         raise ValueError(
             f"algorithm must be one of {', '.join(sorted(ALGORITHMS))}; got {algorithm!r}."
@@ -212,9 +219,12 @@ def parse_candidate(text: str) -> CandidateSpec:
     try:
         if not algorithm:
             raise ValueError(f"it names no algorithm (for example {_EXAMPLES}).")
+        if algorithm == DEFAULT:
+            algorithm = DEFAULT_ALGORITHM
         if algorithm not in ALGORITHMS:
             raise ValueError(
-                f"the algorithm must be one of {', '.join(sorted(ALGORITHMS))}; got {algorithm!r}."
+                f"the algorithm must be one of {', '.join(sorted(ALGORITHMS))} (or default); "
+                f"got {algorithm!r}."
             )
         params: dict[str, Any] = {}
         if colon:

@@ -346,6 +346,9 @@ def test_a_rerun_gives_the_same_numbers(attune: Attune, app: FastAPI, make_key: 
             "DTS-routine ask_unknown=false samples=32",
         ),
         (" rmax : ", None, None, None, None),
+        # "default": the learner a person gets when nobody chooses one.
+        ("default", "dts-routine", {}, "dts-routine", "DTS-routine"),
+        ("default:samples=32", "dts-routine", {"samples": 32}, "dts-routine:samples=32", None),
     ],
 )
 def test_candidate_text(
@@ -362,5 +365,6 @@ def test_candidate_text(
     spec = parse_candidate(text)
     assert spec == CandidateSpec(algorithm, params or {})
     assert spec.key == key
-    assert spec.label == label
+    if label is not None:
+        assert spec.label == label
     assert parse_candidate(spec.key) == spec
