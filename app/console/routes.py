@@ -47,6 +47,8 @@ from app.services import missions as missions_service
 from app.services import models as models_service
 from app.services import profile as profile_service
 from app.services import retention as retention_service
+from app.services import rollouts as rollouts_service
+from app.services import shadows as shadows_service
 from app.services import subject as subject_service
 from app.services import users as users_service
 from app.services import views as data_views
@@ -1550,6 +1552,584 @@ def whatif_page(
         counts=_counts(session, user),
         history_from=console_service.history_from(session, user),
     )
+
+
+# -- rollout: try a learner without acting (a shadow), then on some of the people (a canary) ---
+_PERCENT_TEXT = re.compile(r"^([0-9]{1,3}(?:[.,][0-9]{1,2})?)\s*%?$")
+_LEARNER_FIELDS = ("learner", "other", "percent")
+_SHADOW_DEFAULT = {"learner": "", "other": "", "percent": "100"}
+_ROLLOUT_DEFAULT = {"learner": "", "other": "", "percent": "20"}
+_REASON_MAX = 500
+
+
+def _latest(read: Callable[..., dict[str, Any]], *args: Any) -> dict[str, Any] | None:
+    """The fleet's newest shadow or rollout as the service gives it (may 403), or None when the
+    fleet never had one."""
+    try:
+        return read(*args)
+    except NotFound:
+        return None
+
+
+def _mover(request: Request) -> rollouts_service.Mover | None:
+    """The worker's mover of people between learners: a rollout's moves are done in the
+    background, a person at a time, once the change is committed (as the API's routes do)."""
+    mover: rollouts_service.Mover | None = getattr(request.app.state, "rollout_mover", None)
+    return mover
+
+
+def _chosen(typed: dict[str, str], errors: dict[str, str]) -> CandidateSpec | None:
+    """The learner chosen on a form: one of the What if form's choices, or another typed as
+    ``attune evaluate --candidate`` reads it; a mistake goes to ``errors`` in words."""
+    choice = typed["learner"]
+    keys = {key for _, key, _ in views.CANDIDATE_CHOICES}
+    if choice == "other":
+        if not typed["other"]:
+            errors["learner"] = (
+                "Write the other learner, such as hri:tau=0.02, or choose one of the list."
+            )
+            return None
+        try:
+            return parse_candidate(typed["other"])
+        except ValueError as exc:
+            errors["learner"] = views.sentence(str(exc))
+            return None
+    if choice not in keys:
+        errors["learner"] = "Choose the learner to try."
+        return None
+    return parse_candidate(choice)
+
+
+def _share(text: str, errors: dict[str, str]) -> float | None:
+    """A percentage typed on a form (``20``, ``12.5``, ``20 %``) as a share above 0, at most 1;
+    a mistake goes to ``errors`` in words."""
+    found = _PERCENT_TEXT.match(text.strip())
+    value = float(found.group(1).replace(",", ".")) if found else None
+    if value is None or not 0.0 < value <= 100.0:
+        errors["percent"] = (
+            "Write the percentage of people as a number above 0 and at most 100, such as 20."
+        )
+        return None
+    return value / 100.0
+
+
+def _rollout_page(
+    request: Request,
+    session: RequestSession,
+    ctx: ServiceContext,
+    admin: Admin,
+    fleet: str,
+    *,
+    which: str | None = None,
+    typed: dict[str, str] | None = None,
+    errors: dict[str, str] | None = None,
+    done: str | None = None,
+    moved: int | None = None,
+    status: int = 200,
+) -> HTMLResponse:
+    principal = admin.principal
+    rollout = _latest(rollouts_service.rollout_view, session, ctx, principal, fleet)  # may 403
+    shadow = _latest(shadows_service.shadow_view, session, ctx, principal, fleet)
+    names = console_service.key_names(
+        session,
+        [
+            k
+            for found in (rollout, shadow)
+            if found is not None
+            for k in (found["started_by"], found.get("ended_by"), found.get("stopped_by"))
+            if k
+        ],
+    )
+    running = rollout is not None and rollout["status"] == "running"
+    forms = {
+        "shadow": dict(_SHADOW_DEFAULT),
+        "rollout": dict(_ROLLOUT_DEFAULT),
+        "share": {"percent": views.percent_field(rollout["share"]) if rollout else ""},
+    }
+    if which is not None and typed is not None:
+        forms[which] = typed
+    return _page(
+        request,
+        "rollout.html",
+        admin,
+        status,
+        nav="rollout",
+        fleet=fleet,
+        fleets=_fleet_choice(session, admin, fleet),
+        shadow=shadow,
+        rollout=rollout,
+        running=running,
+        plot=views.rollout_plot(rollout["comparison"]) if rollout else None,
+        names=names,
+        zone=console_service.time_zones(session, ctx, {fleet})[fleet],
+        choices=views.CANDIDATE_CHOICES,
+        forms=forms,
+        which=which,
+        errors=errors or {},
+        form_status=status,
+        done=done if done in views.ROLLOUT_DONE else None,
+        moved=moved,
+        here=console_url(request, _fleet_url("/rollout", fleet)),
+    )
+
+
+@router.get("/rollout")
+def rollout_page(
+    request: Request,
+    session: RequestSession,
+    ctx: ServiceContext,
+    admin: AdminDep,
+    fleet: FleetQuery = None,
+    done: Annotated[str | None, Query(max_length=16)] = None,
+    moved: Annotated[int | None, Query(ge=0, le=1_000_000_000)] = None,
+) -> HTMLResponse:
+    """Trying another learner safely: first beside the robots without acting (a shadow: how
+    often it would have done what they did, and what it would likely earn), then on a
+    percentage of the people (a rollout: the two groups compared while it runs, promoted or
+    rolled back), in words (staff: their fleet; admins: ``?fleet=``)."""
+    name = fleet or admin.principal.fleet
+    return _rollout_page(request, session, ctx, admin, name, done=done, moved=moved)
+
+
+def _typed(form: dict[str, str]) -> dict[str, str]:
+    return {k: form.get(k, "").strip() for k in _LEARNER_FIELDS}
+
+
+@router.post("/rollout/shadow")
+def start_shadow(
+    request: Request,
+    session: RequestSession,
+    ctx: ServiceContext,
+    admin: AdminDep,
+    form: FormDep,
+    fleet: FleetQuery = None,
+) -> Response:
+    """Start a shadow of the chosen learner over a percentage of the fleet's people (as PUT
+    /v1/admin/fleets/{fleet}/shadow, through the same service: audited there), then back to the
+    page. A mistake, or a shadow already running, comes back on the form in words."""
+    check_post(request, admin, form)
+    name = fleet or admin.principal.fleet
+    principal = admin.principal
+    running = _latest(shadows_service.shadow_view, session, ctx, principal, name)  # may 403
+    typed = _typed(form)
+    errors: dict[str, str] = {}
+
+    def again(status: int) -> HTMLResponse:
+        return _rollout_page(
+            request,
+            session,
+            ctx,
+            admin,
+            name,
+            which="shadow",
+            typed=typed,
+            errors=errors,
+            status=status,
+        )
+
+    spec = _chosen(typed, errors)
+    share = _share(typed["percent"], errors)
+    if spec is None or share is None:
+        return again(422)
+    if running is not None and running["status"] == "running":
+        errors["general"] = (
+            f"A shadow of {running['candidate']['label']} is already running in this fleet: "
+            "stop it before trying another learner without acting."
+        )
+        return again(409)
+    try:
+        _, started = shadows_service.put_shadow(
+            session,
+            ctx,
+            principal,
+            name,
+            algorithm=spec.algorithm,
+            params=dict(spec.params),
+            share=share,
+        )
+    except ValidationFailed as exc:  # the form's own checks above say it first, in words
+        errors["general"] = views.sentence(exc.detail)
+        return again(422)
+    except Conflict as exc:
+        errors["general"] = views.sentence(exc.detail)
+        return again(409)
+    if not started:  # one started meanwhile: change nothing
+        raise Conflict("A shadow started in this fleet meanwhile: reload the page to see it.")
+    return _redirect(request, _fleet_url("/rollout", name, done="shadow-started"))
+
+
+def _running_shadow(
+    session: RequestSession, ctx: ServiceContext, admin: Admin, fleet: str
+) -> dict[str, Any]:
+    shadow = _latest(shadows_service.shadow_view, session, ctx, admin.principal, fleet)
+    if shadow is None or shadow["status"] != "running":
+        raise PageError(
+            409, "Conflict", f"No shadow is running in fleet {fleet}: there is nothing to stop."
+        )
+    return shadow
+
+
+def _rollout_confirm(
+    request: Request,
+    admin: Admin,
+    fleet: str,
+    *,
+    action: str,
+    title: str,
+    text: str,
+    button: str,
+    hidden: dict[str, str],
+    reason: str | None = None,
+    error: str | None = None,
+    status: int = 200,
+) -> HTMLResponse:
+    return _page(
+        request,
+        "rollout_confirm.html",
+        admin,
+        status,
+        nav="rollout",
+        fleet=fleet,
+        action=action,
+        title=title,
+        text=text,
+        button=button,
+        hidden=hidden,
+        reason=reason,
+        reason_max=_REASON_MAX,
+        error=error,
+        form_status=status,
+        post=console_url(request, _fleet_url(f"/rollout/{action}", fleet)),
+        back=console_url(request, _fleet_url("/rollout", fleet)),
+    )
+
+
+def _stop_words(shadow: dict[str, Any]) -> tuple[str, str, str]:
+    label = shadow["candidate"]["label"]
+    return (
+        f"Stop trying {label} without acting",
+        f"{label} stops deciding beside the robots. What it decided so far, and what it would "
+        "have earned, stay on the page. Nothing changes for anyone: it never acted.",
+        f"Yes, stop trying {label}",
+    )
+
+
+@router.get("/rollout/shadow/stop")
+def stop_shadow_confirm(
+    request: Request,
+    session: RequestSession,
+    ctx: ServiceContext,
+    admin: AdminDep,
+    fleet: FleetQuery = None,
+) -> HTMLResponse:
+    """Ask before stopping the fleet's shadow."""
+    name = fleet or admin.principal.fleet
+    shadow = _running_shadow(session, ctx, admin, name)
+    title, text, button = _stop_words(shadow)
+    return _rollout_confirm(
+        request,
+        admin,
+        name,
+        action="shadow/stop",
+        title=title,
+        text=text,
+        button=button,
+        hidden={"shadow_id": shadow["shadow_id"]},
+    )
+
+
+@router.post("/rollout/shadow/stop")
+def stop_shadow(
+    request: Request,
+    session: RequestSession,
+    ctx: ServiceContext,
+    admin: AdminDep,
+    form: FormDep,
+    fleet: FleetQuery = None,
+) -> RedirectResponse:
+    """Stop the fleet's shadow (as DELETE /v1/admin/fleets/{fleet}/shadow: audited there), the
+    one the confirmation named, then back to the page."""
+    check_post(request, admin, form)
+    name = fleet or admin.principal.fleet
+    shadow = _running_shadow(session, ctx, admin, name)
+    if form.get("shadow_id") != shadow["shadow_id"]:
+        raise PageError(
+            409,
+            "Conflict",
+            "The shadow this confirmation was about has ended meanwhile, and another one runs: "
+            "go back to the rollout page to see it.",
+        )
+    shadows_service.stop_shadow(session, ctx, admin.principal, name)
+    return _redirect(request, _fleet_url("/rollout", name, done="shadow-stopped"))
+
+
+@router.post("/rollout")
+def start_rollout(
+    request: Request,
+    session: RequestSession,
+    ctx: ServiceContext,
+    admin: AdminDep,
+    form: FormDep,
+    fleet: FleetQuery = None,
+) -> Response:
+    """Roll the chosen learner out to a percentage of the fleet's people (as PUT
+    /v1/admin/fleets/{fleet}/rollout, through the same service: the people moved keep what was
+    learned, audited there), then back to the page. A mistake, or a rollout already running,
+    comes back on the form in words."""
+    check_post(request, admin, form)
+    name = fleet or admin.principal.fleet
+    principal = admin.principal
+    current = _latest(rollouts_service.rollout_view, session, ctx, principal, name)  # may 403
+    typed = _typed(form)
+    errors: dict[str, str] = {}
+
+    def again(status: int) -> HTMLResponse:
+        return _rollout_page(
+            request,
+            session,
+            ctx,
+            admin,
+            name,
+            which="rollout",
+            typed=typed,
+            errors=errors,
+            status=status,
+        )
+
+    spec = _chosen(typed, errors)
+    share = _share(typed["percent"], errors)
+    if spec is None or share is None:
+        return again(422)
+    if current is not None and current["status"] == "running":
+        errors["general"] = (
+            f"A rollout of {current['candidate']['label']} is already running in this fleet: "
+            "promote it or roll it back before rolling out another learner."
+        )
+        return again(409)
+    try:
+        _, started = rollouts_service.put_rollout(
+            session,
+            ctx,
+            principal,
+            name,
+            algorithm=spec.algorithm,
+            params=dict(spec.params),
+            share=share,
+            mover=_mover(request),
+        )
+    except ValidationFailed as exc:  # the form's own checks above say it first, in words
+        errors["general"] = views.sentence(exc.detail)
+        return again(422)
+    except Conflict as exc:
+        errors["general"] = views.sentence(exc.detail)
+        return again(409)
+    if not started:  # one started meanwhile: change nothing
+        raise Conflict("A rollout started in this fleet meanwhile: reload the page to see it.")
+    return _redirect(request, _fleet_url("/rollout", name, done="started"))
+
+
+def _running_rollout(
+    session: RequestSession, ctx: ServiceContext, admin: Admin, fleet: str, what: str
+) -> dict[str, Any]:
+    rollout = _latest(rollouts_service.rollout_view, session, ctx, admin.principal, fleet)
+    if rollout is None or rollout["status"] != "running":
+        raise PageError(
+            409, "Conflict", f"No rollout is running in fleet {fleet}: there is nothing to {what}."
+        )
+    return rollout
+
+
+def _same_rollout(form: dict[str, str], rollout: dict[str, Any]) -> None:
+    if form.get("rollout_id") != rollout["rollout_id"]:
+        raise PageError(
+            409,
+            "Conflict",
+            "The rollout this form was about has ended meanwhile, and another one runs: go back "
+            "to the rollout page to see it.",
+        )
+
+
+@router.post("/rollout/share")
+def change_rollout_share(
+    request: Request,
+    session: RequestSession,
+    ctx: ServiceContext,
+    admin: AdminDep,
+    form: FormDep,
+    fleet: FleetQuery = None,
+) -> Response:
+    """Change the percentage of people of the running rollout (as PUT .../rollout with its own
+    learner: a higher one moves more people now, a lower one moves nobody; audited there), then
+    back to the page. A mistake comes back on the form in words."""
+    check_post(request, admin, form)
+    name = fleet or admin.principal.fleet
+    rollout = _running_rollout(session, ctx, admin, name, "change")
+    _same_rollout(form, rollout)
+    typed = {"percent": form.get("percent", "").strip()}
+    errors: dict[str, str] = {}
+    share = _share(typed["percent"], errors)
+    if share is None:
+        return _rollout_page(
+            request,
+            session,
+            ctx,
+            admin,
+            name,
+            which="share",
+            typed=typed,
+            errors=errors,
+            status=422,
+        )
+    candidate = rollout["candidate"]
+    after, started = rollouts_service.put_rollout(
+        session,
+        ctx,
+        admin.principal,
+        name,
+        algorithm=candidate["algorithm"],
+        params=dict(candidate["params"]),
+        share=share,
+        mover=_mover(request),
+    )
+    if started:  # it ended meanwhile: start nothing
+        raise Conflict("The rollout ended meanwhile: reload the page to see it.")
+    moved = after["people"]["candidate"] - rollout["people"]["candidate"]
+    return _redirect(request, _fleet_url("/rollout", name, done="share", moved=max(0, moved)))
+
+
+def _promote_words(rollout: dict[str, Any], fleet: str) -> tuple[str, str, str]:
+    label = rollout["candidate"]["label"]
+    control = rollout["people"]["control"]
+    return (
+        f"Promote {label}",
+        f"Give {label} to everyone of the rollout in fleet {fleet}: the "
+        f"{views.people_words(control)} who keep the current learner move to {label} now, "
+        f"keeping what the robots learned with them, and everyone the robots meet for the first "
+        f"time from now on starts with {label}. The rollout ends.",
+        f"Yes, promote {label}",
+    )
+
+
+def _rollback_words(rollout: dict[str, Any], fleet: str) -> tuple[str, str, str]:
+    label = rollout["candidate"]["label"]
+    served = rollout["people"]["candidate"]
+    return (
+        f"Roll back {label}",
+        f"Give the {views.people_words(served)} served by {label} in fleet {fleet} the learner "
+        f"they had before, taught everything they did meanwhile (what {label} learned with them "
+        "is not lost), and let everyone the robots meet for the first time start with the "
+        "fleet's usual learner again. The rollout ends.",
+        f"Yes, roll back {label}",
+    )
+
+
+@router.get("/rollout/promote")
+def promote_confirm(
+    request: Request,
+    session: RequestSession,
+    ctx: ServiceContext,
+    admin: AdminDep,
+    fleet: FleetQuery = None,
+) -> HTMLResponse:
+    """Ask before promoting the fleet's rollout."""
+    name = fleet or admin.principal.fleet
+    rollout = _running_rollout(session, ctx, admin, name, "promote")
+    title, text, button = _promote_words(rollout, name)
+    return _rollout_confirm(
+        request,
+        admin,
+        name,
+        action="promote",
+        title=title,
+        text=text,
+        button=button,
+        hidden={"rollout_id": rollout["rollout_id"]},
+    )
+
+
+@router.post("/rollout/promote")
+def promote_rollout(
+    request: Request,
+    session: RequestSession,
+    ctx: ServiceContext,
+    admin: AdminDep,
+    form: FormDep,
+    fleet: FleetQuery = None,
+) -> RedirectResponse:
+    """Promote the rollout the confirmation named (as POST .../rollout/promote: audited
+    there), then back to the page."""
+    check_post(request, admin, form)
+    name = fleet or admin.principal.fleet
+    rollout = _running_rollout(session, ctx, admin, name, "promote")
+    _same_rollout(form, rollout)
+    rollouts_service.promote(session, ctx, admin.principal, name, mover=_mover(request))
+    return _redirect(request, _fleet_url("/rollout", name, done="promoted"))
+
+
+@router.get("/rollout/rollback")
+def rollback_confirm(
+    request: Request,
+    session: RequestSession,
+    ctx: ServiceContext,
+    admin: AdminDep,
+    fleet: FleetQuery = None,
+) -> HTMLResponse:
+    """Ask before rolling the fleet's rollout back, with room for why."""
+    name = fleet or admin.principal.fleet
+    rollout = _running_rollout(session, ctx, admin, name, "roll back")
+    title, text, button = _rollback_words(rollout, name)
+    return _rollout_confirm(
+        request,
+        admin,
+        name,
+        action="rollback",
+        title=title,
+        text=text,
+        button=button,
+        hidden={"rollout_id": rollout["rollout_id"]},
+        reason="",
+    )
+
+
+@router.post("/rollout/rollback")
+def roll_back_rollout(
+    request: Request,
+    session: RequestSession,
+    ctx: ServiceContext,
+    admin: AdminDep,
+    form: FormDep,
+    fleet: FleetQuery = None,
+) -> Response:
+    """Roll back the rollout the confirmation named, with the reason given if any (as POST
+    .../rollout/rollback: audited there), then back to the page. A reason too long comes back
+    on the confirmation in words."""
+    check_post(request, admin, form)
+    name = fleet or admin.principal.fleet
+    rollout = _running_rollout(session, ctx, admin, name, "roll back")
+    _same_rollout(form, rollout)
+    reason = form.get("reason", "").strip()
+    if len(reason) > _REASON_MAX:
+        title, text, button = _rollback_words(rollout, name)
+        return _rollout_confirm(
+            request,
+            admin,
+            name,
+            action="rollback",
+            title=title,
+            text=text,
+            button=button,
+            hidden={"rollout_id": rollout["rollout_id"]},
+            reason=reason,
+            error=(
+                f"Say why in at most {_REASON_MAX} characters ({len(reason):,} are written); "
+                "nothing was rolled back."
+            ),
+            status=422,
+        )
+    rollouts_service.roll_back(
+        session, ctx, admin.principal, name, reason=reason or None, mover=_mover(request)
+    )
+    return _redirect(request, _fleet_url("/rollout", name, done="rolled-back"))
 
 
 @router.get("/{rest:path}")

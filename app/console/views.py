@@ -24,7 +24,14 @@ from app.learning.guidance import Reason, ReasonCode
 from app.schemas.audit import ViewOut
 from app.schemas.common import ActionOut
 from app.schemas.models import ActionBelief, ContextModel, ModelOut, StartedFrom, StateModel
-from app.schemas.profile import CorrectionOut, ProfileContext, ProfileOut, RobotWill, Wanted
+from app.schemas.profile import (
+    CorrectionOut,
+    ProfileContext,
+    ProfileOut,
+    RobotWill,
+    RolloutArmOut,
+    Wanted,
+)
 from app.schemas.users import UserOut
 from app.services.evaluation import CandidateSpec
 
@@ -1114,5 +1121,248 @@ def evaluation_plot(result: dict[str, Any]) -> Plot:
             else "middle"
         ),
         rows=tuple(rows),
+        ticks=tuple(ticks),
+    )
+
+
+# -- rollout: a candidate learner tried without acting (a shadow), then on some of the people ---
+# Everything below reads a shadow or a rollout as GET /v1/admin/fleets/{fleet}/shadow and
+# .../rollout give them (``app.services.shadows`` and ``app.services.rollouts``): plain dicts.
+
+ROLLOUT_DONE = {
+    "shadow-started": "It has started. It decides beside the robots once each encounter of the "
+    "people it follows has ended, and says below how often it would have done what the robots "
+    "did. Nothing changes for anyone.",
+    "shadow-stopped": "Stopped. What it decided so far stays below; it never acted.",
+    "started": "The rollout has started. The people it gives the new learner are served by it "
+    "from their next encounter on, keeping what the robots learned with them.",
+    "share": "The percentage is changed.",
+    "promoted": "Promoted. Everyone of the rollout gets the new learner, keeping what the robots "
+    "learned with them, and so does everyone the robots meet for the first time from now on.",
+    "rolled-back": "Rolled back. The people the new learner served get the learner they had "
+    "before again, taught everything they did meanwhile.",
+}
+"""The notice at the top of the rollout page after each action (``?done=``)."""
+
+
+def percent(share: float) -> str:
+    """A share of people as a percentage: 0.2 -> "20%", 0.125 -> "12.5%"."""
+    value = round(share * 100, 2)
+    return f"{value:g}%"
+
+
+def percent_field(share: float) -> str:
+    """A share as the percentage field shows it: 0.2 -> "20"."""
+    return f"{round(share * 100, 2):g}"
+
+
+def people_words(n: int) -> str:
+    """ "1 person", "12 people", "1,024 people"."""
+    return "1 person" if n == 1 else f"{n:,} people"
+
+
+def fmt_day(at: dt.datetime | None, zone: str, today: dt.date | None = None) -> str:
+    """A day as people say it, in the fleet's time zone: "4 Dec" (this year), "4 Dec 2025"."""
+    if at is None:
+        return DASH
+    if at.tzinfo is None:
+        at = at.replace(tzinfo=dt.UTC)
+    local = at.astimezone(zoneinfo.ZoneInfo(zone))
+    now = today or dt.datetime.now(zoneinfo.ZoneInfo(zone)).date()
+    day = f"{local.day} {local:%b}"
+    return day if local.year == now.year else f"{day} {local.year}"
+
+
+def who_did(key_id: str | None, names: dict[str, str]) -> str:
+    """Who started or ended a shadow or a rollout: the key's name, "the guard", or "a key"."""
+    if key_id is None:
+        return "someone"
+    if key_id == "guard":
+        return "the guard"
+    return key_label(key_id, names)
+
+
+def shadow_status_words(shadow: dict[str, Any], names: dict[str, str], zone: str) -> str:
+    """ "Running since 2026-12-07 04:00 (started by night-shift), for 100% of the people." """
+    by = who_did(shadow["started_by"], names)
+    started = f"{fmt_zone(shadow['started_at'], zone)} (started by {by})"
+    if shadow["status"] == "running":
+        return f"Running since {started}, for {percent(shadow['share'])} of the people."
+    return (
+        f"Stopped on {fmt_zone(shadow['stopped_at'], zone)} by "
+        f"{who_did(shadow['stopped_by'], names)}; it ran from {started}, for "
+        f"{percent(shadow['share'])} of the people."
+    )
+
+
+def shadow_words(shadow: dict[str, Any]) -> tuple[str, str | None]:
+    """A shadow's look in the staff's words: how often it would have done what the robots did
+    (the service's sentence), and what its newest estimate says it would earn, as the What if
+    page says it (None before the first estimate)."""
+    summary = str(shadow["summary"])
+    estimate = shadow.get("estimate") or {}
+    found = estimate.get("candidates") or []
+    if not found:
+        return summary, None
+    candidate = found[0]
+    verdict = str(candidate.get("verdict") or "")
+    if verdict and summary.endswith(verdict):
+        summary = summary.removesuffix(verdict).rstrip()
+    label = shadow["candidate"]["label"]
+    if candidate.get("enough") and verdict:
+        said = sentence(verdict)
+    else:
+        why = evidence_why(label, str(candidate.get("reason") or verdict))
+        said = f"Not enough evidence yet to say what {label} would earn: {why}."
+    episodes = int(estimate.get("episodes") or 0)
+    counted = "1 encounter" if episodes == 1 else f"{episodes:,} encounters"
+    return summary, f"{said} (From the {counted} since it started.)"
+
+
+GUARD_PREFIX = "the guard: "
+
+
+def rollout_status_words(rollout: dict[str, Any], names: dict[str, str], zone: str) -> str:
+    """Where a rollout stands, in a sentence: running, promoted by whom, rolled back by whom
+    (by the guard: said so, with its reason)."""
+    label = rollout["candidate"]["label"]
+    started = f"{fmt_zone(rollout['started_at'], zone)} by {who_did(rollout['started_by'], names)}"
+    status = rollout["status"]
+    if status == "running":
+        return f"Running since {started}, for {percent(rollout['share'])} of the people."
+    ended = fmt_zone(rollout["ended_at"], zone)
+    if status == "promoted":
+        return (
+            f"Promoted on {ended} by {who_did(rollout['ended_by'], names)}: {label} serves "
+            f"everyone of the rollout, and everyone the robots meet for the first time since. "
+            f"It was started {started}."
+        )
+    reason = (rollout.get("end_reason") or "").strip()
+    if rollout["ended_by"] == "guard":
+        because = reason.removeprefix(GUARD_PREFIX)
+        said = f", because {because}" if because else "."
+        if said != "." and not said.endswith((".", "!", "?")):
+            said += "."
+        return f"Rolled back automatically by the guard on {ended}{said}"
+    who = who_did(rollout["ended_by"], names)
+    if reason:
+        return f"Rolled back on {ended} by {who}, who said why: “{reason}”"
+    return f"Rolled back on {ended} by {who}."
+
+
+def moving_words(rollout: dict[str, Any]) -> str | None:
+    """The people still to move to the learner their group gives them (a person at a time, in
+    the background), in a sentence; None when nobody is."""
+    n = int(rollout.get("moving") or 0)
+    if not n:
+        return None
+    label = rollout["candidate"]["label"]
+    who = "1 person is" if n == 1 else f"{n:,} people are"
+    where = "back to the learner they had" if rollout["status"] == "rolled_back" else f"to {label}"
+    return (
+        f"{who} still being moved {where}, one person at a time, keeping what the robots "
+        "learned with them: it takes seconds (reload the page)."
+    )
+
+
+def rollout_kind(comparison: dict[str, Any]) -> str:
+    """``more``, ``less``, ``same`` or ``unknown`` (not enough evidence): the look of the
+    comparison's sentence and plot, as the What if verdicts'."""
+    if not comparison.get("enough") or comparison.get("difference") is None:
+        return "unknown"
+    if comparison["verdict"] == "better":
+        return "more"
+    if comparison["verdict"] == "worse":
+        return "less"
+    return "same"
+
+
+def rollout_arm_words(arm: RolloutArmOut, zone: str) -> str:
+    """A person's arm in a rollout (``ProfileOut.rollout``), in a line for their header: "In
+    the rollout of HRI τ=0.005: served by the candidate since 4 Dec"."""
+    label = arm.candidate.get("label") or arm.candidate.get("key", "")
+    day = fmt_day(arm.assigned_at, zone)
+    candidate = arm.arm == "candidate"
+    if arm.moving:
+        if arm.rollout_status == "rolled_back":
+            return (
+                f"The rollout of {label} was rolled back: being moved back to the learner they "
+                "had before."
+            )
+        return f"In the rollout of {label}: being moved to {label}, keeping what was learned."
+    if arm.rollout_status == "running":
+        if candidate:
+            return f"In the rollout of {label}: served by the candidate since {day}."
+        return f"In the rollout of {label}: keeps the current learner."
+    if arm.rollout_status == "promoted":
+        if candidate:
+            return f"Served by {label} since {day}: its rollout was promoted."
+        return f"Served by {label}: its rollout was promoted."
+    if candidate:
+        return (
+            f"Was served by {label} from {day} until its rollout was rolled back: back on the "
+            "learner they had before."
+        )
+    return f"Kept the current learner during the rollout of {label}, which was rolled back."
+
+
+@dataclass(frozen=True, slots=True)
+class RolloutPlot:
+    """The comparison drawn: the difference (a dot) and its interval (a bar) against no
+    difference (a dashed line at 0), in a box ``width`` wide."""
+
+    width: int
+    height: int
+    left: int
+    right: int
+    y: float
+    kind: str  # "more" | "less" | "same"
+    zero_x: float
+    zero_anchor: str
+    x: float
+    low: float
+    high: float
+    difference: float
+    ticks: tuple[PlotTick, ...]
+
+
+def rollout_plot(comparison: dict[str, Any]) -> RolloutPlot | None:
+    """The plot of a look at a rollout's arms, or None without enough evidence."""
+    found = [comparison.get(k) for k in ("difference", "low", "high")]
+    numbers = [float(v) for v in found if isinstance(v, (int, float)) and math.isfinite(v)]
+    if rollout_kind(comparison) == "unknown" or len(numbers) != 3:
+        return None
+    difference, low, high = numbers
+    lo, hi = min(0.0, low, difference), max(0.0, high, difference)
+    if hi - lo < 0.2:
+        middle = (hi + lo) / 2
+        lo, hi = middle - 0.1, middle + 0.1
+    pad = (hi - lo) * 0.08
+    lo, hi = lo - pad, hi + pad
+    step = _step(hi - lo)
+    left, right = 40, 680
+
+    def x_of(v: float) -> float:
+        return round(left + (v - lo) / (hi - lo) * (right - left), 1)
+
+    ticks = []
+    t = math.ceil(lo / step) * step
+    while t <= hi + 1e-9:
+        ticks.append(PlotTick(x_of(t), "0" if abs(t) < step / 1000 else signed(t)))
+        t += step
+    zero_x = x_of(0.0)
+    return RolloutPlot(
+        width=PLOT_WIDTH,
+        height=112,
+        left=left,
+        right=right,
+        y=44.0,
+        kind=rollout_kind(comparison),
+        zero_x=zero_x,
+        zero_anchor="end" if zero_x > right - 60 else "start" if zero_x < left + 60 else "middle",
+        x=x_of(difference),
+        low=x_of(low),
+        high=x_of(high),
+        difference=difference,
         ticks=tuple(ticks),
     )

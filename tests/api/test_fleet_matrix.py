@@ -385,6 +385,18 @@ MATRIX: list[Row] = [
         route="/admin/evaluations/{evaluation_id}/cancel",
     ),
     Row("GET", C + "/whatif{q}", (303, 401, 403, 403, 200, 200, 200)),
+    Row("GET", "/admin/rollout{q}", (303, 401, 403, 403, 200, 200, 200)),
+    # The start forms without a learner chosen: refused in words.
+    Row("POST", "/admin/rollout{q}", (303, 401, 403, 403, 422, 422, 422), form=CSRF),
+    Row("POST", "/admin/rollout/shadow{q}", (303, 401, 403, 403, 422, 422, 422), form=CSRF),
+    # Nothing runs: nothing to stop, change, promote or roll back, said in words.
+    Row("GET", "/admin/rollout/shadow/stop{q}", (303, 401, 403, 403, 409, 409, 409)),
+    Row("POST", "/admin/rollout/shadow/stop{q}", (303, 401, 403, 403, 409, 409, 409), form=CSRF),
+    Row("POST", "/admin/rollout/share{q}", (303, 401, 403, 403, 409, 409, 409), form=CSRF),
+    Row("GET", "/admin/rollout/promote{q}", (303, 401, 403, 403, 409, 409, 409)),
+    Row("POST", "/admin/rollout/promote{q}", (303, 401, 403, 403, 409, 409, 409), form=CSRF),
+    Row("GET", "/admin/rollout/rollback{q}", (303, 401, 403, 403, 409, 409, 409)),
+    Row("POST", "/admin/rollout/rollback{q}", (303, 401, 403, 403, 409, 409, 409), form=CSRF),
     Row("GET", "/admin/nowhere", (404, 404, 404, 404, 404, 404, 404), route="/admin/{rest:path}"),
 ]
 # Served to anyone, key or not: the schema, its two pages and the static files.
@@ -693,6 +705,7 @@ def _check_console(r: httpx.Response, row: Row, who: str, status: int) -> None:
                 "/admin/retention",
                 "/admin/changes",
                 "/admin/evaluations",
+                "/admin/rollout",
             )
         ):
             # Back to the page asked for, once signed in (the path's first words, before ids).
