@@ -1199,15 +1199,13 @@ def shadow_words(shadow: dict[str, Any]) -> tuple[str, str | None]:
     """A shadow's look in the staff's words: how often it would have done what the robots did
     (the service's sentence), and what its newest estimate says it would earn, as the What if
     page says it (None before the first estimate)."""
-    summary = str(shadow["summary"])
+    summary = str(shadow.get("agreement_summary") or shadow["summary"])
     estimate = shadow.get("estimate") or {}
     found = estimate.get("candidates") or []
     if not found:
         return summary, None
     candidate = found[0]
     verdict = str(candidate.get("verdict") or "")
-    if verdict and summary.endswith(verdict):
-        summary = summary.removesuffix(verdict).rstrip()
     label = shadow["candidate"]["label"]
     if candidate.get("enough") and verdict:
         said = sentence(verdict)

@@ -132,4 +132,6 @@ class ShadowOut(BaseModel):
         "since the shadow started: as an evaluation's result, without per-person rows."
     )
     estimated_at: dt.datetime | None
-    summary: str = Field(description="What it found, in words.")
+    summary: str = Field(description="What it found, in words: the two sentences below.")
+    agreement_summary: str = Field(description="How often it would have done the same.")
+    estimate_summary: str | None = Field(description="What its estimate says (null before it).")

@@ -78,9 +78,15 @@ def _view(session: Session, row: ShadowRow) -> dict[str, Any]:
     else:
         summary = f"{spec.label} has not decided yet: it decides once an episode has ended."
     estimate = row.estimate
+    agreement = summary
+    estimated: str | None = None
     if estimate is not None:
         (candidate,) = estimate["candidates"]
-        summary += " " + candidate["verdict"]
+        said = candidate["verdict"]
+        if candidate.get("reason"):  # "not enough evidence: ...": whose, said
+            said = f"Its estimate: {said}"
+        estimated = f"{said[:1].upper()}{said[1:]}."
+        summary += f" {estimated}"
     return {
         "shadow_id": row.id,
         "fleet": row.fleet,
@@ -100,6 +106,8 @@ def _view(session: Session, row: ShadowRow) -> dict[str, Any]:
         "estimate": estimate,
         "estimated_at": row.estimated_at,
         "summary": summary,
+        "agreement_summary": agreement,
+        "estimate_summary": estimated,
     }
 
 
