@@ -137,7 +137,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                 db,
                 shadow_service.LEASE,
                 settings.shadow_seconds,
-                lambda: shadow_service.shadow_pass(db, app.state.ctx),
+                # In a process of its own: its replays do not share this worker's
+                # interpreter with the robots' requests.
+                lambda: shadow_service.pass_in_process(settings),
                 stopping=lambda: app.state.drain.draining,
             )
             shadows.start()

@@ -3,8 +3,8 @@
 
 For the share of the fleet's people whose salted hash falls below the shadow's ``share``, every
 decision the robots were told is also decided by the candidate: once the episode has ended, the
-service's shadow pass (every ``ATTUNE_SHADOW_SECONDS``, one process of the deployment at a time,
-by a lease) replays the person's history into the candidate as the evaluation does (so that at
+service's shadow pass (every ``ATTUNE_SHADOW_SECONDS``, one worker of the deployment at a time,
+by a lease, in a Python process of its own: :func:`pass_in_process`) replays the person's history into the candidate as the evaluation does (so that at
 each decision it knows what the robot's learner knew then), asks it at the decision's state,
 draws its action from its distribution, and stores both with the candidate's probability of the
 robot's action (``shadow_decisions``). Nothing of this runs in a robot's request: the robots'
@@ -19,8 +19,11 @@ every ``ATTUNE_SHADOW_ESTIMATE_MINUTES`` by the pass).
 from __future__ import annotations
 
 import datetime as dt
+import json
 import logging
 import secrets
+import subprocess
+import sys
 from typing import Any
 
 from sqlalchemy.orm import Session
@@ -32,6 +35,7 @@ from app.db.session import Database
 from app.db.types import utcnow
 from app.errors import Conflict, Forbidden, NotFound, ValidationFailed
 from app.logs import FIELDS
+from app.settings import Settings
 
 from . import audit
 from .auth import require_manager
@@ -39,7 +43,14 @@ from .context import Principal, ServiceContext
 from .evaluation import CandidateSpec, candidate_spec, evaluate_fleet, shadow_decisions
 from .rollouts import hash_place
 
-__all__ = ["LEASE", "put_shadow", "shadow_pass", "shadow_view", "stop_shadow"]
+__all__ = [
+    "LEASE",
+    "pass_in_process",
+    "put_shadow",
+    "shadow_pass",
+    "shadow_view",
+    "stop_shadow",
+]
 
 log = logging.getLogger("attune.shadows")
 
@@ -295,3 +306,73 @@ def _estimate(
     result = {k: v for k, v in found.to_dict().items() if k != "persons"}
     with db.transaction() as session:
         repo.set_estimate(session, row.id, result, at=now)
+
+
+# ---------------------------------------------------------------------------------------------
+# The pass in a process of its own
+
+PASS_TIMEOUT_S = 15 * 60
+"""A pass in a process of its own that runs longer than this is stopped (the next one goes on
+from where it stopped: what it stored stays, and the episodes it did not reach are looked at
+again)."""
+# What the pass's process needs of the service's settings; the rest keep their defaults.
+_PASSED = (
+    "database_url",
+    "database_pooler",
+    "sqlite_busy_timeout_s",
+    "db_pool_size",
+    "seed",
+    "mission_path",
+    "model_cache_size",
+    "snapshot_every",
+    "shadow_estimate_minutes",
+    "evaluation_max_minutes",
+    "log_level",
+    "log_format",
+)
+
+
+def pass_in_process(settings: Settings, *, timeout: float = PASS_TIMEOUT_S) -> int:
+    """One :func:`shadow_pass` in a Python process of its own, with the service's database and
+    settings (given on its standard input, the key with them, never on its command line): the
+    replays do not share the worker's interpreter with the robots' requests. Its log lines go
+    to the worker's standard error. The process's exit status (0: done)."""
+    given: dict[str, Any] = {name: getattr(settings, name) for name in _PASSED}
+    given["mission_path"] = None if settings.mission_path is None else str(settings.mission_path)
+    key = settings.database_key
+    if key is not None:
+        given["db_key"] = key.get_secret_value()
+    try:
+        done = subprocess.run(
+            [sys.executable, "-m", "app.services.shadows"],
+            input=json.dumps(given).encode(),
+            timeout=timeout,
+            check=False,
+        )
+    except subprocess.TimeoutExpired:
+        log.warning("The shadows' pass ran longer than %.0f s and was stopped.", timeout)
+        return -1
+    if done.returncode != 0:
+        log.warning("The shadows' pass ended with status %d.", done.returncode)
+    return done.returncode
+
+
+def _main() -> int:
+    """The pass's process: settings as JSON on standard input."""
+    import logging.config
+
+    from app.logs import logging_config
+
+    given = json.loads(sys.stdin.buffer.read() or b"{}")
+    settings = Settings(_env_file=None, **given)  # type: ignore[call-arg]
+    logging.config.dictConfig(logging_config(settings.log_level, settings.log_format))
+    db = Database(settings)
+    try:
+        shadow_pass(db, ServiceContext.from_settings(settings))
+    finally:
+        db.dispose()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(_main())

@@ -187,3 +187,24 @@ def test_who_may_shadow(
     assert staff.put(URL, json=body).status_code == 201
     assert other_staff.get(URL).status_code == 403
     assert robot.delete(URL).status_code == 403
+
+
+def test_the_service_runs_the_pass_in_a_process_of_its_own(
+    app: FastAPI, robot: TestClient, staff: TestClient
+) -> None:
+    """What the worker runs (``pass_in_process``): a Python process of its own, with the
+    service's database and settings; it stores what the pass in this process would."""
+    users = [f"r{i}" for i in range(3)]
+    for user in users:
+        assert robot.put(f"/v1/users/{user}", json={}).status_code == 201
+    assert staff.put(URL, json={"candidate": {"algorithm": "dts"}}).status_code == 201
+    _fill(robot, users, 2, "e", occurred_at=_now())
+    import time
+
+    time.sleep(shadows.SETTLE.total_seconds() + 0.5)  # past the pass's settling time
+    assert shadows.pass_in_process(app.state.settings, timeout=120) == 0
+    look = staff.get(URL).json()
+    assert look["decisions"] > 0
+    assert look["people"] == len(users)
+    assert look["estimate"] is not None
+    assert shadows.shadow_pass(app.state.db, app.state.ctx, now=_later()) == {"default": 0}
