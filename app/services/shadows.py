@@ -4,11 +4,12 @@
 For the share of the fleet's people whose salted hash falls below the shadow's ``share``, every
 decision the robots were told is also decided by the candidate: once the episode has ended, the
 service's shadow pass (every ``ATTUNE_SHADOW_SECONDS``, one worker of the deployment at a time,
-by a lease, in a Python process of its own: :func:`pass_in_process`) replays the person's history into the candidate as the evaluation does (so that at
-each decision it knows what the robot's learner knew then), asks it at the decision's state,
-draws its action from its distribution, and stores both with the candidate's probability of the
-robot's action (``shadow_decisions``). Nothing of this runs in a robot's request: the robots'
-latency pays only for the pass's share of the worker's CPU (measured by ``bench/shadow.py``).
+by a lease, in a Python process of its own: :func:`pass_in_process`) replays the person's
+history into the candidate as the evaluation does (so that at each decision it knows what the
+robot's learner knew then), asks it at the decision's state, draws its action from its
+distribution, and stores both with the candidate's probability of the robot's action
+(``shadow_decisions``). Nothing of this runs in a robot's request: the robots' latency pays only
+for the pass's share of the machine's CPU (measured by ``bench/shadow.py``).
 
 A look (``GET .../shadow``) says how often the candidate would have done what the robot did,
 and the newest off-policy estimate of what it would have earned with the fleet's people over the
@@ -21,6 +22,7 @@ from __future__ import annotations
 import datetime as dt
 import json
 import logging
+import os
 import secrets
 import subprocess
 import sys
@@ -335,8 +337,9 @@ _PASSED = (
 def pass_in_process(settings: Settings, *, timeout: float = PASS_TIMEOUT_S) -> int:
     """One :func:`shadow_pass` in a Python process of its own, with the service's database and
     settings (given on its standard input, the key with them, never on its command line): the
-    replays do not share the worker's interpreter with the robots' requests. Its log lines go
-    to the worker's standard error. The process's exit status (0: done)."""
+    replays do not share the worker's interpreter with the robots' requests, and the process
+    runs at a lower priority (``nice`` 10), so that a busy machine serves the robots first. Its
+    log lines go to the worker's standard error. The process's exit status (0: done)."""
     given: dict[str, Any] = {name: getattr(settings, name) for name in _PASSED}
     given["mission_path"] = None if settings.mission_path is None else str(settings.mission_path)
     key = settings.database_key
@@ -364,6 +367,8 @@ def _main() -> int:
     from app.logs import logging_config
 
     given = json.loads(sys.stdin.buffer.read() or b"{}")
+    if hasattr(os, "nice"):
+        os.nice(10)  # the robots' requests first, when the machine is busy
     settings = Settings(_env_file=None, **given)  # type: ignore[call-arg]
     logging.config.dictConfig(logging_config(settings.log_level, settings.log_format))
     db = Database(settings)
