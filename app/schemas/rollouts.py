@@ -33,7 +33,10 @@ class RolloutIn(BaseModel):
 
 
 class RollbackIn(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(
+        extra="forbid",
+        json_schema_extra={"examples": [{"reason": "the night staff saw more refusals"}]},
+    )
 
     reason: str | None = Field(default=None, max_length=500, description="Why, for the record.")
 

@@ -22,14 +22,23 @@ VOLATILE = {"date", "x-request-id"}
 
 
 @pytest.fixture
-def world(admin: TestClient) -> dict[str, str]:
-    """User ``lin`` with one episode, for the routes that need ids."""
+def world(app: FastAPI, admin: TestClient) -> dict[str, str]:
+    """User ``lin`` with one episode, and the fleet's evaluation, shadow and rollout, for the
+    routes that need ids."""
     ep = start(admin, "lin", "e1", initiator="human", request=TEA)
+    body = {"request_id": "world", "candidates": [{"algorithm": "dts"}]}
+    evaluation = admin.post("/v1/admin/fleets/default/evaluations", json=body)
+    assert evaluation.status_code == 202, evaluation.text
+    candidate = {"candidate": {"algorithm": "dts"}, "share": 0.5}
+    assert admin.put("/v1/admin/fleets/default/shadow", json=candidate).status_code == 201
+    assert admin.put("/v1/admin/fleets/default/rollout", json=candidate).status_code == 201
+    app.state.rollout_mover.join(30)  # lin moved, if the hash says so, before the tests look
     return {
         "user_id": "lin",
         "episode_id": ep["episode_id"],
         "fleet": "default",
         "correction_id": "c1",
+        "evaluation_id": evaluation.json()["evaluation_id"],
     }
 
 
@@ -136,6 +145,7 @@ class TestAllow:
             "key_id": "key_x",
             "fleet": "default",
             "correction_id": "c1",
+            "evaluation_id": "ev_" + "0" * 32,
         }
         for template, item in app.openapi()["paths"].items():
             methods = {m.upper() for m in item}
@@ -180,6 +190,18 @@ def _routes_with_bodies(episode_id: str) -> list[tuple[str, str, dict[str, Any]]
         ),
         ("PUT", "/v1/users/lin/model", {"format": "attune.learner-state"}),
         ("POST", "/v1/admin/keys", {"role": "robot", "fleet": "default", "name": "r"}),
+        (
+            "POST",
+            "/v1/admin/fleets/default/evaluations",
+            {"request_id": "r", "candidates": [{"algorithm": "hri"}]},
+        ),
+        ("PUT", "/v1/admin/fleets/default/shadow", {"candidate": {"algorithm": "hri"}}),
+        (
+            "PUT",
+            "/v1/admin/fleets/default/rollout",
+            {"candidate": {"algorithm": "dts"}, "share": 1.0},
+        ),
+        ("POST", "/v1/admin/fleets/default/rollout/rollback", {"reason": "r"}),
     ]
 
 
@@ -259,8 +281,8 @@ class TestContentType:
                 else:
                     assert "415" not in op["responses"], (method, path)
         # users, episodes, outcomes, feedback, model, corrections, keys, mission, fleet prior,
-        # fleet history
-        assert seen == 10
+        # fleet history, evaluations, shadow, rollout, rollback
+        assert seen == 14
 
 
 # (path, parameter, lowest, highest): every integer query parameter of the API.
@@ -272,6 +294,7 @@ BOUNDED = [
     ("/v1/admin/views", "limit", 1, 500),
     ("/v1/users/lin/changes", "limit", 1, 500),
     ("/v1/admin/fleets/default/changes", "limit", 1, 500),
+    ("/v1/admin/fleets/default/evaluations", "limit", 1, 500),
     ("/v1/users/lin/stats", "last", 1, 1_000_000),
 ]
 OUT_OF_RANGE = [
@@ -387,7 +410,7 @@ class TestCursors:
                     assert "422" in param["description"], path
                     assert "next_cursor" in param["description"], path
                     assert "422" in op["responses"], path
-        assert seen == 7
+        assert seen == 8
 
     @pytest.mark.one_engine
     @pytest.mark.parametrize(

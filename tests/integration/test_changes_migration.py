@@ -68,7 +68,10 @@ def _fill(old: OldService) -> dict[str, Any]:
 
 def _view(api: Any) -> dict[str, Any]:
     return {
-        uid: [api.get(f"/v1/users/{uid}/{what}").json() for what in ("model", "profile")]
+        uid: [
+            release.later_fields_out(what, api.get(f"/v1/users/{uid}/{what}").json())
+            for what in ("model", "profile")
+        ]
         for uid in USERS
     }
 

@@ -77,7 +77,7 @@ def test_the_upgrade_keeps_everything_and_the_old_logs_can_be_evaluated(filled: 
     url, names, before, tables, rows_before = filled
     migrate.upgrade(url)
     assert revision(url) == migrate.head_revision()
-    assert set(table_names(url)) - set(tables) == {"evaluations"}
+    assert set(table_names(url)) - set(tables) >= {"evaluations"}  # and later releases' tables
     assert table_rows(url, tables) == rows_before
     assert scalars(url, "SELECT count(*) FROM evaluations") == [0]
     app = create_app(Settings(database_url=url, seed=0, _env_file=None))  # type: ignore[call-arg]

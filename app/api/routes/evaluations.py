@@ -29,7 +29,9 @@ Cursor = Annotated[
     str | None,
     Query(
         pattern=r"^ev_[0-9a-f]{32}$",
-        description="The next_cursor of the previous page (absent for the first).",
+        description="The `next_cursor` of the previous page, passed back unchanged; treat it as "
+        "opaque. A value that is not of the shape this API returns (the pattern) is refused "
+        "with 422, and so is one that names no evaluation of the fleet.",
     ),
 ]
 

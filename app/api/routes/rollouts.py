@@ -81,7 +81,9 @@ def promote_rollout(
 
 
 @router.post(
-    "/fleets/{fleet}/rollout/rollback", response_model=RolloutOut, responses=responses(403, 409)
+    "/fleets/{fleet}/rollout/rollback",
+    response_model=RolloutOut,
+    responses=responses(403, 409, 415),
 )
 def roll_back_rollout(
     fleet: FleetName,
