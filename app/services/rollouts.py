@@ -74,6 +74,11 @@ LEASE = "rollout-guard"
 """The lease of the guard's check (:class:`app.services.periodic.Periodic`)."""
 
 
+def new_salt() -> str:
+    """A fresh rollout's salt: 8 random bytes in hex, so that no two rollouts split a fleet alike."""
+    return secrets.token_hex(8)
+
+
 def hash_place(salt: str, user_id: str) -> float:
     """The person's place in [0, 1) for this rollout: a salted SHA-256 of their id."""
     digest = hashlib.sha256(f"{salt}\x00{user_id}".encode()).digest()
@@ -298,7 +303,7 @@ def put_rollout(
         algorithm=spec.algorithm,
         params=dict(spec.params),
         share=share,
-        salt=secrets.token_hex(8),
+        salt=new_salt(),
         status="running",
         started_at=now,
         started_by=principal.key_id,

@@ -23,6 +23,7 @@ from fastapi.testclient import TestClient
 from app.console import views
 from app.services import rollouts, shadows
 from tests.support import people
+from tests.support.arms import pin_even_salt
 from tests.support.episodes import play
 from tests.support.fixtures import MakeKey
 
@@ -126,6 +127,13 @@ def _people(robot: TestClient, n: int, episodes: int = 1) -> list[str]:
         for e in range(episodes):
             play(robot, user, f"{user}-e{e}", people.person(need=TEA))
     return users
+
+
+@pytest.fixture(autouse=True)
+def _even_arms(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Half of the people of each of these tests in each arm, give or take one: the tests
+    compare the arms (a random salt leaves one nearly empty now and then)."""
+    pin_even_salt(monkeypatch, [[f"p{i:02d}" for i in range(n)] for n in (4, 8, 12, 16)])
 
 
 @pytest.fixture
