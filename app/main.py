@@ -133,14 +133,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         shadows = None
         if settings.shadow_seconds > 0:
             # The shadows' candidates decide at the decisions of the episodes that ended.
-            shadows = Periodic(
-                db,
-                shadow_service.LEASE,
-                settings.shadow_seconds,
-                # In a process of its own: its replays do not share this worker's
-                # interpreter with the robots' requests.
-                lambda: shadow_service.pass_in_process(settings),
-                stopping=lambda: app.state.drain.draining,
+            # In a process of its own, started while a shadow runs: its replays do not
+            # share this worker's interpreter with the robots' requests.
+            shadows = shadow_service.PassProcess(
+                db, settings, stopping=lambda: app.state.drain.draining
             )
             shadows.start()
         daily = None

@@ -34,9 +34,10 @@ Of each phase it prints the robots' requests, p50, p99 and max of every request'
 server's CPU per request (all its processes, from /proc), the database's (PostgreSQL: its server
 processes of the benchmark's database, from /proc), each worker's worst event-loop stall
 (``attune_event_loop_stall_max_seconds`` of /metrics, read as ``bench/remote_db.py`` reads it),
-and the CPU of the shadow pass's own thread (``attune-shadows``: each worker's, found with
-``py-spy dump``, its CPU read from /proc/PID/task/TID; without py-spy the pass's CPU is not
-separated and only the difference in CPU per request says what it costs). Of the shadow phase
+and of it the CPU of the shadow passes (each pass runs in a Python process of its own that a
+worker starts, ``python -m app.services.shadows``: the CPU of such processes still running, read
+from /proc, plus the CPU of those that ended, which the kernel adds to the worker that waited
+for them, ``cutime`` and ``cstime``; the server's CPU counts both too). Of the shadow phase
 also the decisions the shadow stored (``GET .../shadow``) a second in the window, and once the
 robots stop, how many it stored in all after the pass caught up. Then both phases side by side
 with the ratios (shadow / no shadow: p50, p99, CPU per request), and the bound the docs give,
@@ -59,7 +60,7 @@ puts Debian's PgBouncer in transaction pooling between them (both as ``bench/ret
 
 Bounded: every robot request times out after 10 s (a history request after 30 s), each phase
 lasts ``--warmup`` + ``--seconds`` and the episodes in flight at its end, the wait for the pass
-to catch up at most 60 s and two passes, ``py-spy dump`` 20 s a process.
+to catch up at most 60 s and two passes.
 """
 
 from __future__ import annotations
@@ -70,13 +71,10 @@ import datetime as dt
 import json
 import math
 import os
-import re
-import shutil
-import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -105,7 +103,6 @@ P99_MARGIN_MS = 10.0  # ...and at most this much more
 REQUEST_TIMEOUT_S = 10.0  # a robot request of the phases
 HISTORY_TIMEOUT_S = 30.0  # a request of the history fill (a person's first one makes them)
 CATCH_UP_S = 60.0  # the longest wait for the pass to shadow the last episodes
-SPY_TIMEOUT_S = 20.0
 MAX_STEPS = 8  # a negotiation has at most four visible steps
 FILL_THREADS = 4
 REFERENCE = "no shadow"
@@ -127,13 +124,38 @@ def _ticks(stat_path: str) -> int | None:
     return int(fields[11]) + int(fields[12])  # utime, stime
 
 
-def threads_cpu_s(threads: Sequence[tuple[int, int]]) -> float:
-    """CPU seconds so far of the threads (pid, tid)."""
-    total = 0
-    for pid, tid in threads:
-        ticks = _ticks(f"/proc/{pid}/task/{tid}/stat")
-        total += ticks or 0
-    return total / _TICK
+def _pass_process(pid: int) -> bool:
+    """Whether process ``pid`` is a shadow pass (``python -m app.services.shadows``)."""
+    try:
+        argv = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
+    except OSError:
+        return False
+    return b"app.services.shadows" in argv
+
+
+def server_cpu_s(pgid: int) -> tuple[float, float]:
+    """CPU seconds so far of the server's process group, and of it the shadow passes'.
+
+    The server's: ``group_cpu_s`` (every process of the group as it runs) plus the CPU of the
+    group's children that ended and were waited for (``cutime`` + ``cstime``: the passes, each
+    a short-lived process of a worker). The passes': those ended ones plus those running now.
+    Between two readings each difference is the CPU spent in between, a pass that ran across a
+    reading included (its part before it counted at the first, its whole at the second)."""
+    reaped = 0
+    running = 0
+    for entry in os.listdir("/proc"):
+        if not entry.isdigit():
+            continue
+        try:
+            fields = Path(f"/proc/{entry}/stat").read_text().rsplit(")", 1)[1].split()
+        except (OSError, IndexError):
+            continue
+        if int(fields[2]) != pgid:  # pgrp
+            continue
+        reaped += int(fields[13]) + int(fields[14])  # cutime, cstime
+        if _pass_process(int(entry)):
+            running += int(fields[11]) + int(fields[12])  # utime, stime
+    return group_cpu_s(pgid) + reaped / _TICK, (reaped + running) / _TICK
 
 
 def database_ticks(name: str) -> dict[int, int]:
@@ -158,53 +180,6 @@ def database_cpu_s(before: dict[int, int], after: dict[int, int]) -> float:
     """CPU seconds of the database's processes between two readings (a process that ended in
     between is not counted; one that started is counted from 0)."""
     return sum(t - before.get(pid, 0) for pid, t in after.items()) / _TICK
-
-
-def group_pids(pgid: int) -> list[int]:
-    pids = []
-    for entry in os.listdir("/proc"):
-        if not entry.isdigit():
-            continue
-        try:
-            fields = Path(f"/proc/{entry}/stat").read_text().rsplit(")", 1)[1].split()
-        except (OSError, IndexError):
-            continue
-        if int(fields[2]) == pgid:
-            pids.append(int(entry))
-    return sorted(pids)
-
-
-_SPY_THREAD = re.compile(r'^Thread (\d+) \([^)]*\): "([^"]*)"', re.M)
-
-
-def shadow_threads(pgid: int) -> tuple[list[tuple[int, int]], str]:
-    """The (pid, tid) of every worker's shadow pass thread (``attune-shadows``, named by
-    app/services/periodic.py), found with ``py-spy dump`` in the server's processes; and why
-    none, when none."""
-    spy = shutil.which("py-spy") or str(Path(sys.executable).with_name("py-spy"))
-    if not Path(spy).exists():
-        return [], "py-spy is not installed: the pass's CPU is not separated"
-    found: list[tuple[int, int]] = []
-    why = ""
-    for pid in group_pids(pgid):
-        try:
-            done = subprocess.run(
-                [spy, "dump", "--pid", str(pid)],
-                capture_output=True,
-                text=True,
-                timeout=SPY_TIMEOUT_S,
-                check=False,
-            )
-        except subprocess.TimeoutExpired:
-            why = f"py-spy dump of {pid} did not finish"
-            continue
-        if done.returncode != 0:
-            why = f"py-spy dump of {pid}: {(done.stderr or done.stdout).strip()[:200]}"
-            continue
-        for tid, name in _SPY_THREAD.findall(done.stdout):
-            if name == "attune-shadows" and (pid, int(tid)) not in found:
-                found.append((pid, int(tid)))
-    return found, "" if found else (why or "no attune-shadows thread found")
 
 
 # -- the service ----------------------------------------------------------------------------------
@@ -372,7 +347,6 @@ class Robots:
     keys: list[str]
     people: list[str]
     steps: float  # requests per episode: the history's, then the first warm-up's
-    pass_threads: list[tuple[int, int]]
     database: str | None  # PostgreSQL: the database's name, for its processes' CPU
     calibrated: bool = False
 
@@ -415,13 +389,11 @@ def run_window(
             robots.calibrated = True
     decisions0 = count_decisions() if count_decisions is not None else None
     db0 = database_ticks(robots.database) if robots.database else {}
-    pass0 = threads_cpu_s(robots.pass_threads)
-    cpu0 = group_cpu_s(pgid)
+    cpu0, pass0 = server_cpu_s(pgid)
     began = time.monotonic()
     with StallWatch(service.url, args.seconds) as stalls:
         result = load(args.seconds, 0.0, tag)
-    cpu1 = group_cpu_s(pgid)
-    pass1 = threads_cpu_s(robots.pass_threads)
+    cpu1, pass1 = server_cpu_s(pgid)
     wall = time.monotonic() - began
     db1 = database_ticks(robots.database) if robots.database else {}
     decisions1 = count_decisions() if count_decisions is not None else None
@@ -511,15 +483,11 @@ def run_engine(engine: str, args: argparse.Namespace, folder: Path) -> dict[str,
             people = [f"shadow-{i:04d}" for i in range(args.people)]
             say(f"  history: {args.history} episodes of each of {args.people} people")
             fill = fill_history(service.url, keys, people, args.history)
-            threads, why = shadow_threads(service.process.pid)
-            if why:
-                say(f"  {why}")
             robots = Robots(
                 service,
                 keys,
                 people,
                 fill["requests_per_episode"],
-                threads,
                 make_url(where.direct_url).database if engine != "sqlite" else None,
             )
             windows: dict[str, list[Window]] = {REFERENCE: [], SHADOWED: []}
@@ -563,7 +531,7 @@ def run_engine(engine: str, args: argparse.Namespace, folder: Path) -> dict[str,
                     api(
                         service, staff, "DELETE", f"/v1/admin/fleets/{FLEET}/shadow"
                     ).raise_for_status()
-    separated = bool(threads)
+    separated = True  # the passes' processes are always found (their command line)
     database = robots.database is not None
     reference = summarize(REFERENCE, windows[REFERENCE], args.rate, separated, database)
     shadowed = summarize(SHADOWED, windows[SHADOWED], args.rate, separated, database)
@@ -574,8 +542,6 @@ def run_engine(engine: str, args: argparse.Namespace, folder: Path) -> dict[str,
         "workers": workers,
         "fill": fill,
         "requests_per_episode": robots.steps,  # what set the windows' episode rate
-        "pass_threads": [f"{pid}/{tid}" for pid, tid in threads],
-        "pass_threads_note": why,
         "phases": {p.name: asdict(p) for p in (reference, shadowed)},
         "ratios": {
             "p50": _ratio(shadowed.p50_ms, reference.p50_ms),
@@ -671,7 +637,11 @@ def render(doc: dict[str, Any]) -> str:
             _x(r["cpu_per_request"]),
         )
         if sh["pass_cpu_ms_per_request"] is not None:
-            row("  of it, the shadow pass's thread", "pass_cpu_ms_per_request", lambda v: _ms(v, 3))
+            row(
+                "  of it, the shadow passes' processes",
+                "pass_cpu_ms_per_request",
+                lambda v: _ms(v, 3),
+            )
             row(
                 "the pass's CPU, share of a core",
                 "pass_cpu_share",
@@ -708,10 +678,7 @@ def render(doc: dict[str, Any]) -> str:
                 else ""
             )
         )
-        add(
-            f"  CPU per request: {e['cpu_ms_per_request_added']:+.3f} ms with the shadow"
-            + ("" if not e["pass_threads_note"] else f" ({e['pass_threads_note']})")
-        )
+        add(f"  CPU per request: {e['cpu_ms_per_request_added']:+.3f} ms with the shadow")
         b = e["bound"]
         add(
             f"  bound: p99 with the shadow at most {P99_RATIO:g}× {_ms(ref['p99_ms'])} ms and at "

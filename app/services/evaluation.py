@@ -64,6 +64,7 @@ from __future__ import annotations
 import dataclasses
 import datetime as dt
 import hashlib
+from collections import OrderedDict
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -471,6 +472,7 @@ class _History:
     logged: list[float]
     reward: list[float]
     skipped: dict[str, int] = field(default_factory=dict)  # episodes not counted, by reason
+    base_version: int = 0  # the model version of the person's base
 
 
 def _aware(at: dt.datetime | None) -> dt.datetime | None:
@@ -504,12 +506,69 @@ def _read_person(
     others counted by reason in ``skipped``)."""
     model = PersonModel.open(session, ctx, user)
     head = model.head
-    fleet = user.fleet
+    history, moves = _history_of(session, ctx, user, model, None, head.base_mission_version)
+    episodes: list[EpisodeRow] = []
+    before: int | None = None
+    while True:
+        page = episodes_repo.list_page(session, user.id, before_seq=before, limit=EPISODE_PAGE)
+        episodes.extend(page)
+        if len(page) < EPISODE_PAGE:
+            break
+        before = page[-1].seq
+    episodes.sort(key=lambda e: e.seq)
+    drawn = episodes_repo.decisions_for_rebuild(session, user.id, head.base_version)
+    _ask(session, history, episodes, drawn, moves, since, until, whole=False)
+    return history
+
+
+def _read_since(
+    session: Session, ctx: ServiceContext, user: UserRow, resume: _Resume
+) -> _History | None:
+    """What a candidate taught up to version ``resume.applied`` still needs of the person's
+    history: the journal's version groups after it, and the episodes of the decisions drawn
+    from it on (all of theirs): read in a few small queries, whatever the history's length.
+    None when that is not the whole of what is new (the model's base moved, or an episode was
+    partly drawn before that version): then the history is read whole."""
+    model = PersonModel.open(session, ctx, user)
+    head = model.head
+    if (head.base_version, head.base_mission_version) != resume.base:
+        return None
+    history, moves = _history_of(
+        session, ctx, user, model, resume.applied, resume.layout, base=False
+    )
+    drawn = episodes_repo.decisions_for_rebuild(session, user.id, max(resume.applied, 0))
+    episodes = []
+    for episode_id in dict.fromkeys(d.episode_id for d, _, _ in drawn):
+        episode = episodes_repo.get(session, episode_id)
+        if episode is None:
+            return None
+        episodes.append(episode)
+    episodes.sort(key=lambda e: e.seq)
+    if not _ask(session, history, episodes, drawn, moves, None, None, whole=True):
+        return None
+    return history
+
+
+def _history_of(
+    session: Session,
+    ctx: ServiceContext,
+    user: UserRow,
+    model: PersonModel,
+    after: int | None,
+    layout: int,
+    *,
+    base: bool = True,
+) -> tuple[_History, list[tuple[int, int]]]:
+    """The person's journal groups (since the base, or after version ``after``), their rules,
+    the missions they were laid out for, and the mission moves among them, starting from the
+    mission version ``layout``; with the base's document unless ``base`` is False (a replay
+    that resumes a candidate does not start one)."""
+    head = model.head
     layouts = {
-        v: ctx.missions.get(session, fleet, v)
+        v: ctx.missions.get(session, user.fleet, v)
         for v in range(head.base_mission_version, head.mission_version + 1)
     }
-    groups = list(model.history())
+    groups = list(model.history(after))
     rules: dict[int, Rule] = {}
     moves: list[tuple[int, int]] = []
     for g in groups:
@@ -521,8 +580,8 @@ def _read_person(
     history = _History(
         user_id=user.user_id,
         algorithm=user.algorithm,
-        base_doc=model.base_document(),
-        base_layout=head.base_mission_version,
+        base_doc=model.base_document() if base else None,
+        base_layout=layout,
         layouts=layouts,
         groups=groups,
         rules=rules,
@@ -530,19 +589,27 @@ def _read_person(
         lengths=[],
         logged=[],
         reward=[],
+        base_version=head.base_version,
     )
-    skipped = history.skipped
+    return history, moves
 
-    episodes: list[EpisodeRow] = []
-    before: int | None = None
-    while True:
-        page = episodes_repo.list_page(session, user.id, before_seq=before, limit=EPISODE_PAGE)
-        episodes.extend(page)
-        if len(page) < EPISODE_PAGE:
-            break
-        before = page[-1].seq
-    episodes.sort(key=lambda e: e.seq)
-    drawn = episodes_repo.decisions_for_rebuild(session, user.id, head.base_version)
+
+def _ask(
+    session: Session,
+    history: _History,
+    episodes: list[EpisodeRow],
+    drawn: list[tuple[DecisionRow, int, int]],
+    moves: list[tuple[int, int]],
+    since: dt.datetime | None,
+    until: dt.datetime | None,
+    *,
+    whole: bool,
+) -> bool:
+    """Fill ``history`` with the episodes that count (in ``episodes``, with their ``drawn``
+    decisions) and what is asked at their decisions, in the order the decisions were drawn;
+    the others counted by reason. ``whole``: False (and nothing filled) when a closed episode
+    lacks some of its decisions among ``drawn``."""
+    skipped = history.skipped
     by_episode: dict[str, list[DecisionRow]] = {}
     for decision, _, _ in drawn:
         by_episode.setdefault(decision.episode_id, []).append(decision)
@@ -559,10 +626,12 @@ def _read_person(
             continue
         decisions = sorted(by_episode.get(episode.id, []), key=lambda d: d.position)
         if [d.position for d in decisions] != list(range(len(decisions))) or not decisions:
+            if whole:
+                return False
             skipped["before the model's base"] = skipped.get("before the model's base", 0) + 1
             continue
         if any(
-            _layout_at(moves, head.base_mission_version, d.model_version) != episode.mission_version
+            _layout_at(moves, history.base_layout, d.model_version) != episode.mission_version
             for d in decisions
         ) or not all(d.reward is not None for d in decisions):
             skipped["unusable"] = skipped.get("unusable", 0) + 1
@@ -574,7 +643,7 @@ def _read_person(
         asked_of.update(made)
     # In the order the decisions were drawn (the models' versions go up in it).
     history.asked = [asked_of[d.id] for d, _, _ in drawn if d.id in asked_of]
-    return history
+    return True
 
 
 def _episode_steps(
@@ -683,6 +752,56 @@ def _start(spec: CandidateSpec, history: _History) -> TabularLearner[Any]:
     return learner
 
 
+@dataclass
+class _Resume:
+    """A candidate as a replay of one person left it: taught every version group of their
+    journal up to ``applied``, laid out for mission version ``layout``; ``base``: the person's
+    model base it started from (their base version and its mission version)."""
+
+    base: tuple[int, int]
+    learner: TabularLearner[Any]
+    layout: int
+    applied: int
+
+
+class ReplayCache:
+    """Candidates left as their last replay left them, by a key of the caller's (the shadow
+    and the person): a later replay of the same person teaches only the version groups written
+    since, instead of their whole journal again. An entry whose person's model base moved (a
+    compaction or a rebuild) is not used. At most ``size`` entries, the least recently used
+    dropped first. One thread's: the shadows' pass process keeps one between its passes."""
+
+    def __init__(self, size: int = 2_000) -> None:
+        self.size = size
+        self._items: OrderedDict[Any, _Resume] = OrderedDict()
+        self.hits = 0
+        self.misses = 0
+        self.rereads = 0  # hits whose new part could not be read alone: read whole
+
+    def __len__(self) -> int:
+        return len(self._items)
+
+    def get(self, key: Any, base: tuple[int, int]) -> _Resume | None:
+        item = self._items.get(key)
+        if item is None or item.base != base:
+            self.misses += 1
+            return None
+        self._items.move_to_end(key)
+        self.hits += 1
+        return item
+
+    def put(self, key: Any, item: _Resume) -> None:
+        self._items[key] = item
+        self._items.move_to_end(key)
+        while len(self._items) > self.size:
+            self._items.popitem(last=False)
+
+    def drop(self, where: Callable[[Any], bool]) -> None:
+        """Forget the entries whose key ``where`` says (a shadow that stopped)."""
+        for key in [k for k in self._items if where(k)]:
+            del self._items[key]
+
+
 def _replay(
     fleet: str,
     history: _History,
@@ -690,13 +809,20 @@ def _replay(
     on_asked: Callable[[_Asked, list[FloatArray], Any], None] | None = None,
     *,
     model: bool = True,
+    resume: _Resume | None = None,
 ) -> _Replayed:
+    """The candidate replayed through the person's history: taught each version group of
+    their journal in order, asked at each decision of ``history.asked`` once it knows what the
+    robot's learner knew then. From ``resume`` (taught up to its ``applied`` version) when
+    given, which it leaves as the replay ends."""
     n = len(history.logged)
     out = _Replayed(
         target=np.ones(n), unsupported=np.zeros(n), q_hat=np.zeros(n), v_hat=np.zeros(n)
     )
-    learner = _start(spec, history)
-    layout = history.base_layout
+    if resume is not None:
+        learner, layout, applied = resume.learner, resume.layout, resume.applied
+    else:
+        learner, layout, applied = _start(spec, history), history.base_layout, -1
     layouts, rules = history.layouts, history.rules
 
     def move(current: TabularLearner[Any], old: int, new: int) -> TabularLearner[Any]:
@@ -709,7 +835,7 @@ def _replay(
 
     seed = _seed(fleet, history.user_id, spec)
     logged = history.logged
-    groups = iter(history.groups)
+    groups = iter([g for g in history.groups if g[0].version > applied])
     pending = next(groups, None)
     for asked in history.asked:
         while pending is not None and pending[0].version <= asked.model_version:
@@ -717,6 +843,7 @@ def _replay(
                 learner, layout = apply(learner, pending, layout=layout, rules=rule, move=move)
             except (ValueError, KeyError):
                 out.refused += 1
+            applied = pending[0].version
             pending = next(groups, None)
         rng = np.random.default_rng([*seed, asked.episode, asked.position])
         mine = learner.distributions(asked.context, asked.states, asked.episode, rng)
@@ -738,6 +865,8 @@ def _replay(
                 out.unsupported[row] = min(1.0 - out.target[row], float(ours[theirs <= 0.0].sum()))
             elif logged[row] >= 1.0:  # a silent step the logger was sure of: nothing else
                 out.unsupported[row] = 1.0 - out.target[row]
+    if resume is not None:
+        resume.learner, resume.layout, resume.applied = learner, layout, applied
     return out
 
 
@@ -769,14 +898,20 @@ def shadow_decisions(
     *,
     since: dt.datetime,
     done: set[str],
+    cache: ReplayCache | None = None,
+    key: Any = None,
 ) -> list[ShadowDecision]:
     """The candidate's decisions at the person's decisions drawn at or after ``since`` (and not
     in ``done``) of their closed episodes: the candidate replayed through their history as the
     evaluation replays it (so it knows what the robot's learner knew at each), asked at each
     decision the robot's learner chose (the forced ones are the person's). Its action is drawn
     from a generator seeded by the person, the candidate and the decision: the same logs give
-    the same decisions."""
-    history = _read_person(session, ctx, user, None, None)
+    the same decisions.
+
+    With ``cache``, the candidate is taken up where the last replay of ``key`` (the shadow and
+    the person) left it, and left there for the next: taught only the version groups written
+    since, the same candidate as a replay from the base (what it is taught does not depend on
+    what it was asked), at a cost that does not grow with the person's history."""
     found: list[ShadowDecision] = []
     seed = _seed(user.fleet, user.user_id, spec)
 
@@ -803,19 +938,50 @@ def shadow_decisions(
             )
         )
 
-    # Only the decisions still to shadow are asked about: the candidate is still taught the
-    # whole history in order (teaching is cheap), but asks nothing at the older decisions.
-    history.asked = [
-        a
-        for a in history.asked
-        if a.visible
-        and a.decided_at is not None
-        and a.decision_id not in done
-        and _utc(a.decided_at) >= since
-    ]
-    if history.asked:
-        _replay(user.fleet, history, spec, on_asked=asked_at, model=False)
+    def still_to_ask(history: _History) -> list[_Asked]:
+        # Only the decisions still to shadow are asked about: the candidate is still taught
+        # the whole history in order, but asks nothing at the older decisions.
+        return [
+            a
+            for a in history.asked
+            if a.visible
+            and a.decided_at is not None
+            and a.decision_id not in done
+            and _utc(a.decided_at) >= since
+        ]
+
+    resume = None if cache is None else cache.get(key, _base_of(session, ctx, user))
+    history = None if resume is None else _read_since(session, ctx, user, resume)
+    if history is not None and resume is not None:
+        history.asked = still_to_ask(history)
+        if history.asked and resume.applied > min(a.model_version for a in history.asked):
+            history = None  # taught past a decision still to shadow (its store failed)
+    if history is None and resume is not None and cache is not None:
+        cache.rereads += 1
+    if history is None:
+        resume = None
+        history = _read_person(session, ctx, user, None, None)
+        history.asked = still_to_ask(history)
+    if not history.asked:
+        return found
+    if cache is not None and resume is None:
+        base = (history.base_version, history.base_layout)
+        resume = _Resume(base, _start(spec, history), history.base_layout, -1)
+    try:
+        _replay(user.fleet, history, spec, on_asked=asked_at, model=False, resume=resume)
+    except BaseException:
+        if cache is not None:
+            cache.drop(lambda k: k == key)  # half taught
+        raise
+    if cache is not None and resume is not None:
+        cache.put(key, resume)
     return found
+
+
+def _base_of(session: Session, ctx: ServiceContext, user: UserRow) -> tuple[int, int]:
+    """The person's model base: its version and the mission version it was laid out for."""
+    head = PersonModel.open(session, ctx, user).head
+    return head.base_version, head.base_mission_version
 
 
 def relearned(

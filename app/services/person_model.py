@@ -640,11 +640,13 @@ class PersonModel:
         when the base is a fresh learner."""
         return repo.base_state(self.session, self.user.id)
 
-    def history(self) -> Iterator[list[journal.Entry]]:
-        """The journal since the base, one version's entries at a time, in order, without the
-        bases themselves (what a replay teaches), read a page at a time."""
+    def history(self, after: int | None = None) -> Iterator[list[journal.Entry]]:
+        """The journal since the base (or since version ``after``, when later), one version's
+        entries at a time, in order, without the bases themselves (what a replay teaches),
+        read a page at a time."""
+        lower = self.head.base_version if after is None else max(after, self.head.base_version)
         entries = journal.entries_between(
-            self.session, self.user.id, self.head.base_version, self.head.version, page=JOURNAL_PAGE
+            self.session, self.user.id, lower, self.head.version, page=JOURNAL_PAGE
         )
         return (g for g in _by_version(entries) if g[0].kind not in journal.BASE_KINDS)
 

@@ -75,7 +75,7 @@ LEASE = "rollout-guard"
 
 
 def new_salt() -> str:
-    """A fresh rollout's salt: 8 random bytes in hex, so that no two rollouts split a fleet alike."""
+    """A fresh rollout's salt, 8 random bytes in hex: no two rollouts split a fleet alike."""
     return secrets.token_hex(8)
 
 

@@ -4,7 +4,7 @@
 For the share of the fleet's people whose salted hash falls below the shadow's ``share``, every
 decision the robots were told is also decided by the candidate: once the episode has ended, the
 service's shadow pass (every ``ATTUNE_SHADOW_SECONDS``, one worker of the deployment at a time,
-by a lease, in a Python process of its own: :func:`pass_in_process`) replays the person's
+by a lease, in a Python process of its own: :class:`PassProcess`) replays the person's
 history into the candidate as the evaluation does (so that at each decision it knows what the
 robot's learner knew then), asks it at the decision's state, draws its action from its
 distribution, and stores both with the candidate's probability of the robot's action
@@ -19,6 +19,7 @@ every ``ATTUNE_SHADOW_ESTIMATE_MINUTES`` by the pass).
 
 from __future__ import annotations
 
+import contextlib
 import datetime as dt
 import json
 import logging
@@ -26,10 +27,13 @@ import os
 import secrets
 import subprocess
 import sys
+import threading
+from collections.abc import Callable
 from typing import Any
 
 from sqlalchemy.orm import Session
 
+from app.db.repositories import leases as leases_repo
 from app.db.repositories import shadows as repo
 from app.db.repositories import users as users_repo
 from app.db.repositories.shadows import ShadowRow
@@ -39,14 +43,21 @@ from app.errors import Conflict, Forbidden, NotFound, ValidationFailed
 from app.logs import FIELDS
 from app.settings import Settings
 
-from . import audit
+from . import audit, leases
 from .auth import require_manager
 from .context import Principal, ServiceContext
-from .evaluation import CandidateSpec, candidate_spec, evaluate_fleet, shadow_decisions
+from .evaluation import (
+    CandidateSpec,
+    ReplayCache,
+    candidate_spec,
+    evaluate_fleet,
+    shadow_decisions,
+)
 from .rollouts import hash_place
 
 __all__ = [
     "LEASE",
+    "PassProcess",
     "pass_in_process",
     "put_shadow",
     "shadow_pass",
@@ -233,15 +244,24 @@ def shadow_pass(
     now: dt.datetime | None = None,
     max_people: int = PASS_PEOPLE,
     estimate: bool = True,
+    cache: ReplayCache | None = None,
+    stopping: Callable[[], bool] = lambda: False,
 ) -> dict[str, int]:
     """One pass over every running shadow: the candidate decides at the decisions of the
     episodes closed since the last pass, and its off-policy estimate is made again when it is
-    older than ``ATTUNE_SHADOW_ESTIMATE_MINUTES``. The decisions stored, by fleet."""
+    older than ``ATTUNE_SHADOW_ESTIMATE_MINUTES``. The decisions stored, by fleet.
+
+    ``cache`` (the pass process's, kept between its passes) holds each person's candidate as
+    the last pass left it, so that a pass teaches it only what is new. ``stopping()`` true ends
+    the pass after the person in hand (the episodes it did not reach are looked at again)."""
     now = now or utcnow()
     upto = now - SETTLE
     with db.transaction(write=False) as session:
         shadows = repo.running(session)
     added: dict[str, int] = {}
+    if cache is not None:  # the candidates of shadows that stopped
+        live = {row.id for row in shadows}
+        cache.drop(lambda key: key[0] not in live)
     for row in shadows:
         spec = _spec_of(row)
         with db.transaction(write=False) as session:
@@ -253,10 +273,23 @@ def shadow_pass(
                 if user is not None and hash_place(row.salt, user.user_id) < row.share:
                     people.append(user)
         n = 0
+        reached = 0
         for user in people[:max_people]:
+            if stopping():
+                break
+            reached += 1
             with db.transaction(write=False) as session:
                 done = repo.done_for(session, row.id, user.id)
-                found = shadow_decisions(session, ctx, user, spec, since=row.started_at, done=done)
+                found = shadow_decisions(
+                    session,
+                    ctx,
+                    user,
+                    spec,
+                    since=row.started_at,
+                    done=done,
+                    cache=cache,
+                    key=(row.id, user.id),
+                )
             rows = [
                 {
                     "decision_id": d.decision_id,
@@ -275,14 +308,14 @@ def shadow_pass(
             with db.transaction() as session:
                 repo.add_decisions(session, rows)
             n += len(rows)
-        if len(people) <= max_people:
+        if reached == len(people):  # every person with a closed episode: checked up to here
             with db.transaction() as session:
                 repo.checked(session, row.id, upto)
         added[row.fleet] = n
         stale = row.estimated_at is None or now - row.estimated_at >= dt.timedelta(
             minutes=ctx.settings.shadow_estimate_minutes
         )
-        if estimate and stale:
+        if estimate and stale and not stopping():
             _estimate(db, ctx, row, spec, now)
         if n:
             log.info(
@@ -290,7 +323,7 @@ def shadow_pass(
                 row.id,
                 row.fleet,
                 n,
-                min(len(people), max_people),
+                reached,
                 extra={FIELDS: {"shadow": row.id, "fleet": row.fleet, "decisions": n}},
             )
     return added
@@ -313,10 +346,6 @@ def _estimate(
 # ---------------------------------------------------------------------------------------------
 # The pass in a process of its own
 
-PASS_TIMEOUT_S = 15 * 60
-"""A pass in a process of its own that runs longer than this is stopped (the next one goes on
-from where it stopped: what it stored stays, and the episodes it did not reach are looked at
-again)."""
 # What the pass's process needs of the service's settings; the rest keep their defaults.
 _PASSED = (
     "database_url",
@@ -327,53 +356,200 @@ _PASSED = (
     "mission_path",
     "model_cache_size",
     "snapshot_every",
+    "shadow_seconds",
     "shadow_estimate_minutes",
     "evaluation_max_minutes",
     "log_level",
     "log_format",
 )
+STOP_WAIT_S = 10.0
+"""How long a worker that stops waits for its pass process to end before it stops it."""
 
 
-def pass_in_process(settings: Settings, *, timeout: float = PASS_TIMEOUT_S) -> int:
-    """One :func:`shadow_pass` in a Python process of its own, with the service's database and
-    settings (given on its standard input, the key with them, never on its command line): the
-    replays do not share the worker's interpreter with the robots' requests, and the process
-    runs at a lower priority (``nice`` 10), so that a busy machine serves the robots first. Its
-    log lines go to the worker's standard error. The process's exit status (0: done)."""
+def _given(settings: Settings) -> bytes:
+    """The settings the pass's process needs, as one line of JSON (the database key with them:
+    on its standard input, never on its command line)."""
     given: dict[str, Any] = {name: getattr(settings, name) for name in _PASSED}
     given["mission_path"] = None if settings.mission_path is None else str(settings.mission_path)
     key = settings.database_key
     if key is not None:
         given["db_key"] = key.get_secret_value()
+    return json.dumps(given).encode() + b"\n"
+
+
+def work_waiting(db: Database, *, now: dt.datetime | None = None) -> bool:
+    """Whether a pass process should start: a shadow runs, and no process of the deployment
+    holds the shadows' lease. Two small reads: what a worker pays every
+    ``ATTUNE_SHADOW_SECONDS`` when no shadow runs."""
+    now = now or utcnow()
+    with db.transaction(write=False) as session:
+        if not repo.running(session):
+            return False
+        current = leases_repo.get(session, LEASE)
+    return current is None or _utc(current.expires_at) <= now
+
+
+def _utc(at: dt.datetime) -> dt.datetime:
+    return at if at.tzinfo is not None else at.replace(tzinfo=dt.UTC)
+
+
+def pass_in_process(settings: Settings, *, timeout: float = 15 * 60) -> int:
+    """The pass's process (:func:`_main`) run to its end: it passes until no shadow runs (or
+    at once when another process holds the lease). Its exit status (0: done)."""
     try:
         done = subprocess.run(
             [sys.executable, "-m", "app.services.shadows"],
-            input=json.dumps(given).encode(),
+            input=_given(settings),
             timeout=timeout,
             check=False,
         )
     except subprocess.TimeoutExpired:
-        log.warning("The shadows' pass ran longer than %.0f s and was stopped.", timeout)
+        log.warning("The shadows' pass process ran longer than %.0f s and was stopped.", timeout)
         return -1
-    if done.returncode != 0:
-        log.warning("The shadows' pass ended with status %d.", done.returncode)
     return done.returncode
 
 
+class PassProcess:
+    """This worker's side of the shadows' pass: every ``ATTUNE_SHADOW_SECONDS`` a thread
+    (``attune-shadows``) looks whether a shadow runs and nobody holds the shadows' lease
+    (:func:`work_waiting`); if so, it starts the pass's process, ``python -m
+    app.services.shadows`` (:func:`_main`), with the settings on its standard input, and leaves
+    it be while it runs. That process takes the lease, runs a pass every
+    ``ATTUNE_SHADOW_SECONDS`` while a shadow runs, and ends when none does, when it loses the
+    lease, or when its standard input closes (this worker stopped, or died).
+
+    A process of its own, at a lower priority (``nice`` 10), so that the replays do not share
+    a worker's interpreter with the robots' requests and a busy machine serves the robots
+    first; long-lived, so that Python's start (a second and more of CPU) is paid once per
+    shadow, not once per pass, and what it replayed stays learned between passes (its
+    :class:`ReplayCache`). Without a shadow nothing starts."""
+
+    def __init__(
+        self, db: Database, settings: Settings, *, stopping: Callable[[], bool] = lambda: False
+    ) -> None:
+        self.db, self.settings, self.stopping = db, settings, stopping
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._process: subprocess.Popen[bytes] | None = None
+        self._lock = threading.Lock()
+
+    def start(self) -> None:
+        self._thread = threading.Thread(target=self._loop, name="attune-shadows", daemon=True)
+        self._thread.start()
+
+    def _loop(self) -> None:
+        while not self._stop.wait(self.settings.shadow_seconds):
+            if self.stopping():
+                self._end()
+                return
+            try:
+                self.tick()
+            except Exception:
+                log.exception(
+                    "Could not look for the shadows' work; looking again in %.0f s.",
+                    self.settings.shadow_seconds,
+                )
+
+    def running(self) -> bool:
+        """Whether this worker's pass process runs."""
+        with self._lock:
+            return self._process is not None and self._process.poll() is None
+
+    def tick(self) -> bool:
+        """Start the pass's process if it should run and does not (True when it started)."""
+        with self._lock:
+            process = self._process
+            if process is not None:
+                status = process.poll()
+                if status is None:
+                    return False
+                if status != 0:
+                    log.warning("The shadows' pass process ended with status %d.", status)
+                if process.stdin is not None:
+                    with contextlib.suppress(OSError):
+                        process.stdin.close()
+                self._process = None
+            if self._stop.is_set() or not work_waiting(self.db):
+                return False
+            process = subprocess.Popen(
+                [sys.executable, "-m", "app.services.shadows"], stdin=subprocess.PIPE
+            )
+            assert process.stdin is not None
+            process.stdin.write(_given(self.settings))
+            process.stdin.flush()  # kept open: its end tells the process to stop
+            self._process = process
+            return True
+
+    def _end(self, timeout: float = STOP_WAIT_S) -> None:
+        with self._lock:
+            process, self._process = self._process, None
+        if process is None:
+            return
+        if process.stdin is not None:
+            with contextlib.suppress(OSError):
+                process.stdin.close()
+        try:
+            process.wait(timeout)
+        except subprocess.TimeoutExpired:
+            log.warning("The shadows' pass process did not end in %.0f s; stopping it.", timeout)
+            process.terminate()
+            try:
+                process.wait(timeout)
+            except subprocess.TimeoutExpired:
+                process.kill()
+                process.wait()
+
+    def stop(self, timeout: float = STOP_WAIT_S) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout)
+        self._end(timeout)
+
+
 def _main() -> int:
-    """The pass's process: settings as JSON on standard input."""
+    """The pass's process: its settings as a line of JSON on standard input, which stays open
+    until the worker stops (see :class:`PassProcess`)."""
     import logging.config
 
     from app.logs import logging_config
 
-    given = json.loads(sys.stdin.buffer.read() or b"{}")
+    given = json.loads(sys.stdin.buffer.readline() or b"{}")
+    closed = threading.Event()
+
+    def watch() -> None:  # the worker closed the pipe, or died
+        with contextlib.suppress(OSError, ValueError):
+            while sys.stdin.buffer.read(4096):
+                pass
+        closed.set()
+
+    threading.Thread(target=watch, name="attune-shadows-stdin", daemon=True).start()
     if hasattr(os, "nice"):
         os.nice(10)  # the robots' requests first, when the machine is busy
     settings = Settings(_env_file=None, **given)  # type: ignore[call-arg]
     logging.config.dictConfig(logging_config(settings.log_level, settings.log_format))
     db = Database(settings)
+    ctx = ServiceContext.from_settings(settings)
+    cache = ReplayCache()
     try:
-        shadow_pass(db, ServiceContext.from_settings(settings))
+        with leases.held(db, LEASE) as lease:
+            while True:  # a first pass even when the pipe is closed already (pass_in_process)
+                lease.check()
+                with db.transaction(write=False) as session:
+                    if not repo.running(session):
+                        break
+                try:
+                    shadow_pass(db, ctx, cache=cache)
+                except Exception:
+                    log.exception(
+                        "The shadows' pass failed; it runs again in %.0f s.",
+                        settings.shadow_seconds,
+                    )
+                if closed.wait(max(settings.shadow_seconds, 0.5)):
+                    break
+    except leases.LeaseHeld:
+        pass  # another process passes
+    except leases.LeaseLost as exc:
+        log.warning("The shadows' pass stopped: %s", exc)
     finally:
         db.dispose()
     return 0

@@ -7,6 +7,7 @@ nothing after it stopped."""
 from __future__ import annotations
 
 import datetime as dt
+import time
 from typing import Any
 
 import pytest
@@ -15,13 +16,17 @@ from fastapi.testclient import TestClient
 from sqlalchemy import select
 
 from app.db.models import Decision, ShadowDecision
+from app.db.repositories import shadows as repo
+from app.db.repositories import users as users_repo
 from app.services import shadows
+from app.services.evaluation import ReplayCache, shadow_decisions
 from app.services.rollouts import hash_place
 from tests.support import people
 from tests.support.episodes import play, start
 
 URL = "/v1/admin/fleets/default/shadow"
 TEA = ("ProvideDrink", "tea")
+WAIT_S = 120.0  # a bound on how long the pass process may take to start and pass
 
 
 def _later() -> dt.datetime:
@@ -199,8 +204,6 @@ def test_the_service_runs_the_pass_in_a_process_of_its_own(
         assert robot.put(f"/v1/users/{user}", json={}).status_code == 201
     assert staff.put(URL, json={"candidate": {"algorithm": "dts"}}).status_code == 201
     _fill(robot, users, 2, "e", occurred_at=_now())
-    import time
-
     time.sleep(shadows.SETTLE.total_seconds() + 0.5)  # past the pass's settling time
     assert shadows.pass_in_process(app.state.settings, timeout=120) == 0
     look = staff.get(URL).json()
@@ -208,3 +211,113 @@ def test_the_service_runs_the_pass_in_a_process_of_its_own(
     assert look["people"] == len(users)
     assert look["estimate"] is not None
     assert shadows.shadow_pass(app.state.db, app.state.ctx, now=_later()) == {"default": 0}
+
+
+def test_a_pass_that_keeps_its_candidates_decides_as_a_replay_from_the_base(
+    app: FastAPI, robot: TestClient, staff: TestClient, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The pass process keeps each person's candidate between its passes (``ReplayCache``) and
+    teaches it only what is new: what it stores is what a replay of the whole history decides."""
+    monkeypatch.setattr(shadows, "SETTLE", dt.timedelta(0))
+    users = [f"k{i}" for i in range(4)]
+    for user in users:
+        assert robot.put(f"/v1/users/{user}", json={}).status_code == 201
+    _fill(robot, users, 2, "before")
+    assert staff.put(URL, json={"candidate": {"algorithm": "dts"}}).status_code == 201
+    cache = ReplayCache()
+    for round_ in range(3):
+        _fill(robot, users, 2, f"r{round_}-", occurred_at=_now())
+        if round_ == 1:  # a staff correction of one of them, taught between two passes
+            quiet = {
+                "correction_id": "c1",
+                "time_slot": "afternoon",
+                "situation": "stretching",
+                "kind": "quiet",
+            }
+            r = staff.post(f"/v1/users/{users[0]}/corrections", json=quiet)
+            assert r.status_code == 201, r.text
+            _fill(robot, users[:1], 1, "quiet", occurred_at=_now())
+        time.sleep(0.01)
+        added = shadows.shadow_pass(app.state.db, app.state.ctx, cache=cache, estimate=False)
+        assert added["default"] > 0
+    assert len(cache) == len(users)
+    assert cache.hits >= 2 * len(users)  # the later passes took up where the first left off
+    assert cache.rereads == 0  # ...and read only what was new
+    db, ctx = app.state.db, app.state.ctx
+    with db.transaction(write=False) as session:
+        (row,) = repo.running(session)
+        stored = {
+            d: (action, probabilities)
+            for d, action, probabilities in session.execute(
+                select(
+                    ShadowDecision.decision_id, ShadowDecision.action, ShadowDecision.probabilities
+                )
+            )
+        }
+        fresh = {}
+        for user in users:
+            found = users_repo.get(session, "default", user)
+            assert found is not None
+            for d in shadow_decisions(
+                session, ctx, found, shadows._spec_of(row), since=row.started_at, done=set()
+            ):
+                fresh[d.decision_id] = (d.action, d.probabilities)
+    assert stored.keys() == fresh.keys()
+    for decision_id, (action, probabilities) in fresh.items():
+        assert stored[decision_id][0] == action
+        assert stored[decision_id][1] == pytest.approx(probabilities, abs=1e-12)
+
+
+def test_the_worker_starts_the_pass_process_only_while_a_shadow_runs(
+    app: FastAPI, robot: TestClient, staff: TestClient
+) -> None:
+    """What each worker runs (``PassProcess``): without a shadow it starts nothing; with one, a
+    pass process of its own, which stores the shadow's decisions and holds the lease (another
+    worker starts none meanwhile); it ends when the shadow stops, and with the worker."""
+    settings = app.state.settings.model_copy(update={"shadow_seconds": 1.0})
+    worker = shadows.PassProcess(app.state.db, settings)
+    other = shadows.PassProcess(app.state.db, settings)
+    try:
+        assert not worker.tick()  # no shadow
+        assert not worker.running()
+        users = [f"w{i}" for i in range(3)]
+        for user in users:
+            assert robot.put(f"/v1/users/{user}", json={}).status_code == 201
+        assert staff.put(URL, json={"candidate": {"algorithm": "dts"}}).status_code == 201
+        _fill(robot, users, 2, "e", occurred_at=_now())
+        assert worker.tick()
+        assert worker.running()
+        assert not worker.tick()  # it runs: no second one
+        deadline = time.monotonic() + WAIT_S
+        while staff.get(URL).json()["decisions"] == 0:
+            assert time.monotonic() < deadline, "the pass process stored nothing"
+            time.sleep(0.2)
+        assert not other.tick()  # the lease is held
+        _fill(robot, users, 1, "more", occurred_at=_now())  # passed again, by the same process
+        seen = staff.get(URL).json()["decisions"]
+        while staff.get(URL).json()["decisions"] == seen:
+            assert time.monotonic() < deadline, "the pass process did not pass again"
+            time.sleep(0.2)
+        assert staff.delete(URL).status_code == 200
+        while worker.running():  # no shadow: it ends on its own
+            assert time.monotonic() < deadline, "the pass process did not end"
+            time.sleep(0.2)
+        assert not worker.tick()
+    finally:
+        worker.stop()
+        other.stop()
+    assert not worker.running()
+
+
+def test_a_stopping_worker_ends_its_pass_process(
+    app: FastAPI, robot: TestClient, staff: TestClient
+) -> None:
+    settings = app.state.settings.model_copy(update={"shadow_seconds": 60.0})
+    assert robot.put("/v1/users/s0", json={}).status_code == 201
+    assert staff.put(URL, json={"candidate": {"algorithm": "dts"}}).status_code == 201
+    worker = shadows.PassProcess(app.state.db, settings)
+    assert worker.tick()
+    began = time.monotonic()
+    worker.stop()  # the pipe closed: it ends without waiting out its 60 s
+    assert not worker.running()
+    assert time.monotonic() - began < shadows.STOP_WAIT_S
