@@ -130,7 +130,11 @@ def evaluate(
             metavar="ALGORITHM[:NAME=VALUE,...]",
             show_default=False,
             help="A learner to estimate, with the parameters that differ from its defaults: "
-            "dts, hri:tau=0.005, dts-routine:samples=32,ask_unknown=false. Repeat for several.",
+            "dts, hri:tau=0.005, dts-routine:samples=32,ask_unknown=false; default for the "
+            "learner a person gets when nobody chooses one. prior=on or prior=off starts each "
+            "person's candidate from the fleet's prior or fresh: dts:prior=off; "
+            "current:prior=off is each person's own learner without the prior. Repeat for "
+            "several.",
         ),
     ] = None,
     since: Annotated[

@@ -1248,7 +1248,7 @@ def _evaluations_page(
         typed=typed or {"picks": [], "other": "", "since": "", "until": "", "estimator": ""},
         errors=errors or {},
         request_id=request_id or secrets.token_hex(16),
-        choices=views.CANDIDATE_CHOICES,
+        choices=views.WHAT_IF_CHOICES,
         estimators=ESTIMATORS,
         max_candidates=evaluation_service.MAX_CANDIDATES,
         done=done,
@@ -1313,7 +1313,7 @@ def start_evaluation(
     evaluation_service.list_for_fleet(session, principal, name, limit=1, cursor=None)  # may 403
     zone = console_service.time_zones(session, ctx, {name})[name]
     typed: dict[str, Any] = {
-        "picks": [key for field, key, _ in views.CANDIDATE_CHOICES if form.get(field)],
+        "picks": [key for field, key, _ in views.WHAT_IF_CHOICES if form.get(field)],
         **{k: form.get(k, "").strip() for k in _FORM_TEXT},
     }
     request_id = form.get("request_id", "")

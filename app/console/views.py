@@ -818,7 +818,13 @@ CANDIDATE_CHOICES: tuple[tuple[str, str, str], ...] = (
     ("pick-dts-adapt", "dts-adapt", "DTS-adapt, follows a changed wish quickly"),
     ("pick-dts-routine", "dts-routine", "DTS-routine, follows each person's routine"),
 )
-"""The learners the console's form offers to compare, in the order it lists them."""
+"""The learners the console's forms offer to try, in the order they list them."""
+WHAT_IF_CHOICES: tuple[tuple[str, str, str], ...] = (
+    *CANDIDATE_CHOICES,
+    ("pick-prior-on", "current:prior=on", "The current learners, newcomers from the fleet's prior"),
+    ("pick-prior-off", "current:prior=off", "The current learners, without the fleet's prior"),
+)
+"""The What if form's: the learners, and the fleet's prior on or off."""
 
 _JOB_STATUS = {
     "queued": "Waiting to start",

@@ -35,6 +35,25 @@ class CandidateIn(BaseModel):
     )
 
 
+class EvaluationCandidateIn(CandidateIn):
+    """A learner to estimate, and where each person's candidate starts."""
+
+    algorithm: str = Field(
+        max_length=32,
+        examples=["dts"],
+        description="hri, dts, dts-adapt, dts-routine, rmax, qlearning, default (the learner a "
+        "person gets when nobody chooses one), or current (each person's own learner: give "
+        "fleet_prior then).",
+    )
+    fleet_prior: bool | None = Field(
+        default=None,
+        description="true: each person's candidate starts from the fleet's prior (those who "
+        "started fresh get the prior the fleet's other people make today); false: fresh "
+        "(those who started from the prior start without it); left out: where the person's "
+        "model started.",
+    )
+
+
 class EvaluationIn(BaseModel):
     model_config = ConfigDict(
         extra="forbid",
@@ -56,7 +75,7 @@ class EvaluationIn(BaseModel):
         description="Yours, unique per fleet: the same request sent again gets the same "
         "evaluation (Idempotent-Replay: true); another request under the same id gets 409."
     )
-    candidates: list[CandidateIn] = Field(
+    candidates: list[EvaluationCandidateIn] = Field(
         min_length=1, max_length=5, description="One to five learners to estimate."
     )
     since: dt.datetime | None = Field(
@@ -114,6 +133,9 @@ class CandidateResultOut(BaseModel):
     label: str
     algorithm: str
     params: dict[str, Any]
+    fleet_prior: bool | None = Field(
+        default=None, description="Where each person's candidate started (see the request)."
+    )
     enough: bool
     reason: str
     estimate: EstimateOut
@@ -162,6 +184,9 @@ class CandidateOut(BaseModel):
     label: str
     algorithm: str
     params: dict[str, Any]
+    fleet_prior: bool | None = Field(
+        default=None, description="Where each person's candidate starts (see the request)."
+    )
 
 
 class Requester(BaseModel):

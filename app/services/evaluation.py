@@ -74,11 +74,12 @@ from sqlalchemy.orm import Session
 
 from app.db.repositories import episodes as episodes_repo
 from app.db.repositories import journal
+from app.db.repositories import models as models_repo
 from app.db.repositories import users as users_repo
 from app.db.repositories.episodes import DecisionRow, EpisodeRow
 from app.db.repositories.users import UserRow
 from app.db.session import Database
-from app.errors import NotFound
+from app.errors import NotFound, ValidationFailed
 from app.learning import learner_from_state, make_learner
 from app.learning.config import PARAMS
 from app.learning.guidance import Rule, guidance_from_state
@@ -96,6 +97,7 @@ from app.learning.offpolicy import (
     per_cluster,
     resampled,
 )
+from app.learning.prior import FRESH_ONLY, population_prior
 from app.learning.remap import remap_learner
 from app.learning.state import StateFormatError
 from app.learning.types import FloatArray
@@ -141,8 +143,16 @@ _NAMES: Mapping[str, str] = {
 _SYMBOLS: Mapping[str, str] = {"tau": "τ"}
 _TRUE = frozenset({"true", "yes", "on", "1"})
 _FALSE = frozenset({"false", "no", "off", "0"})
-_EXAMPLES = "hri, hri:tau=0.005, dts-routine:samples=32,ask_unknown=false, default"
+_EXAMPLES = (
+    "hri, hri:tau=0.005, dts-routine:samples=32,ask_unknown=false, default, dts:prior=off, "
+    "current:prior=on"
+)
+PRIOR = "prior"
+"""The name ``parse_candidate`` reads a candidate's ``fleet_prior`` under (on or off)."""
 DEFAULT = "default"
+CURRENT = "current"
+"""A candidate's algorithm that names each person's own learner, as it is (with ``fleet_prior``
+set: the question is then only where they start)."""
 DEFAULT_ALGORITHM = LearnerSpec.model_fields["algorithm"].default
 """The learner a person gets when nobody chooses one: what ``default`` names."""
 
@@ -159,6 +169,10 @@ class CandidateSpec:
 
     algorithm: str
     params: Mapping[str, Any] = field(default_factory=dict)
+    fleet_prior: bool | None = None
+    """Where each person's candidate starts: ``True``, from the fleet's prior (those who started
+    fresh are given the prior the fleet's other people make today); ``False``, fresh (those who
+    started from the prior start without it); ``None``, where the person's model started."""
 
     @property
     def full_params(self) -> dict[str, Any]:
@@ -167,18 +181,33 @@ class CandidateSpec:
 
     @property
     def key(self) -> str:
-        """The candidate as ``parse_candidate`` reads it: ``hri:tau=0.005``."""
-        if not self.params:
+        """The candidate as ``parse_candidate`` reads it: ``hri:tau=0.005``,
+        ``current:prior=off``."""
+        given = {k: _text(v) for k, v in self.params.items()}
+        if self.fleet_prior is not None:
+            given[PRIOR] = "on" if self.fleet_prior else "off"
+        if not given:
             return self.algorithm
-        given = ",".join(f"{k}={_text(v)}" for k, v in sorted(self.params.items()))
-        return f"{self.algorithm}:{given}"
+        return f"{self.algorithm}:" + ",".join(f"{k}={v}" for k, v in sorted(given.items()))
 
     @property
     def label(self) -> str:
-        """For people: ``HRI τ=0.005``."""
-        name = _NAMES.get(self.algorithm, self.algorithm)
+        """For people: ``HRI τ=0.005``, ``The current learners, without the fleet's prior``."""
+        if self.algorithm == CURRENT:
+            name = "The current learners"
+        else:
+            name = _NAMES.get(self.algorithm, self.algorithm)
         given = " ".join(f"{_SYMBOLS.get(k, k)}={_text(v)}" for k, v in sorted(self.params.items()))
-        return f"{name} {given}" if given else name
+        text = f"{name} {given}" if given else name
+        if self.fleet_prior is None:
+            return text
+        return f"{text}, {'with' if self.fleet_prior else 'without'} the fleet's prior"
+
+    def for_person(self, user: UserRow) -> CandidateSpec:
+        """The candidate for one person: ``current`` becomes their own learner."""
+        if self.algorithm != CURRENT:
+            return self
+        return CandidateSpec(user.algorithm, dict(user.params), self.fleet_prior)
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -186,6 +215,7 @@ class CandidateSpec:
             "label": self.label,
             "algorithm": self.algorithm,
             "params": dict(self.params),
+            "fleet_prior": self.fleet_prior,
         }
 
 
@@ -195,19 +225,54 @@ def _text(value: Any) -> str:
     return f"{value:g}" if isinstance(value, float) else str(value)
 
 
-def candidate_spec(algorithm: str, params: Mapping[str, Any] | None = None) -> CandidateSpec:
+def candidate_spec(
+    algorithm: str, params: Mapping[str, Any] | None = None, fleet_prior: bool | None = None
+) -> CandidateSpec:
     """A validated candidate: ``ValueError`` with the sentence the API gives for a person's
     learner (an unknown algorithm, an unknown or bad parameter). ``default`` names the learner
-    a person gets when nobody chooses one (``DEFAULT_ALGORITHM``)."""
+    a person gets when nobody chooses one (``DEFAULT_ALGORITHM``); ``current`` each person's
+    own learner, with ``fleet_prior`` true or false (where they start is then the question)."""
     if algorithm == DEFAULT:
         algorithm = DEFAULT_ALGORITHM
+    if fleet_prior is not None and not isinstance(fleet_prior, bool):
+        raise ValueError(f"fleet_prior must be true, false or left out; got {fleet_prior!r}.")
+    if algorithm == CURRENT:
+        if params:
+            raise ValueError("current takes no parameters: it is each person's own learner.")
+        if fleet_prior is None:
+            raise ValueError(
+                "current needs fleet_prior true or false (prior=on or prior=off): the current "
+                "learners as they started are what the robots earn now."
+            )
+        return CandidateSpec(CURRENT, {}, fleet_prior)
     if not isinstance(algorithm, str) or algorithm not in ALGORITHMS:
         raise ValueError(
             f"algorithm must be one of {', '.join(sorted(ALGORITHMS))}; got {algorithm!r}."
         )
+    if fleet_prior and algorithm in FRESH_ONLY:
+        raise ValueError(
+            f"{_NAMES.get(algorithm, algorithm)} always starts fresh: it cannot start from the "
+            "fleet's prior."
+        )
     given = dict(params or {})
     checked = PARAMS[algorithm].from_dict(given)  # ValueError naming the parameter
-    return CandidateSpec(algorithm, {k: getattr(checked, k) for k in given})
+    return CandidateSpec(algorithm, {k: getattr(checked, k) for k in given}, fleet_prior)
+
+
+def live_candidate(algorithm: str, params: Mapping[str, Any] | None) -> CandidateSpec:
+    """The candidate of a shadow or a rollout (``body.candidate``): a learner the robots could
+    use, so not ``current``; :class:`ValidationFailed` (422) says what is wrong."""
+    try:
+        if algorithm == CURRENT:
+            raise ValueError(
+                "current names the learners the robots use now: a shadow or a rollout tries "
+                "another learner."
+            )
+        return candidate_spec(algorithm, params)
+    except ValueError as exc:
+        raise ValidationFailed(
+            f"candidate: {exc}", fields=[{"loc": ["body", "candidate"], "msg": str(exc)}]
+        ) from None
 
 
 def parse_candidate(text: str) -> CandidateSpec:
@@ -222,16 +287,21 @@ def parse_candidate(text: str) -> CandidateSpec:
             raise ValueError(f"it names no algorithm (for example {_EXAMPLES}).")
         if algorithm == DEFAULT:
             algorithm = DEFAULT_ALGORITHM
-        if algorithm not in ALGORITHMS:
+        if algorithm not in ALGORITHMS and algorithm != CURRENT:
             raise ValueError(
-                f"the algorithm must be one of {', '.join(sorted(ALGORITHMS))} (or default); "
-                f"got {algorithm!r}."
+                f"the algorithm must be one of {', '.join(sorted(ALGORITHMS))} (or default, or "
+                f"current); got {algorithm!r}."
             )
         params: dict[str, Any] = {}
+        fleet_prior: bool | None = None
         if colon:
             if not rest.strip():
                 raise ValueError("no parameters after ':' (NAME=VALUE, separated by commas).")
-            types = {f.name: str(f.type) for f in dataclasses.fields(PARAMS[algorithm])}
+            types = (
+                {f.name: str(f.type) for f in dataclasses.fields(PARAMS[algorithm])}
+                if algorithm in PARAMS
+                else {}
+            )
             for item in rest.split(","):
                 name, equals, value = (part.strip() for part in item.partition("="))
                 if not equals or not name or not value:
@@ -239,10 +309,13 @@ def parse_candidate(text: str) -> CandidateSpec:
                         f"{item.strip()!r} is not NAME=VALUE (parameters are NAME=VALUE, "
                         "separated by commas)."
                     )
-                if name in params:
+                if name in params or (name == PRIOR and fleet_prior is not None):
                     raise ValueError(f"{name} is given twice.")
+                if name == PRIOR:
+                    fleet_prior = _value(name, value, "bool")
+                    continue
                 params[name] = _value(name, value, types.get(name))
-        return candidate_spec(algorithm, params)
+        return candidate_spec(algorithm, params, fleet_prior)
     except ValueError as exc:
         raise ValueError(f"candidate {text!r}: {exc}") from None
 
@@ -473,6 +546,10 @@ class _History:
     reward: list[float]
     skipped: dict[str, int] = field(default_factory=dict)  # episodes not counted, by reason
     base_version: int = 0  # the model version of the person's base
+    base_origin: str = "fresh"  # where the base came from (fresh, imported, fleet_prior)
+    takes_part: bool = True  # the person's fleet_prior: false keeps them from the prior
+    priors: dict[str, TabularLearner[Any] | None] = field(default_factory=dict)
+    # by candidate key: the fleet's prior such a candidate starts this person from, when it does
 
 
 def _aware(at: dt.datetime | None) -> dt.datetime | None:
@@ -590,6 +667,8 @@ def _history_of(
         logged=[],
         reward=[],
         base_version=head.base_version,
+        base_origin=models_repo.origin(session, user.id).kind,
+        takes_part=user.fleet_prior,
     )
     return history, moves
 
@@ -737,10 +816,27 @@ def _seed(fleet: str, user_id: str, spec: CandidateSpec) -> list[int]:
     return [int(w) for w in np.frombuffer(digest[:16], dtype="<u4")]
 
 
+def _wants_prior(spec: CandidateSpec, history: _History) -> bool:
+    """Whether ``spec`` starts this person from a prior built for it: it asks for the fleet's
+    prior, and the person started fresh, or from a prior of another algorithm."""
+    if not spec.fleet_prior:
+        return False
+    doc = history.base_doc
+    return doc is None or (
+        history.base_origin == "fleet_prior" and doc.get("algorithm") != spec.algorithm
+    )
+
+
 def _start(spec: CandidateSpec, history: _History) -> TabularLearner[Any]:
     """The candidate at the model's base (see the module's docstring)."""
     mission = history.layouts[history.base_layout].mission
     doc = history.base_doc
+    if spec.fleet_prior is False and history.base_origin == "fleet_prior":
+        return make_learner(spec.algorithm, dict(spec.params), mission)  # a prior holds no rules
+    if _wants_prior(spec, history):
+        prior = history.priors.get(spec.key)
+        if prior is not None:
+            return prior
     if doc is not None and doc.get("algorithm") == spec.algorithm:
         try:
             return learner_from_state({**doc, "params": spec.full_params}, mission)
@@ -1109,6 +1205,60 @@ def _people(database: Database, fleet: str) -> Iterator[list[UserRow]]:
         after = (page[-1].fleet, page[-1].user_id)
 
 
+class _Priors:
+    """The fleet's prior as a candidate with ``fleet_prior`` true starts a person from it, when
+    that person started fresh: the prior the service would build for a newcomer today (the
+    fleet's people who take part, learning with the candidate's algorithm, with enough
+    episodes, laid out for the person's base mission; ``ATTUNE_PRIOR_*``), the person
+    themselves left out. Today's, not the one of the day they came: it holds what the others
+    learned since, which favours the candidate (docs/method.md §17). None where the service
+    would start them fresh too (too few contributors, a person who keeps out of the prior, an
+    algorithm that always starts fresh). Each contributor's model is opened once per
+    evaluation."""
+
+    def __init__(self, ctx: ServiceContext, fleet: str) -> None:
+        self.ctx, self.fleet = ctx, fleet
+        self._pks: dict[tuple[str, int], list[int]] = {}
+        self._learners: dict[int, TabularLearner[Any]] = {}
+
+    def for_person(
+        self, session: Session, spec: CandidateSpec, history: _History, user: UserRow
+    ) -> TabularLearner[Any] | None:
+        settings = self.ctx.settings
+        if not history.takes_part or spec.algorithm in FRESH_ONLY:
+            return None
+        version = history.base_layout
+        found = self._pks.get((spec.algorithm, version))
+        if found is None:
+            found = models_repo.prior_contributors(
+                session,
+                fleet=self.fleet,
+                algorithm=spec.algorithm,
+                mission_version=version,
+                min_episodes=settings.prior_min_episodes,
+                limit=settings.prior_max_contributors + 1,
+            )
+            self._pks[(spec.algorithm, version)] = found
+        others = [pk for pk in found if pk != user.id][: settings.prior_max_contributors]
+        if len(others) < settings.prior_min_contributors:
+            return None
+        learners = []
+        for pk in others:
+            if pk not in self._learners:
+                contributor = users_repo.by_pk(session, pk)
+                if contributor is None:
+                    continue
+                self._learners[pk] = PersonModel.open(session, self.ctx, contributor).learner
+            learners.append(self._learners[pk])
+        return population_prior(
+            spec.algorithm,
+            spec.full_params,
+            history.layouts[version].mission,
+            learners,
+            strength=settings.prior_strength,
+        )
+
+
 def evaluate_fleet(
     database: Database,
     ctx: ServiceContext,
@@ -1145,15 +1295,22 @@ def evaluate_fleet(
     ]
     refused = [0] * len(candidates)
     counted: list[tuple[str, str, int]] = []  # (user id, algorithm, episodes)
+    priors = _Priors(ctx, fleet)
     done = 0
     for page in _people(database, fleet):
         for user in page:
             learners[user.algorithm] = learners.get(user.algorithm, 0) + 1
+            theirs = [spec.for_person(user) for spec in candidates]
             try:
                 with database.transaction(write=False) as session:
                     history = _read_person(session, ctx, user, since, until)
+                    for spec in theirs:
+                        if history.lengths and _wants_prior(spec, history):
+                            history.priors[spec.key] = priors.for_person(
+                                session, spec, history, user
+                            )
                 replays = (
-                    [_replay(fleet, history, spec, model=estimator == "dr") for spec in candidates]
+                    [_replay(fleet, history, spec, model=estimator == "dr") for spec in theirs]
                     if history.lengths
                     else []
                 )

@@ -101,7 +101,10 @@ class Asked:
     def document(self) -> dict[str, Any]:
         return {
             "candidates": [
-                {"algorithm": c.algorithm, "params": dict(c.params)} for c in self.candidates
+                {"algorithm": c.algorithm, "params": dict(c.params)}
+                # (fleet_prior only when given: a request stored before it existed digests alike)
+                | ({} if c.fleet_prior is None else {"fleet_prior": c.fleet_prior})
+                for c in self.candidates
             ],
             "since": None if self.since is None else self.since.isoformat(),
             "until": None if self.until is None else self.until.isoformat(),
@@ -135,7 +138,9 @@ def asked(
     specs: list[CandidateSpec] = []
     for i, given in enumerate(candidates):
         try:
-            spec = candidate_spec(given["algorithm"], given.get("params") or {})
+            spec = candidate_spec(
+                given["algorithm"], given.get("params") or {}, given.get("fleet_prior")
+            )
         except ValueError as exc:
             raise ValidationFailed(
                 f"candidates[{i}]: {exc}",
@@ -168,7 +173,10 @@ def asked(
 
 
 def _specs(request: Mapping[str, Any]) -> list[CandidateSpec]:
-    return [candidate_spec(c["algorithm"], c.get("params") or {}) for c in request["candidates"]]
+    return [
+        candidate_spec(c["algorithm"], c.get("params") or {}, c.get("fleet_prior"))
+        for c in request["candidates"]
+    ]
 
 
 def _time(text: str | None) -> dt.datetime | None:

@@ -48,7 +48,7 @@ from app.logs import FIELDS
 from . import audit, leases
 from .auth import require_manager
 from .context import Principal, ServiceContext, after_commit
-from .evaluation import CandidateSpec, candidate_spec, relearned
+from .evaluation import CandidateSpec, candidate_spec, live_candidate, relearned
 from .person_model import PersonModel
 
 __all__ = [
@@ -273,12 +273,7 @@ def put_rollout(
     """Start a rollout of the candidate to ``share`` of the fleet's people, or change the share
     of the one running (the same candidate): (the view, started)."""
     _check_fleet(principal, fleet)
-    try:
-        spec = candidate_spec(algorithm, params)
-    except ValueError as exc:
-        raise ValidationFailed(
-            f"candidate: {exc}", fields=[{"loc": ["body", "candidate"], "msg": str(exc)}]
-        ) from None
+    spec = live_candidate(algorithm, params)
     if not 0.0 < share <= 1.0:
         raise ValidationFailed(
             "share must be above 0 and at most 1.",

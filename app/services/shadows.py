@@ -51,6 +51,7 @@ from .evaluation import (
     ReplayCache,
     candidate_spec,
     evaluate_fleet,
+    live_candidate,
     shadow_decisions,
 )
 from .rollouts import hash_place
@@ -160,12 +161,7 @@ def put_shadow(
     """Start a shadow of the candidate over ``share`` of the fleet's people, or change the share
     of the one running (the same candidate): (the view, started)."""
     _check_fleet(principal, fleet)
-    try:
-        spec = candidate_spec(algorithm, params)
-    except ValueError as exc:
-        raise ValidationFailed(
-            f"candidate: {exc}", fields=[{"loc": ["body", "candidate"], "msg": str(exc)}]
-        ) from None
+    spec = live_candidate(algorithm, params)
     if not 0.0 < share <= 1.0:
         raise ValidationFailed(
             "share must be above 0 and at most 1.",
