@@ -667,7 +667,7 @@ def _history_of(
         logged=[],
         reward=[],
         base_version=head.base_version,
-        base_origin=models_repo.origin(session, user.id).kind,
+        base_origin=models_repo.origin(session, user.id).kind if base else "",
         takes_part=user.fleet_prior,
     )
     return history, moves
@@ -877,9 +877,11 @@ class ReplayCache:
     def __len__(self) -> int:
         return len(self._items)
 
-    def get(self, key: Any, base: tuple[int, int]) -> _Resume | None:
+    def get(self, key: Any, base: tuple[int, int] | None = None) -> _Resume | None:
+        """The entry of ``key`` (None when there is none, or when ``base`` is given and the
+        entry started from another)."""
         item = self._items.get(key)
-        if item is None or item.base != base:
+        if item is None or (base is not None and item.base != base):
             self.misses += 1
             return None
         self._items.move_to_end(key)
@@ -1046,7 +1048,7 @@ def shadow_decisions(
             and _utc(a.decided_at) >= since
         ]
 
-    resume = None if cache is None else cache.get(key, _base_of(session, ctx, user))
+    resume = None if cache is None else cache.get(key)  # its base is checked as it is read
     history = None if resume is None else _read_since(session, ctx, user, resume)
     if history is not None and resume is not None:
         history.asked = still_to_ask(history)
@@ -1072,12 +1074,6 @@ def shadow_decisions(
     if cache is not None and resume is not None:
         cache.put(key, resume)
     return found
-
-
-def _base_of(session: Session, ctx: ServiceContext, user: UserRow) -> tuple[int, int]:
-    """The person's model base: its version and the mission version it was laid out for."""
-    head = PersonModel.open(session, ctx, user).head
-    return head.base_version, head.base_mission_version
 
 
 def relearned(

@@ -270,6 +270,7 @@ def shadow_pass(
                     people.append(user)
         n = 0
         reached = 0
+        found_rows: list[dict[str, Any]] = []  # stored at the end of the shadow's pass, at once
         for user in people[:max_people]:
             if stopping():
                 break
@@ -301,11 +302,13 @@ def shadow_pass(
                 }
                 for d in found
             ]
-            with db.transaction() as session:
-                repo.add_decisions(session, rows)
+            found_rows.extend(rows)
             n += len(rows)
-        if reached == len(people):  # every person with a closed episode: checked up to here
-            with db.transaction() as session:
+        # One write transaction a pass per shadow; had it failed, the next pass decides again
+        # (its candidates, taught past those decisions, start again from the base).
+        with db.transaction() as session:
+            repo.add_decisions(session, found_rows)
+            if reached == len(people):  # every person with a closed episode: checked up to here
                 repo.checked(session, row.id, upto)
         added[row.fleet] = n
         stale = row.estimated_at is None or now - row.estimated_at >= dt.timedelta(
