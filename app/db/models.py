@@ -180,6 +180,7 @@ class Episode(Base):
     __table_args__ = (
         UniqueConstraint("user_pk", "event_id"),
         UniqueConstraint("user_pk", "seq"),
+        Index("ix_episodes_closed_at", "closed_at"),  # the shadows' pass: closed since
     )
 
     id: Mapped[str] = mapped_column(String(ID), primary_key=True)

@@ -995,7 +995,7 @@ def shadow_decisions(
     spec: CandidateSpec,
     *,
     since: dt.datetime,
-    done: set[str],
+    done: set[str] | Callable[[list[str]], set[str]],
     cache: ReplayCache | None = None,
     key: Any = None,
 ) -> list[ShadowDecision]:
@@ -1015,7 +1015,7 @@ def shadow_decisions(
 
     def asked_at(asked: _Asked, mine: list[FloatArray], space: Any) -> None:
         at = asked.decided_at
-        if not asked.visible or at is None or asked.decision_id in done or _utc(at) < since:
+        if not asked.visible or at is None or asked.decision_id in stored or _utc(at) < since:
             return
         ours = np.asarray(mine[-1], dtype=np.float64)
         state, logged = asked.states[-1], asked.actions[-1]
@@ -1036,17 +1036,19 @@ def shadow_decisions(
             )
         )
 
+    stored: set[str] = set()
+
     def still_to_ask(history: _History) -> list[_Asked]:
         # Only the decisions still to shadow are asked about: the candidate is still taught
         # the whole history in order, but asks nothing at the older decisions.
-        return [
+        wanted = [
             a
             for a in history.asked
-            if a.visible
-            and a.decided_at is not None
-            and a.decision_id not in done
-            and _utc(a.decided_at) >= since
+            if a.visible and a.decided_at is not None and _utc(a.decided_at) >= since
         ]
+        stored.clear()
+        stored.update(done if isinstance(done, set) else done([a.decision_id for a in wanted]))
+        return [a for a in wanted if a.decision_id not in stored]
 
     resume = None if cache is None else cache.get(key)  # its base is checked as it is read
     history = None if resume is None else _read_since(session, ctx, user, resume)

@@ -170,10 +170,21 @@ def held(
     ttl: dt.timedelta = TTL,
     renew_every: dt.timedelta = RENEW_EVERY,
     clock: Clock = utcnow,
+    holder: str | None = None,
 ) -> Iterator[Lease]:
     """The lease ``name`` for the block (see the module): taken at ``clock()``, renewed every
-    ``renew_every`` by a thread of its own, let go at the end."""
-    lease = take(db, name, now=clock(), ttl=ttl, since=since)
+    ``renew_every`` by a thread of its own, let go at the end. With ``holder``: the lease that
+    another process took for this one under that name (a worker that starts a process to do
+    the job), renewed at once (:class:`LeaseHeld` when it is no longer that holder's)."""
+    if holder is None:
+        lease = take(db, name, now=clock(), ttl=ttl, since=since)
+    else:
+        now = clock()
+        lease = Lease(db, name, holder, now, now, ttl)
+        if not lease.renew(now):
+            with db.transaction(write=False) as session:
+                current = repo.get(session, name)
+            raise LeaseHeld(name, current, now=now, since=None)
     stop = threading.Event()
 
     def keep() -> None:

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import contextlib
 import datetime as dt
+import functools
 import json
 import logging
 import os
@@ -69,9 +70,11 @@ __all__ = [
 log = logging.getLogger("attune.shadows")
 
 LEASE = "shadows"
-"""The lease of the shadows' pass (:class:`app.services.periodic.Periodic`)."""
+"""The lease of the shadows' pass: held by the pass process (:class:`PassProcess`)."""
 PASS_PEOPLE = 200
 """The most people one pass replays per shadow; the others wait for the next pass."""
+WRITE_ROWS = 100
+"""A pass stores its decisions this many at a time, each batch in a short write transaction."""
 SETTLE = dt.timedelta(seconds=2)
 """Episodes closed less than this before a pass are left to the next one (a transaction that
 closed one may not have committed yet)."""
@@ -276,14 +279,13 @@ def shadow_pass(
                 break
             reached += 1
             with db.transaction(write=False) as session:
-                done = repo.done_for(session, row.id, user.id)
                 found = shadow_decisions(
                     session,
                     ctx,
                     user,
                     spec,
                     since=row.started_at,
-                    done=done,
+                    done=functools.partial(repo.done_among, session, row.id),
                     cache=cache,
                     key=(row.id, user.id),
                 )
@@ -304,8 +306,13 @@ def shadow_pass(
             ]
             found_rows.extend(rows)
             n += len(rows)
-        # One write transaction a pass per shadow; had it failed, the next pass decides again
-        # (its candidates, taught past those decisions, start again from the base).
+            if len(found_rows) >= WRITE_ROWS:
+                with db.transaction() as session:
+                    repo.add_decisions(session, found_rows)
+                found_rows = []
+        # A few write transactions a pass, each short (on SQLite the robots' writes wait for
+        # one); had one failed, the next pass decides those again (its candidates, taught past
+        # those decisions, start again from the base).
         with db.transaction() as session:
             repo.add_decisions(session, found_rows)
             if reached == len(people):  # every person with a closed episode: checked up to here
@@ -361,14 +368,19 @@ _PASSED = (
     "log_level",
     "log_format",
 )
+START_LEASE = dt.timedelta(minutes=1)
+"""How long the lease a worker takes for the pass process it starts lasts, until that process
+renews it (a process that dies as it starts holds the shadows' work back no longer)."""
 STOP_WAIT_S = 10.0
 """How long a worker that stops waits for its pass process to end before it stops it."""
 
 
-def _given(settings: Settings) -> bytes:
+def _given(settings: Settings, *, holder: str | None = None) -> bytes:
     """The settings the pass's process needs, as one line of JSON (the database key with them:
-    on its standard input, never on its command line)."""
+    on its standard input, never on its command line), and the name under which its worker
+    took the shadows' lease for it (``holder``; None: the process takes it)."""
     given: dict[str, Any] = {name: getattr(settings, name) for name in _PASSED}
+    given["lease_holder"] = holder
     given["mission_path"] = None if settings.mission_path is None else str(settings.mission_path)
     key = settings.database_key
     if key is not None:
@@ -470,12 +482,22 @@ class PassProcess:
                 self._process = None
             if self._stop.is_set() or not work_waiting(self.db):
                 return False
-            process = subprocess.Popen(
-                [sys.executable, "-m", "app.services.shadows"], stdin=subprocess.PIPE
-            )
-            assert process.stdin is not None
-            process.stdin.write(_given(self.settings))
-            process.stdin.flush()  # kept open: its end tells the process to stop
+            # Taken here, before the process starts (a second or more to import), so that
+            # no other worker starts one meanwhile; the process renews it under this name.
+            try:
+                lease = leases.take(self.db, LEASE, now=utcnow(), ttl=START_LEASE)
+            except leases.LeaseHeld:
+                return False
+            try:
+                process = subprocess.Popen(
+                    [sys.executable, "-m", "app.services.shadows"], stdin=subprocess.PIPE
+                )
+                assert process.stdin is not None
+                process.stdin.write(_given(self.settings, holder=lease.holder))
+                process.stdin.flush()  # kept open: its end tells the process to stop
+            except Exception:
+                lease.release(utcnow())
+                raise
             self._process = process
             return True
 
@@ -513,6 +535,7 @@ def _main() -> int:
     from app.logs import logging_config
 
     given = json.loads(sys.stdin.buffer.readline() or b"{}")
+    holder = given.pop("lease_holder", None)
     closed = threading.Event()
 
     def watch() -> None:  # the worker closed the pipe, or died
@@ -530,7 +553,7 @@ def _main() -> int:
     ctx = ServiceContext.from_settings(settings)
     cache = ReplayCache()
     try:
-        with leases.held(db, LEASE) as lease:
+        with leases.held(db, LEASE, holder=holder) as lease:
             while True:  # a first pass even when the pipe is closed already (pass_in_process)
                 lease.check()
                 with db.transaction(write=False) as session:

@@ -2,7 +2,8 @@
 acting (``shadows``, and their decisions, ``shadow_decisions``), rollouts to a share of a
 fleet's people (``rollouts``), and each person's arm, stored when assigned (``rollout_arms``).
 
-Four new tables; no existing row changes. A database upgraded from the previous release has no
+Four new tables, and an index of the episodes by the time they closed (what the shadows' pass
+looks for); no existing row changes. A database upgraded from the previous release has no
 shadow and no rollout: every person keeps the learner they have. Downgrading drops the four
 tables (the people keep the learner they have then).
 
@@ -140,9 +141,12 @@ def upgrade() -> None:
     )
     with op.batch_alter_table("shadow_decisions") as batch:
         batch.create_index("ix_shadow_decisions_shadow_at", ["shadow_id", "decided_at"])
+    # The shadows' pass finds the people with an episode closed since its last pass by it.
+    op.create_index("ix_episodes_closed_at", "episodes", ["closed_at"])
 
 
 def downgrade() -> None:
+    op.drop_index("ix_episodes_closed_at", table_name="episodes")
     with op.batch_alter_table("shadow_decisions") as batch:
         batch.drop_index("ix_shadow_decisions_shadow_at")
     op.drop_table("shadow_decisions")

@@ -19,7 +19,7 @@ __all__ = [
     "add_decisions",
     "agreement",
     "checked",
-    "done_for",
+    "done_among",
     "for_episodes",
     "latest",
     "people_with_closed",
@@ -121,10 +121,17 @@ def people_with_closed(
     return sorted(int(r[0]) for r in conn(session).execute(stmt))
 
 
-def done_for(session: Session, shadow_id: str, user_pk: int) -> set[str]:
+def done_among(session: Session, shadow_id: str, decision_ids: list[str]) -> set[str]:
+    """Which of ``decision_ids`` the shadow has decided at (by the primary key: a lookup per
+    decision, whatever the shadow has stored)."""
     d = _decisions.c
-    stmt = select(d.decision_id).where(d.shadow_id == shadow_id, d.user_pk == user_pk)
-    return {r[0] for r in conn(session).execute(stmt)}
+    found: set[str] = set()
+    for i in range(0, len(decision_ids), 500):
+        stmt = select(d.decision_id).where(
+            d.shadow_id == shadow_id, d.decision_id.in_(decision_ids[i : i + 500])
+        )
+        found.update(r[0] for r in conn(session).execute(stmt))
+    return found
 
 
 def add_decisions(session: Session, rows: list[dict[str, Any]]) -> None:
