@@ -21,10 +21,7 @@ def even_salt(groups: Iterable[Sequence[str]], share: float = 0.5) -> str:
     for i in range(100_000):
         salt = f"{i:016x}"
         if all(
-            abs(
-                sum(rollouts.hash_place(salt, u) < share for u in g) - round(len(g) * share)
-            )
-            <= 1
+            abs(sum(rollouts.hash_place(salt, u) < share for u in g) - round(len(g) * share)) <= 1
             for g in groups
         ):
             return salt
