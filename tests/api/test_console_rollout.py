@@ -69,7 +69,7 @@ class Console:
     def page(self, path: str = "/admin/rollout") -> str:
         r = self.client.get(path)
         assert r.status_code == 200, r.text
-        return r.text
+        return str(r.text)
 
     def submit(self, form_id: str, page: str | None = None, **fields: str) -> httpx.Response:
         """Fill the form ``form_id`` of ``page`` (a fresh rollout page) and post it."""

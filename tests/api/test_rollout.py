@@ -14,6 +14,7 @@ from fastapi.testclient import TestClient
 from sqlalchemy import select
 
 from app.db.models import RolloutArm
+from app.db.repositories import rollouts as rollouts_repo
 from app.db.repositories import users as users_repo
 from app.services import rollouts
 from app.services.person_model import PersonModel
@@ -194,7 +195,7 @@ def test_promote_and_roll_back(app: FastAPI, robot: TestClient, staff: TestClien
     with app.state.db.transaction(write=False) as session:
         mine = {
             users_repo.by_pk(session, a.user_pk).user_id: a.arm  # type: ignore[union-attr]
-            for a, _ in [(x, y) for x, y in rollouts.repo.arms(session, second)]
+            for a, _ in [(x, y) for x, y in rollouts_repo.arms(session, second)]
         }
     r = staff.post(f"{URL}/rollback", json={"reason": "the night staff asked"})
     _settle(app)

@@ -57,8 +57,8 @@ def _fill(old: OldService) -> dict[str, Any]:
             assert api["robot"].put(f"/v1/users/{uid}", json=body).status_code == 201
             n = release.history(api["robot"], uid, 3, n)
         release.leave_open(api["robot"], "p1")
-        body = {"request_id": "before", "candidates": [{"algorithm": "dts"}]}
-        r = api["staff"].post("/v1/admin/fleets/default/evaluations", json=body)
+        job: dict[str, Any] = {"request_id": "before", "candidates": [{"algorithm": "dts"}]}
+        r = api["staff"].post("/v1/admin/fleets/default/evaluations", json=job)
         assert r.status_code == 202, r.text
         deadline = time.monotonic() + WAIT_S
         while api["staff"].get(r.headers["Location"]).json()["status"] != "done":
