@@ -96,6 +96,7 @@ from app.learning.offpolicy import (
     on_policy,
     per_cluster,
     resampled,
+    unseen_margins,
 )
 from app.learning.prior import FRESH_ONLY, population_prior
 from app.learning.remap import remap_learner
@@ -1139,10 +1140,15 @@ def _rng(fleet: str, what: str) -> np.random.Generator:
     return np.random.default_rng([int(w) for w in np.frombuffer(digest[:16], dtype="<u4")])
 
 
-def _difference(steps: Steps, value: float, estimator: str, rng: np.random.Generator) -> Difference:
-    """Candidate minus logged (``value``), with the expanded percentile interval of the
-    difference over bootstrap resamples of the people (the episodes, with fewer than
-    ``MIN_CLUSTERS`` people), the same resample for both."""
+def _difference(
+    steps: Steps, found: Estimate, logged_value: float, estimator: str, rng: np.random.Generator
+) -> Difference:
+    """Candidate (``found``) minus logged (``logged_value``), with the expanded percentile interval of
+    the difference over bootstrap resamples of the people (the episodes, with fewer than
+    ``MIN_CLUSTERS`` people), the same resample for both, reaching as far for what the logs do
+    not show as the candidate's own interval (:func:`app.learning.offpolicy.unseen_margins`)."""
+    assert found.value is not None
+    value = found.value - logged_value
     if steps.n_clusters >= MIN_CLUSTERS:
         grouped, method = steps, "bootstrap"
     else:
@@ -1164,7 +1170,8 @@ def _difference(steps: Steps, value: float, estimator: str, rng: np.random.Gener
         out[first : first + size] = candidate - logged
     level = expanded_level(CONFIDENCE, n)
     low, high = np.quantile(out, [1.0 - level, level])
-    return Difference(float(value), float(low), float(high), method, CONFIDENCE)
+    below, above = unseen_margins(steps, estimator, found.value, found.weight_mean)
+    return Difference(float(value), float(low) - below, float(high) + above, method, CONFIDENCE)
 
 
 def _steps(cluster: list[int], lengths: list[int], columns: Mapping[str, list[Any]]) -> Steps:
@@ -1349,7 +1356,7 @@ def evaluate_fleet(
             assert found.value is not None
             assert logged.value is not None
             difference = _difference(
-                steps, found.value - logged.value, estimator, _rng(fleet, f"{spec.key}/diff")
+                steps, found, logged.value, estimator, _rng(fleet, f"{spec.key}/diff")
             )
         results.append(
             CandidateResult(

@@ -36,6 +36,7 @@ from app.learning.offpolicy import (
     per_cluster,
     point,
     resampled,
+    unseen_margins,
 )
 from app.learning.types import FloatArray, IntArray
 
@@ -587,6 +588,35 @@ def test_weights_averaging_far_below_one_are_not_enough_evidence() -> None:
     assert not result.enough
     assert "rarely show what this learner would do" in result.reason
     assert "average 0.51" in result.reason
+
+
+def test_the_interval_reaches_over_what_the_logs_do_not_show() -> None:
+    """The logger asks A (0.9, returns 1) or C (0.1, returns 3), B almost never (0.001); the
+    candidate asks A 0.8 and B 0.2, never C, and B returns 2.5: its truth is 0.8 + 0.5 = 1.3.
+    The logs hold no B, so the weights average 0.8: a fifth of what the candidate does is not
+    in them. wpdis sees only A (1.0, and a bootstrap of A's alone is [1, 1]); the interval
+    reaches a fifth of the way to the lowest and the highest return the logs show (0 and 3)."""
+    a = {"logged": [0.9], "target": [0.8], "reward": [1.0]}
+    c = {"logged": [0.1], "target": [0.0], "reward": [3.0]}
+    steps = Steps.from_episodes([a] * 180 + [c] * 20, list(range(200)))
+    result = estimate(steps, "wpdis")
+    assert result.enough
+    assert result.weight_mean == pytest.approx(0.8)
+    assert result.value == pytest.approx(1.0)
+    assert result.interval is not None
+    assert result.interval.low == pytest.approx(1.0 - 0.2 * 1.0)
+    assert result.interval.high == pytest.approx(1.0 + 0.2 * 2.0)
+    assert result.interval.low <= 0.8 * 1.0 + 0.2 * 2.5 <= result.interval.high
+    # pdis counts the unseen fifth as earning 0: it may earn from 0 to 3 instead.
+    pdis = estimate(steps, "pdis")
+    assert pdis.interval is not None
+    assert pdis.value is not None
+    bare = pdis.value - pdis.interval.low, pdis.interval.high - pdis.value
+    assert unseen_margins(steps, "pdis", pdis.value, 0.8) == pytest.approx((0.0, 0.6))
+    assert bare[1] >= 0.6
+    # Logs that show what the candidate does (weights averaging 1 or more) add nothing.
+    assert unseen_margins(steps, "wpdis", 1.0, 1.0) == (0.0, 0.0)
+    assert unseen_margins(steps, "wpdis", 1.0, 1.3) == (0.0, 0.0)
 
 
 def test_too_few_episodes_is_not_enough_evidence() -> None:
