@@ -1143,10 +1143,10 @@ def _rng(fleet: str, what: str) -> np.random.Generator:
 def _difference(
     steps: Steps, found: Estimate, logged_value: float, estimator: str, rng: np.random.Generator
 ) -> Difference:
-    """Candidate (``found``) minus logged (``logged_value``), with the expanded percentile interval of
-    the difference over bootstrap resamples of the people (the episodes, with fewer than
-    ``MIN_CLUSTERS`` people), the same resample for both, reaching as far for what the logs do
-    not show as the candidate's own interval (:func:`app.learning.offpolicy.unseen_margins`)."""
+    """Candidate (``found``) minus logged (``logged_value``), with the expanded percentile
+    interval of the difference over bootstrap resamples of the people (the episodes, with fewer
+    than ``MIN_CLUSTERS`` people), the same resample for both, reaching as far for what the logs
+    do not show as the candidate's own interval (:func:`app.learning.offpolicy.unseen_margins`)."""
     assert found.value is not None
     value = found.value - logged_value
     if steps.n_clusters >= MIN_CLUSTERS:
