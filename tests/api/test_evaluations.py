@@ -12,14 +12,16 @@ import random
 import time
 from typing import Any
 
+import numpy as np
 import pytest
 from fastapi import FastAPI
 from fastapi.testclient import TestClient
 from sqlalchemy import select, update
 
 from app.db.models import DataView, Evaluation
+from app.learning.offpolicy import Steps, estimate, unseen_margins
 from app.services import evaluation_jobs as jobs
-from app.services.evaluation import evaluate_fleet, parse_candidate
+from app.services.evaluation import _difference, evaluate_fleet, parse_candidate
 from tests.support import people
 from tests.support.episodes import play
 
@@ -303,3 +305,25 @@ def test_who_may_evaluate(
     assert other_staff.post("/v1/admin/fleets/other/evaluations", json=BODY).status_code == 202
     r = staff.get(url, params={"cursor": "nope"})
     assert r.status_code == 422
+
+
+def test_the_difference_reaches_over_what_the_logs_do_not_show() -> None:
+    """A candidate the logs show four fifths of (weights averaging 0.8): the difference with
+    the logged value reaches as far as the candidate's own interval does for the unseen fifth
+    (a fifth of the way to the lowest and the highest return logged, 0 and 3), beyond the
+    bootstrap's spread (the logged mean's, about 0.1 here)."""
+    a = {"logged": [0.9], "target": [0.8], "reward": [1.0]}
+    c = {"logged": [0.1], "target": [0.0], "reward": [3.0]}
+    steps = Steps.from_episodes([a] * 180 + [c] * 20, list(range(200)))
+    found = estimate(steps, "wpdis")
+    assert found.value is not None
+    logged = 1.2  # the mean return: 0.9 x 1 + 0.1 x 3
+    below, above = unseen_margins(steps, "wpdis", found.value, found.weight_mean)
+    assert (below, above) == pytest.approx((0.2, 0.4))
+    difference = _difference(steps, found, logged, "wpdis", np.random.default_rng(7))
+    assert difference.value == pytest.approx(found.value - logged)
+    assert difference.low <= difference.value - below
+    assert difference.high >= difference.value + above
+    # True difference: 0.8 x 1 + 0.2 x 2.5 - 1.2 = 0.1, inside; the bootstrap alone is not.
+    assert difference.low <= 0.1 <= difference.high
+    assert difference.high - above < 0.1

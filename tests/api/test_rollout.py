@@ -195,7 +195,7 @@ def test_promote_and_roll_back(app: FastAPI, robot: TestClient, staff: TestClien
     with app.state.db.transaction(write=False) as session:
         mine = {
             users_repo.by_pk(session, a.user_pk).user_id: a.arm  # type: ignore[union-attr]
-            for a, _ in [(x, y) for x, y in rollouts_repo.arms(session, second)]
+            for a, _ in rollouts_repo.arms(session, second)
         }
     r = staff.post(f"{URL}/rollback", json={"reason": "the night staff asked"})
     _settle(app)
