@@ -43,7 +43,7 @@ from app.learning.offpolicy import (
 )
 from app.learning.population import FAMILIES, people, run_learner
 from app.learning.space import space_for
-from app.learning.whatif import log_person, replay, steps_of
+from app.learning.whatif import log_person, replay_all, steps_of
 
 from . import report
 from .report import rounded
@@ -209,15 +209,18 @@ def run_trial(task: WhatIfTask) -> TrialResult:
             found.setdefault(found_key(task.logger.label, "logged", interval), {})[k] = (
                 on_policy(steps, interval=interval, rng=boot, reward_range=_range(mission))
             ).to_dict()
-    for m in task.candidates:
-        replays = [
-            replay(
-                log,
-                make_learner(m.algorithm, dict(m.params), mission),
-                _seq(task.seed, family.key, 6, i, _key(m.label)),
-            )
-            for i, log in enumerate(logs)
-        ]
+    # Each person's log replayed into every candidate at once: candidates that learn alike
+    # (HRI at other temperatures) learn once (replay_all).
+    by_person = [
+        replay_all(
+            log,
+            [make_learner(m.algorithm, dict(m.params), mission) for m in task.candidates],
+            [_seq(task.seed, family.key, 6, i, _key(m.label)) for m in task.candidates],
+        )
+        for i, log in enumerate(logs)
+    ]
+    for c, m in enumerate(task.candidates):
+        replays = [person[c] for person in by_person]
         truth[m.label] = true_values(m)
         for k, e in sizes.items():
             steps = steps_of(logs, replays, space.actions_of, events=e)

@@ -29,7 +29,7 @@ from .offpolicy import Steps
 from .population import Person, run_learner
 from .types import Decision, FloatArray, Transition
 
-__all__ = ["Decided", "PersonLog", "Replayed", "log_person", "replay", "steps_of"]
+__all__ = ["Decided", "PersonLog", "Replayed", "log_person", "replay", "replay_all", "steps_of"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -86,27 +86,58 @@ def replay(log: PersonLog, candidate: TabularLearner[Any], rng: np.random.Genera
     """``candidate`` (fresh, or as the person's model stood before the log) through ``log``:
     before each logged decision it is asked what it would have done at each of its steps, then
     it learns the decision's transitions."""
-    space = candidate.space
+    return replay_all(log, [candidate], [rng])[0]
+
+
+def replay_all(
+    log: PersonLog,
+    candidates: Sequence[TabularLearner[Any]],
+    rngs: Sequence[np.random.Generator],
+) -> list[Replayed]:
+    """:func:`replay` of each of ``candidates`` (each asked with its own ``rngs`` entry), the
+    same answers, but candidates that learn alike (the same algorithm, params differing only
+    in how they decide: ``TabularLearner.learns_as``, e.g. HRI at several temperatures) learn
+    once: the first of them learns, and decides as each of the others in turn
+    (``deciding_as``). The others are left as they were."""
+    if len(candidates) != len(rngs):
+        raise ValueError("one rng per candidate.")
+    leaders: list[int] = []  # the candidate whose learner learns, for each candidate
+    for i, c in enumerate(candidates):
+        lead = next(
+            (
+                j
+                for j, led in enumerate(leaders)
+                if led == j and type(candidates[j]) is type(c) and candidates[j].learns_as(c.params)
+            ),
+            i,
+        )
+        leaders.append(lead)
+    learning = sorted(set(leaders))
     n = log.n_steps
-    target = np.empty(n, dtype=np.float64)
-    unsupported = np.empty(n, dtype=np.float64)
-    q_hat = np.empty(n, dtype=np.float64)
-    v_hat = np.empty(n, dtype=np.float64)
+    outs = [Replayed(np.empty(n), np.empty(n), np.empty(n), np.empty(n)) for _ in candidates]
     i = 0
     for d in log.decisions:
         first = d.transitions[0]
         states = [t.state for t in d.transitions]
-        mine = candidate.distributions(first.context, states, first.episode, rng)
-        q = candidate.action_values(first.context)
-        for t, theirs, ours in zip(d.transitions, d.distributions, mine, strict=True):
-            actions = space.actions_of(t.state)
-            target[i] = ours[t.action - actions.start]
-            unsupported[i] = float(ours[theirs <= 0.0].sum())
-            q_hat[i] = q[t.action]
-            v_hat[i] = float(ours @ q[actions.start : actions.stop])
-            i += 1
-        candidate.update(list(d.transitions))
-    return Replayed(target, unsupported, q_hat, v_hat)
+        for k, c in enumerate(candidates):
+            leader = candidates[leaders[k]]
+            with leader.deciding_as(c.params) as deciding:
+                space = deciding.space
+                mine = deciding.distributions(first.context, states, first.episode, rngs[k])
+                q = deciding.action_values(first.context)
+            out = outs[k]
+            for j, (t, theirs, ours) in enumerate(
+                zip(d.transitions, d.distributions, mine, strict=True)
+            ):
+                actions = space.actions_of(t.state)
+                out.target[i + j] = ours[t.action - actions.start]
+                out.unsupported[i + j] = float(ours[theirs <= 0.0].sum())
+                out.q_hat[i + j] = q[t.action]
+                out.v_hat[i + j] = float(ours @ q[actions.start : actions.stop])
+        i += len(d.transitions)
+        for k in learning:
+            candidates[k].update(list(d.transitions))
+    return outs
 
 
 def logged_probabilities(log: PersonLog, space_actions: Any) -> FloatArray:

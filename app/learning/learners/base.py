@@ -8,9 +8,10 @@ distribution (``_policy``).
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from typing import Any, ClassVar, Generic, Self, TypeVar
 
 import numpy as np
@@ -64,6 +65,10 @@ class TabularLearner(Generic[P]):
     _optional_tables: ClassVar[frozenset[str]] = frozenset()
     MAX_OPEN_EPISODES: ClassVar[int] = 256
     MAX_EPISODE: ClassVar[int] = 2**62  # keeps every episode arithmetic inside int64
+    # Params that change only how the learner decides from its tables, never what it learns
+    # (nor its Q): learners that differ only in them learn the same tables from the same
+    # transitions, so one replay can answer for all of them (``deciding_as``).
+    POLICY_PARAMS: ClassVar[frozenset[str]] = frozenset()
 
     def __init__(self, mission: Mission, params: P | None = None) -> None:
         self.mission = mission
@@ -206,6 +211,35 @@ class TabularLearner(Generic[P]):
                 )
             )
         return out
+
+    def learns_as(self, params: Params) -> bool:
+        """Whether a learner of this algorithm with ``params`` learns exactly what this one
+        learns from the same transitions: it differs at most in :attr:`POLICY_PARAMS`."""
+        if type(params) is not type(self._params):
+            return False
+        return all(
+            f.name in self.POLICY_PARAMS or getattr(params, f.name) == getattr(self._params, f.name)
+            for f in dataclasses.fields(params)
+        )
+
+    @contextlib.contextmanager
+    def deciding_as(self, params: P) -> Iterator[Self]:
+        """This learner deciding (``distributions``, ``action_values``) as if made with
+        ``params``, for the ``with`` block: what a learner of those params that learned the same
+        transitions would answer, without learning twice. ``params`` may differ only in
+        :attr:`POLICY_PARAMS` (``learns_as``), or a ``ValueError``; nothing may be learned in
+        the block."""
+        if not self.learns_as(params):
+            raise ValueError(
+                f"{self.algorithm} params may differ only in "
+                f"{', '.join(sorted(self.POLICY_PARAMS)) or 'nothing'} to decide as them."
+            )
+        kept = self._params
+        self._params = params
+        try:
+            yield self
+        finally:
+            self._params = kept
 
     def action_values(self, context: int) -> FloatArray:
         """The learner's point estimate of Q in ``context``, (P,): the value of doing each pair

@@ -38,6 +38,10 @@ class HriLearner(TabularLearner[HriParams]):
 
     algorithm: ClassVar[str] = "hri"
     params_type = HriParams
+    # The temperature, the temporal measure and how it counts: how Q is turned into a choice.
+    POLICY_PARAMS: ClassVar[frozenset[str]] = frozenset(
+        {"tau", "kappa", "measure", "pref_scale", "staleness"}
+    )
     _tables: ClassVar[dict[str, tuple[type, str]]] = {
         "ns": (np.float64, "CP3M"),
         "rs": (np.float64, "CP3"),

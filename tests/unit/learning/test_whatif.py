@@ -16,7 +16,7 @@ from app.learning.offpolicy import estimate, on_policy, point
 from app.learning.population import FAMILIES, Person, people, run_learner
 from app.learning.space import space_for
 from app.learning.types import Observation
-from app.learning.whatif import PersonLog, log_person, replay, steps_of
+from app.learning.whatif import PersonLog, log_person, replay, replay_all, steps_of
 
 MISSION = office_mission()
 SPACE = space_for(MISSION)
@@ -152,3 +152,51 @@ def test_a_near_candidate_is_estimated_and_a_far_one_refused() -> None:
     assert min(near_means) > 0.9
     assert max(far_means) < 0.8
     assert refused == fleets
+
+
+def test_candidates_that_learn_alike_are_replayed_once_with_the_same_answers() -> None:
+    """``replay_all`` answers for each candidate exactly what its own replay answers, whether
+    it learns alike with another (HRI at other temperatures, a temporal measure counted per
+    context) or not (another algorithm, another m_h); the candidates that only decided are
+    left untaught."""
+    persons, flips = _fleet("abrupt", 5, 2, 60)
+    candidates = [
+        ("hri", {"tau": 0.005}),
+        ("dts", {}),
+        ("hri", {"tau": 0.1, "kappa": 0.5, "staleness": "context"}),
+        ("hri", {"m_h": 2.0}),
+        ("hri", {"tau": 0.2}),
+    ]
+    for i, log in enumerate(_logs(*HRI, persons, flips, 5)):
+        alone = [
+            replay(log, make_learner(a, p, MISSION), _rng(5, i, k))
+            for k, (a, p) in enumerate(candidates)
+        ]
+        learners = [make_learner(a, p, MISSION) for a, p in candidates]
+        together = replay_all(log, learners, [_rng(5, i, k) for k in range(len(candidates))])
+        for one, other in zip(alone, together, strict=True):
+            for name in ("target", "unsupported", "q_hat", "v_hat"):
+                assert np.array_equal(getattr(one, name), getattr(other, name)), name
+        assert [learner.version for learner in learners] == [
+            len(log.decisions),
+            len(log.decisions),
+            0,
+            len(log.decisions),
+            0,
+        ]
+
+
+def test_a_learner_decides_as_other_params_only_where_they_do_not_change_what_it_learns() -> None:
+    learner = make_learner("hri", {"tau": 0.01}, MISSION)
+    hotter = make_learner("hri", {"tau": 0.5}, MISSION).params
+    assert learner.learns_as(hotter)
+    with learner.deciding_as(hotter) as deciding:
+        assert deciding.params.tau == 0.5
+    assert learner.params.tau == 0.01
+    other = make_learner("hri", {"m_h": 3.0}, MISSION).params
+    assert not learner.learns_as(other)
+    with pytest.raises(ValueError, match="may differ only in"), learner.deciding_as(other):
+        pass
+    dts = make_learner("dts", {}, MISSION)
+    assert not dts.learns_as(make_learner("dts", {"samples": 4}, MISSION).params)
+    assert not learner.learns_as(dts.params)
