@@ -933,6 +933,16 @@ def what_if(
             "draws differ between runs).",
         ),
     ] = 2,
+    replay_value: Annotated[
+        bool,
+        typer.Option(
+            "--replay-value",
+            help="Also measure what the replay's approximation costs: before each logged "
+            "event, a copy of each candidate as the replay has taught it serves the event "
+            "itself; prints, per setting and candidate, that value against the truth and the "
+            "default estimator's own error against it (about doubles the candidates' runs).",
+        ),
+    ] = False,
     out: OutOption = Path("results/what-if"),
     jobs: JobsOption = None,
     mission: MissionOption = None,
@@ -973,9 +983,20 @@ def what_if(
         chosen,
         truth_runs,
         _document(world, mission),
+        replay_value,
     )
     workers = min(jobs or default_workers(), len(todo))
-    default = (trials, persons, sizes, logger, candidates, families, truth_runs, mission) == (
+    default = (
+        trials,
+        persons,
+        sizes,
+        logger,
+        candidates,
+        families,
+        truth_runs,
+        mission,
+        replay_value,
+    ) == (
         study.DEFAULT_TRIALS,
         study.DEFAULT_PERSONS,
         ",".join(str(k) for k in study.DEFAULT_SIZES),
@@ -984,6 +1005,7 @@ def what_if(
         None,
         2,
         None,
+        False,
     )
     console.print(
         f"What if: {trials} fleets of {persons} persons ({', '.join(chosen)} in turn), "
@@ -1011,6 +1033,7 @@ def what_if(
         "logger": _learners([study.CANDIDATES[logger]]),
         "candidates": _learners(methods),
         "truth_runs": truth_runs,
+        "replay_value": replay_value,
         "workers": workers,
         "seconds": round(timing.seconds, 2),
         "cpu_seconds": round(timing.cpu, 2),

@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import zlib
 from collections.abc import Iterator, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -43,7 +43,7 @@ from app.learning.offpolicy import (
 )
 from app.learning.population import FAMILIES, people, run_learner
 from app.learning.space import space_for
-from app.learning.whatif import log_person, replay_all, steps_of
+from app.learning.whatif import log_person, replay_all, replay_values, steps_of
 
 from . import report
 from .report import rounded
@@ -118,6 +118,7 @@ class WhatIfTask:
     candidates: tuple[Method, ...]
     truth_runs: int = 2
     mission: str | None = None
+    replay_value: bool = False
 
     def describe(self) -> str:
         return f"{self.family} / trial {self.seed}"
@@ -132,6 +133,7 @@ def tasks_for(
     families: Sequence[str] = DEFAULT_FAMILIES,
     truth_runs: int = 2,
     mission: str | None = None,
+    replay_value: bool = False,
 ) -> list[WhatIfTask]:
     """``trials`` fleets, the families taken in turn."""
     return [
@@ -144,6 +146,7 @@ def tasks_for(
             tuple(candidates),
             truth_runs,
             mission,
+            replay_value,
         )
         for t in range(trials)
     ]
@@ -154,12 +157,14 @@ class TrialResult:
     """One trial's numbers. ``truth[label][k]``: true value per episode at setting ``k``
     (episodes per fleet); ``logged[k]``: the logging learner's own value from its logs (an
     on-policy estimate) and its truth; ``found[(label, estimator, interval)][k]``: the
-    estimate's plain dict (``Estimate.to_dict``)."""
+    estimate's plain dict (``Estimate.to_dict``); ``replayed[label][k]``, with
+    ``replay_value``: the candidate's value as the replay teaches it (``replay_values``)."""
 
     family: str
     seed: int
     truth: dict[str, dict[int, float]]
     found: dict[str, dict[int, dict[str, Any]]]
+    replayed: dict[str, dict[int, float]] = field(default_factory=dict)
 
 
 def _seq(*words: int) -> np.random.Generator:
@@ -219,9 +224,24 @@ def run_trial(task: WhatIfTask) -> TrialResult:
         )
         for i, log in enumerate(logs)
     ]
+    replayed: dict[str, dict[int, float]] = {}
     for c, m in enumerate(task.candidates):
         replays = [person[c] for person in by_person]
         truth[m.label] = true_values(m)
+        if task.replay_value:
+            rows = np.stack(
+                [
+                    replay_values(
+                        log,
+                        make_learner(m.algorithm, dict(m.params), mission),
+                        person,
+                        u,
+                        _seq(task.seed, family.key, 8, i, _key(m.label)),
+                    )
+                    for i, (log, person, u) in enumerate(zip(logs, persons, flips, strict=True))
+                ]
+            )
+            replayed[m.label] = {k: float(rows[:, :e].mean()) for k, e in sizes.items()}
         for k, e in sizes.items():
             steps = steps_of(logs, replays, space.actions_of, events=e)
             for estimator in ESTIMATORS:
@@ -237,7 +257,7 @@ def run_trial(task: WhatIfTask) -> TrialResult:
                     found.setdefault(found_key(m.label, estimator, interval), {})[k] = (
                         result.to_dict()
                     )
-    return TrialResult(task.family, task.seed, truth, found)
+    return TrialResult(task.family, task.seed, truth, found, replayed)
 
 
 def _identity(log: Any) -> Any:
@@ -342,10 +362,81 @@ def build_summary(
         "confidence": CONFIDENCE,
         "cells": cells,
         "ranking": _ranking(results, logger, candidates, max(sizes)),
+        "approximation": _approximation(results, candidates, sizes),
         "run": dict(info),
     }
     summary["targets"] = check_targets(summary)
     return summary
+
+
+def _approximation(
+    results: Sequence[TrialResult], candidates: Sequence[Method], sizes: Sequence[int]
+) -> list[dict[str, Any]]:
+    """With ``replay_value``, per setting and candidate, means over the trials: the truth,
+    the replay's value (what the estimates aim at), the approximation (replay value - truth),
+    and the default estimator's error against each, over the trials it answered: its bias
+    against the truth splits into the approximation and its own error. Empty without."""
+    out: list[dict[str, Any]] = []
+    for k in sizes:
+        for m in candidates:
+            had = [r for r in results if m.label in r.replayed]
+            if not had:
+                continue
+            truth = [r.truth[m.label][k] for r in had]
+            value = [r.replayed[m.label][k] for r in had]
+            answered = [
+                (f, r)
+                for r in had
+                if (f := _flat(r.found[found_key(m.label, DEFAULT_ESTIMATOR, "bootstrap")][k]))[
+                    "enough"
+                ]
+            ]
+            own = [f["value"] - r.replayed[m.label][k] for f, r in answered]
+            out.append(
+                {
+                    "episodes": k,
+                    "arm": m.label,
+                    "trials": len(had),
+                    "truth": rounded(float(np.mean(truth))),
+                    "replay_value": rounded(float(np.mean(value))),
+                    "approximation": rounded(float(np.mean(value) - np.mean(truth))),
+                    "answered": len(answered),
+                    "estimator_error": rounded(float(np.mean(own))) if own else None,
+                    "covers_replay_value": rounded(
+                        float(
+                            np.mean(
+                                [
+                                    f["low"] <= r.replayed[m.label][k] <= f["high"]
+                                    for f, r in answered
+                                ]
+                            )
+                        )
+                    )
+                    if answered
+                    else None,
+                }
+            )
+    return out
+
+
+def _approximation_lines(summary: Mapping[str, Any]) -> list[str]:
+    rows = summary.get("approximation") or []
+    if not rows:
+        return []
+    lines = [
+        "The replay's approximation (--replay-value): per setting and candidate, the truth, the "
+        "value of the candidate as the replay teaches it (what the estimates aim at), their "
+        f"difference, and the {summary['default_estimator']} estimate's own error against the "
+        "replay's value and how often its interval holds it (trials it answered):"
+    ]
+    for row in rows:
+        lines.append(
+            f"{row['episodes']} {row['arm']}: truth {_num(row['truth'])}, replay value "
+            f"{_num(row['replay_value'])} ({_num(row['approximation'], signed=True)}); "
+            f"estimate {_num(row['estimator_error'], signed=True)} from it, interval holds it "
+            f"{_pct(row['covers_replay_value'])} of {row['answered']}"
+        )
+    return lines
 
 
 def _ranking(
@@ -522,6 +613,10 @@ def markdown(summary: Mapping[str, Any]) -> str:
         "",
         *report.verdict_section("Targets", verdict_lines(summary)),
     ]
+    approximation = _approximation_lines(summary)
+    if approximation:
+        parts += ["", "## The replay's approximation", "", approximation[0], ""]
+        parts += [f"- {line}" for line in approximation[1:]]
     return "\n".join(parts) + "\n"
 
 
@@ -535,7 +630,7 @@ def print_table(summary: Mapping[str, Any], console: Console) -> None:
         )
     for row in _rows(summary):
         table.add_row(*row)
-    report.print_whole(console, table, verdict_lines(summary))
+    report.print_whole(console, table, [*verdict_lines(summary), *_approximation_lines(summary)])
 
 
 CSV_COLUMNS = (

@@ -63,6 +63,7 @@ __all__ = [
     "Family",
     "FamilyRun",
     "Person",
+    "serve_event",
     "TrueChange",
     "change_event",
     "match_changes",
@@ -275,40 +276,60 @@ def run_learner(
     the profile's for a learner without a mechanism) are appended to it as (event, change).
     ``on_decision(event, decision, transitions)`` is told each decision once the learner has
     learned its transitions (a log of the run: ``app.learning.whatif.log_person``)."""
-    space = learner.space
     watch = ChangeWatch(learner) if changes is not None else None
     out = np.zeros(person.n_events, dtype=np.float64)
     for e in range(person.n_events):
-        context, episode = int(person.contexts[e]), e + 1
-        state, step = space.OBSERVE, 0
-        tally = Tally()
-        while state != space.END:
-            assert STEP_UNIFORMS * (step + 1) <= uniforms.shape[1], "too long an episode"
-            decision = learner.select_action(Observation(context, state, episode), rng)
-            batch = decision.chain_transitions(episode)
-            cols = uniforms[e, STEP_UNIFORMS * step : STEP_UNIFORMS * (step + 1)]
-            reaction, _ = person.respond(space, e, decision.state, decision.action, cols)
-            batch.append(
-                Transition(
-                    episode,
-                    context,
-                    decision.state,
-                    decision.action,
-                    reaction.reward,
-                    reaction.next_state,
-                    reaction.signal,
-                )
-            )
-            learner.update(batch)
+
+        def learned(batch: list[Transition], decision: Decision, e: int = e) -> None:
             if on_decision is not None:
                 on_decision(e, decision, batch)
             if watch is not None and changes is not None:
                 changes.extend((e, change) for change in watch.observe(batch))
-            for t in batch:
-                tally.step(space, t.state, t.action, t.reward, t.next_state, t.signal)
-            state, step = reaction.next_state, step + 1
-        out[e] = tally.reward
+
+        out[e] = serve_event(learner, person, uniforms, e, rng, on_batch=learned)
     return out
+
+
+def serve_event(
+    learner: TabularLearner[Any],
+    person: Person,
+    uniforms: np.ndarray,
+    e: int,
+    rng: np.random.Generator,
+    *,
+    on_batch: Callable[[list[Transition], Decision], None] | None = None,
+) -> float:
+    """``learner`` serves ``person``'s event ``e`` (episode ``e + 1``), learning each decision's
+    transitions as it goes, as :func:`run_learner` does at each event; the episode's reward.
+    ``on_batch(transitions, decision)`` is told each decision once it is learned."""
+    space = learner.space
+    context, episode = int(person.contexts[e]), e + 1
+    state, step = space.OBSERVE, 0
+    tally = Tally()
+    while state != space.END:
+        assert STEP_UNIFORMS * (step + 1) <= uniforms.shape[1], "too long an episode"
+        decision = learner.select_action(Observation(context, state, episode), rng)
+        batch = decision.chain_transitions(episode)
+        cols = uniforms[e, STEP_UNIFORMS * step : STEP_UNIFORMS * (step + 1)]
+        reaction, _ = person.respond(space, e, decision.state, decision.action, cols)
+        batch.append(
+            Transition(
+                episode,
+                context,
+                decision.state,
+                decision.action,
+                reaction.reward,
+                reaction.next_state,
+                reaction.signal,
+            )
+        )
+        learner.update(batch)
+        if on_batch is not None:
+            on_batch(batch, decision)
+        for t in batch:
+            tally.step(space, t.state, t.action, t.reward, t.next_state, t.signal)
+        state, step = reaction.next_state, step + 1
+    return float(tally.reward)
 
 
 @dataclass(frozen=True)

@@ -18,6 +18,7 @@ persons, events and coin flips: :func:`app.learning.population.run_learner`.
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -26,10 +27,19 @@ import numpy as np
 
 from .learners.base import TabularLearner
 from .offpolicy import Steps
-from .population import Person, run_learner
+from .population import Person, run_learner, serve_event
 from .types import Decision, FloatArray, Transition
 
-__all__ = ["Decided", "PersonLog", "Replayed", "log_person", "replay", "replay_all", "steps_of"]
+__all__ = [
+    "Decided",
+    "PersonLog",
+    "Replayed",
+    "log_person",
+    "replay",
+    "replay_all",
+    "replay_values",
+    "steps_of",
+]
 
 
 @dataclass(frozen=True, slots=True)
@@ -138,6 +148,32 @@ def replay_all(
         for k in learning:
             candidates[k].update(list(d.transitions))
     return outs
+
+
+def replay_values(
+    log: PersonLog,
+    candidate: TabularLearner[Any],
+    person: Person,
+    uniforms: np.ndarray,
+    rng: np.random.Generator,
+) -> FloatArray:
+    """What the replay's approximation is worth, per event (shape (events,)): before each of
+    ``person``'s logged events, a copy of ``candidate`` as the replay has taught it so far
+    serves that event itself (learning within the episode, as online), and its reward is kept;
+    then ``candidate`` learns the logged decisions of the event, as :func:`replay` teaches it.
+    The mean is the value of "the candidate, learning from these logs", the quantity the
+    off-policy estimates aim at; its distance from the candidate's own on-policy value is the
+    approximation's (docs/method.md §17)."""
+    by_event: dict[int, list[Decided]] = {}
+    for d in log.decisions:
+        by_event.setdefault(d.event, []).append(d)
+    out = np.empty(person.n_events, dtype=np.float64)
+    shared = {id(candidate.mission): candidate.mission, id(candidate.space): candidate.space}
+    for e in range(person.n_events):
+        out[e] = serve_event(copy.deepcopy(candidate, dict(shared)), person, uniforms, e, rng)
+        for d in by_event.get(e, ()):
+            candidate.update(list(d.transitions))
+    return out
 
 
 def logged_probabilities(log: PersonLog, space_actions: Any) -> FloatArray:

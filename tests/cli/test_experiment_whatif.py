@@ -165,3 +165,39 @@ def test_a_run_where_every_candidate_is_refused_still_reports(tmp_path: Path) ->
     assert all(c["coverage"] is None and c["bias"] is None for c in refused)
     assert (tmp_path / "whatif.png").read_bytes().startswith(b"\x89PNG")
     assert "no answer" in done.stdout
+
+
+@pytest.mark.slow
+def test_replay_value_splits_the_bias_into_the_approximation_and_the_estimators_own(
+    tmp_path: Path, study: tuple[Result, Path, dict[str, Any]]
+) -> None:
+    """With --replay-value a row per setting and candidate: the truth is the plain run's
+    (the same seeds), the approximation is the replay's value less the truth, and the
+    estimator's error is against the replay's value; printed and in whatif.md. Without it,
+    nothing of the kind."""
+    _, _, plain = study
+    assert plain["approximation"] == []
+    assert plain["run"]["replay_value"] is False
+    done = run(tmp_path, "--replay-value")
+    assert done.exit_code == 0, done.output
+    summary = json.loads((tmp_path / "summary.json").read_text(encoding="utf-8"))
+    assert summary["run"]["replay_value"] is True
+    rows = summary["approximation"]
+    assert {(r["episodes"], r["arm"]) for r in rows} == {(k, c) for k in SIZES for c in CANDIDATES}
+    truths = {
+        (c["episodes"], c["arm"]): c["truth"]
+        for c in plain["cells"]
+        if c["estimator"] == "wpdis" and c["interval"] == "bootstrap"
+    }
+    for r in rows:
+        assert r["trials"] == 3
+        assert r["truth"] == pytest.approx(truths[(r["episodes"], r["arm"])], abs=1e-3)
+        assert r["approximation"] == pytest.approx(r["replay_value"] - r["truth"], abs=2e-3)
+        assert 0 <= r["answered"] <= 3
+        if r["answered"]:
+            assert r["estimator_error"] is not None
+            assert 0.0 <= r["covers_replay_value"] <= 1.0
+    text = (tmp_path / "whatif.md").read_text(encoding="utf-8")
+    assert "## The replay's approximation" in text
+    assert "replay value" in done.stdout
+    assert "not the default run" in done.stdout

@@ -509,6 +509,8 @@ class TabularLearner(Generic[P]):
 
 def _check_index(name: str, value: object, low: int, high: int) -> None:
     """A whole number in [low, high), or a ValueError naming ``name``."""
+    if type(value) is int and low <= value < high:
+        return  # the common case, first (a bool's type is bool, not int)
     if isinstance(value, bool) or not isinstance(value, int | np.integer):
         raise ValueError(f"{name} must be a whole number, got {value!r}.")
     if not low <= value < high:

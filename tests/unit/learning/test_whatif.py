@@ -16,7 +16,7 @@ from app.learning.offpolicy import estimate, on_policy, point
 from app.learning.population import FAMILIES, Person, people, run_learner
 from app.learning.space import space_for
 from app.learning.types import Observation
-from app.learning.whatif import PersonLog, log_person, replay, replay_all, steps_of
+from app.learning.whatif import PersonLog, log_person, replay, replay_all, replay_values, steps_of
 
 MISSION = office_mission()
 SPACE = space_for(MISSION)
@@ -200,3 +200,39 @@ def test_a_learner_decides_as_other_params_only_where_they_do_not_change_what_it
     dts = make_learner("dts", {}, MISSION)
     assert not dts.learns_as(make_learner("dts", {"samples": 4}, MISSION).params)
     assert not learner.learns_as(dts.params)
+
+
+def test_the_replays_value_is_taught_as_the_replay_teaches_and_near_the_truth_near_the_logger() -> (
+    None
+):
+    """``replay_values`` leaves the candidate taught exactly as ``replay`` teaches it (the
+    copies that served are dropped); for a candidate that acts almost as the logger, the
+    value of "the candidate learning from these logs" is close to its own on-policy value,
+    and a hotter one's is below it, as its truth is."""
+    persons, flips = _fleet("home", 2, 6, 60)
+    logs = _logs(*HRI, persons, flips, 2)
+    near, hot, truth_near, truth_hot = [], [], [], []
+    for i, (log, person, u) in enumerate(zip(logs, persons, flips, strict=True)):
+        taught = make_learner("hri", {"tau": 0.005}, MISSION)
+        values = replay_values(log, taught, person, u, _rng(2, 8, i))
+        assert values.shape == (60,)
+        replayed = make_learner("hri", {"tau": 0.005}, MISSION)
+        replay(log, replayed, _rng(2, 6, i))
+        assert taught.version == replayed.version == len(log.decisions)
+        for name in ("ns", "rs", "visits", "last"):
+            assert np.array_equal(getattr(taught, name), getattr(replayed, name)), name
+        near.append(values.mean())
+        hot.append(
+            replay_values(
+                log, make_learner("hri", {"tau": 0.5}, MISSION), person, u, _rng(2, 9, i)
+            ).mean()
+        )
+        truth_near.append(
+            run_learner(make_learner("hri", {"tau": 0.005}, MISSION), person, u, _rng(2, 7, i))
+        )
+        truth_hot.append(
+            run_learner(make_learner("hri", {"tau": 0.5}, MISSION), person, u, _rng(2, 10, i))
+        )
+    assert abs(np.mean(near) - np.mean(truth_near)) < 0.5  # 0.3 apart, at most, in trials
+    assert np.mean(hot) < np.mean(near)
+    assert np.mean(truth_hot) < np.mean(truth_near)
