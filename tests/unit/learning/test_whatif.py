@@ -160,7 +160,7 @@ def test_candidates_that_learn_alike_are_replayed_once_with_the_same_answers() -
     context) or not (another algorithm, another m_h); the candidates that only decided are
     left untaught."""
     persons, flips = _fleet("abrupt", 5, 2, 60)
-    candidates = [
+    candidates: list[tuple[str, dict[str, object]]] = [
         ("hri", {"tau": 0.005}),
         ("dts", {}),
         ("hri", {"tau": 0.1, "kappa": 0.5, "staleness": "context"}),
