@@ -373,17 +373,20 @@ def _approximation(
     results: Sequence[TrialResult], candidates: Sequence[Method], sizes: Sequence[int]
 ) -> list[dict[str, Any]]:
     """With ``replay_value``, per setting and candidate, means over the trials: the truth,
-    the replay's value (what the estimates aim at), the approximation (replay value - truth),
-    and the default estimator's error against each, over the trials it answered: its bias
-    against the truth splits into the approximation and its own error. Empty without."""
+    the replay's value (what the estimates aim at) and the approximation (replay value -
+    truth); then over the trials the default estimator answered, the same two and the
+    estimate's own error against the replay's value, so that over those trials its bias
+    against the truth is the approximation plus its own error. Empty without."""
     out: list[dict[str, Any]] = []
+
+    def mean(values: Sequence[float]) -> float | None:
+        return rounded(float(np.mean(values))) if len(values) else None
+
     for k in sizes:
         for m in candidates:
             had = [r for r in results if m.label in r.replayed]
             if not had:
                 continue
-            truth = [r.truth[m.label][k] for r in had]
-            value = [r.replayed[m.label][k] for r in had]
             answered = [
                 (f, r)
                 for r in had
@@ -391,29 +394,30 @@ def _approximation(
                     "enough"
                 ]
             ]
-            own = [f["value"] - r.replayed[m.label][k] for f, r in answered]
+            truth = [r.truth[m.label][k] for r in had]
+            value = [r.replayed[m.label][k] for r in had]
+            a_truth = [r.truth[m.label][k] for _, r in answered]
+            a_value = [r.replayed[m.label][k] for _, r in answered]
             out.append(
                 {
                     "episodes": k,
                     "arm": m.label,
                     "trials": len(had),
-                    "truth": rounded(float(np.mean(truth))),
-                    "replay_value": rounded(float(np.mean(value))),
-                    "approximation": rounded(float(np.mean(value) - np.mean(truth))),
+                    "truth": mean(truth),
+                    "replay_value": mean(value),
+                    "approximation": mean([v - t for v, t in zip(value, truth, strict=True)]),
                     "answered": len(answered),
-                    "estimator_error": rounded(float(np.mean(own))) if own else None,
-                    "covers_replay_value": rounded(
-                        float(
-                            np.mean(
-                                [
-                                    f["low"] <= r.replayed[m.label][k] <= f["high"]
-                                    for f, r in answered
-                                ]
-                            )
-                        )
-                    )
-                    if answered
-                    else None,
+                    "answered_truth": mean(a_truth),
+                    "answered_replay_value": mean(a_value),
+                    "estimator_error": mean(
+                        [f["value"] - v for (f, _), v in zip(answered, a_value, strict=True)]
+                    ),
+                    "covers_replay_value": mean(
+                        [
+                            float(f["low"] <= v <= f["high"])
+                            for (f, _), v in zip(answered, a_value, strict=True)
+                        ]
+                    ),
                 }
             )
     return out
@@ -424,17 +428,20 @@ def _approximation_lines(summary: Mapping[str, Any]) -> list[str]:
     if not rows:
         return []
     lines = [
-        "The replay's approximation (--replay-value): per setting and candidate, the truth, the "
-        "value of the candidate as the replay teaches it (what the estimates aim at), their "
-        f"difference, and the {summary['default_estimator']} estimate's own error against the "
-        "replay's value and how often its interval holds it (trials it answered):"
+        "The replay's approximation (--replay-value): per setting and candidate, over all trials "
+        "the truth and the value of the candidate as the replay teaches it (what the estimates "
+        "aim at), with their difference; over the trials the "
+        f"{summary['default_estimator']} estimate answered, the same two, the estimate's own "
+        "error against the replay's value and how often its interval holds it:"
     ]
     for row in rows:
         lines.append(
             f"{row['episodes']} {row['arm']}: truth {_num(row['truth'])}, replay value "
             f"{_num(row['replay_value'])} ({_num(row['approximation'], signed=True)}); "
-            f"estimate {_num(row['estimator_error'], signed=True)} from it, interval holds it "
-            f"{_pct(row['covers_replay_value'])} of {row['answered']}"
+            f"of the {row['answered']} answered: truth {_num(row['answered_truth'])}, replay "
+            f"value {_num(row['answered_replay_value'])}, estimate "
+            f"{_num(row['estimator_error'], signed=True)} from it, interval holds it "
+            f"{_pct(row['covers_replay_value'])}"
         )
     return lines
 

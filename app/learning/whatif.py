@@ -105,20 +105,17 @@ def replay_all(
     rngs: Sequence[np.random.Generator],
 ) -> list[Replayed]:
     """:func:`replay` of each of ``candidates`` (each asked with its own ``rngs`` entry), the
-    same answers, but candidates that learn alike (the same algorithm, params differing only
-    in how they decide: ``TabularLearner.learns_as``, e.g. HRI at several temperatures) learn
-    once: the first of them learns, and decides as each of the others in turn
-    (``deciding_as``). The others are left as they were."""
+    same answers, but fresh candidates that learn alike (the same algorithm, params differing
+    only in how they decide: ``TabularLearner.learns_as``, e.g. HRI at several temperatures;
+    nothing learned yet and no guidance) learn once: the first of them learns, and decides as
+    each of the others in turn (``deciding_as``). The others are left as they were. A
+    candidate that learned already, or carries guidance, is replayed on its own."""
     if len(candidates) != len(rngs):
         raise ValueError("one rng per candidate.")
     leaders: list[int] = []  # the candidate whose learner learns, for each candidate
     for i, c in enumerate(candidates):
         lead = next(
-            (
-                j
-                for j, led in enumerate(leaders)
-                if led == j and type(candidates[j]) is type(c) and candidates[j].learns_as(c.params)
-            ),
+            (j for j, led in enumerate(leaders) if led == j and _fresh_alike(candidates[j], c)),
             i,
         )
         leaders.append(lead)
@@ -148,6 +145,18 @@ def replay_all(
         for k in learning:
             candidates[k].update(list(d.transitions))
     return outs
+
+
+def _fresh_alike(a: TabularLearner[Any], b: TabularLearner[Any]) -> bool:
+    """Whether ``b`` may answer through ``a``'s tables: both fresh (nothing learned, no
+    guidance), of one algorithm and learning alike."""
+    return (
+        type(a) is type(b)
+        and a.version == b.version == 0
+        and not a.guidance
+        and not b.guidance
+        and a.learns_as(b.params)
+    )
 
 
 def replay_values(

@@ -197,6 +197,14 @@ def test_replay_value_splits_the_bias_into_the_approximation_and_the_estimators_
         if r["answered"]:
             assert r["estimator_error"] is not None
             assert 0.0 <= r["covers_replay_value"] <= 1.0
+            assert r["answered_truth"] is not None
+            assert r["answered_replay_value"] is not None
+            if r["answered"] == r["trials"]:  # the same trials: the same means
+                assert r["answered_truth"] == pytest.approx(r["truth"], abs=1e-3)
+                assert r["answered_replay_value"] == pytest.approx(r["replay_value"], abs=1e-3)
+        else:
+            assert r["estimator_error"] is None
+            assert r["answered_truth"] is None
     text = (tmp_path / "whatif.md").read_text(encoding="utf-8")
     assert "## The replay's approximation" in text
     assert "replay value" in done.stdout

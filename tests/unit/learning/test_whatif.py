@@ -236,3 +236,26 @@ def test_the_replays_value_is_taught_as_the_replay_teaches_and_near_the_truth_ne
     assert abs(np.mean(near) - np.mean(truth_near)) < 0.5  # 0.3 apart, at most, in trials
     assert np.mean(hot) < np.mean(near)
     assert np.mean(truth_hot) < np.mean(truth_near)
+
+
+def test_a_candidate_that_learned_already_is_replayed_on_its_own() -> None:
+    """Two HRI candidates that differ only in their temperature, one of them taught a first
+    log already: ``replay_all`` does not answer for it through the fresh one's tables, so each
+    answers what its own replay answers."""
+    persons, flips = _fleet("home", 4, 2, 40)
+    first, second = _logs(*HRI, persons, flips, 4)
+    taught = make_learner("hri", {"tau": 0.1}, MISSION)
+    replay(first, taught, _rng(4, 0))
+    again = make_learner("hri", {"tau": 0.1}, MISSION)
+    replay(first, again, _rng(4, 0))
+    alone = [
+        replay(second, make_learner("hri", {"tau": 0.005}, MISSION), _rng(4, 1)),
+        replay(second, again, _rng(4, 2)),
+    ]
+    together = replay_all(
+        second, [make_learner("hri", {"tau": 0.005}, MISSION), taught], [_rng(4, 1), _rng(4, 2)]
+    )
+    for one, other in zip(alone, together, strict=True):
+        for name in ("target", "q_hat", "v_hat"):
+            assert np.array_equal(getattr(one, name), getattr(other, name)), name
+    assert taught.version == again.version
