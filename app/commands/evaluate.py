@@ -161,11 +161,12 @@ def evaluate(
         str | None,
         typer.Option(
             "--estimator",
-            metavar="wpdis|dr|pdis",
+            metavar="wpdis|wdr|dr|pdis",
             show_default=False,
-            help="wpdis (weighted per-decision importance sampling), dr (doubly robust: the "
-            "candidate's own model as a control variate) or pdis (per-decision importance "
-            "sampling); by default the one docs/method.md §17 recommends.",
+            help="wpdis (weighted per-decision importance sampling), wdr (weighted doubly "
+            "robust: wpdis with the candidate's own model as a control variate, which also "
+            "speaks for what the logs seldom show), dr (doubly robust) or pdis (per-decision "
+            "importance sampling); by default the one docs/method.md §17 recommends.",
         ),
     ] = None,
     per_person: Annotated[

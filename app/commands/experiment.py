@@ -940,7 +940,7 @@ def what_if(
             help="Also measure what the replay's approximation costs: before each logged "
             "event, a copy of each candidate as the replay has taught it serves the event "
             "itself; prints, per setting and candidate, that value against the truth and the "
-            "default estimator's own error against it (adds about 60 % to the run's time).",
+            "default estimator's own error against it (adds about a third to the run's time).",
         ),
     ] = False,
     out: OutOption = Path("results/what-if"),

@@ -837,6 +837,7 @@ _ESTIMATOR_WORDS = {
     "wpdis": "weighted per-decision importance sampling (wpdis)",
     "pdis": "per-decision importance sampling (pdis)",
     "dr": "doubly robust (dr)",
+    "wdr": "weighted doubly robust (wdr)",
 }
 _FEW = re.compile(r"not enough evidence: ([0-9]+) episodes, effective size ([0-9.]+)")
 
@@ -917,6 +918,11 @@ def evidence_why(label: str, reason: str) -> str:
         )
     if "never show" in reason:
         return f"{label} would often do what the robots never do there, which the logs cannot show"
+    if "own model expects" in reason:
+        return (
+            f"{label} expects more (or less) of these encounters than the robots ever earned, "
+            "so this way of estimating cannot lean on what it expects; the usual way can answer"
+        )
     if "wider than the range" in reason:
         return f"the estimate for {label} is too uncertain to place it anywhere"
     if "what the robots earn now" in reason:

@@ -469,6 +469,13 @@ def _ranking(
                 continue
             better, worse = (a, b) if gap > 0 else (b, a)
             row: dict[str, Any] = {"better": better, "worse": worse, "gap": rounded(abs(gap))}
+            # How often the fleets' own truths (over every trial) put the pair in that order:
+            # what one fleet can show at best, where fleets differ (a tie counts as a half).
+            sign = [np.sign(r.truth[better][k] - r.truth[worse][k]) for r in results]
+            row["truth"] = {
+                "trials": len(results),
+                "ordered": rounded(float(np.mean([(x + 1) / 2 for x in sign]))),
+            }
             for estimator in ESTIMATORS:
                 right = silent = 0
                 for r in results:
@@ -598,6 +605,12 @@ def verdict_lines(summary: Mapping[str, Any]) -> list[str]:
             + ", ".join(
                 f"{estimator} {_pct(pair[estimator]['ordered'])} of {pair[estimator]['trials']}"
                 for estimator in ESTIMATORS
+            )
+            + (
+                f"; the fleets' own truths {_pct(pair['truth']['ordered'])} of "
+                f"{pair['truth']['trials']}"
+                if "truth" in pair
+                else ""
             )
         )
     if not summary["ranking"]["pairs"]:

@@ -131,7 +131,7 @@ def replay_all(
             with leader.deciding_as(c.params) as deciding:
                 space = deciding.space
                 mine = deciding.distributions(first.context, states, first.episode, rngs[k])
-                q = deciding.action_values(first.context)
+                q = deciding.action_values(first.context, gamma=1.0)
             out = outs[k]
             for j, (t, theirs, ours) in enumerate(
                 zip(d.transitions, d.distributions, mine, strict=True)

@@ -86,10 +86,10 @@ class EvaluationIn(BaseModel):
     until: dt.datetime | None = Field(
         default=None, description="Count the episodes that happened before then."
     )
-    estimator: Literal["wpdis", "pdis", "dr"] | None = Field(
+    estimator: Literal["wpdis", "pdis", "dr", "wdr"] | None = Field(
         default=None,
-        description="wpdis (the default: weighted per-decision importance sampling), pdis, or "
-        "dr (doubly robust); docs/method.md §17.",
+        description="wpdis (the default: weighted per-decision importance sampling), pdis, "
+        "dr (doubly robust) or wdr (weighted doubly robust); docs/method.md §17.",
     )
 
 

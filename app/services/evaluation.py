@@ -27,8 +27,9 @@ simulation:
   the decision's drawn silent steps and its visible step, the distributions it would have drawn
   from (``distributions``, one plan for the decision, from a generator seeded by the person,
   the candidate and the decision, so that a rerun gives the same numbers) and its Q values
-  (``action_values``; the doubly robust estimate's model). Its probability of the logged action
-  is the *target*; its mass on actions the logging distribution gave 0 is *unsupported*.
+  (``action_values`` undiscounted, in the unit of a return; the doubly robust estimates'
+  model). Its probability of the logged action is the *target*; its mass on actions the
+  logging distribution gave 0 is *unsupported*.
 - **The logged probability** of a step is read from the decision row of the episode and step:
   for the visible step, ``probabilities[action - actions_of(state).start]``; for a silent step,
   the ``p`` its entry of ``chain`` recorded. The service keeps only the drawn action's
@@ -950,7 +951,7 @@ def _replay(
             on_asked(asked, mine, learner.space)
         # The candidate's Q values: the doubly robust estimate's model (``model``), left at 0
         # for the estimators that do not use them.
-        q = learner.action_values(asked.context) if model else None
+        q = learner.action_values(asked.context, gamma=1.0) if model else None
         space = learner.space
         for state, action, row, ours, theirs in zip(
             asked.states, asked.actions, asked.rows, mine, asked.theirs, strict=True
@@ -1315,7 +1316,10 @@ def evaluate_fleet(
                                 session, spec, history, user
                             )
                 replays = (
-                    [_replay(fleet, history, spec, model=estimator == "dr") for spec in theirs]
+                    [
+                        _replay(fleet, history, spec, model=estimator in ("dr", "wdr"))
+                        for spec in theirs
+                    ]
                     if history.lengths
                     else []
                 )

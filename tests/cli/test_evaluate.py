@@ -173,10 +173,12 @@ def test_the_fleets_own_learner_earns_what_the_logs_show(
         assert hri["verdict"].startswith("HRI would earn about the same as what the robots do now")
     # The doubly robust estimate adds the candidate's model as a control variate: with every
     # weight 1 its terms cancel in expectation, not episode by episode.
-    [dr] = _evaluate(attune, "--candidate", "hri", "--estimator", "dr")["candidates"]
-    assert dr["estimate"]["ess"] == pytest.approx(COUNTED, rel=1e-9)
-    low, high = dr["estimate"]["interval"]["low"], dr["estimate"]["interval"]["high"]
-    assert low < mean < high
+    for estimator in ("dr", "wdr"):
+        [dr] = _evaluate(attune, "--candidate", "hri", "--estimator", estimator)["candidates"]
+        assert dr["estimate"]["estimator"] == estimator
+        assert dr["estimate"]["ess"] == pytest.approx(COUNTED, rel=1e-9)
+        low, high = dr["estimate"]["interval"]["low"], dr["estimate"]["interval"]["high"]
+        assert low < mean < high
 
 
 def test_a_candidate_far_from_the_logger_gets_no_narrow_number(

@@ -125,6 +125,12 @@ def test_prints_the_targets_met_or_missed(study: tuple[Result, Path, dict[str, A
         assert pair["gap"] >= 0.1
         for estimator in ESTIMATORS:
             assert pair[estimator]["trials"] + pair[estimator]["silent"] == 3
+        # what the fleets' own truths show: a share of the 3 trials, ties counting a half
+        assert pair["truth"]["trials"] == 3
+        sixths = pair["truth"]["ordered"] * 6
+        assert 0 <= sixths <= 6
+        assert sixths == pytest.approx(round(sixths), abs=1e-3)
+        assert f"the fleets' own truths {pair['truth']['ordered']:.0%} of 3" in done.stdout
 
 
 @pytest.mark.slow

@@ -120,17 +120,26 @@ class TabularLearner(Generic[P]):
     def _policy(self, plan: Any, context: int, state: int, episode: int) -> FloatArray:
         raise NotImplementedError
 
-    def _compute_q(self, context: int) -> FloatArray:
-        """Point estimate of Q for one context, (P,), from the tables."""
+    def _compute_q(self, context: int, gamma: float | None = None) -> FloatArray:
+        """Point estimate of Q for one context, (P,), from the tables, discounted by ``gamma``
+        (None: the mission's, as the learner plans)."""
         raise NotImplementedError
 
     def _q(self, context: int) -> FloatArray:
         """``_compute_q``, cached per context until a hook drops the entry (``_cache.pop``)."""
-        cached = self._cache.get(context)
+        return self._cached_q(context, None)
+
+    def _cached_q(self, context: int, gamma: float | None) -> FloatArray:
+        """``_compute_q`` at ``gamma``; a context's entry holds one array per gamma asked, all
+        dropped together."""
+        entry = self._cache.get(context)
+        if entry is None:
+            entry = self._cache[context] = {}
+        cached: FloatArray | None = entry.get(gamma)
         if cached is None:
-            cached = self._compute_q(context)
+            cached = self._compute_q(context, gamma)
             cached.setflags(write=False)
-            self._cache[context] = cached
+            entry[gamma] = cached
         return cached
 
     def _check_tables(self) -> None:
@@ -241,12 +250,19 @@ class TabularLearner(Generic[P]):
         finally:
             self._params = kept
 
-    def action_values(self, context: int) -> FloatArray:
+    def action_values(self, context: int, *, gamma: float | None = None) -> FloatArray:
         """The learner's point estimate of Q in ``context``, (P,): the value of doing each pair
         and following the learner's model from there (the model behind a doubly robust
-        estimate)."""
-        out: FloatArray = self._q(context).copy()
-        return out
+        estimate). ``gamma``: the discount of those values; None is the mission's, the one the
+        learner plans with; 1.0 gives the plain sum of the rewards to the episode's end, the
+        unit an off-policy estimate counts in (every mission's negotiation is acyclic and
+        ends). A learner without a model (Q-learning) has only its own, discounted, values."""
+        if gamma is None or gamma == self.mission.gamma:
+            out: FloatArray = self._q(context).copy()
+            return out
+        if not 0.0 <= gamma <= 1.0:
+            raise ValueError(f"gamma must be in [0, 1], got {gamma!r}.")
+        return self._cached_q(context, float(gamma)).copy()
 
     @property
     def ctx_count(self) -> IntArray:

@@ -328,7 +328,7 @@ class DtsLearner(TabularLearner[DtsParams]):
         return mean, prm.reward_sd / float(np.sqrt(n + prm.reward_prior_count))
 
     def _fold_answers(
-        self, reward: FloatArray, trans: FloatArray, v_answer: FloatArray
+        self, reward: FloatArray, trans: FloatArray, v_answer: FloatArray, gamma: float
     ) -> tuple[FloatArray, FloatArray]:
         """Asking for the detail ends, in the model, with the answered service performed:
         Q(query_detail) = r + gamma * P(answer) * V_answer. This is what makes a question worth
@@ -338,7 +338,6 @@ class DtsLearner(TabularLearner[DtsParams]):
         rows = np.flatnonzero(qd)
         p_answer = 1.0 - trans[..., rows, space.end_column[rows]]
         reward = reward.copy()
-        gamma = self.mission.gamma
         reward[..., rows] += gamma * p_answer * v_answer[..., None]
         ends = qd
         if self._params.trust_answers:
@@ -351,26 +350,34 @@ class DtsLearner(TabularLearner[DtsParams]):
         trans = np.where(ends[:, None], self._to_end, trans)
         return reward, trans
 
-    def _compute_q(self, context: int) -> FloatArray:
+    def _compute_q(self, context: int, gamma: float | None = None) -> FloatArray:
         """Q of the posterior-mean model."""
+        gamma = self.mission.gamma if gamma is None else gamma
         mean, _, alpha, known = self._posterior(context)
         silent = self.space.silent[:, None]
         trans = np.where(silent, known, alpha / alpha.sum(axis=1, keepdims=True))
         v_answer = np.asarray(self._answer_posterior()[0])
-        return self._solve(*self._fold_answers(mean, trans, v_answer))
+        return self._solve(*self._fold_answers(mean, trans, v_answer, gamma), gamma=gamma)
 
     def _check_tables(self) -> None:
         check_nonnegative(dn=self.dn, dns=self.dns, answered=self.answered[:1], change=self.change)
         if np.any(self.change[:, 3] > 1.0):
             raise StateFormatError("arrays.change: a run's chance must not exceed 1.")
 
-    def _solve(self, reward: FloatArray, trans: FloatArray, level: int | None = None) -> FloatArray:
+    def _solve(
+        self,
+        reward: FloatArray,
+        trans: FloatArray,
+        level: int | None = None,
+        *,
+        gamma: float | None = None,
+    ) -> FloatArray:
         v_max = self.mission.v_max
         q = value_iteration(
             self.space,
             reward,
             trans,
-            gamma=self.mission.gamma,
+            gamma=self.mission.gamma if gamma is None else gamma,
             tol=self._params.vi_tol,
             max_sweeps=self._params.vi_max_sweeps,
             level=level,

@@ -127,7 +127,7 @@ class HriLearner(TabularLearner[HriParams]):
         rs = np.einsum("pk,pk->p", self.rs[context], keep)
         return ns.sum(axis=1), rs, ns
 
-    def _compute_q(self, context: int) -> FloatArray:
+    def _compute_q(self, context: int, gamma: float | None = None) -> FloatArray:
         space, prm, mission = self.space, self._params, self.mission
         n, r, ns = self._filtered(context)
         known = n >= prm.m_h
@@ -143,7 +143,7 @@ class HriLearner(TabularLearner[HriParams]):
             space,
             reward,
             trans,
-            gamma=mission.gamma,
+            gamma=mission.gamma if gamma is None else gamma,
             tol=prm.vi_tol,
             max_sweeps=prm.vi_max_sweeps,
             fixed=fixed,

@@ -46,6 +46,12 @@ class QLearner(TabularLearner[QLearningParams]):
         out: FloatArray = self.q[context]  # the table itself: nothing to plan or cache
         return out
 
+    def _compute_q(self, context: int, gamma: float | None = None) -> FloatArray:
+        # Without a model there is nothing to solve at another discount: the values learned,
+        # discounted by the mission's gamma, are all there is.
+        out: FloatArray = self.q[context].copy()
+        return out
+
     def epsilon(self, episode: int) -> float:
         prm = self._params
         return max(prm.epsilon_min, prm.epsilon0 * prm.epsilon_decay ** (episode - 1))

@@ -52,7 +52,7 @@ class RmaxLearner(TabularLearner[RmaxParams]):
     def _check_tables(self) -> None:
         check_nonnegative(ns=self.ns)
 
-    def _compute_q(self, context: int) -> FloatArray:
+    def _compute_q(self, context: int, gamma: float | None = None) -> FloatArray:
         n = self.ns[context].sum(axis=1)
         unknown = n < self._params.m
         safe = np.where(unknown, 1.0, n)
@@ -60,7 +60,7 @@ class RmaxLearner(TabularLearner[RmaxParams]):
             self.space,
             np.where(unknown, 0.0, self.r[context] / safe),
             self.ns[context] / safe[:, None],
-            gamma=self.mission.gamma,
+            gamma=self.mission.gamma if gamma is None else gamma,
             tol=self._params.vi_tol,
             max_sweeps=self._params.vi_max_sweeps,
             fixed=unknown,

@@ -14,6 +14,7 @@ from app.console.views import (
     correction_status,
     correction_words,
     curve,
+    evidence_why,
     expectation,
     fmt_aware,
     fmt_count,
@@ -26,6 +27,7 @@ from app.console.views import (
     robot_words,
     wanted_words,
 )
+from app.learning.offpolicy import Steps, estimate
 from app.schemas.models import ContextModel
 from app.schemas.profile import CorrectionOut, RobotWill, Wanted
 
@@ -328,3 +330,16 @@ def test_the_learner_in_use_is_explained() -> None:
     assert "Pref" not in p_words("dts-adapt")
     assert "share of the drawn models" in p_words("dts-adapt")
     assert learner_words("dts-adapt") != learner_words("hri")
+
+
+def test_why_there_is_no_estimate_reads_in_staff_words() -> None:
+    # A doubly robust estimate refused because the candidate's model expects far more than any
+    # logged encounter earned: the staff's sentence names the learner, not the symbols.
+    seen = {"logged": [0.9], "target": [0.9], "reward": [1.0], "q_hat": [40.0], "v_hat": [40.0]}
+    result = estimate(Steps.from_episodes([seen] * 40, list(range(40))), "wdr")
+    assert not result.enough
+    words = evidence_why("R-MAX", result.reason)
+    assert words.startswith("R-MAX expects more (or less) of these encounters")
+    assert "40.00" not in words
+    few = estimate(Steps.from_episodes([seen] * 5, list(range(5))), "wpdis")
+    assert evidence_why("DTS", few.reason).startswith("too few of the robots' encounters")

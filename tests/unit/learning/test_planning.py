@@ -85,7 +85,9 @@ def reference_plan(
     reward = mean + sd * rng.standard_normal((k, mean.shape[0]))
     a_mean, a_sd = learner._answer_posterior()
     v_answer = a_mean + a_sd * rng.standard_normal(k)
-    folded_reward, folded_trans = learner._fold_answers(reward, trans, v_answer)
+    folded_reward, folded_trans = learner._fold_answers(
+        reward, trans, v_answer, learner.mission.gamma
+    )
     q = sweep_value_iteration(
         space,
         folded_reward,

@@ -99,6 +99,35 @@ def test_distributions_are_what_select_action_draws_from(algorithm: str) -> None
             q = learner.action_values(context)
             assert q.shape == (SPACE.n_actions,)
             assert np.isfinite(q).all()
+            assert np.array_equal(learner.action_values(context, gamma=MISSION.gamma), q)
+            assert np.isfinite(learner.action_values(context, gamma=1.0)).all()
+    with pytest.raises(ValueError, match="gamma"):
+        learner.action_values(0, gamma=1.5)
+
+
+@pytest.mark.parametrize("algorithm", ["hri", "dts"])
+def test_undiscounted_model_values_are_in_the_unit_of_a_return(algorithm: str) -> None:
+    # What an episode returns is the plain sum of its rewards; the learners plan with a
+    # discount. The doubly robust estimate's model (action_values with gamma=1.0) must speak of
+    # returns: over the pairs a learner begins its episodes with, its undiscounted values lie
+    # closer to the returns that followed them than the discounted ones. (R-MAX's model values
+    # what it has not tried yet at its optimistic bound: no unit helps there.)
+    persons, flips = _fleet("individual", 4, 3, 120)
+    plain_error = discounted_error = 0.0
+    for i, (person, u) in enumerate(zip(persons, flips, strict=True)):
+        learner = make_learner(algorithm, {}, MISSION)
+        log = log_person(learner, person, u, _rng(4, i))
+        returns: dict[tuple[int, int], list[float]] = {}
+        for d in log.decisions:
+            first = d.transitions[0]
+            if d.event >= 60 and first.state == SPACE.OBSERVE:  # settled; the episode's start
+                returns.setdefault((first.context, first.action), []).append(log.returns[d.event])
+        for (context, action), seen in returns.items():
+            if len(seen) >= 5:
+                mean = float(np.mean(seen))
+                plain_error += abs(learner.action_values(context, gamma=1.0)[action] - mean)
+                discounted_error += abs(learner.action_values(context)[action] - mean)
+    assert plain_error < discounted_error
 
 
 def test_a_prefix_keeps_each_persons_first_episodes() -> None:
