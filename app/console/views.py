@@ -921,7 +921,7 @@ def evidence_why(label: str, reason: str) -> str:
     if "own model expects" in reason:
         return (
             f"{label} expects more (or less) of these encounters than the robots ever earned, "
-            "so this way of estimating cannot lean on what it expects; the usual way can answer"
+            "so this way of estimating cannot lean on what it expects; the usual way may answer"
         )
     if "wider than the range" in reason:
         return f"the estimate for {label} is too uncertain to place it anywhere"

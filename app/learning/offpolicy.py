@@ -48,12 +48,14 @@ discount; :meth:`TabularLearner.action_values` with ``gamma=1.0`` gives its mode
 ``wdr`` (weighted doubly robust, Thomas & Brunskill 2016): dr's terms, self-normalised as wpdis
 is, per step index: sum_t [sum_i w_it (r_it - q_hat_it) / sum_i w_it + sum_i w_i(t-1) v_hat_it /
 sum_i w_i(t-1)] (the first step's v_hat simply averaged; ended episodes hold their last weight
-and add 0). Biased for small samples as wpdis is, as variable as dr at most. With
+and add 0). Biased for small samples as wpdis is, usually less variable than dr. With
 ``q_hat = v_hat = 0`` it is wpdis. Where the logs seldom show what the candidate does (weights
-averaging below 1), wpdis spreads the missing share over what the logs show, pdis and dr count
-it as 0; wdr lets the candidate's own model speak for it (the first step's ``v_hat`` is not
-weighted), which is right when the model is, and as wrong as the model otherwise: an optimistic
-model (R-MAX values what it has not tried at its bound) makes an optimistic estimate.
+averaging below 1), wpdis spreads the missing share over what the logs show and pdis counts it
+as 0; dr and wdr let the candidate's own model speak for it (the first step's ``v_hat`` is not
+weighted, and no correction reaches what the logs do not hold), which is right when the model
+is, and as wrong as the model otherwise: an optimistic model (R-MAX values what it has not
+tried at its bound) makes an optimistic estimate. Without a model, dr counts it as 0 as pdis
+does.
 
 The unbiasedness claims need every action the candidate may take to have been possible under the
 logger. ``unsupported`` is the candidate's probability, in each logged state, of actions the
@@ -94,12 +96,13 @@ What the logs do not show
 -------------------------
 A mean weight below 1 is also a measure: 1 - ``weight_mean`` is the share of the candidate's
 episodes that the logs, in effect, do not hold. ``wpdis`` spreads that share over what the logs
-show (as if it earned what the rest earns), ``pdis`` and ``dr`` count it as earning 0, ``wdr``
-as the candidate's model says; none is known. Every interval therefore reaches further, by
-:func:`unseen_margins`: that share may earn anything from the lowest to the highest return the
-logs show (0 included), so the interval's low end moves down by u x (value - lowest) and its
-high end up by u x (highest - value) for ``wpdis`` and ``wdr`` (u x -lowest and u x highest for
-``pdis`` and ``dr``), u = 1 - ``weight_mean``. Where
+show (as if it earned what the rest earns), ``pdis`` counts it as earning 0, ``dr`` and ``wdr``
+as the candidate's model says (``dr`` without a model: 0); none is known. Every interval
+therefore reaches further, by :func:`unseen_margins`: that share may earn anything from the
+lowest to the highest return the logs show (0 included), so the interval's low end moves down
+by u x (value - lowest) and its high end up by u x (highest - value) for ``wpdis``, ``wdr`` and
+``dr`` with a model (u x -lowest and u x highest for ``pdis`` and ``dr`` without one),
+u = 1 - ``weight_mean``. Where
 the logs show the candidate (weights averaging 1 or more) nothing changes; the further it
 strays, the wider its interval, instead of a narrow interval around a biased value. On
 simulated fleets (docs/method.md §17) this took the bootstrap's coverage of a candidate that
@@ -156,8 +159,9 @@ simulated fleets logged under HRI (docs/method.md §17), at 1,000 episodes per f
 intervals held the truth of a candidate at a third of a reward per encounter below the logger in
 90 % of the fleets with no bias, where dr and pdis were biased by a third of a reward (their
 intervals covered in 44 % and 51 %): that candidate often does what the logger seldom does
-(its weights average 0.8), and pdis and dr count the part the logs do not show as earning
-nothing, while the self-normalisation of wpdis spreads it over what they do show. Where the
+(its weights average 0.8), and pdis counts the part the logs do not show as earning nothing
+(dr then, with a model in discounted values, little more), while the self-normalisation of
+wpdis spreads it over what they do show. Where the
 logs show the candidate well (weights averaging 1) the three agree. In the tests' simulated
 negotiation (tests/unit/learning/test_offpolicy.py: 300 episodes from 20 people, a candidate
 with an ESS of about 50), dr had the smallest error (RMSE 0.08 against 0.11 for wpdis and 0.13
@@ -440,8 +444,9 @@ def _finite_or_none(value: float) -> float | None:
 @dataclass(frozen=True)
 class Interval:
     """A ``confidence`` interval; ``method`` says how it was made: ``bootstrap`` (people
-    resampled), ``bootstrap-episodes`` (too few people: episodes resampled), ``bernstein``, or
-    ``bernstein-pdis`` (wpdis: the bound on the pdis values)."""
+    resampled), ``bootstrap-episodes`` (too few people: episodes resampled), ``bernstein``,
+    ``bernstein-pdis`` (wpdis: the bound on the pdis values) or ``bernstein-dr`` (wdr: the bound
+    on the dr values)."""
 
     low: float
     high: float
@@ -834,15 +839,16 @@ def unseen_margins(
     show (see "What the logs do not show" in the module's docstring): the unseen share
     u = 1 - ``weight_mean`` (0 when the weights average 1 or more) of the candidate's episodes
     may return anything from the lowest to the highest return the logs show (0 included).
-    ``wpdis`` spreads that share over what the logs show (``wdr`` over what its model says), so
-    its value moves by u x (return - value); ``pdis`` and ``dr`` count it as earning 0, so
-    theirs by u x return."""
+    ``wpdis`` spreads that share over what the logs show (``wdr``, and ``dr`` with a model, over
+    what the model says), so its value moves by u x (return - value); ``pdis`` (and ``dr``
+    without a model) counts it as earning 0, so theirs by u x return."""
     unseen = min(max(1.0 - weight_mean, 0.0), 1.0) if math.isfinite(weight_mean) else 1.0
     if unseen == 0.0 or steps.n_episodes == 0:
         return 0.0, 0.0
     returns = steps.returns()
     lowest, highest = min(0.0, float(np.min(returns))), max(0.0, float(np.max(returns)))
-    if estimator in _SELF_NORMALISED:
+    modelled = estimator == "dr" and bool(np.any(steps.q_hat) or np.any(steps.v_hat))
+    if estimator in _SELF_NORMALISED or modelled:
         return unseen * max(value - lowest, 0.0), unseen * max(highest - value, 0.0)
     return unseen * -lowest, unseen * highest
 
@@ -876,9 +882,18 @@ def _implausible(steps: Steps, estimator: str) -> str:
     bound), and an estimate leaning on them would be no better."""
     if estimator not in ("dr", "wdr") or steps.n_episodes == 0:
         return ""
+    # Each episode's first step the candidate decides: a step forced on every learner (the
+    # person chose it) carries logged = target = 1 and no model value, and would pull the mean
+    # to 0.
+    forced = (steps.logged == 1.0) & (steps.target == 1.0) & (steps.q_hat == 0) & (steps.v_hat == 0)
+    episode = np.repeat(np.arange(steps.n_episodes), steps.lengths)
+    rows = np.flatnonzero(~forced)
+    if rows.size == 0:
+        return ""
+    _, first = np.unique(episode[rows], return_index=True)
     returns = steps.returns()
     lowest, highest = min(0.0, float(np.min(returns))), max(0.0, float(np.max(returns)))
-    expected = float(np.mean(steps.v_hat[steps.offsets[:-1]]))
+    expected = float(np.mean(steps.v_hat[rows[first]]))
     if lowest <= expected <= highest:
         return ""
     return (

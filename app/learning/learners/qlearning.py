@@ -52,6 +52,10 @@ class QLearner(TabularLearner[QLearningParams]):
         out: FloatArray = self.q[context].copy()
         return out
 
+    def _cached_q(self, context: int, gamma: float | None) -> FloatArray:
+        # The table changes with every sample and no hook drops a cache: never keep one.
+        return self._q(context)
+
     def epsilon(self, episode: int) -> float:
         prm = self._params
         return max(prm.epsilon_min, prm.epsilon0 * prm.epsilon_decay ** (episode - 1))

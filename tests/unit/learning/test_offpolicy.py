@@ -634,7 +634,7 @@ def test_a_model_beyond_anything_logged_gets_no_doubly_robust_value() -> None:
     does not use a model and answers with both."""
     a = {"logged": [0.9], "target": [0.8], "reward": [1.0]}
     c = {"logged": [0.1], "target": [0.2], "reward": [3.0]}
-    for expected, believable in ((1.3, True), (40.0, False)):
+    for expected, believable in ((1.3, True), (40.0, False), (-40.0, False)):
         episodes = [e | {"q_hat": [expected], "v_hat": [expected]} for e in [a] * 180 + [c] * 20]
         steps = Steps.from_episodes(episodes, list(range(200)))
         assert estimate(steps, "wpdis").enough
@@ -643,8 +643,30 @@ def test_a_model_beyond_anything_logged_gets_no_doubly_robust_value() -> None:
             assert result.enough is believable, (estimator, expected)
             if not believable:
                 assert result.value is None
-                assert "own model expects 40.00 per encounter" in result.reason
+                assert f"own model expects {expected:.2f} per encounter" in result.reason
                 assert "(0.00 to 3.00)" in result.reason
+    # A first step forced on every learner (the person spoke first: logged = target = 1, no
+    # model value) is not the model's expectation: the optimist is still refused.
+    forced = {"logged": [1.0], "target": [1.0], "reward": [0.0], "q_hat": [0.0], "v_hat": [0.0]}
+    episodes = [
+        {k: forced[k] + e[k] for k in forced}
+        for e in [a | {"q_hat": [40.0], "v_hat": [40.0]}] * 180
+        + [c | {"q_hat": [40.0], "v_hat": [40.0]}] * 20
+    ]
+    steps = Steps.from_episodes(episodes, list(range(200)))
+    assert "own model expects 40.00" in estimate(steps, "wdr").reason
+
+
+def test_wdr_has_the_dr_bound_for_its_bernstein_interval() -> None:
+    steps = steps_of(simulate(4, 1, 20, 15), 0, NEAR, average_model(NEAR))
+    found = estimate(steps, "wdr", interval="bernstein", reward_range=(-3.0, 6.0))
+    dr = estimate(steps, "dr", interval="bernstein", reward_range=(-3.0, 6.0))
+    assert found.interval is not None
+    assert dr.interval is not None
+    assert found.value is not None
+    assert found.interval.method == "bernstein-dr"
+    assert dr.interval.method == "bernstein"
+    assert found.interval.low <= found.value <= found.interval.high
 
 
 def test_the_interval_reaches_over_what_the_logs_do_not_show() -> None:

@@ -105,6 +105,27 @@ def test_distributions_are_what_select_action_draws_from(algorithm: str) -> None
         learner.action_values(0, gamma=1.5)
 
 
+@pytest.mark.parametrize("algorithm", ["hri", "dts", "dts-routine", "qlearning", "rmax"])
+def test_undiscounted_model_values_follow_what_the_learner_learns(algorithm: str) -> None:
+    # Asked before and after each decision is learned, as a replay asks: the undiscounted values
+    # must be the learner's of the moment, never those of the first time they were asked.
+    persons, flips = _fleet("home", 5, 1, 40)
+    log = _logs(algorithm, {}, persons, flips, 5)[0]
+    learner = make_learner(algorithm, {}, MISSION)
+    changed = 0
+    for d in log.decisions:
+        context = d.transitions[0].context
+        before = learner.action_values(context, gamma=1.0)
+        learner.update(list(d.transitions))
+        after = learner.action_values(context, gamma=1.0)
+        fresh = make_learner(algorithm, {}, MISSION)
+        fresh.__dict__.update(learner.__dict__)  # the same tables, nothing cached
+        fresh._cache = {}
+        assert np.array_equal(after, fresh.action_values(context, gamma=1.0))
+        changed += not np.array_equal(before, after)
+    assert changed > 0
+
+
 @pytest.mark.parametrize("algorithm", ["hri", "dts"])
 def test_undiscounted_model_values_are_in_the_unit_of_a_return(algorithm: str) -> None:
     # What an episode returns is the plain sum of its rewards; the learners plan with a
