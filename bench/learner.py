@@ -70,18 +70,7 @@ def time_decision_update(learner, profile, reps: int) -> float:  # type: ignore[
         learner._cache.clear()  # cold: plan from the tables, as after a fresh load
         decision = learner.select_action(Observation(context, space.OBSERVE, episode), rng)
         reaction = respond(space, profile, context, decision.state, decision.action, uniforms[i])
-        batch = decision.chain_transitions(episode)
-        batch.append(
-            Transition(
-                episode,
-                context,
-                decision.state,
-                decision.action,
-                reaction.reward,
-                reaction.next_state,
-                reaction.signal,
-            )
-        )
+        batch = decision.transitions(episode, reaction.reward, reaction.next_state, reaction.signal)
         learner.update(batch)
         samples.append((time.perf_counter_ns() - start) / 1e6)
         if reaction.next_state != space.END:  # finish the episode outside the timed region

@@ -26,7 +26,7 @@ from .learners.base import TabularLearner
 from .mission import Mission
 from .negotiation import INTERACTION_CODE, Tally
 from .simulation import STEP_COLUMNS, UserProfile, drift, event_stream, random_profile, respond
-from .types import Observation, Transition
+from .types import Observation
 
 __all__ = [
     "ABLATION_METHODS",
@@ -153,7 +153,6 @@ def run_user(
             # Visible steps happen in OBSERVE, ENGAGED, TYPE_KNOWN and DETAIL_KNOWN at most.
             assert 2 * step + 2 <= uniforms.shape[1], "an episode longer than a negotiation"
             decision = learner.select_action(Observation(context, state, episode), rng)
-            batch = decision.chain_transitions(episode)
             reaction = respond(
                 space,
                 profile,
@@ -162,16 +161,8 @@ def run_user(
                 decision.action,
                 uniforms[e, 2 * step : 2 * step + 2],
             )
-            batch.append(
-                Transition(
-                    episode,
-                    context,
-                    decision.state,
-                    decision.action,
-                    reaction.reward,
-                    reaction.next_state,
-                    reaction.signal,
-                )
+            batch = decision.transitions(
+                episode, reaction.reward, reaction.next_state, reaction.signal
             )
             learner.update(batch)
             for t in batch:

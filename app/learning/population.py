@@ -309,20 +309,9 @@ def serve_event(
     while state != space.END:
         assert STEP_UNIFORMS * (step + 1) <= uniforms.shape[1], "too long an episode"
         decision = learner.select_action(Observation(context, state, episode), rng)
-        batch = decision.chain_transitions(episode)
         cols = uniforms[e, STEP_UNIFORMS * step : STEP_UNIFORMS * (step + 1)]
         reaction, _ = person.respond(space, e, decision.state, decision.action, cols)
-        batch.append(
-            Transition(
-                episode,
-                context,
-                decision.state,
-                decision.action,
-                reaction.reward,
-                reaction.next_state,
-                reaction.signal,
-            )
-        )
+        batch = decision.transitions(episode, reaction.reward, reaction.next_state, reaction.signal)
         learner.update(batch)
         if on_batch is not None:
             on_batch(batch, decision)

@@ -113,6 +113,16 @@ class Decision:
             for step in self.chain
         ]
 
+    def transitions(
+        self, episode: int, reward: float, next_state: int, signal: Polarity = Polarity.NEUTRAL
+    ) -> list[Transition]:
+        """The silent steps and then the visible one, with what followed it (the person's
+        reward, the next state and the signal), to hand to ``Learner.update``."""
+        visible = Transition(
+            episode, self.context, self.state, self.action, reward, next_state, signal
+        )
+        return [*self.chain_transitions(episode), visible]
+
 
 @dataclass(frozen=True, slots=True)
 class ContextView:

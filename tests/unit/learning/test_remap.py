@@ -133,7 +133,6 @@ def _simulate(
         state, step = space.OBSERVE, 0
         while state != space.END:
             decision = learner.select_action(Observation(context, state, episode), rng)
-            batch = decision.chain_transitions(episode)
             reaction = respond(
                 space,
                 profile,
@@ -142,16 +141,8 @@ def _simulate(
                 decision.action,
                 uniforms[e, 2 * step : 2 * step + 2],
             )
-            batch.append(
-                Transition(
-                    episode,
-                    context,
-                    decision.state,
-                    decision.action,
-                    reaction.reward,
-                    reaction.next_state,
-                    reaction.signal,
-                )
+            batch = decision.transitions(
+                episode, reaction.reward, reaction.next_state, reaction.signal
             )
             learner.update(batch)
             if (
