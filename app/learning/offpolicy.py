@@ -207,6 +207,7 @@ __all__ = [
     "ESTIMATORS",
     "INTERVALS",
     "MIN_CLUSTERS",
+    "MODEL_ESTIMATORS",
     "UNSUPPORTED_LIMIT",
     "WEIGHT_TOLERANCE",
     "Estimate",
@@ -235,6 +236,8 @@ DEFAULT_MIN_ESS = 10.0
 MIN_CLUSTERS = 5
 WEIGHT_TOLERANCE = 0.25
 UNSUPPORTED_LIMIT = 0.1
+# Estimators that use the candidate's model (``q_hat``, ``v_hat``): ask the replay for it.
+MODEL_ESTIMATORS = frozenset(("dr", "wdr"))
 # Estimators whose value is a ratio over episodes (no per-episode values).
 _SELF_NORMALISED = frozenset(("wpdis", "wdr"))
 
@@ -880,7 +883,7 @@ def _implausible(steps: Steps, estimator: str) -> str:
     logged episodes' first steps, expects a return outside the range of those the logs show
     (0 included): its values are beliefs (R-MAX's, for what it has not tried, its optimistic
     bound), and an estimate leaning on them would be no better."""
-    if estimator not in ("dr", "wdr") or steps.n_episodes == 0:
+    if estimator not in MODEL_ESTIMATORS or steps.n_episodes == 0:
         return ""
     # Each episode's first step the candidate decides: a step forced on every learner (the
     # person chose it) carries logged = target = 1 and no model value, and would pull the mean
@@ -994,7 +997,7 @@ def estimate(
             method = "bootstrap" if by_person else "bootstrap-episodes"
         else:
             assert reward_range is not None
-            kind = "dr" if estimator in ("dr", "wdr") else "pdis"
+            kind = "dr" if estimator in MODEL_ESTIMATORS else "pdis"
             lowest, highest = _value_bounds(steps, kind, clip, reward_range)
             values = _episode_values(steps, kind, weighted)
             low, high = _bernstein(values, highest - lowest, confidence)

@@ -90,6 +90,7 @@ from app.learning.offpolicy import (
     DEFAULT_ESTIMATOR,
     ESTIMATORS,
     MIN_CLUSTERS,
+    MODEL_ESTIMATORS,
     Estimate,
     Steps,
     estimate,
@@ -1317,7 +1318,7 @@ def evaluate_fleet(
                             )
                 replays = (
                     [
-                        _replay(fleet, history, spec, model=estimator in ("dr", "wdr"))
+                        _replay(fleet, history, spec, model=estimator in MODEL_ESTIMATORS)
                         for spec in theirs
                     ]
                     if history.lengths
