@@ -163,6 +163,9 @@ class NegotiationSpace:
             self.succ[p, : len(row)] = row
             self.succ_mask[p, : len(row)] = True
         self.end_column: IntArray = np.asarray([len(row) - 1 for row in succ], dtype=np.int64)
+        # The transition of a pair that ends the episode: all its mass on END's column.
+        self.to_end: FloatArray = np.zeros((P, M), dtype=np.float64)
+        self.to_end[np.arange(P), self.end_column] = 1.0
         self.silent = np.asarray([a.silent for a in actions], dtype=bool)
         self.silent_next: IntArray = np.asarray(silent_next, dtype=np.int64)
         self.silent_reward: FloatArray = np.asarray(
@@ -179,6 +182,11 @@ class NegotiationSpace:
             [mission.context_names(c)[1] in quiet for c in range(self.n_contexts)], dtype=bool
         )
         self._succ_column = [{int(s): j for j, s in enumerate(row)} for row in succ]
+        # actions_of is asked at every step of every decision: its ranges, built once.
+        self._ranges = tuple(
+            range(int(a), int(a) + int(n))
+            for a, n in zip(self.state_start, self.state_count, strict=True)
+        )
         self._detail_state = detail_state
         self._service_index = {s.name: k for k, s in enumerate(services)}
         self._action_index = {a: p for p, a in enumerate(actions)}
@@ -189,6 +197,7 @@ class NegotiationSpace:
             self.succ,
             self.succ_mask,
             self.end_column,
+            self.to_end,
             self.silent,
             self.silent_next,
             self.silent_reward,
@@ -200,8 +209,7 @@ class NegotiationSpace:
     # -- lookups -------------------------------------------------------------------------------
     def actions_of(self, state: int) -> range:
         """The pair indices available in ``state`` (contiguous)."""
-        start = int(self.state_start[state])
-        return range(start, start + int(self.state_count[state]))
+        return self._ranges[state]
 
     def successor_column(self, action: int, next_state: int) -> int:
         """Column of ``next_state`` in ``succ[action]``; ``ValueError`` if it cannot follow."""
@@ -211,6 +219,10 @@ class NegotiationSpace:
             raise ValueError(
                 f"{self.state_name(next_state)} cannot follow {self.action_name(action)}"
             ) from None
+
+    def can_follow(self, action: int, next_state: int) -> bool:
+        """Whether ``next_state`` can follow ``action`` (:meth:`successor_column` would answer)."""
+        return next_state in self._succ_column[action]
 
     def request_state(self, service: str) -> int:
         return 1 + self._service_index[service]

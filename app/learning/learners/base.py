@@ -224,6 +224,8 @@ class TabularLearner(Generic[P]):
     def learns_as(self, params: Params) -> bool:
         """Whether a learner of this algorithm with ``params`` learns exactly what this one
         learns from the same transitions: it differs at most in :attr:`POLICY_PARAMS`."""
+        if params is self._params:
+            return True
         if type(params) is not type(self._params):
             return False
         return all(
@@ -284,13 +286,15 @@ class TabularLearner(Generic[P]):
         self.changes = ()
         if not transitions:
             return
-        root = list(self.space.root_actions)
+        root = self.space.root_actions
+        visits, last = self.visits, self.last
         for tr in transitions:
             c, a = tr.context, tr.action
-            self.episodes = max(self.episodes, tr.episode)
-            self.visits[c, a] += 1
-            self.last[c, a] = max(int(self.last[c, a]), tr.episode)
-            self.last_ctx[c, a] = self.visits[c, root].sum()
+            self.episodes = max(self.episodes, int(tr.episode))  # a plain int, for the state
+            visits[c, a] += 1
+            if last[c, a] < tr.episode:
+                last[c, a] = tr.episode
+            self.last_ctx[c, a] = sum(int(visits[c, r]) for r in root)
             self._observe(tr)
             if self.guidance:
                 self.guidance.observe(self.space, tr)
@@ -385,8 +389,26 @@ class TabularLearner(Generic[P]):
         _check_index("episode", obs.episode, 1, self.MAX_EPISODE)
 
     def _check_transition(self, tr: Transition) -> None:
-        self._check_observation(Observation(tr.context, tr.state, tr.episode))
         space = self.space
+        context, state, episode, action = tr.context, tr.state, tr.episode, tr.action
+        if (  # the common case, first: whole numbers in range, a real action of the state
+            type(context) is int
+            and type(state) is int
+            and type(episode) is int
+            and type(action) is int
+            and type(tr.next_state) is int
+            and 0 <= context < space.n_contexts
+            and 0 <= state < space.n_states
+            and 1 <= episode < self.MAX_EPISODE
+            and action in space.actions_of(state)
+            and space.can_follow(action, tr.next_state)
+            and type(tr.reward) is float
+            and math.isfinite(tr.reward)
+            and type(tr.signal) in (Polarity, int)  # not a bool
+            and tr.signal in (0, 1, 2)
+        ):
+            return
+        self._check_observation(Observation(context, state, episode))
         _check_index("action", tr.action, 0, space.n_actions)
         if tr.action not in space.actions_of(tr.state):
             raise ValueError(

@@ -93,8 +93,7 @@ class DtsLearner(TabularLearner[DtsParams]):
         self._perform_pairs = np.flatnonzero(
             np.asarray([a.kind is ActionKind.PERFORM for a in space.actions], dtype=bool)
         )
-        self._to_end = np.zeros((space.n_actions, space.max_succ), dtype=np.float64)
-        self._to_end[np.arange(space.n_actions), space.end_column] = 1.0
+        self._to_end = space.to_end
         # The pairs a change restarts: every learned pair but the context's offers (root pairs):
         # a person whose wish changed still wants service there.
         self._restartable = np.ones(space.n_actions, dtype=bool)
@@ -382,7 +381,7 @@ class DtsLearner(TabularLearner[DtsParams]):
             max_sweeps=self._params.vi_max_sweeps,
             level=level,
         )
-        return q.clip(-v_max, v_max, out=q)
+        return np.minimum(np.maximum(q, -v_max, out=q), v_max, out=q)
 
     def _plan(self, context: int, episode: int, rng: np.random.Generator | None) -> _Models:
         """The ``samples`` models of one decision, drawn from the posterior now (``_models``

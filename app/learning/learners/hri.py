@@ -25,6 +25,10 @@ from .base import TabularLearner, check_nonnegative
 __all__ = ["HriLearner"]
 
 _LOG_CAP = float(np.log(1e6))
+# The polarities a pair's reference keeps, by reference (none, +, -): the neutral samples and
+# those of the reference's polarity; with no reference, every sample.
+_KEEP = np.array([[1.0, 1.0, 1.0], [1.0, 1.0, 0.0], [1.0, 0.0, 1.0]])
+_KEEP.setflags(write=False)
 
 
 class HriLearner(TabularLearner[HriParams]):
@@ -120,9 +124,7 @@ class HriLearner(TabularLearner[HriParams]):
 
     def _filtered(self, context: int) -> tuple[FloatArray, FloatArray, FloatArray]:
         """n'(s,a), r'(s,a), n'(s,a,s') of one context: (P,), (P,), (P, M)."""
-        rho = self.rho[context].astype(np.int64)
-        pol = np.arange(3)
-        keep = (rho[:, None] == 0) | (pol[None, :] == 0) | (pol[None, :] == rho[:, None])
+        keep = _KEEP[self.rho[context]]
         ns = np.einsum("pkm,pk->pm", self.ns[context], keep)
         rs = np.einsum("pk,pk->p", self.rs[context], keep)
         return ns.sum(axis=1), rs, ns
@@ -133,9 +135,7 @@ class HriLearner(TabularLearner[HriParams]):
         known = n >= prm.m_h
         safe = np.where(known, n, 1.0)
         reward = np.where(known, r / safe, 0.0)
-        unknown_t = np.zeros_like(ns)
-        unknown_t[np.arange(space.n_actions), space.end_column] = 1.0
-        trans = np.where(known[:, None], ns / safe[:, None], unknown_t)
+        trans = np.where(known[:, None], ns / safe[:, None], space.to_end)
         fixed = None
         if prm.unknown == "vmax_if_never_tried":
             fixed = self.visits[context] == 0
@@ -149,7 +149,7 @@ class HriLearner(TabularLearner[HriParams]):
             fixed=fixed,
             fixed_value=mission.v_max,
         )
-        out: FloatArray = np.clip(q, -mission.v_max, mission.v_max)
+        out: FloatArray = np.minimum(np.maximum(q, -mission.v_max, out=q), mission.v_max, out=q)
         return out
 
     def _tau(self, context: int) -> float:
@@ -168,10 +168,11 @@ class HriLearner(TabularLearner[HriParams]):
         qs = q[sl] / self.mission.v_max if self._params.pref_scale == "vmax" else q[sl]
         if not self._params.measure:
             return qs, np.zeros_like(qs)
-        dq = qs - qs.mean()
+        dq = qs - qs.sum() / qs.shape[0]  # the mean, without np.mean's overhead
         t_eff = np.maximum(self.since_last(context, episode)[sl], 1)
         log_t = np.log(t_eff.astype(np.float64))
-        return qs, np.exp(np.clip(dq * log_t, -30.0, _LOG_CAP))
+        x = dq * log_t
+        return qs, np.exp(np.minimum(np.maximum(x, -30.0, out=x), _LOG_CAP, out=x), out=x)
 
     def _policy(self, plan: Any, context: int, state: int, episode: int) -> FloatArray:
         qs, m = self._pref_parts(plan, context, state, episode)

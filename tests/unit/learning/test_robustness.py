@@ -84,6 +84,15 @@ class TestBadInput:
             (Transition(1, 0, OBS, 7, 1.0, ENGAGED), "not available"),
             (Transition(1, 0, OBS, 1.0, 1.0, ENGAGED), "action must be a whole number"),  # type: ignore[arg-type]
             (Transition(1, 0, OBS, INITIATE, 1.0, 99), "next_state must be in"),
+            # Each a whole number of the right range but one field: what a fast path must
+            # not let through.
+            (Transition(1, 0, OBS, INITIATE, 1.0, ENGAGED, True), "signal"),  # type: ignore[arg-type]
+            (Transition(True, 0, OBS, INITIATE, 1.0, ENGAGED), "episode must be a whole number"),
+            (Transition(1, 0, OBS, INITIATE, float("inf"), ENGAGED), "finite"),
+            (Transition(1, 0, OBS, INITIATE, True, ENGAGED), "reward must be a number"),
+            (Transition(1, 10**6, OBS, INITIATE, 1.0, ENGAGED), "context must be in"),
+            (Transition(1, 0, OBS, INITIATE, 1.0, OBS), "cannot follow"),
+            (Transition(1, 0, END, INITIATE, 1.0, ENGAGED), "state must be in"),
         ],
     )
     def test_update_is_atomic(self, algorithm: str, bad: Transition, words: str) -> None:
@@ -94,6 +103,18 @@ class TestBadInput:
         with pytest.raises(ValueError, match=words):
             learner.update([good, bad])
         assert snapshot(learner) == before
+
+    @pytest.mark.parametrize("algorithm", ALGORITHMS)
+    def test_numpy_numbers_learn_as_python_numbers(self, algorithm: str) -> None:
+        """A transition of numpy scalars (as read from arrays) is checked the long way and
+        learned exactly as the same transition of plain ints and floats."""
+        plain, wide = make_learner(algorithm, None, MISSION), make_learner(algorithm, None, MISSION)
+        i = np.int64
+        plain.update([Transition(1, 0, OBS, INITIATE, 1.0, ENGAGED, Polarity.POSITIVE)])
+        wide.update(
+            [Transition(i(1), i(0), i(OBS), i(INITIATE), np.float64(1.0), i(ENGAGED), i(1))]  # type: ignore[arg-type]
+        )
+        assert snapshot(wide) == snapshot(plain)
 
     def test_empty_update_changes_nothing(self) -> None:
         learner = make_learner("hri", None, MISSION)
