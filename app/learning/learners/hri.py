@@ -63,9 +63,11 @@ class HriLearner(TabularLearner[HriParams]):
             self._cache.pop(tr.context, None)  # which pairs are pinned depends on the visits
 
     def _set_rho(self, c: int, actions: list[int], polarity: Polarity, episode: int) -> None:
-        newer = [a for a in actions if episode >= self.rho_episode[c, a]]
-        self.rho[c, newer] = polarity
-        self.rho_episode[c, newer] = episode
+        rho, rho_episode = self.rho, self.rho_episode
+        for a in actions:
+            if episode >= rho_episode[c, a]:
+                rho[c, a] = polarity
+                rho_episode[c, a] = episode
 
     def _close(self, rows: list[Transition]) -> None:
         space, prm = self.space, self._params
