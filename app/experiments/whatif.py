@@ -449,48 +449,82 @@ def _approximation_lines(summary: Mapping[str, Any]) -> list[str]:
 def _ranking(
     results: Sequence[TrialResult], logger: Method, candidates: Sequence[Method], k: int
 ) -> dict[str, Any]:
-    """Per estimator, at ``k`` episodes: every pair of arms (the logging learner, read from its
-    logs, and each candidate) whose *expected* values differ by at least RANK_GAP (the mean over
-    the trials of their true values' difference: one trial's truths carry the noise of a few
-    runs), and the share of trials whose estimates put the pair in that order. A trial where an
-    arm had not enough evidence does not order the pair: it is counted apart (``silent``)."""
+    """Per estimator, at ``k`` episodes, how often the estimates order two arms (the logging
+    learner, read from its logs, and each candidate) as they are in expectation, where they
+    are RANK_GAP or more apart.
+
+    "Apart" is judged per family of people: an arm may serve one kind of people better and
+    another worse (DTS and HRI swap places for people who refuse), so a fleet is ranked against
+    its own family's expectation (the mean over the family's trials of the two arms' true
+    values; one trial's truths carry the noise of a few runs), not against the mean over
+    families it does not belong to. Two arms are apart in a family when that mean differs by
+    RANK_GAP or more and by twice its standard error or more (the family's trials show the
+    order; with one trial, its truths alone). A pair gives a row per direction: the families
+    where one arm is better so, the share of their trials whose estimates put the pair in that
+    order (``ordered``; a trial where an arm had not enough evidence does not order the pair: it
+    is counted apart, ``silent``), the share whose own truths do (``truth``, ties a half), and
+    the same per family (``families``)."""
     arms = [logger.label, *(m.label for m in candidates)]
     out: dict[str, Any] = {"episodes": k, "gap": RANK_GAP, "pairs": []}
+    by_family: dict[str, list[TrialResult]] = {}
+    for r in results:
+        by_family.setdefault(r.family, []).append(r)
+    out["families"] = list(by_family)
 
     def value(r: TrialResult, label: str, estimator: str) -> float | None:
         kind = "logged" if label == logger.label else estimator
         f = _flat(r.found[found_key(label, kind, "bootstrap")][k])
         return float(f["value"]) if f["enough"] and f["value"] is not None else None
 
-    for i, a in enumerate(arms):
-        for b in arms[i + 1 :]:
-            gap = float(np.mean([r.truth[a][k] - r.truth[b][k] for r in results]))
-            if abs(gap) < RANK_GAP:
-                continue
-            better, worse = (a, b) if gap > 0 else (b, a)
-            row: dict[str, Any] = {"better": better, "worse": worse, "gap": rounded(abs(gap))}
-            # How often the fleets' own truths (over every trial) put the pair in that order:
-            # what one fleet can show at best, where fleets differ (a tie counts as a half).
-            sign = [np.sign(r.truth[better][k] - r.truth[worse][k]) for r in results]
-            row["truth"] = {
-                "trials": len(results),
+    def shares(trials: Sequence[TrialResult], better: str, worse: str) -> dict[str, Any]:
+        sign = [np.sign(r.truth[better][k] - r.truth[worse][k]) for r in trials]
+        row: dict[str, Any] = {
+            "truth": {
+                "trials": len(trials),
                 "ordered": rounded(float(np.mean([(x + 1) / 2 for x in sign]))),
             }
-            for estimator in ESTIMATORS:
-                right = silent = 0
-                for r in results:
-                    vb, vw = value(r, better, estimator), value(r, worse, estimator)
-                    if vb is None or vw is None:
-                        silent += 1
-                    else:
-                        right += vb > vw
-                answered = len(results) - silent
-                row[estimator] = {
-                    "trials": answered,
-                    "silent": silent,
-                    "ordered": rounded(right / answered) if answered else None,
-                }
-            out["pairs"].append(row)
+        }
+        for estimator in ESTIMATORS:
+            right = silent = 0
+            for r in trials:
+                vb, vw = value(r, better, estimator), value(r, worse, estimator)
+                if vb is None or vw is None:
+                    silent += 1
+                else:
+                    right += vb > vw
+            answered = len(trials) - silent
+            row[estimator] = {
+                "trials": answered,
+                "silent": silent,
+                "ordered": rounded(right / answered) if answered else None,
+            }
+        return row
+
+    for i, a in enumerate(arms):
+        for b in arms[i + 1 :]:
+            ways: dict[tuple[str, str], list[tuple[str, float]]] = {}
+            for family, trials in by_family.items():
+                gaps = np.asarray([r.truth[a][k] - r.truth[b][k] for r in trials])
+                gap = float(gaps.mean())
+                # apart by RANK_GAP, and by twice the standard error of the family's mean gap
+                # (a few fleets of near twins can be RANK_GAP apart by the truths' noise alone)
+                se = float(gaps.std(ddof=1) / np.sqrt(len(gaps))) if len(gaps) > 1 else 0.0
+                if abs(gap) >= max(RANK_GAP, 2 * se):
+                    ways.setdefault((a, b) if gap > 0 else (b, a), []).append((family, gap))
+            for (better, worse), families in ways.items():
+                trials = [r for family, _ in families for r in by_family[family]]
+                gap = float(np.mean([r.truth[better][k] - r.truth[worse][k] for r in trials]))
+                row: dict[str, Any] = {"better": better, "worse": worse, "gap": rounded(gap)}
+                row.update(shares(trials, better, worse))
+                row["families"] = [
+                    {
+                        "family": family,
+                        "gap": rounded(abs(g)),
+                        **shares(by_family[family], better, worse),
+                    }
+                    for family, g in families
+                ]
+                out["pairs"].append(row)
     return out
 
 
@@ -531,7 +565,8 @@ def check_targets(summary: Mapping[str, Any]) -> list[dict[str, Any]]:
         out.append(
             {
                 "target": f"ranked right ≥ {RANK_TARGET:.0%}: {pair['worse']} below "
-                f"{pair['better']} (worse by {pair['gap']:.2f}) at "
+                f"{pair['better']} (worse by {pair['gap']:.2f}"
+                f"{_families_words(summary, pair)}) at "
                 f"{summary['ranking']['episodes']} episodes ({cell['trials']} trials, "
                 f"{cell['silent']} with not enough evidence)",
                 "value": value,
@@ -539,6 +574,14 @@ def check_targets(summary: Mapping[str, Any]) -> list[dict[str, Any]]:
             }
         )
     return out
+
+
+def _families_words(summary: Mapping[str, Any], pair: Mapping[str, Any]) -> str:
+    """Where a ranked pair holds: "" in every family of the run, else the families named."""
+    names = [f["family"] for f in pair.get("families", ())]
+    if not names or set(names) == set(summary["ranking"].get("families", ())):
+        return ""
+    return ", for " + ", ".join(names)
 
 
 # -- words, tables, files ----------------------------------------------------------------------
@@ -601,7 +644,7 @@ def verdict_lines(summary: Mapping[str, Any]) -> list[str]:
     ]
     for pair in summary["ranking"]["pairs"]:
         lines.append(
-            f"{pair['worse']} below {pair['better']}: "
+            f"{pair['worse']} below {pair['better']}{_families_words(summary, pair)}: "
             + ", ".join(
                 f"{estimator} {_pct(pair[estimator]['ordered'])} of {pair[estimator]['trials']}"
                 for estimator in ESTIMATORS
@@ -616,6 +659,28 @@ def verdict_lines(summary: Mapping[str, Any]) -> list[str]:
     if not summary["ranking"]["pairs"]:
         lines.append(f"no two arms' expected values differ by {RANK_GAP} or more: no ranking")
     return lines
+
+
+def _family_header() -> tuple[str, ...]:
+    return ("family", "worse", "better", "gap", "truths", *ESTIMATORS)
+
+
+def _family_rows(summary: Mapping[str, Any]) -> list[list[str]]:
+    return [
+        [
+            f["family"],
+            pair["worse"],
+            pair["better"],
+            _num(f["gap"]),
+            f"{_pct(f['truth']['ordered'])} of {f['truth']['trials']}",
+            *(
+                f"{_pct(f[estimator]['ordered'])} of {f[estimator]['trials']}"
+                for estimator in ESTIMATORS
+            ),
+        ]
+        for pair in summary["ranking"]["pairs"]
+        for f in pair.get("families", ())
+    ]
 
 
 def markdown(summary: Mapping[str, Any]) -> str:
@@ -633,6 +698,19 @@ def markdown(summary: Mapping[str, Any]) -> str:
         "",
         *report.verdict_section("Targets", verdict_lines(summary)),
     ]
+    by_family = _family_rows(summary)
+    if by_family:
+        parts += [
+            "",
+            "## Ranking by family",
+            "",
+            f"At {summary['ranking']['episodes']} episodes, per family of people: the pairs "
+            f"{RANK_GAP} or more apart in that family's expectation, how far apart, how often "
+            "the family's fleets' own truths order them so, and how often each estimator does "
+            "(of the fleets it gave both values).",
+            "",
+            report.markdown_table(_family_header(), by_family, left=3),
+        ]
     approximation = _approximation_lines(summary)
     if approximation:
         parts += ["", "## The replay's approximation", "", approximation[0], ""]

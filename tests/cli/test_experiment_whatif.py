@@ -121,16 +121,27 @@ def test_prints_the_targets_met_or_missed(study: tuple[Result, Path, dict[str, A
     assert "Elapsed:" in done.stdout
     assert "not the default run" in done.stdout
     assert summary["ranking"]["episodes"] == max(SIZES)
+    # one trial of each of 3 families: a pair is ranked in the families whose truths put
+    # its arms 0.1 apart, each family once
+    assert summary["ranking"]["families"] == ["individual", "home", "abrupt"]
     for pair in summary["ranking"]["pairs"]:
         assert pair["gap"] >= 0.1
+        families = pair["families"]
+        assert families
+        assert len({f["family"] for f in families}) == len(families)
+        n = sum(f["truth"]["trials"] for f in families)
+        assert n == len(families)
+        for f in families:
+            assert f["gap"] >= 0.1
+            assert f["truth"]["ordered"] == 1.0  # its own truths put it so, with one trial
         for estimator in ESTIMATORS:
-            assert pair[estimator]["trials"] + pair[estimator]["silent"] == 3
-        # what the fleets' own truths show: a share of the 3 trials, ties counting a half
-        assert pair["truth"]["trials"] == 3
-        sixths = pair["truth"]["ordered"] * 6
-        assert 0 <= sixths <= 6
-        assert sixths == pytest.approx(round(sixths), abs=1e-3)
-        assert f"the fleets' own truths {pair['truth']['ordered']:.0%} of 3" in done.stdout
+            assert pair[estimator]["trials"] + pair[estimator]["silent"] == n
+            assert sum(f[estimator]["trials"] for f in families) == pair[estimator]["trials"]
+        assert pair["truth"] == {"trials": n, "ordered": 1.0}
+        assert f"the fleets' own truths 100% of {n}" in done.stdout
+    # per family, in the report
+    if summary["ranking"]["pairs"]:
+        assert "## Ranking by family" in (out / "whatif.md").read_text(encoding="utf-8")
 
 
 @pytest.mark.slow
