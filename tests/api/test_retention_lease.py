@@ -134,10 +134,11 @@ class TestLease:
             assert _row(db).expires_at == s(60)
             now[0] = s(45)
             deadline = time.monotonic() + 30
-            while _row(db).expires_at != s(105):  # the renewer's next turn moves it
+            # The renewer's next turn moves the row, then (after its commit) the lease it holds:
+            # wait for both, or a read between the two sees the row moved and the lease not yet.
+            while _row(db).expires_at != s(105) or lease.expires_at != s(105):
                 assert time.monotonic() < deadline, "the lease was never renewed"
                 time.sleep(0.01)
-            assert lease.expires_at == s(105)
             now[0] = s(50)
         assert _row(db).expires_at == s(50)  # let go: free from then on
         leases.take(db, LEASE, now=s(50), ttl=TTL)
