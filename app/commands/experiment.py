@@ -878,11 +878,13 @@ def newcomers(
     "setting (episodes per fleet), candidate and estimator, the coverage of the intervals, "
     "bias, RMSE, width, effective sample size and the candidate's mass on actions the logger "
     "never takes; at the largest setting, how often two arms whose truths differ by 0.1 or more "
-    "are ranked right (and how often the fleets' own truths order them so); the targets "
+    "in a family of people are ranked right in that family's fleets (and how often the fleets' "
+    "own truths order them so), in all and per family; the targets "
     "(coverage at least 93% for the default estimator; ranking at least 90%), met or missed."
     "\n\n"
-    "Writes into --out: whatif.md (the table and the targets), whatif.csv (one row per setting, "
-    "arm, estimator and interval), whatif.png (coverage and RMSE per setting) and summary.json "
+    "Writes into --out: whatif.md (the table, the targets and the ranking by family), "
+    "whatif.csv (one row per setting, arm, estimator and interval), whatif.png (coverage and "
+    "RMSE per setting) and summary.json "
     "(every number). Prints the elapsed time; the default run's target is 5 minutes on 2 CPUs.",
 )
 def what_if(

@@ -661,8 +661,7 @@ def verdict_lines(summary: Mapping[str, Any]) -> list[str]:
     return lines
 
 
-def _family_header() -> tuple[str, ...]:
-    return ("family", "worse", "better", "gap", "truths", *ESTIMATORS)
+FAMILY_HEADER = ("family", "worse", "better", "gap", "truths", *ESTIMATORS)
 
 
 def _family_rows(summary: Mapping[str, Any]) -> list[list[str]]:
@@ -709,7 +708,7 @@ def markdown(summary: Mapping[str, Any]) -> str:
             "the family's fleets' own truths order them so, and how often each estimator does "
             "(of the fleets it gave both values).",
             "",
-            report.markdown_table(_family_header(), by_family, left=3),
+            report.markdown_table(FAMILY_HEADER, by_family, left=3),
         ]
     approximation = _approximation_lines(summary)
     if approximation:
